@@ -1,0 +1,1 @@
+"""The ``stiction`` command (Typer app). No numerics here: parse, call, render."""

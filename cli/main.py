@@ -1,0 +1,19 @@
+"""Assembles the ``stiction`` command from one module per sub-command."""
+
+from __future__ import annotations
+
+import typer
+
+app = typer.Typer(
+    name="stiction",
+    help="Diagnose control-valve stiction from plant data (Choudhury, Thornhill & Shah 2005).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+# Sub-commands register themselves on import: one file per command.
+from . import _commands  # noqa: E402,F401
+
+if __name__ == "__main__":  # pragma: no cover
+    app()

@@ -1,0 +1,31 @@
+"""stictiondiag: diagnose control-valve stiction from plant data.
+
+The science is Choudhury, Thornhill & Shah (2005), "Modelling valve stiction",
+Control Engineering Practice 13, 641-658.
+"""
+
+from .errors import DataError, StictionError, UsageError
+from .valve import (
+    STICTION_MODEL_PARAMETERS,
+    choudhury_model,
+    ewma,
+    kano_model,
+    ma_to_percent,
+    percent_to_ma,
+    valve_characteristic,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "DataError",
+    "StictionError",
+    "UsageError",
+    "STICTION_MODEL_PARAMETERS",
+    "choudhury_model",
+    "kano_model",
+    "ewma",
+    "ma_to_percent",
+    "percent_to_ma",
+    "valve_characteristic",
+]

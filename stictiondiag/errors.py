@@ -1,0 +1,41 @@
+"""Exceptions and the documented exit codes of the ``stiction`` command.
+
+Every error a user can cause carries a one-line message that says what is wrong and
+how to fix it. The CLI maps each exception class to one exit code; nothing else in
+the library knows about exit codes.
+
+Exit codes
+----------
+0  success
+1  a finding the user asked to fail on (``--fail-on-stiction``)
+2  usage error: bad option value, unknown loop or valve, impossible request
+3  unreadable or invalid data: missing file, unknown format, missing tag,
+   non-numeric, all-NaN or constant signals, too few samples
+4  partial failure: some loops of a scan or report could not be analysed
+"""
+
+from __future__ import annotations
+
+EXIT_OK = 0
+EXIT_FINDING = 1
+EXIT_USAGE = 2
+EXIT_DATA = 3
+EXIT_PARTIAL = 4
+
+
+class StictionError(Exception):
+    """Base of all errors the library raises on purpose (message is one line)."""
+
+    exit_code = EXIT_USAGE
+
+
+class UsageError(StictionError, ValueError):
+    """A parameter or option is out of range or inconsistent."""
+
+    exit_code = EXIT_USAGE
+
+
+class DataError(StictionError, ValueError):
+    """Input data cannot be read or does not support the requested analysis."""
+
+    exit_code = EXIT_DATA
