@@ -12,6 +12,24 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
+
+def _version(value: bool) -> None:
+    if value:
+        from stictiondiag import __version__
+
+        typer.echo(__version__)
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", help="Print the version and exit.", callback=_version, is_eager=True
+    ),
+) -> None:
+    """Diagnose control-valve stiction from plant data."""
+
+
 # Sub-commands register themselves on import: one file per command.
 from . import _commands  # noqa: E402,F401
 
