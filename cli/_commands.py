@@ -1,1 +1,2 @@
 """Imports every command module so each registers on :data:`cli.main.app`."""
+from . import analyze  # noqa: F401

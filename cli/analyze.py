@@ -1,0 +1,171 @@
+"""``stiction analyze FILE``: the stiction verdict, S and J, and the closed-loop replay."""
+
+from __future__ import annotations
+
+import json
+import sys
+from enum import Enum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from .common import friendly_errors, info
+from .main import app
+
+
+class LoopType(str, Enum):
+    flow = "flow"
+    pressure = "pressure"
+    level = "level"
+    temperature = "temperature"
+    composition = "composition"
+    other = "other"
+
+
+class OpUnits(str, Enum):
+    percent = "percent"
+    mA = "mA"
+
+
+def read_options(
+    pv: str | None,
+    op: str | None,
+    mv: str | None,
+    sp: str | None,
+    time: str | None,
+    ts: float | None,
+    op_units: OpUnits,
+    op_range: tuple[float, float] | None,
+    loop_type: LoopType,
+    integrating: bool | None,
+) -> dict:
+    """Keyword arguments for :func:`stictiondiag.tags.read_tags` from CLI options."""
+    return {
+        "pv": pv,
+        "op": op,
+        "mv": mv,
+        "sp": sp,
+        "time": time,
+        "ts": ts,
+        "op_units": op_units.value,
+        "op_range": op_range,
+        "loop_type": loop_type.value,
+        "integrating": integrating,
+    }
+
+
+def _fmt(x, spec=".2f", none="n/a") -> str:
+    return none if x is None else format(x, spec)
+
+
+def render_summary(d: dict) -> str:
+    """Readable terminal summary of an :meth:`Analysis.to_dict` result."""
+    st, tg = d["stiction"], d["tags"]
+    osc = d["oscillation"]["pv"]
+    lines = [
+        f"loop        {d['loop']}  ({tg['loop_type']}, {tg['n_samples']} samples at "
+        f"{tg['ts_s']:g} s, {'with' if tg['has_mv'] else 'no'} mv)",
+        f"verdict     {st.get('status', '?').upper().replace('_', ' ')}"
+        f"  (confidence {_fmt(st.get('confidence'), '.2f')})",
+    ]
+    si, ji = st.get("S_interval"), st.get("J_interval")
+    s_int = f" [{si[0]:.2f}, {si[1]:.2f}]" if si and None not in si else ""
+    j_int = f" [{ji[0]:.2f}, {ji[1]:.2f}]" if ji and None not in ji else ""
+    lines.append(
+        f"S           {_fmt(st.get('S'))}{s_int} % of op span  ({_fmt(st.get('S_scaled'))} scaled)"
+    )
+    lines.append(
+        f"J           {_fmt(st.get('J'))}{j_int} % of op span  ({_fmt(st.get('J_scaled'))} scaled)"
+    )
+    lines.append(f"method      {st.get('method')}")
+    lines.append(
+        "oscillation "
+        + (
+            f"period {_fmt(osc.get('period_s'), '.1f')} s, regularity {_fmt(osc.get('regularity'))}"
+            if osc.get("present")
+            else "none detected"
+        )
+    )
+    for r in st.get("reasons") or []:
+        lines.append(f"  - {r}")
+    rep = d.get("replay")
+    if rep:
+        fit = rep.get("fit") or {}
+        per = rep.get("period_s") or {}
+        lines.append(
+            f"replay      process {rep.get('process', {}).get('type')}, "
+            f"period data {_fmt(per.get('data'), '.1f')} s / replay {_fmt(per.get('replay'), '.1f')} s, "
+            "fit "
+            + ", ".join(f"{k} {_fmt(v, '.2f')}" for k, v in fit.items() if not isinstance(v, dict))
+        )
+    gap = d.get("gap")
+    if gap:
+        lines.append(
+            f"gap         {gap.get('metric_name', gap.get('metric'))}: before {_fmt(gap.get('before'), '.3f')}, "
+            f"after {_fmt(gap.get('after'), '.3f')} ({_fmt(gap.get('shrink_pct'), '.0f')} % shrink) "
+            f"-> effect {gap.get('effect')} (runner-up {gap.get('runner_up')})"
+        )
+    for w in d.get("warnings") or []:
+        lines.append(f"warning     {w}")
+    return "\n".join(lines)
+
+
+@app.command()
+def analyze(
+    file: Annotated[Path, typer.Argument(help="CSV or Parquet file with one loop's tags.")],
+    pv: Annotated[str | None, typer.Option(help="Column holding pv.")] = None,
+    op: Annotated[str | None, typer.Option(help="Column holding op (controller output).")] = None,
+    mv: Annotated[str | None, typer.Option(help="Column holding mv (valve position).")] = None,
+    sp: Annotated[str | None, typer.Option(help="Column holding sp (setpoint).")] = None,
+    time: Annotated[str | None, typer.Option(help="Time column (seconds or timestamps).")] = None,
+    ts: Annotated[
+        float | None, typer.Option(help="Sampling time [s] when there is no time column.")
+    ] = None,
+    op_units: Annotated[OpUnits, typer.Option(help="Units of op and mv.")] = OpUnits.percent,
+    op_range: Annotated[
+        tuple[float, float] | None,
+        typer.Option(help="LO HI of op in its own units, mapped to 0-100 % of span."),
+    ] = None,
+    loop_type: Annotated[
+        LoopType, typer.Option(help="What the loop controls (level implies integrating).")
+    ] = LoopType.other,
+    integrating: Annotated[
+        bool | None,
+        typer.Option(
+            "--integrating/--self-regulating", help="Process type; default from --loop-type."
+        ),
+    ] = None,
+    out: Annotated[Path | None, typer.Option(help="Directory for the plots.")] = None,
+    json_path: Annotated[
+        str | None, typer.Option("--json", help="Write the result as JSON to PATH ('-' = stdout).")
+    ] = None,
+    gap: Annotated[bool, typer.Option(help="Run the sim-to-real gap diagnosis.")] = True,
+) -> None:
+    """Diagnose stiction in one loop: verdict, S and J, closed-loop replay, gap."""
+    from stictiondiag.analysis import AnalysisConfig, analyze_file
+    from stictiondiag.atomic import atomic_path, write_atomic
+
+    with friendly_errors():
+        options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
+        info(f"analysing {file} ...")
+        result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
+        d = result.to_dict()
+        summary = render_summary(d)
+        if json_path == "-":
+            info(summary)
+            sys.stdout.write(json.dumps(d, indent=2) + "\n")
+        else:
+            typer.echo(summary)
+            if json_path:
+                write_atomic(json_path, json.dumps(d, indent=2) + "\n")
+                info(f"wrote {json_path}")
+        if out is not None:
+            import matplotlib.pyplot as plt
+
+            for name, fig in result.figures().items():
+                target = Path(out) / f"{result.loop}_{name}.png"
+                with atomic_path(target) as tmp:
+                    fig.savefig(tmp, dpi=110, format="png")
+                plt.close(fig)
+                info(f"wrote {target}")

@@ -1,0 +1,267 @@
+"""The orchestrator: one loop's data in, the stiction diagnosis out.
+
+:func:`analyze` follows the paper's procedure for plant data (Choudhury, Thornhill &
+Shah 2005):
+
+1. the tags, scaled to mean-centred unit variance for plots and comparisons
+   (Section 3);
+2. is there an oscillation at all (the limit cycles of Sections 4.2.2 and 5.3);
+3. S and J of the data-driven model (Section 5.1): from the stick and slip segments
+   of the mv-op plot when mv is recorded, otherwise by fitting the valve model and a
+   linear process together to op and pv;
+4. the verdict: does the stiction model explain the oscillation better than a linear
+   valve;
+5. the closed-loop replay of the fitted valve with the identified controller and
+   process, compared with the data;
+6. the sim-to-real gap: where the replay departs from the data and which unmodelled
+   effect explains the departure.
+
+Every step is a pure function of its own module; this module only calls them in
+order and gathers their results in :class:`Analysis`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import StictionError
+from .oscillation import Oscillation, detect_oscillation
+from .tags import Tags, read_tags
+
+#: Loop types where pv is (nearly) proportional to the valve opening: the flow-loop
+#: shortcut of Section 5.3.1 ("in liquid flow loops ... pv can be taken to be
+#: proportional to valve opening").
+FLOW_LIKE = frozenset({"flow"})
+
+
+@dataclass(frozen=True)
+class AnalysisConfig:
+    """Options of :func:`analyze`.
+
+    Attributes
+    ----------
+    gap : bool
+        Run the sim-to-real gap diagnosis (the slowest step).
+    replay : bool
+        Run the closed-loop replay (needed by the gap diagnosis).
+    """
+
+    gap: bool = True
+    replay: bool = True
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """Everything :func:`analyze` found for one loop.
+
+    Attributes
+    ----------
+    tags : Tags
+        The data as analysed (uniformly sampled, op and mv in % of span).
+    oscillation : Oscillation
+        Oscillation of pv (period [s], amplitude [pv units], regularity).
+    oscillation_op : Oscillation
+        Oscillation of op (amplitude in % of span).
+    fit : StictionFit
+        S and J [% of op span] with intervals and method.
+    verdict : Verdict
+        stiction / no_stiction / inconclusive, with confidence and reasons.
+    replay : Replay or None
+        Closed-loop reconstruction, None when it could not be built (see warnings).
+    gap : GapDiagnosis or None
+        Sim-to-real gap diagnosis, None when not run or not possible.
+    warnings : tuple of str
+        Data-quality and analysis warnings, in the order they arose.
+    """
+
+    tags: Tags
+    oscillation: Oscillation
+    oscillation_op: Oscillation
+    fit: Any
+    verdict: Any
+    replay: Any = None
+    gap: Any = None
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def loop(self) -> str:
+        """Loop name: the source file's stem."""
+        return Path(str(self.tags.source)).stem or "loop"
+
+    def to_dict(self) -> dict:
+        """JSON-able summary (the ``--json`` output of ``stiction analyze``)."""
+        tags = self.tags
+        stiction = _clean(self.fit.to_dict())
+        stiction["units"] = "% of op span"
+        stiction.update(_clean(self.verdict.to_dict()))
+        return {
+            "source": str(tags.source),
+            "loop": self.loop,
+            "tags": {
+                "names": dict(tags.names),
+                "n_samples": int(tags.n),
+                "ts_s": float(tags.ts),
+                "duration_s": float(tags.n * tags.ts),
+                "loop_type": tags.loop_type,
+                "integrating": bool(tags.integrating),
+                "has_mv": tags.mv is not None,
+                "has_sp": tags.sp is not None,
+            },
+            "oscillation": {
+                "pv": _clean(self.oscillation.to_dict()),
+                "op": _clean(self.oscillation_op.to_dict()),
+            },
+            "stiction": stiction,
+            "replay": None if self.replay is None else _clean(self.replay.to_dict()),
+            "gap": None if self.gap is None else _clean(self.gap.to_dict()),
+            "warnings": list(self.warnings),
+        }
+
+    def summary_row(self) -> dict:
+        """One flat row for plant-wide tables (``stiction scan``)."""
+        d = self.to_dict()
+        st = d["stiction"]
+        gap = d["gap"] or {}
+        rep = d["replay"] or {}
+        return {
+            "loop": self.loop,
+            "source": d["source"],
+            "loop_type": d["tags"]["loop_type"],
+            "n_samples": d["tags"]["n_samples"],
+            "has_mv": d["tags"]["has_mv"],
+            "oscillating": bool(self.oscillation.present),
+            "period_s": d["oscillation"]["pv"].get("period_s"),
+            "verdict": st.get("status"),
+            "detected": st.get("detected"),
+            "confidence": st.get("confidence"),
+            "S": st.get("S"),
+            "J": st.get("J"),
+            "S_lo": (st.get("S_interval") or [None, None])[0],
+            "S_hi": (st.get("S_interval") or [None, None])[1],
+            "J_lo": (st.get("J_interval") or [None, None])[0],
+            "J_hi": (st.get("J_interval") or [None, None])[1],
+            "method": st.get("method"),
+            "replay_fit_pv": (rep.get("fit") or {}).get("pv"),
+            "gap_effect": gap.get("effect"),
+            "gap_shrink_pct": gap.get("shrink_pct"),
+            "n_warnings": len(self.warnings),
+            "flags": "; ".join(self.warnings),
+        }
+
+    def figures(self) -> dict:
+        """Figures by name: ``phase`` (Figs. 3-6 style), ``reconstruction``, gap plots."""
+        from .plotting.analysis import plot_phase
+
+        figs = {"phase": plot_phase(self.tags, fit=self.fit, title=self.loop)}
+        if self.replay is not None:
+            figs["reconstruction"] = self.replay.plot()
+        if self.gap is not None and hasattr(self.gap, "figures"):
+            figs.update(self.gap.figures())
+        return figs
+
+
+def _clean(obj):
+    """Make a nested structure strictly JSON-able: numpy scalars to Python, NaN to None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [_clean(v) for v in obj.tolist()]
+    if isinstance(obj, np.bool_ | bool):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating | float):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    return obj
+
+
+def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
+    """Diagnose stiction in one loop.
+
+    Parameters
+    ----------
+    tags : Tags
+        Loop data from :func:`stictiondiag.tags.read_tags` or ``Tags.from_arrays``.
+    config : AnalysisConfig, optional
+        Which optional steps to run.
+
+    Returns
+    -------
+    Analysis
+    """
+    from .estimate import stiction_verdict
+    from .hammerstein import fit_hammerstein
+    from .segments import estimate_from_mv
+
+    config = config or AnalysisConfig()
+    warnings = list(tags.warnings)
+    dt = float(tags.ts)
+
+    # 2. Is there an oscillation at all?
+    osc_pv = detect_oscillation(tags.pv, dt)
+    osc_op = detect_oscillation(tags.op, dt)
+
+    # 3. S and J: from the valve's own signal when recorded, else the Hammerstein fit.
+    if tags.mv is not None:
+        fit = estimate_from_mv(tags.op, tags.mv, dt)
+    else:
+        fit = fit_hammerstein(
+            tags.op,
+            tags.pv,
+            dt,
+            integrating=bool(tags.integrating),
+            flow_loop=tags.loop_type in FLOW_LIKE,
+        )
+
+    # 4. Verdict.
+    verdict = stiction_verdict(fit, osc_pv, oscillation_op=osc_op, has_mv=tags.mv is not None)
+
+    # 5. Closed-loop replay.
+    rep = None
+    if config.replay:
+        from .replay import replay
+
+        try:
+            rep = replay(tags, fit, integrating=tags.integrating)
+        except StictionError as exc:
+            warnings.append(f"replay not possible: {exc}")
+
+    # 6. Sim-to-real gap.
+    gap = None
+    if config.gap and rep is not None:
+        from .gap import diagnose_gap
+
+        try:
+            gap = diagnose_gap(tags, fit, rep)
+        except StictionError as exc:
+            warnings.append(f"gap diagnosis not possible: {exc}")
+
+    return Analysis(
+        tags=tags,
+        oscillation=osc_pv,
+        oscillation_op=osc_op,
+        fit=fit,
+        verdict=verdict,
+        replay=rep,
+        gap=gap,
+        warnings=tuple(warnings),
+    )
+
+
+def analyze_file(
+    path: str | os.PathLike,
+    *,
+    config: AnalysisConfig | None = None,
+    **read_options,
+) -> Analysis:
+    """Read one loop's file with :func:`read_tags` and :func:`analyze` it."""
+    return analyze(read_tags(path, **read_options), config=config)
