@@ -1,0 +1,98 @@
+"""``stiction scan PATH``: analyse every loop of a plant and rank them for maintenance."""
+
+from __future__ import annotations
+
+import sys
+from enum import Enum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from stictiondiag.errors import EXIT_PARTIAL
+
+from .common import friendly_errors, info
+from .main import app
+
+
+class Engine(str, Enum):
+    local = "local"
+    dask = "dask"
+
+
+@app.command()
+def scan(
+    path: Annotated[
+        Path, typer.Argument(help="Folder of per-loop CSV/Parquet files, or a Parquet dataset.")
+    ],
+    out: Annotated[Path, typer.Option(help="Output folder (table, pages, per-loop JSON).")] = Path(
+        "scan"
+    ),
+    engine: Annotated[
+        Engine, typer.Option(help="local process pool or a Dask cluster.")
+    ] = Engine.local,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Address of an existing Dask scheduler (engine dask).")
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="Worker processes (default: all cores).")
+    ] = None,
+    force: Annotated[bool, typer.Option(help="Re-analyse loops already in --out.")] = False,
+    gap: Annotated[bool, typer.Option(help="Include the sim-to-real gap diagnosis.")] = True,
+    loop_column: Annotated[
+        str | None, typer.Option(help="Loop-id column of a Parquet dataset.")
+    ] = None,
+    ts: Annotated[
+        float | None, typer.Option(help="Sampling time [s] for files without a time column.")
+    ] = None,
+) -> None:
+    """Scan many loops; write a ranked table (Parquet, CSV, HTML). Exit 4 if some loops failed."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from stictiondiag.scan import scan as run_scan
+
+    with friendly_errors():
+        console = Console(file=sys.stderr)
+        with Progress(
+            TextColumn("[bold]scan"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TextColumn("{task.description}"),
+            console=console,
+            transient=False,
+        ) as bar:
+            task = bar.add_task("", total=None)
+
+            def progress(done: int, total: int, loop: str) -> None:
+                bar.update(task, completed=done, total=total, description=loop)
+
+            result = run_scan(
+                path,
+                out=out,
+                engine=engine.value,
+                workers=workers,
+                scheduler=scheduler,
+                force=force,
+                gap=gap,
+                loop_column=loop_column,
+                read_options={"ts": ts} if ts else {},
+                progress=progress,
+            )
+        t = result.table
+        n_st = int((t["verdict"] == "stiction").sum()) if len(t) else 0
+        info(
+            f"{result.n_loops} loops: {n_st} stiction, {result.n_failed} failed, "
+            f"{result.n_skipped} resumed from {out}"
+        )
+        info(
+            f"wrote {result.outputs.get('html')}, {result.outputs.get('parquet')}, {result.outputs.get('csv')}"
+        )
+        cols = [
+            c for c in ("rank", "loop", "verdict", "confidence", "S", "J", "gap_effect") if c in t
+        ]
+        typer.echo(t[cols].head(20).to_string(index=False))
+        if result.n_failed:
+            info(f"{result.n_failed} loop(s) failed; see the 'error' column")
+            raise typer.Exit(EXIT_PARTIAL)
