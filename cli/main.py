@@ -33,5 +33,15 @@ def _root(
 # Sub-commands register themselves on import: one file per command.
 from . import _commands  # noqa: E402,F401
 
+
+def main() -> None:
+    """Console-script entry point (``stiction``)."""
+    import sys
+
+    from .report import normalise_argv
+
+    app(args=normalise_argv(sys.argv[1:]), prog_name="stiction")
+
+
 if __name__ == "__main__":  # pragma: no cover
-    app()
+    main()

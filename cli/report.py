@@ -1,0 +1,99 @@
+"""``stiction report FILE... --out DIR``: HTML per loop, an index, Markdown and JSON.
+
+For CI: ``--fail-on-stiction [THRESHOLD]`` exits 1 when a loop is called stiction
+with confidence at or above THRESHOLD (0-1; 0.5 when given without a value).
+stdout carries only what is asked for (``--markdown -`` prints the summary there);
+progress goes to stderr.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from stictiondiag.errors import EXIT_FINDING, EXIT_PARTIAL
+
+from .common import fail, friendly_errors, info
+from .main import app
+
+#: Threshold used when ``--fail-on-stiction`` is given without a value.
+DEFAULT_FAIL_THRESHOLD = 0.5
+
+
+@app.command()
+def report(
+    files: Annotated[list[Path], typer.Argument(help="Loop files (CSV or Parquet).")],
+    out: Annotated[Path, typer.Option(help="Report folder (updated, not wiped).")] = Path("report"),
+    fail_on_stiction: Annotated[
+        float | None,
+        typer.Option(
+            help="Exit 1 if a loop is called stiction with confidence >= THRESHOLD "
+            f"(0-1; bare flag = {DEFAULT_FAIL_THRESHOLD}).",
+            metavar="[THRESHOLD]",
+        ),
+    ] = None,
+    clean: Annotated[bool, typer.Option(help="Empty the report folder first.")] = False,
+    markdown: Annotated[
+        str | None, typer.Option(help="Also write the Markdown summary to PATH ('-' = stdout).")
+    ] = None,
+    gap: Annotated[bool, typer.Option(help="Include the sim-to-real gap diagnosis.")] = True,
+    ts: Annotated[
+        float | None, typer.Option(help="Sampling time [s] for files without a time column.")
+    ] = None,
+) -> None:
+    """Write a self-contained HTML report per loop, an index page, summary.md and JSON."""
+    from stictiondiag.atomic import write_atomic
+    from stictiondiag.report import build_report, render_markdown
+
+    if fail_on_stiction is not None and not 0.0 <= fail_on_stiction <= 1.0:
+        fail(f"--fail-on-stiction threshold must be in [0, 1], got {fail_on_stiction}", 2)
+    with friendly_errors():
+
+        def progress(i: int, n: int, name: str) -> None:
+            if name:
+                info(f"[{i + 1}/{n}] {name}")
+
+        result = build_report(
+            [str(f) for f in files],
+            out,
+            read_options={"ts": ts} if ts else {},
+            gap=gap,
+            clean=clean,
+            progress=progress,
+        )
+        md = render_markdown(result.rows)
+        if markdown == "-":
+            sys.stdout.write(md)
+        elif markdown:
+            write_atomic(markdown, md)
+        info(f"wrote {result.outputs['index']} and {result.outputs['markdown']}")
+        for f, msg in result.failed:
+            info(f"failed: {f}: {msg}")
+    if result.failed:
+        raise typer.Exit(EXIT_PARTIAL)
+    if fail_on_stiction is not None:
+        worst = result.max_stiction_confidence()
+        if worst is not None and worst >= fail_on_stiction:
+            info(f"stiction found (confidence {worst:.2f} >= {fail_on_stiction}): exit 1")
+            raise typer.Exit(EXIT_FINDING)
+
+
+def normalise_argv(args: list[str]) -> list[str]:
+    """Let ``--fail-on-stiction`` stand without a value (it then means the default).
+
+    Click options cannot take an optional value, so a bare flag (last, or followed by
+    something that is not a number) gets :data:`DEFAULT_FAIL_THRESHOLD` inserted.
+    """
+    out: list[str] = []
+    for i, a in enumerate(args):
+        out.append(a)
+        if a == "--fail-on-stiction":
+            nxt = args[i + 1] if i + 1 < len(args) else None
+            try:
+                float(nxt)  # type: ignore[arg-type]
+            except (TypeError, ValueError):
+                out.append(str(DEFAULT_FAIL_THRESHOLD))
+    return out
