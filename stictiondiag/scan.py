@@ -58,6 +58,7 @@ class LoopSource:
     loop: str
     path: str
     loop_column: str | None = None
+    read_options: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -163,7 +164,7 @@ def analyse_source(source: LoopSource, read_options: dict, gap: bool) -> dict:
 
     row: dict = {"loop": source.loop, "source": source.path, "error": None}
     try:
-        tags = load_source(source, **read_options)
+        tags = load_source(source, **{**read_options, **(source.read_options or {})})
         result = analyze(tags, config=AnalysisConfig(gap=gap))
         full = result.to_dict()
         full["loop"] = source.loop
@@ -216,32 +217,36 @@ def rank(rows: list[dict]) -> pd.DataFrame:
     return frame
 
 
-def _run_local(todo, read_options, gap, workers) -> Iterator[dict]:
+def run_local(todo, fn, args: tuple, workers: int) -> Iterator:
+    """Yield ``fn(src, *args)`` for each source, on a process pool of ``workers``.
+
+    At most ``2 x workers`` loops are in flight, so memory is bounded by the loops
+    being analysed, not by their number.  Results come in completion order.
+    """
     if workers <= 1:
         for src in todo:
-            yield analyse_source(src, read_options, gap)
+            yield fn(src, *args)
         return
     import concurrent.futures as cf
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")  # no forked numba/BLAS state in workers
     with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        pending: set = set()
         it = iter(todo)
-        for src in it:
-            pending.add(pool.submit(analyse_source, src, read_options, gap))
-            if len(pending) >= 2 * workers:
-                break
+        pending = {
+            pool.submit(fn, src, *args) for _, src in zip(range(2 * workers), it, strict=False)
+        }
         while pending:
             done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
             for fut in done:
                 yield fut.result()
                 nxt = next(it, None)
                 if nxt is not None:
-                    pending.add(pool.submit(analyse_source, nxt, read_options, gap))
+                    pending.add(pool.submit(fn, nxt, *args))
 
 
-def _run_dask(todo, read_options, gap, workers, scheduler) -> Iterator[dict]:
+def run_dask(todo, fn, args: tuple, workers: int, scheduler: str | None) -> Iterator:
+    """Like :func:`run_local` on ``dask.distributed`` (a LocalCluster or ``scheduler``)."""
     try:
         from distributed import Client, LocalCluster, as_completed
     except ImportError:  # pragma: no cover - dask is a declared dependency
@@ -263,7 +268,7 @@ def _run_dask(todo, read_options, gap, workers, scheduler) -> Iterator[dict]:
         n_workers = max(1, len(client.scheduler_info().get("workers", {})) or workers)
         it = iter(todo)
         first = [
-            client.submit(analyse_source, s, read_options, gap, pure=False)
+            client.submit(fn, s, *args, pure=False)
             for _, s in zip(range(2 * n_workers), it, strict=False)
         ]
         ac = as_completed(first)
@@ -272,7 +277,7 @@ def _run_dask(todo, read_options, gap, workers, scheduler) -> Iterator[dict]:
             fut.release()
             nxt = next(it, None)
             if nxt is not None:
-                ac.add(client.submit(analyse_source, nxt, read_options, gap, pure=False))
+                ac.add(client.submit(fn, nxt, *args, pure=False))
     finally:
         client.close()
         if cluster is not None:
@@ -343,10 +348,11 @@ def scan(
     n_skipped = len(rows)
     total = len(sources)
 
+    args = (read_options, gap)
     runner = (
-        _run_local(todo, read_options, gap, workers)
+        run_local(todo, analyse_source, args, workers)
         if engine == "local"
-        else _run_dask(todo, read_options, gap, workers, scheduler)
+        else run_dask(todo, analyse_source, args, workers, scheduler)
     )
     n_done = n_skipped
     if progress:

@@ -1,0 +1,69 @@
+"""``stiction validate``: agreement with expert labels on the ISDB's real loops."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from .common import friendly_errors, info
+from .main import app
+
+
+@app.command()
+def validate(
+    isdb: Annotated[
+        Path | None,
+        typer.Option(
+            help="ISDB folder with manifest.csv and loops/ (default ../shared/data/isdb)."
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Write the results page (Markdown) to PATH.")
+    ] = None,
+    json_path: Annotated[
+        str | None,
+        typer.Option("--json", help="Write per-loop table and scores as JSON ('-' = stdout)."),
+    ] = None,
+    workers: Annotated[int | None, typer.Option(min=1, help="Worker processes.")] = None,
+    gap: Annotated[bool, typer.Option(help="Include the gap diagnosis per loop.")] = True,
+) -> None:
+    """Analyse every ISDB loop; compare verdicts (and baselines) with the published labels."""
+    from stictiondiag.atomic import write_atomic
+    from stictiondiag.validation import render_markdown, validate_isdb
+
+    with friendly_errors():
+
+        def progress(i: int, n: int, loop: str) -> None:
+            info(f"[{i}/{n}] {loop}")
+
+        result = validate_isdb(isdb, workers=workers, gap=gap, progress=progress)
+        cmd = (
+            "stiction validate"
+            + (f" --isdb {isdb}" if isdb else "")
+            + (f" --out {out}" if out else "")
+            + ("" if gap else " --no-gap")
+        )
+        md = render_markdown(result, command=cmd)
+        if out:
+            write_atomic(out, md)
+            info(f"wrote {out}")
+        payload = {
+            "scores": result.scores,
+            "loops": json.loads(result.table.to_json(orient="records")),
+        }
+        if json_path == "-":
+            sys.stdout.write(json.dumps(payload, indent=1) + "\n")
+        elif json_path:
+            write_atomic(json_path, json.dumps(payload, indent=1) + "\n")
+        s = result.scores["ours"]["stated"]
+        typer.echo(
+            f"stated labels: n={s['n']} accuracy={s['accuracy']:.2f} "
+            f"false positives={s['fp']} missed={s['fn']} inconclusive={s['inconclusive']}"
+            if s["accuracy"] is not None
+            else "no stated labels",
+            err=json_path == "-",
+        )
