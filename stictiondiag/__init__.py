@@ -4,7 +4,9 @@ The science is Choudhury, Thornhill & Shah (2005), "Modelling valve stiction",
 Control Engineering Practice 13, 641-658.
 """
 
+from .atomic import atomic_path, write_atomic
 from .errors import DataError, StictionError, UsageError
+from .tags import Tags, read_frame, read_tags, scale
 from .valve import (
     STICTION_MODEL_PARAMETERS,
     choudhury_model,
@@ -28,4 +30,10 @@ __all__ = [
     "ma_to_percent",
     "percent_to_ma",
     "valve_characteristic",
+    "Tags",
+    "read_frame",
+    "read_tags",
+    "scale",
+    "atomic_path",
+    "write_atomic",
 ]
