@@ -200,7 +200,6 @@ def validate_isdb(
                     # The manifest's Ts is the published one; several files' time columns
                     # are sample counters or irregular stamps (see the manifest notes).
                     "ts": float(r["ts_s"]),
-                    "ignore_time": True,
                     "loop_type": lt,
                     "integrating": bool(r["integrating"]),
                 },
