@@ -6,6 +6,7 @@ Control Engineering Practice 13, 641-658.
 
 from .atomic import atomic_path, write_atomic
 from .errors import DataError, StictionError, UsageError
+from .oscillation import Oscillation, detect_oscillation, dominant_period
 from .tags import Tags, read_frame, read_tags, scale
 from .valve import (
     STICTION_MODEL_PARAMETERS,
@@ -36,4 +37,7 @@ __all__ = [
     "scale",
     "atomic_path",
     "write_atomic",
+    "Oscillation",
+    "detect_oscillation",
+    "dominant_period",
 ]
