@@ -55,6 +55,14 @@ def _prepare(path: str | os.PathLike[str]) -> Path:
         )
     if target.is_dir():
         raise UsageError(f"cannot write {target}: it is a directory; give a file name inside it")
+    for parent in target.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(
+                    f"cannot write {target}: {parent} is a file, not a directory; "
+                    f"choose another output path"
+                )
+            break
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

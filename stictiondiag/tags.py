@@ -739,8 +739,11 @@ def _match_columns(
             free.remove(candidates[0])
         elif role in ("pv", "op"):
             hint = ""
-            if role == "op" and "mv" in chosen:
-                hint = f"; if {chosen['mv']!r} is the controller output, pass op={chosen['mv']!r}"
+            mv_like = chosen.get("mv") or next(
+                (column for column in free if "mv" in _roles_of(column)), None
+            )
+            if role == "op" and mv_like is not None:
+                hint = f"; if {mv_like!r} is the controller output, pass op={mv_like!r}"
             raise DataError(
                 f"no {role} column found in {file} (columns: {_column_list(frame)}): "
                 f"name it with {role}=<column> (CLI --{role} <column>){hint}"
