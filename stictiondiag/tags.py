@@ -618,8 +618,10 @@ def _read_csv(file: Path, compression: str | None) -> pd.DataFrame:
         with opener(file, "rb") as handle:
             head = handle.read(65536)
     except (OSError, EOFError, lzma.LZMAError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        what = f"{compression} " if compression else ""
         raise DataError(
-            f"{file} is not a readable {compression} file ({exc}): export it again"
+            f"cannot read {what}file {file} ({reason}): check the file and its permissions"
         ) from None
     if not head.strip():
         raise DataError(f"{file} is empty: export the loop data again")

@@ -87,6 +87,12 @@ def test_binary_file_with_csv_extension(tmp_path):
     one_line_error(DataError, lambda: read_tags(path), "not a text CSV")
 
 
+def test_corrupt_gzip(tmp_path):
+    path = tmp_path / "loop.csv.gz"
+    path.write_bytes(b"pv,op\n1,2\n" * 20)  # plain text behind a .gz name
+    one_line_error(DataError, lambda: read_tags(path), "cannot read gzip file")
+
+
 def test_corrupt_parquet(tmp_path):
     path = tmp_path / "broken.parquet"
     loop_frame().to_parquet(path)
@@ -351,6 +357,21 @@ def test_hole_in_the_clock_is_a_long_gap(tmp_path):
     assert tags.n == 300  # the longer side of the 100 s hole
     np.testing.assert_allclose(tags.pv, np.sin(np.arange(300.0) / 7), atol=ARITHMETIC_TOL)
     assert any("longest complete stretch" in note for note in tags.warnings)
+
+
+def test_rows_without_time_stamp_are_dropped(tmp_path):
+    frame = loop_frame()
+    frame["time"] = frame["time"].astype(object)
+    frame.loc[200, "time"] = ""
+    tags = read_tags(write_csv(frame, tmp_path / "loop.csv"))
+    # The missing stamp leaves a one-step hole in the clock, interpolated on the grid.
+    assert tags.n == 400 and tags.ts == 1.0
+    np.testing.assert_allclose(
+        tags.op[199:202],
+        np.interp([199, 200, 201], [199, 201], frame["op"].to_numpy()[[199, 201]]),
+        atol=ARITHMETIC_TOL,
+    )
+    assert any("without a readable time stamp" in note for note in tags.warnings)
 
 
 def test_iso_timestamp_strings(tmp_path):
