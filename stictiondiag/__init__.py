@@ -5,6 +5,12 @@ Control Engineering Practice 13, 641-658.
 """
 
 from .atomic import atomic_path, write_atomic
+from .describing import (
+    LimitCyclePrediction,
+    describing_function,
+    describing_function_numeric,
+    predict_limit_cycle,
+)
 from .errors import DataError, StictionError, UsageError
 from .oscillation import Oscillation, detect_oscillation, dominant_period
 from .tags import Tags, read_frame, read_tags, scale
@@ -40,4 +46,8 @@ __all__ = [
     "Oscillation",
     "detect_oscillation",
     "dominant_period",
+    "LimitCyclePrediction",
+    "describing_function",
+    "describing_function_numeric",
+    "predict_limit_cycle",
 ]
