@@ -1,0 +1,641 @@
+"""Closed-loop simulation of a PI loop with a sticky valve (Sections 4.2.2, 5.3, 6.4).
+
+The loop of Eq. 3 and Table 3 of Choudhury, Thornhill & Shah (2005): a PI controller
+in the paper's form ``C(s) = Kc (1 + 1/(Ti s))`` drives a valve model whose position
+``mv`` is the input of a first-order-plus-dead-time or integrating process::
+
+    e  = sp - pv
+    op = op_bias + Kc (e + (1/Ti) integral(e dt))      saturated to [0, 100] % of span
+    mv = valve(op)                                      linear | choudhury | kano | physical
+    pv = pv_bias + G(s) (f(mv) - f(op_bias)) + load + noise
+
+``f`` is the valve characteristic (linear by default).  The whole loop -- controller,
+valve and process -- runs in one compiled kernel:
+
+* the process is discretised exactly for a zero-order-hold input (exact ZOH of the
+  first-order lag or the integrator, with the dead time split into whole steps and a
+  fractional part by the modified z-transform), so the only discretisation error is
+  that of the controller (rectangular integration) and the sampling of the valve;
+* the data-driven valves call the same compiled per-sample functions as the
+  open-loop models (:func:`stictiondiag.valve.choudhury_step`, ``kano_step``);
+* with the physical valve (Section 4) the whole loop runs at the valve's integration
+  sub-step (about 1e-4 s, see :mod:`stictiondiag.physical`): the controller and
+  process of Eq. 3 are continuous-time, and a controller output held for 0.1 s would
+  make a valve with ``Fs > Fc`` stick after every step of the staircase.  Signals are
+  recorded every ``dt``.
+
+Gerry & Ruel's variable-integral PI (Section 6.4) switches the integral action off
+while ``|sp - pv| < integral_band``.  The integral is also frozen while the output is
+saturated and the error would drive it further (conditional-integration anti-windup);
+this never acts in the paper's cases, which stay inside the span.
+
+The cycle is started by a *kick*: at t = 0 the valve is found stuck ``kick`` % of span
+away from the operating point while the controller output is at ``op_bias``, and the
+process is at rest.  The loop must move the stuck valve, which a pure setpoint pulse
+of small size would never do in a loop with a deadband.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._jit import jit
+from .errors import UsageError
+from .physical import PhysicalValve, karnopp_step
+from .processes import FOPTD, LOOP_PARAMETERS, PI, Integrating
+from .valve import EQUAL_PERCENTAGE_RANGEABILITY, _check_sj, choudhury_step, kano_step, valve_state
+
+#: Valve models :func:`simulate_loop` accepts.
+VALVES = ("linear", "choudhury", "kano", "physical")
+_VALVE_CODE = {"linear": 0, "choudhury": 1, "kano": 2, "physical": 3}
+_CHARACTERISTIC_CODE = {"linear": 0, "equal_percentage": 1, "quick_opening": 2}
+
+#: Largest number of recorded samples ``duration / dt`` (5 arrays of float64: 2 GB).
+MAX_SAMPLES = 50_000_000
+#: Largest number of integration steps of the physical valve (some tens of seconds).
+MAX_VALVE_STEPS = 2_000_000_000
+#: Default kick [% of span]: initial displacement of the stuck valve.
+DEFAULT_KICK = 1.0
+#: Default duration of :func:`simulate_paper_loop` [s] (about 10 cycles of the slowest
+#: cycle of Section 4.2.2).
+PAPER_LOOP_DURATION = 3000.0
+
+
+@dataclass(frozen=True)
+class LimitCycle:
+    """Sustained oscillation of a simulated loop (after the start-up transient).
+
+    Attributes
+    ----------
+    present : bool
+        pv oscillates regularly and without decay (Thornhill et al. 2003 test).
+    period_s : float or None
+        Period of the pv cycle [s].
+    amplitude : dict
+        Half peak-to-peak amplitude of the cycle of ``pv`` [pv units], ``op`` and
+        ``mv`` [% of span]; None for a signal without a cycle.
+    oscillations : dict
+        The :class:`~stictiondiag.oscillation.Oscillation` of pv, op and mv.
+    transient_s : float
+        Length of the start of the run left out of the analysis [s].
+    """
+
+    present: bool
+    period_s: float | None
+    amplitude: dict
+    oscillations: dict
+    transient_s: float
+
+    def to_dict(self) -> dict:
+        """JSON-able dict."""
+        return {
+            "present": bool(self.present),
+            "period_s": _plain(self.period_s),
+            "amplitude": {k: _plain(v) for k, v in self.amplitude.items()},
+            "oscillations": {k: v.to_dict() for k, v in self.oscillations.items()},
+            "transient_s": float(self.transient_s),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Simulation:
+    """Time series of a closed-loop simulation (:func:`simulate_loop`).
+
+    Attributes
+    ----------
+    time : ndarray
+        Time [s], every ``dt`` from 0.
+    sp : ndarray
+        Setpoint [pv units].
+    pv : ndarray
+        Measured process output, noise included [pv units].
+    op : ndarray
+        Controller output, the valve demand [% of span].
+    mv : ndarray
+        Valve position [% of span].
+    dt : float
+        Sample time of the records [s].
+    settings : dict
+        Everything the run depended on (JSON-able): process, controller, valve, S, J,
+        physical valve, integration step [s], biases, kick, noise, seed, ...
+    """
+
+    time: np.ndarray
+    sp: np.ndarray
+    pv: np.ndarray
+    op: np.ndarray
+    mv: np.ndarray
+    dt: float
+    settings: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.time.size)
+
+    def to_pandas(self):
+        """DataFrame with columns time [s], sp, pv [pv units], op, mv [% of span]."""
+        import pandas as pd
+
+        return pd.DataFrame(
+            {"time": self.time, "sp": self.sp, "pv": self.pv, "op": self.op, "mv": self.mv}
+        )
+
+    def to_dict(self, include_series: bool = True) -> dict:
+        """JSON-able dict: settings and, optionally, the series as lists."""
+        d = {"dt": float(self.dt), "n_samples": self.n, "settings": self.settings}
+        if include_series:
+            d["series"] = {
+                name: [_plain(v) for v in getattr(self, name).tolist()]
+                for name in ("time", "sp", "pv", "op", "mv")
+            }
+        return d
+
+    def plot(self, **kwargs):
+        """Trends of sp/pv and op/mv with the mv-op and pv-op maps (Figs. 9, 12-15).
+
+        Keyword arguments go to :func:`stictiondiag.plotting.simulation.plot_simulation`.
+        """
+        from .plotting.simulation import plot_simulation
+
+        return plot_simulation(self, **kwargs)
+
+    def limit_cycle(self, transient: float | None = None) -> LimitCycle:
+        """Detect the sustained cycle of pv, op and mv after the start-up transient.
+
+        Parameters
+        ----------
+        transient : float, optional
+            Start of the run to leave out [s]; default the first third.
+
+        Returns
+        -------
+        LimitCycle
+            Uses :func:`stictiondiag.oscillation.detect_oscillation` on each signal.
+        """
+        from .oscillation import detect_oscillation
+
+        duration = self.n * self.dt
+        if transient is None:
+            transient = duration / 3.0
+        transient = float(transient)
+        if not (math.isfinite(transient) and 0.0 <= transient < duration):
+            raise UsageError(
+                f"transient must be in [0, {duration:g}) s (the run length), got {transient}"
+            )
+        start = int(round(transient / self.dt))
+        osc = {
+            name: detect_oscillation(getattr(self, name)[start:], self.dt)
+            for name in ("pv", "op", "mv")
+        }
+        return LimitCycle(
+            present=bool(osc["pv"].present),
+            period_s=osc["pv"].period_s,
+            amplitude={name: o.amplitude for name, o in osc.items()},
+            oscillations=osc,
+            transient_s=start * self.dt,
+        )
+
+
+def _plain(v):
+    if v is None:
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+@jit
+def _characteristic(position, kind, rangeability):
+    x = min(max(position, 0.0), 100.0)
+    if kind == 1:
+        return 100.0 * rangeability ** (x / 100.0 - 1.0)
+    if kind == 2:
+        return 100.0 * math.sqrt(x / 100.0)
+    return x
+
+
+@jit
+def _loop_kernel(
+    n,
+    n_sub,
+    h,
+    sp,
+    load,
+    noise,
+    a,
+    b_now,
+    b_prev,
+    delay,
+    Kc,
+    Ti,
+    band,
+    op_bias,
+    pv_bias,
+    valve_kind,
+    S,
+    J,
+    p,
+    stem,
+    char_kind,
+    rangeability,
+    op0,
+    mv0,
+    integral0,
+    out_pv,
+    out_op,
+    out_mv,
+):
+    # Dead-time line of process inputs: u[m - delay] and u[m - delay - 1].
+    size = delay + 2
+    buf = np.zeros(size)
+    y = 0.0  # process output, deviation from pv_bias [pv units]
+    integral = integral0  # integral of e [pv units * s]
+    f_bias = _characteristic(op_bias, char_kind, rangeability)
+    st = valve_state(op0, True)
+    st[0] = mv0
+    x_stem = mv0 * stem
+    v_stem = 0.0
+    # Ring-buffer indices of the newest input and of u[m - delay], u[m - delay - 1].
+    i_new = 0
+    i_now = (size - delay) % size
+    i_prev = (size - delay - 1) % size
+    linear_flow = char_kind == 0
+    inv_Ti = 1.0 / Ti
+    for k in range(n):
+        spk = sp[k]
+        disturbance = pv_bias + load[k] + noise[k]
+        for j in range(n_sub):
+            pv = y + disturbance
+            e = spk - pv
+            trial = integral
+            if band < 0.0 or abs(e) >= band:
+                trial = integral + e * h  # Gerry & Ruel: integrate only outside the band
+            op = op_bias + Kc * (e + trial * inv_Ti)
+            if (op > 100.0 and Kc * (trial - integral) > 0.0) or (
+                op < 0.0 and Kc * (trial - integral) < 0.0
+            ):
+                trial = integral  # anti-windup: do not integrate into saturation
+                op = op_bias + Kc * (e + trial * inv_Ti)
+            integral = trial
+            op = min(max(op, 0.0), 100.0)
+            if valve_kind == 3:
+                x_stem, v_stem = karnopp_step(op * stem, x_stem, v_stem, p)
+                mv = x_stem / stem
+            elif valve_kind == 1:
+                mv = choudhury_step(op, st, S, J)
+            elif valve_kind == 2:
+                mv = kano_step(op, st, S, J)
+            else:
+                mv = op
+            if j == 0:
+                out_pv[k] = pv
+                out_op[k] = op
+                out_mv[k] = mv
+            if linear_flow:
+                buf[i_new] = mv - f_bias
+            else:
+                buf[i_new] = _characteristic(mv, char_kind, rangeability) - f_bias
+            y = a * y + b_now * buf[i_now] + b_prev * buf[i_prev]
+            i_new += 1
+            if i_new == size:
+                i_new = 0
+            i_now += 1
+            if i_now == size:
+                i_now = 0
+            i_prev += 1
+            if i_prev == size:
+                i_prev = 0
+
+
+def _process_coefficients(process, h: float) -> tuple[float, float, float, int]:
+    """Exact ZOH discretisation ``y+ = a y + b_now u[m-d] + b_prev u[m-d-1]``.
+
+    The dead time ``theta = (d + f) h`` with whole steps ``d`` and fraction ``f`` in
+    [0, 1): during the step the delayed input is ``u[m-d-1]`` for ``f h`` and
+    ``u[m-d]`` for ``(1 - f) h`` (modified z-transform).
+    """
+    theta = float(process.dead_time)
+    ratio = theta / h
+    d = int(math.floor(ratio + 1e-9))
+    f = max(0.0, ratio - d)
+    if f < 1e-9:
+        f = 0.0
+    K = float(process.gain)
+    if isinstance(process, FOPTD):
+        tau = float(process.time_constant)
+        a = math.exp(-h / tau)
+        late = math.exp(-(1.0 - f) * h / tau)
+        return a, K * (1.0 - late), K * (late - a), d
+    return 1.0, K * (1.0 - f) * h, K * f * h, d
+
+
+def _number(name: str, value, *, minimum: float | None = None, positive: bool = False) -> float:
+    if isinstance(value, bool):
+        raise UsageError(f"{name} must be a number, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise UsageError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise UsageError(f"{name} must be finite, got {v}")
+    if positive and v <= 0:
+        raise UsageError(f"{name} must be > 0, got {v}")
+    if minimum is not None and v < minimum:
+        raise UsageError(f"{name} must be >= {minimum:g}, got {v}")
+    return v
+
+
+def _series(name: str, value, n: int, default: float) -> np.ndarray:
+    if value is None:
+        return np.full(n, default)
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        v = float(arr)
+        if not math.isfinite(v):
+            raise UsageError(f"{name} must be finite, got {v}")
+        return np.full(n, v)
+    if arr.ndim != 1 or arr.size != n:
+        raise UsageError(
+            f"{name} must be a number or an array of one value per sample ({n}), "
+            f"got shape {arr.shape}"
+        )
+    if not np.isfinite(arr).all():
+        raise UsageError(f"{name} contains NaN or infinite values")
+    return np.ascontiguousarray(arr)
+
+
+def _check_loop(process, controller) -> None:
+    if not isinstance(process, FOPTD | Integrating):
+        raise UsageError("process must be a FOPTD or Integrating model (stictiondiag.processes)")
+    if not isinstance(controller, PI):
+        raise UsageError("controller must be a PI model (stictiondiag.processes)")
+    _number("process gain", process.gain)
+    _number("process dead time", process.dead_time, minimum=0.0)
+    if isinstance(process, FOPTD):
+        _number("process time constant", process.time_constant, positive=True)
+    _number("controller gain", controller.gain)
+    _number("controller integral time", controller.integral_time, positive=True)
+
+
+def simulate_loop(
+    process: FOPTD | Integrating,
+    controller: PI,
+    *,
+    duration: float,
+    dt: float = 0.1,
+    valve: str = "choudhury",
+    S: float = 0.0,
+    J: float = 0.0,
+    physical: PhysicalValve | None = None,
+    sp: float | np.ndarray = 0.0,
+    load: float | np.ndarray | None = None,
+    noise_std: float = 0.0,
+    seed: int | None = None,
+    op_bias: float = 50.0,
+    pv_bias: float = 0.0,
+    kick: float = DEFAULT_KICK,
+    integral_band: float | None = None,
+    characteristic: str = "linear",
+    initial_op: float | None = None,
+    initial_mv: float | None = None,
+    initial_integral: float | None = None,
+) -> Simulation:
+    """Simulate a PI control loop with a linear or sticky valve.
+
+    Eq. 3 and Table 3 of Choudhury, Thornhill & Shah (2005); see the module docstring
+    for the loop equations, the discretisation and the kick that starts the cycle.
+
+    Parameters
+    ----------
+    process : FOPTD or Integrating
+        Process model; gain in pv units per % of span.
+    controller : PI
+        PI controller in the paper's form ``Kc (1 + 1/(Ti s))``.
+    duration : float
+        Simulated time [s]; ``round(duration/dt)`` samples are recorded (at most
+        :data:`MAX_SAMPLES`).
+    dt : float
+        Sample time of the records and, except for the physical valve, the
+        simulation step [s].
+    valve : {"linear", "choudhury", "kano", "physical"}
+        Valve model: ``mv = op``; the data-driven models of Section 5 (Choudhury) or
+        Kano et al. (2004) with ``S`` and ``J``; the physical model of Section 4.
+    S, J : float
+        Deadband plus stickband [% of op span] and slip jump [% of mv span], >= 0,
+        for the data-driven valves.
+    physical : PhysicalValve, optional
+        Parameters of the physical valve; default the nominal valve of Table 1.
+    sp : float or ndarray
+        Setpoint [pv units], a number or one value per sample.
+    load : float or ndarray, optional
+        Load disturbance added to the process output [pv units].
+    noise_std : float
+        Standard deviation of white measurement noise on pv [pv units], one value per
+        sample ``dt`` (held between samples for the physical valve).
+    seed : int, optional
+        Seed of the noise generator.
+    op_bias : float
+        Operating point [% of span]: the controller output at zero integral and error,
+        and the valve position at which the process output is ``pv_bias``.
+    pv_bias : float
+        Process output at the operating point [pv units].
+    kick : float
+        The valve starts stuck ``kick`` % of span away from ``op_bias`` (see the
+        module docstring).  Ignored when ``initial_mv`` is given.
+    integral_band : float, optional
+        Gerry & Ruel (2001) variable-integral PI (Section 6.4): no integral action
+        while ``|sp - pv| < integral_band`` [pv units].
+    characteristic : {"linear", "equal_percentage", "quick_opening"}
+        Valve characteristic between position and flow (the process sees the flow).
+    initial_op, initial_mv : float, optional
+        Initial controller output and valve position [% of span]; defaults
+        ``op_bias`` and ``op_bias + kick``.
+    initial_integral : float, optional
+        Initial integral of the error [pv units * s]; default: the value that gives
+        ``initial_op`` at the initial error.
+
+    Returns
+    -------
+    Simulation
+        Time series and settings; ``.limit_cycle()`` measures the cycle.
+
+    Raises
+    ------
+    UsageError
+        A parameter is out of range, or the run would be too long.
+    """
+    _check_loop(process, controller)
+    dt = _number("sample time dt", dt, positive=True)
+    duration = _number("duration", duration, positive=True)
+    if valve not in VALVES:
+        raise UsageError(f"unknown valve {valve!r}: use one of {', '.join(VALVES)}")
+    if characteristic not in _CHARACTERISTIC_CODE:
+        raise UsageError(
+            f"unknown valve characteristic {characteristic!r}: "
+            f"use one of {', '.join(_CHARACTERISTIC_CODE)}"
+        )
+    S, J = _check_sj(S, J)
+    ratio = duration / dt
+    if ratio > MAX_SAMPLES:
+        raise UsageError(
+            f"duration/dt = {ratio:.3g} samples exceeds the limit of {MAX_SAMPLES:,}: "
+            "shorten the duration or increase dt"
+        )
+    n = max(2, int(round(ratio)))
+    op_bias = _number("op_bias", op_bias)
+    if not 0.0 <= op_bias <= 100.0:
+        raise UsageError(f"op_bias must be within [0, 100] % of span, got {op_bias}")
+    pv_bias = _number("pv_bias", pv_bias)
+    kick = _number("kick", kick)
+    noise_std = _number("noise_std", noise_std, minimum=0.0)
+    band = -1.0
+    if integral_band is not None:
+        band = _number("integral_band", integral_band, minimum=0.0)
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
+        raise UsageError(f"seed must be an integer or None, got {seed!r}")
+
+    if valve == "physical":
+        if physical is None:
+            physical = PhysicalValve.from_case("nominal")
+        if not isinstance(physical, PhysicalValve):
+            raise UsageError("physical must be a PhysicalValve (see stictiondiag.physical)")
+        n_sub, h = physical.substeps(dt)
+        if n * n_sub > MAX_VALVE_STEPS:
+            raise UsageError(
+                f"{n * n_sub:.3g} integration steps of the physical valve exceed the limit "
+                f"of {MAX_VALVE_STEPS:,}: shorten the duration"
+            )
+        p = physical.kernel_parameters(h)
+        stem = physical.stem_travel_per_percent
+    else:
+        n_sub, h = 1, dt
+        p = PhysicalValve().kernel_parameters(dt)  # unused by the kernel
+        stem = 1.0
+
+    sp_arr = _series("sp", sp, n, 0.0)
+    load_arr = _series("load", load, n, 0.0)
+    if noise_std > 0:
+        noise = np.random.default_rng(seed).normal(0.0, noise_std, n)
+    else:
+        noise = np.zeros(n)
+
+    op0 = op_bias if initial_op is None else _number("initial_op", initial_op)
+    op0 = min(max(op0, 0.0), 100.0)
+    mv0 = op_bias + kick if initial_mv is None else _number("initial_mv", initial_mv)
+    mv0 = min(max(mv0, 0.0), 100.0)
+    Kc = float(controller.gain)
+    Ti = float(controller.integral_time)
+    if initial_integral is None:
+        e0 = sp_arr[0] - (pv_bias + load_arr[0])
+        integral0 = Ti * ((op0 - op_bias) / Kc - e0) if Kc != 0 else 0.0
+    else:
+        integral0 = _number("initial_integral", initial_integral)
+
+    a, b_now, b_prev, delay = _process_coefficients(process, h)
+    out_pv = np.empty(n)
+    out_op = np.empty(n)
+    out_mv = np.empty(n)
+    _loop_kernel(
+        n,
+        n_sub,
+        h,
+        sp_arr,
+        load_arr,
+        noise,
+        a,
+        b_now,
+        b_prev,
+        delay,
+        Kc,
+        Ti,
+        band,
+        op_bias,
+        pv_bias,
+        _VALVE_CODE[valve],
+        S,
+        J,
+        p,
+        stem,
+        _CHARACTERISTIC_CODE[characteristic],
+        EQUAL_PERCENTAGE_RANGEABILITY,
+        op0,
+        mv0,
+        integral0,
+        out_pv,
+        out_op,
+        out_mv,
+    )
+    settings = {
+        "process": process.to_dict(),
+        "controller": controller.to_dict(),
+        "valve": valve,
+        "S": S if valve in ("choudhury", "kano") else None,
+        "J": J if valve in ("choudhury", "kano") else None,
+        "physical": physical.to_dict() if valve == "physical" else None,
+        "data_driven_equivalent": (
+            physical.data_driven_equivalent() if valve == "physical" else None
+        ),
+        "duration_s": n * dt,
+        "dt_s": dt,
+        "integration_step_s": h,
+        "op_bias": op_bias,
+        "pv_bias": pv_bias,
+        "kick": kick,
+        "initial_op": op0,
+        "initial_mv": mv0,
+        "integral_band": None if integral_band is None else band,
+        "noise_std": noise_std,
+        "seed": None if seed is None else int(seed),
+        "characteristic": characteristic,
+    }
+    return Simulation(
+        time=np.arange(n) * dt,
+        sp=sp_arr,
+        pv=out_pv,
+        op=out_op,
+        mv=out_mv,
+        dt=dt,
+        settings=settings,
+    )
+
+
+def simulate_paper_loop(
+    name: str,
+    S: float = 0.0,
+    J: float = 0.0,
+    *,
+    duration: float = PAPER_LOOP_DURATION,
+    dt: float | None = None,
+    **kwargs,
+) -> Simulation:
+    """Simulate one of the paper's loops (Eq. 3, Table 3) with setpoint 0.
+
+    Parameters
+    ----------
+    name : {"concentration", "level"}
+        Loop of :data:`stictiondiag.processes.LOOP_PARAMETERS`.
+    S, J : float
+        Data-driven stiction parameters [% of span].
+    duration : float
+        Simulated time [s].
+    dt : float, optional
+        Sample time [s]; default the loop's (0.1 s).
+    **kwargs
+        Further arguments of :func:`simulate_loop` (``valve``, ``physical``,
+        ``integral_band``, ``noise_std``, ...).
+    """
+    if name not in LOOP_PARAMETERS:
+        raise UsageError(f"unknown loop {name!r}: use one of {', '.join(LOOP_PARAMETERS)}")
+    loop = LOOP_PARAMETERS[name]
+    return simulate_loop(
+        loop["process"],
+        loop["controller"],
+        duration=duration,
+        dt=loop["dt"] if dt is None else dt,
+        S=S,
+        J=J,
+        **kwargs,
+    )
