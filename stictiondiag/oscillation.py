@@ -229,6 +229,22 @@ def dominant_period(x: np.ndarray, dt: float) -> float | None:
     return float(periods.mean() * dt)
 
 
+def _detrend_by_cycles(x: np.ndarray, period_samples: float) -> np.ndarray:
+    """Remove the straight line through the means of consecutive whole cycles.
+
+    Averaging over whole periods cancels the oscillation, so the line follows only
+    the drift.  Falls back to the mean when fewer than two whole cycles fit.
+    """
+    m = max(2, int(round(period_samples)))
+    n_win = x.size // m
+    if n_win < 2:
+        return x - x.mean()
+    means = x[: n_win * m].reshape(n_win, m).mean(axis=1)
+    centres = (np.arange(n_win) + 0.5) * m - 0.5
+    slope, intercept = np.polyfit(centres, means, 1)
+    return x - (intercept + slope * np.arange(x.size))
+
+
 def _noise_std(x: np.ndarray) -> float:
     """Robust white-noise standard deviation from second differences [units of x].
 
@@ -256,7 +272,9 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
     """Detect a regular, sustained oscillation and measure its period and amplitude.
 
     Autocorrelation zero-crossing method of Thornhill, Huang & Zhang (2003); see the
-    module docstring for the thresholds.  The signal is linearly detrended first, so
+    module docstring for the thresholds.  A straight-line drift is removed first (a
+    least-squares line, then, once the period is known, the line through the means of
+    whole cycles, which the oscillation does not tilt), so
     a slow drift does not mask the oscillation.
 
     Parameters
@@ -294,6 +312,12 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
     if np.ptp(xd) <= 1e-12 * max(1.0, float(np.max(np.abs(x)))):
         return _absent("signal is a pure ramp")
     crossings, periods = _acf_periods(xd)
+    if periods.size >= MIN_PERIOD_ESTIMATES and x.size >= 2 * periods.mean():
+        # A least-squares line through a few cycles is tilted by the oscillation
+        # itself (up to ~12/(2 pi n_cycles^2) of the amplitude per cycle); a line
+        # through the means of whole cycles is not.  Second pass on that signal.
+        xd = _detrend_by_cycles(x, float(periods.mean()))
+        crossings, periods = _acf_periods(xd)
     if periods.size < MIN_PERIOD_ESTIMATES:
         return _absent(
             f"autocorrelation has {crossings.size} zero crossings, "
