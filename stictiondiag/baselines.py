@@ -125,6 +125,13 @@ MIN_NFFT = 32
 #: harmonics up to the 16th below the Nyquist frequency for nfft = 128).
 CYCLES_PER_SEGMENT = 4.0
 
+#: Largest critical squared bicoherence at which a Gaussian finding still counts as
+#: evidence of a linear loop in :func:`choudhury_hos_diagnosis`.  Above it the record
+#: has too few segments for the test to see anything but near-perfect phase coupling
+#: (with the family-wise test about K < 20 segments), and "Gaussian" only means "too
+#: short to tell".
+HOS_MAX_THRESHOLD = 0.5
+
 # --------------------------------------------------------------------------------------
 # pv-op ellipse (Choudhury et al. 2004, 2006)
 # --------------------------------------------------------------------------------------
@@ -937,7 +944,9 @@ def choudhury_hos_diagnosis(
        segment holds :data:`CYCLES_PER_SEGMENT` cycles (:func:`auto_decimation`).
     3. Bicoherence test (:func:`bicoherence_indices`).  Gaussian, or non-Gaussian but
        linear: the loop's poor performance is not caused by a nonlinearity
-       ("no_stiction": tuning or disturbances).
+       ("no_stiction": tuning or disturbances).  A Gaussian finding from a record so
+       short that the critical squared bicoherence exceeds :data:`HOS_MAX_THRESHOLD`
+       is "inconclusive" instead: the test had no power.
     4. Nonlinear: fit an ellipse to the band-pass filtered pv-op plot
        (:func:`pv_op_ellipse`).  An open ellipse gives "stiction", with Choudhury et
        al. (2006)'s apparent stiction (width of the ellipse along op); a collapsed
@@ -991,8 +1000,15 @@ def choudhury_hos_diagnosis(
     bic = bicoherence_indices(x, dt=dt, nfft=nfft, decimation=q, correction=correction)
     reasons: list[str] = []
     ellipse = None
-    if not bic.non_gaussian:
-        verdict: VerdictLabel = "no_stiction"
+    if not bic.non_gaussian and bic.threshold > HOS_MAX_THRESHOLD:
+        verdict: VerdictLabel = "inconclusive"
+        reasons.append(
+            f"{name} shows no significant bicoherence, but with {bic.n_segments} segments "
+            f"only values above {bic.threshold:.2f} would be significant: record too "
+            f"short for the test"
+        )
+    elif not bic.non_gaussian:
+        verdict = "no_stiction"
         reasons.append(
             f"{name} is Gaussian (NGI {bic.ngi:.4f} <= {NGI_THRESHOLD}): linear loop, "
             f"poor performance from tuning or disturbances"

@@ -461,6 +461,21 @@ def test_linear_loop_with_disturbance_is_not_stiction():
     assert diag["ellipse"] is None
 
 
+@pytest.mark.parametrize("n, verdict", [(600, "inconclusive"), (8000, "no_stiction")])
+def test_hos_diagnosis_of_noise_depends_on_record_length(n, verdict):
+    # Noise only: no significant bicoherence either way.  600 samples give 8
+    # segments of 128, so the family-wise critical bic^2 is chi2 quantile
+    # 2 ln(20 L) / 16 > 1 with L ~ 1000: the test could not have seen anything, and a
+    # Gaussian finding is no evidence.  8000 samples give 124 segments, threshold 0.08.
+    rng = np.random.default_rng(21)
+    pv = rng.standard_normal(n)
+    op = 50 - 0.3 * pv + 0.1 * rng.standard_normal(n)
+    diag = bl.choudhury_hos_diagnosis(op, pv, None, 1.0)
+    assert not diag["bicoherence"]["non_gaussian"]
+    assert diag["verdict"] == verdict
+    assert (diag["bicoherence"]["threshold"] > bl.HOS_MAX_THRESHOLD) == (verdict == "inconclusive")
+
+
 def test_auto_decimation_targets_four_cycles_per_segment():
     # 140-sample period, nfft 128: 32 samples per cycle wanted, so q = 4.
     assert bl.auto_decimation(12000, 140.0, 128) == 4
