@@ -5,6 +5,13 @@ Control Engineering Practice 13, 641-658.
 """
 
 from .atomic import atomic_path, write_atomic
+from .baselines import (
+    BicoherenceResult,
+    HorchResult,
+    bicoherence_indices,
+    choudhury_hos_diagnosis,
+    horch_cross_correlation,
+)
 from .describing import (
     LimitCyclePrediction,
     describing_function,
@@ -50,4 +57,9 @@ __all__ = [
     "describing_function",
     "describing_function_numeric",
     "predict_limit_cycle",
+    "HorchResult",
+    "BicoherenceResult",
+    "horch_cross_correlation",
+    "bicoherence_indices",
+    "choudhury_hos_diagnosis",
 ]
