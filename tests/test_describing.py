@@ -232,3 +232,30 @@ def test_to_dict_plain_types():
     text = json.dumps(d)
     assert "NaN" not in text
     assert isinstance(d["period_s"], float) and d["solutions"][0]["stable"] is True
+
+
+def test_plot_nyquist_df_marks_the_intersections():
+    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+
+    from stictiondiag.plotting.describing import plot_nyquist_df
+
+    params = LOOP_PARAMETERS["concentration"]
+    fig = plot_nyquist_df(
+        params["process"], params["controller"], {"deadband": (5, 0), "J=2": (5, 2)}
+    )
+    try:
+        assert isinstance(fig, Figure)
+        ax = fig.axes[0]
+        markers = [ln for ln in ax.lines if ln.get_marker() in ("o", "x")]
+        # Deadband: no intersection; J = 2: one stable cycle marked on G0.
+        assert len(markers) == 1
+        x, y = markers[0].get_xdata()[0], markers[0].get_ydata()[0]
+        pred = predict_limit_cycle(params["process"], params["controller"], 5, 2)
+        g = params["process"].frequency_response(pred.frequency_rad_s) * params[
+            "controller"
+        ].frequency_response(pred.frequency_rad_s)
+        assert complex(x, y) == pytest.approx(g, abs=1e-12)
+        assert len(ax.texts) == 1 and "198" in ax.texts[0].get_text()
+    finally:
+        plt.close(fig)
