@@ -5,7 +5,8 @@ Springer, publish industrial loops (pv, op, sp; no mv) with expert comments.  Th
 module runs :func:`stictiondiag.analysis.analyze` on each loop, using the loop type,
 integrating flag and sampling time of the manifest as an engineer would (several
 files' own time columns are not clocks), runs the classic baselines beside it (Horch's
-cross-correlation test; the bicoherence indices of Choudhury, Shah & Thornhill 2004)
+cross-correlation test; the bicoherence-based procedure of Choudhury, Shah &
+Thornhill 2004: non-Gaussianity and nonlinearity indices, then the pv-op ellipse)
 and compares every verdict with the published labels.
 
 Labels are read from the manifest's ``stiction_published`` and
@@ -106,11 +107,8 @@ def _baselines(path: str, ts: float, integrating: bool) -> dict:
     except Exception as exc:  # a baseline failing must not hide ours
         out["horch"] = f"error: {type(exc).__name__}"
     try:
-        err = (sp - pv) if sp is not None else pv - np.mean(pv)
-        b = baselines.bicoherence_indices(err)
-        out["bicoherence"] = "nonlinear" if b.nonlinear else "linear"
-        out["ngi"] = float(b.ngi)
-        out["nli"] = float(b.nli)
+        hos = baselines.choudhury_hos_diagnosis(op, pv, sp, ts)
+        out["bicoherence"] = hos["verdict"]
     except Exception as exc:
         out["bicoherence"] = f"error: {type(exc).__name__}"
     return out
@@ -232,7 +230,7 @@ def validate_isdb(
     scores = {
         "ours": score(table, "verdict", _called_stiction),
         "horch": score(table, "baseline_horch", _called_stiction),
-        "bicoherence": score(table, "baseline_bicoherence", lambda v: v == "nonlinear"),
+        "bicoherence": score(table, "baseline_bicoherence", _called_stiction),
     }
     return ValidationResult(table, scores)
 
