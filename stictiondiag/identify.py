@@ -147,7 +147,9 @@ class ProcessFit:
         FOPTD: pv[0] minus the steady state of ``u[0]`` (a decaying free response with
         the time constant) [pv units]; 0 for the integrating model.
     fit_r2 : float
-        R^2 of the simulated (output-error) response against pv [-].
+        R^2 of the simulated (output-error) response against pv [-], over the samples
+        after the first dead time (before it pv answers to inputs from before the
+        record).
     arx_r2 : float
         R^2 of the one-step ARX model at the chosen dead time, on pv differences [-].
     integrating : bool
@@ -289,78 +291,120 @@ def identify_controller(
     the unknown bias.  The discretisation of the integral (backward or forward
     Euler) changes ``Kc`` by ``Kc dt / Ti`` (relative error ``dt / Ti``).
     """
-    dt = _check_dt(dt)
-    pv = _as_signal(pv, "pv")
-    op = _as_signal(op, "op")
-    if pv.size != op.size:
-        raise UsageError(f"pv and op must have the same length, got {pv.size} and {op.size}")
-    sp_assumed = sp is None
-    if sp_assumed:
-        sp_arr = np.full(pv.size, float(np.nanmean(pv)))
-    else:
-        sp_arr = _as_signal(sp, "sp")
-        if sp_arr.size != pv.size:
-            raise UsageError(
-                f"sp and pv must have the same length, got {sp_arr.size} and {pv.size}"
-            )
-    e = sp_arr - pv
-    sat = saturated_samples(op)
-    finite = np.isfinite(e) & np.isfinite(op)
-    good = finite & ~sat
-    use = good[1:] & good[:-1]
-    n_used = int(use.sum())
-    if n_used < MIN_SAMPLES:
-        raise DataError(
-            f"only {n_used} unsaturated samples for controller identification: "
-            "use a record where op moves inside its range"
-        )
-    dop = np.diff(op)[use]
-    de = np.diff(e)[use]
-    ek = e[1:][use]
+    data = _ControllerData.build(sp, pv, op, dt)
+    de, ek, dop = data.de, data.ek, data.dop
     if np.ptp(ek) == 0.0 and np.ptp(de) == 0.0:
         raise DataError("the control error is constant: pv and sp carry no information")
-
-    X = np.column_stack([de, ek])
-    coef, t_int, resid = _lstsq_t(X, dop)
+    coef, t_int, _ = _lstsq_t(np.column_stack([de, ek]), dop)
     kc, ki_dt = float(coef[0]), float(coef[1])
-    record = pv.size * dt
-    p_only = True
+    record = data.e.size * data.dt
     ti = math.inf
-    if abs(t_int) >= INTEGRAL_T_THRESHOLD and kc != 0.0:
-        ti_candidate = kc * dt / ki_dt if ki_dt != 0.0 else math.inf
+    if abs(t_int) >= INTEGRAL_T_THRESHOLD and kc != 0.0 and ki_dt != 0.0:
+        ti_candidate = kc * data.dt / ki_dt
         # A negative Ti means the "integral" has the wrong sign for a PI law: the
         # differences are explained by something else (noise, a P-only law with drift).
         if 0.0 < ti_candidate < 100.0 * record:
-            p_only = False
             ti = ti_candidate
-    if p_only:
-        coef1, _, resid = _lstsq_t(de[:, None], dop)
+    if math.isinf(ti):
+        coef1, *_ = np.linalg.lstsq(de[:, None], dop, rcond=None)
         kc = float(coef1[0])
     if kc == 0.0 or not math.isfinite(kc):
         raise DataError("op does not respond to the control error: no PI law found")
-    fit_r2 = 1.0 - float(resid @ resid) / max(float(np.sum((dop - dop.mean()) ** 2)), 1e-300)
+    return data.result(kc, ti, float(t_int))
 
-    # op level: integral frozen while saturated (conditional-integration anti-windup).
-    e_int = np.where(good, e, 0.0)
-    if p_only:
+
+def controller_fit(
+    controller: PI, sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: float
+) -> ControllerFit:
+    """Fit measures and op bias of a *given* PI controller on recorded data.
+
+    Same conventions as :func:`identify_controller` (``integral_time = inf`` for a
+    P-only law); ``Kc`` and ``Ti`` are kept, only ``op_bias`` is estimated.
+    """
+    if not isinstance(controller, PI):
+        raise UsageError("controller must be a PI model (stictiondiag.processes.PI)")
+    kc, ti = float(controller.gain), float(controller.integral_time)
+    if kc == 0.0 or not math.isfinite(kc) or not ti > 0.0:
+        raise UsageError(f"controller needs a non-zero gain and Ti > 0, got Kc={kc}, Ti={ti}")
+    return _ControllerData.build(sp, pv, op, dt).result(kc, ti, math.nan)
+
+
+@dataclass(frozen=True, eq=False)
+class _ControllerData:
+    """Error, saturation mask and velocity-form regressors shared by the fits."""
+
+    dt: float
+    e: np.ndarray
+    op: np.ndarray
+    good: np.ndarray
+    use: np.ndarray
+    sp_assumed: bool
+    n_saturated: int
+
+    @classmethod
+    def build(cls, sp, pv, op, dt) -> _ControllerData:
+        dt = _check_dt(dt)
+        pv = _as_signal(pv, "pv")
+        op = _as_signal(op, "op")
+        if pv.size != op.size:
+            raise UsageError(f"pv and op must have the same length, got {pv.size} and {op.size}")
+        sp_assumed = sp is None
+        if sp_assumed:
+            sp_arr = np.full(pv.size, float(np.nanmean(pv)))
+        else:
+            sp_arr = _as_signal(sp, "sp")
+            if sp_arr.size != pv.size:
+                raise UsageError(
+                    f"sp and pv must have the same length, got {sp_arr.size} and {pv.size}"
+                )
+        e = sp_arr - pv
+        sat = saturated_samples(op)
+        good = np.isfinite(e) & np.isfinite(op) & ~sat
+        use = good[1:] & good[:-1]
+        n_used = int(use.sum())
+        if n_used < MIN_SAMPLES:
+            raise DataError(
+                f"only {n_used} unsaturated samples for controller identification: "
+                "use a record where op moves inside its range"
+            )
+        return cls(dt, e, op, good, use, sp_assumed, int(sat.sum()))
+
+    @property
+    def dop(self) -> np.ndarray:
+        return np.diff(self.op)[self.use]
+
+    @property
+    def de(self) -> np.ndarray:
+        return np.diff(self.e)[self.use]
+
+    @property
+    def ek(self) -> np.ndarray:
+        return self.e[1:][self.use]
+
+    def result(self, kc: float, ti: float, t_int: float) -> ControllerFit:
+        dop = self.dop
+        p_only = math.isinf(ti)
+        ki_dt = 0.0 if p_only else kc * self.dt / ti
+        resid = dop - kc * self.de - ki_dt * self.ek
+        fit_r2 = 1.0 - float(resid @ resid) / max(float(np.sum((dop - dop.mean()) ** 2)), 1e-300)
+        # op level: integral frozen while saturated (conditional-integration anti-windup).
+        e, good = self.e, self.good
         law = kc * e
-    else:
-        law = kc * (e + dt / ti * np.cumsum(e_int))
-    offset = (op - law)[good]
-    op_bias = float(np.mean(offset))
-    op_fit_r2 = _r2(op[good], law[good] + op_bias)
-    return ControllerFit(
-        controller=PI(gain=kc, integral_time=ti),
-        op_bias=op_bias,
-        fit_r2=fit_r2,
-        op_fit_r2=op_fit_r2,
-        p_only=p_only,
-        reverse_acting=kc < 0.0,
-        sp_assumed=sp_assumed,
-        n_used=n_used,
-        n_saturated=int(sat.sum()),
-        integral_t_stat=float(t_int),
-    )
+        if not p_only:
+            law = law + ki_dt * np.cumsum(np.where(good, e, 0.0))
+        op_bias = float(np.mean((self.op - law)[good]))
+        return ControllerFit(
+            controller=PI(gain=kc, integral_time=ti),
+            op_bias=op_bias,
+            fit_r2=fit_r2,
+            op_fit_r2=_r2(self.op[good], law[good] + op_bias),
+            p_only=p_only,
+            reverse_acting=kc < 0.0,
+            sp_assumed=self.sp_assumed,
+            n_used=int(self.use.sum()),
+            n_saturated=self.n_saturated,
+            integral_t_stat=t_int,
+        )
 
 
 def _lstsq_t(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
@@ -482,55 +526,59 @@ def _pick_dead_time(cost: np.ndarray) -> int:
 
 
 def _foptd_oe(u: np.ndarray, pv: np.ndarray, d: int, a: float, u_bias: float):
-    """Linear part of the FOPTD output-error fit for fixed dead time and pole."""
+    """Linear part of the FOPTD output-error fit for fixed dead time and pole.
+
+    Rows ``k <= d`` are left out: there pv depends on inputs from before the record,
+    and from ``k = d + 1`` on any error in those shows only as a free response
+    ``a^k``, which the third regressor absorbs.  Returns the mean squared error and
+    the coefficients (gain, pv bias, initial deviation).
+    """
     z = _lag_response(u, d, a)
-    k = np.arange(u.size)
-    X = np.column_stack([z - u_bias, np.ones(u.size), a**k])
-    coef, *_ = np.linalg.lstsq(X, pv, rcond=None)
-    resid = pv - X @ coef
-    return float(resid @ resid), coef
+    k = np.arange(d + 1, u.size)
+    X = np.column_stack([z[k] - u_bias, np.ones(k.size), a**k])
+    coef, *_ = np.linalg.lstsq(X, pv[k], rcond=None)
+    resid = pv[k] - X @ coef
+    return float(resid @ resid) / k.size, coef
+
+
+def _prefix(x: np.ndarray) -> np.ndarray:
+    return np.concatenate(([0.0], np.cumsum(x)))
 
 
 def _oe_delay_scan(z0: np.ndarray, pv: np.ndarray, a: float, d_max: int) -> np.ndarray:
-    """Output-error cost of the FOPTD for every dead time 0..d_max at a fixed pole.
+    """Output-error mean squared error of the FOPTD for every dead time 0..d_max at a
+    fixed pole (rows ``k > d`` as in :func:`_foptd_oe`).
 
     ``z0`` is the lag response without dead time; delaying the input delays it, so the
-    regressors for dead time ``d`` are ``[z0[max(k - d, 0)], 1, a^k]``.  Their normal
-    equations come from prefix sums and one correlation, for all delays at once.
+    regressors for dead time ``d`` are ``[z0[k - d], 1, a^k]`` for ``k > d``.  Their
+    normal equations come from prefix sums and one correlation, for all delays at once.
     """
     n = z0.size
     dd = np.arange(d_max + 1)
-    z00 = z0[0]
-    k = np.arange(n)
-    r = a**k
-    cz = np.concatenate(([0.0], np.cumsum(z0)))
-    czz = np.concatenate(([0.0], np.cumsum(z0 * z0)))
-    czr = np.concatenate(([0.0], np.cumsum(z0 * r)))
-    cp = np.concatenate(([0.0], np.cumsum(pv)))
-    cr = np.concatenate(([0.0], np.cumsum(r)))
-    m = n - dd  # samples of z0 that appear after the shift
-    s_zz = dd * z00 * z00 + czz[m]
-    s_z1 = dd * z00 + cz[m]
-    s_zr = z00 * cr[dd] + (a**dd) * czr[m]
-    # sum_{k>=d} z0[k-d] pv[k]: correlation of pv with z0 at lag d.
+    r = a ** np.arange(n)
+    cz, czz, czr = _prefix(z0), _prefix(z0 * z0), _prefix(z0 * r)
+    cr, crr, cp = _prefix(r), _prefix(r * r), _prefix(pv)
+    crp, cpp = _prefix(r * pv), _prefix(pv * pv)
+    top = n - dd  # z0[1 .. n-1-d] appear
+    first = dd + 1  # rows k = d+1 .. n-1
+    # sum_{k>=d} pv[k] z0[k-d] is the correlation of pv with z0 at lag d.
     full = correlate(pv, z0, mode="full", method="auto")
-    s_zp = z00 * cp[dd] + full[(n - 1) + dd]
-    s_11 = float(n)
-    s_1r = float(r.sum())
-    s_rr = float(r @ r)
-    s_1p = float(pv.sum())
-    s_rp = float(r @ pv)
     A = np.empty((d_max + 1, 3, 3))
-    A[:, 0, 0] = s_zz
-    A[:, 0, 1] = A[:, 1, 0] = s_z1
-    A[:, 0, 2] = A[:, 2, 0] = s_zr
-    A[:, 1, 1] = s_11
-    A[:, 1, 2] = A[:, 2, 1] = s_1r
-    A[:, 2, 2] = s_rr
-    g = np.stack([s_zp, np.full(d_max + 1, s_1p), np.full(d_max + 1, s_rp)], axis=1)
-    A = A + 1e-10 * np.trace(A, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    A[:, 0, 0] = czz[top] - czz[1]
+    A[:, 0, 1] = A[:, 1, 0] = cz[top] - cz[1]
+    A[:, 0, 2] = A[:, 2, 0] = (a**dd) * (czr[top] - czr[1])
+    A[:, 1, 1] = n - first
+    A[:, 1, 2] = A[:, 2, 1] = cr[n] - cr[first]
+    A[:, 2, 2] = crr[n] - crr[first]
+    g = np.stack(
+        [full[(n - 1) + dd] - z0[0] * pv[dd], cp[n] - cp[first], crp[n] - crp[first]], axis=1
+    )
+    # The free-response column vanishes for a fast pole (a^k -> 0); a tiny ridge on
+    # it (the column is bounded by 1, like the constant) keeps the solve regular.
+    A[:, 2, 2] += 1e-12 * n
     beta = np.linalg.solve(A, g[..., None])[..., 0]
-    return float(pv @ pv) - np.einsum("di,di->d", beta, g)
+    sse = (cpp[n] - cpp[first]) - np.einsum("di,di->d", beta, g)
+    return sse / (n - first)
 
 
 def _fit_foptd(u, pv, dt, d_max, tau_max):
@@ -589,10 +637,12 @@ def _fit_integrating(u, pv, dt, d0):
     n = u.size
 
     def fit(d: int):
-        X = _integrating_regressors(u, d, dt)
-        coef, *_ = np.linalg.lstsq(X, pv, rcond=None)
-        r = pv - X @ coef
-        return float(r @ r), coef
+        # Rows k <= d depend on inputs from before the record; from k = d + 1 on an
+        # error in those is a constant offset, which the first regressor absorbs.
+        X = _integrating_regressors(u, d, dt)[d + 1 :]
+        coef, *_ = np.linalg.lstsq(X, pv[d + 1 :], rcond=None)
+        r = pv[d + 1 :] - X @ coef
+        return float(r @ r) / r.size, coef
 
     cache: dict[int, tuple[float, np.ndarray]] = {}
 
@@ -670,9 +720,8 @@ def identify_process(
     results: dict[str, tuple] = {}
     if integrating in (None, False):
         d, tau, gain, pv_bias_c, x0, ub_c, sse = _fit_foptd(uc, pc, dt, d_max, 20.0 * record)
-        sst = float(pc @ pc) or 1e-300
         results["foptd"] = (
-            1.0 - sse / sst,
+            1.0 - sse / (float(np.var(pc[d + 1 :])) or 1e-300),
             _arx_r2_at(uc, pc, d, False, sst_dy),
             dict(
                 d=d,
@@ -687,9 +736,8 @@ def identify_process(
         cost = _arx_scan(uc, pc, d_max, integrating=True)
         d0 = _pick_dead_time(cost)
         d, gain, pv0_c, ub_c, sse = _fit_integrating(uc, pc, dt, d0)
-        sst = float(pc @ pc) or 1e-300
         results["integrating"] = (
-            1.0 - sse / sst,
+            1.0 - sse / (float(np.var(pc[d + 1 :])) or 1e-300),
             _arx_r2_at(uc, pc, d, True, sst_dy),
             dict(d=d, gain=gain, pv_bias=pv0_c + pv.mean(), u_bias=ub_c + u.mean()),
         )
@@ -745,3 +793,61 @@ def _arx_r2_at(u, pv, d, integrating, sst_dy) -> float:
     coef, *_ = np.linalg.lstsq(X, target, rcond=None)
     resid = target - X @ coef
     return 1.0 - float(resid @ resid) / sst_dy
+
+
+def process_fit(
+    process: FOPTD | Integrating, u: np.ndarray, pv: np.ndarray, dt: float
+) -> ProcessFit:
+    """Biases and fit measures of a *given* process on recorded data.
+
+    The dynamics (gain, time constant, dead time) are kept; the dead time is rounded
+    to whole samples.  FOPTD: ``pv_bias`` and the initial deviation are fitted with
+    ``u_bias = mean(u)``; integrating: the initial pv and the balance input.
+    """
+    if not isinstance(process, FOPTD | Integrating):
+        raise UsageError("process must be a FOPTD or Integrating model (stictiondiag.processes)")
+    dt = _check_dt(dt)
+    u = _as_signal(u, "u")
+    pv = _as_signal(pv, "pv")
+    if u.size != pv.size or u.size < 2:
+        raise UsageError(f"u and pv must be equally long signals, got {u.size} and {pv.size}")
+    gain = float(process.gain)
+    if gain == 0.0 or not math.isfinite(gain):
+        raise UsageError(f"process gain must be finite and non-zero, got {gain}")
+    d = int(round(float(process.dead_time) / dt))
+    if u.size < d + 1 + MIN_SAMPLES:
+        raise DataError(
+            f"{u.size} samples are too few for a process with a dead time of {d} samples"
+        )
+    k = np.arange(u.size)
+    if isinstance(process, Integrating):
+        X = _integrating_regressors(u, d, dt)[d + 1 :]
+        target = pv[d + 1 :] - gain * X[:, 1]
+        coef, *_ = np.linalg.lstsq(X[:, [0, 2]], target, rcond=None)
+        pv0, slope = float(coef[0]), float(coef[1])
+        fit = ProcessFit(process, -slope / gain, pv0, 0.0, math.nan, math.nan, True, d)
+    else:
+        a = math.exp(-dt / float(process.time_constant))
+        u_bias = float(u.mean())
+        k = k[d + 1 :]
+        target = pv[k] - gain * (_lag_response(u, d, a)[k] - u_bias)
+        coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(k.size), a**k]), target, rcond=None)
+        fit = ProcessFit(
+            process, u_bias, float(coef[0]), float(coef[1]), math.nan, math.nan, False, d
+        )
+    # Rows within the first dead time are left out, as in identify_process.
+    r2 = _r2(pv[d + 1 :], fit.simulate(u, dt)[d + 1 :])
+    kind = "integrating" if fit.integrating else "foptd"
+    return ProcessFit(
+        process=process,
+        u_bias=fit.u_bias,
+        pv_bias=fit.pv_bias,
+        initial_deviation=fit.initial_deviation,
+        fit_r2=r2,
+        arx_r2=_arx_r2_at(
+            u, pv, d, fit.integrating, float(np.var(np.diff(pv))) * (u.size - 1) or 1e-300
+        ),
+        integrating=fit.integrating,
+        dead_time_samples=d,
+        candidates={kind: r2},
+    )

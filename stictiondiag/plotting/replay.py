@@ -1,0 +1,153 @@
+"""Reconstruction plot: the closed-loop replay over the recorded data.
+
+Left: time trends of pv (with sp), op and mv, data and replay overlaid.  Right: the
+mv-op map of the data (recorded mv, or the stiction fit's ``mv_model`` when mv is not
+recorded) and of the replay, the valve signature of Section 5.3 of Choudhury,
+Thornhill & Shah (2005), and the pv-op map of both.
+"""
+
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.figure import Figure
+
+DATA_STYLE = {"color": "0.15", "lw": 0.8, "zorder": 3}
+REPLAY_STYLE = {"color": "tab:orange", "lw": 1.8, "alpha": 0.85, "zorder": 2}
+
+
+def _fmt(v, spec: str = ".3g") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def _default_window(replay) -> float:
+    """About eight data periods, or the whole record."""
+    duration = replay.n * replay.dt
+    period = replay.period_s.get("data") or replay.period_s.get("replay")
+    if period is None:
+        return duration
+    return min(duration, 8.0 * period)
+
+
+def plot_replay(replay, *, window: float | None = None, title: str | None = None) -> Figure:
+    """Overlay of a :class:`~stictiondiag.replay.Replay` and the recorded data.
+
+    Parameters
+    ----------
+    replay : Replay
+        Result of :func:`stictiondiag.replay.replay`.
+    window : float, optional
+        Length of record shown in the trends, from the start [s]; default about
+        eight oscillation periods (the replay drifts in phase later on).  The maps
+        use the whole record.
+    title : str, optional
+        Figure title; default names S, J, the periods and the pv fit.
+
+    Returns
+    -------
+    Figure
+    """
+    if window is None:
+        window = _default_window(replay)
+    stop = max(2, min(replay.n, int(round(window / replay.dt))))
+    t = replay.time[:stop]
+    data = replay.data
+    mv_data = data.get("mv")
+    mv_label = "mv data"
+    if mv_data is None:
+        mv_data = data.get("mv_model")
+        mv_label = "mv model (fit)"
+
+    fig, axes = plt.subplots(
+        3, 2, figsize=(12, 7.5), gridspec_kw={"width_ratios": [2.4, 1]}, squeeze=False
+    )
+    ax = axes[0, 0]
+    ax.plot(t, replay.sp[:stop], lw=0.7, color="0.55", ls="--", label="sp")
+    ax.plot(t, data["pv"][:stop], label="pv data", **DATA_STYLE)
+    ax.plot(t, replay.pv[:stop], label="pv replay", **REPLAY_STYLE)
+    ax.set_ylabel("pv [pv units]")
+    ax.set_title(
+        f"pv: fit {_fmt(replay.fit.get('pv'), '.0f')} %, "
+        f"waveform {_fmt(replay.waveform.get('pv'), '.3f')}",
+        fontsize=9,
+    )
+    ax.legend(loc="upper right", fontsize=7, ncol=3)
+
+    ax = axes[1, 0]
+    ax.plot(t, data["op"][:stop], label="op data", **DATA_STYLE)
+    ax.plot(t, replay.op[:stop], label="op replay", **REPLAY_STYLE)
+    ax.set_ylabel("op [% of span]")
+    ax.set_title(
+        f"op: fit {_fmt(replay.fit.get('op'), '.0f')} %, "
+        f"waveform {_fmt(replay.waveform.get('op'), '.3f')}",
+        fontsize=9,
+    )
+    ax.legend(loc="upper right", fontsize=7, ncol=2)
+
+    ax = axes[2, 0]
+    if mv_data is not None:
+        ax.plot(t, mv_data[:stop], label=mv_label, **DATA_STYLE)
+    ax.plot(t, replay.mv[:stop], label="mv replay", **REPLAY_STYLE)
+    ax.set_ylabel("mv [% of span]")
+    ax.set_xlabel("time [s]")
+    if "mv" in replay.fit:
+        ax.set_title(
+            f"mv: fit {_fmt(replay.fit.get('mv'), '.0f')} %, "
+            f"waveform {_fmt(replay.waveform.get('mv'), '.3f')}",
+            fontsize=9,
+        )
+    ax.legend(loc="upper right", fontsize=7, ncol=2)
+
+    ax = axes[0, 1]
+    if mv_data is not None:
+        ax.plot(data["op"], mv_data, label=mv_label, **DATA_STYLE)
+    ax.plot(replay.op, replay.mv, label="replay", **REPLAY_STYLE)
+    ops = np.concatenate([data["op"], replay.op])
+    lo, hi = float(np.min(ops)), float(np.max(ops))
+    ax.plot([lo, hi], [lo, hi], lw=0.5, color="0.6", ls=":")
+    ax.set_xlabel("op [% of span]")
+    ax.set_ylabel("mv [% of span]")
+    ax.set_title("mv-op", fontsize=9)
+    ax.legend(loc="upper left", fontsize=7)
+
+    ax = axes[1, 1]
+    ax.plot(data["op"], data["pv"], label="data", **DATA_STYLE)
+    ax.plot(replay.op, replay.pv, label="replay", **REPLAY_STYLE)
+    ax.set_xlabel("op [% of span]")
+    ax.set_ylabel("pv")
+    ax.set_title("pv-op", fontsize=9)
+
+    ax = axes[2, 1]
+    ax.axis("off")
+    proc, ctrl = replay.process, replay.controller
+    lines = [
+        f"valve: S = {replay.S:.3g} %, J = {replay.J:.3g} %",
+        f"controller: Kc = {_fmt(ctrl.get('gain'))}, Ti = {_fmt(ctrl.get('integral_time_s'))} s"
+        f" (R2 {_fmt(ctrl.get('fit_r2'), '.3f')})",
+    ]
+    if proc.get("type") == "foptd":
+        lines.append(
+            f"process: K = {_fmt(proc.get('gain'))}, tau = {_fmt(proc.get('time_constant_s'))}"
+            f" s, theta = {_fmt(proc.get('dead_time_s'))} s"
+        )
+    else:
+        lines.append(
+            f"process: K = {_fmt(proc.get('gain'))} /s (integrating), "
+            f"theta = {_fmt(proc.get('dead_time_s'))} s"
+        )
+    lines.append(f"process R2 {_fmt(proc.get('fit_r2'), '.3f')}")
+    lines.append(
+        f"period [s]: data {_fmt(replay.period_s.get('data'))}, "
+        f"replay {_fmt(replay.period_s.get('replay'))} ({replay.period_signal})"
+    )
+    for name, amp in replay.amplitude.items():
+        lines.append(
+            f"amplitude {name}: data {_fmt(amp.get('data'))}, replay {_fmt(amp.get('replay'))}"
+        )
+    ax.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", fontsize=8, family="monospace")
+
+    if title is None:
+        title = "Closed-loop replay with the fitted valve"
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
