@@ -4,3 +4,4 @@ from . import analyze  # noqa: F401
 from . import report  # noqa: F401
 from . import scan  # noqa: F401
 from . import validate  # noqa: F401
+from . import simulate  # noqa: F401

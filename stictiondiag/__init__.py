@@ -19,7 +19,9 @@ from .describing import (
     predict_limit_cycle,
 )
 from .errors import DataError, StictionError, UsageError
+from .loops import LimitCycle, Simulation, simulate_loop, simulate_paper_loop
 from .oscillation import Oscillation, detect_oscillation, dominant_period
+from .physical import VALVE_PARAMETERS, PhysicalValve, karnopp
 from .tags import Tags, read_frame, read_tags, scale
 from .valve import (
     STICTION_MODEL_PARAMETERS,
@@ -62,4 +64,11 @@ __all__ = [
     "horch_cross_correlation",
     "bicoherence_indices",
     "choudhury_hos_diagnosis",
+    "LimitCycle",
+    "Simulation",
+    "simulate_loop",
+    "simulate_paper_loop",
+    "VALVE_PARAMETERS",
+    "PhysicalValve",
+    "karnopp",
 ]

@@ -121,6 +121,12 @@ class Simulation:
     settings : dict
         Everything the run depended on (JSON-able): process, controller, valve, S, J,
         physical valve, integration step [s], biases, kick, noise, seed, ...
+    process : FOPTD or Integrating, optional
+        The simulated process (for the describing-function prediction).
+    controller : PI, optional
+        The simulated controller.
+    physical : PhysicalValve, optional
+        The physical valve, when ``settings["valve"] == "physical"``.
     """
 
     time: np.ndarray
@@ -130,6 +136,9 @@ class Simulation:
     mv: np.ndarray
     dt: float
     settings: dict = field(default_factory=dict)
+    process: FOPTD | Integrating | None = None
+    controller: PI | None = None
+    physical: PhysicalValve | None = None
 
     @property
     def n(self) -> int:
@@ -162,6 +171,76 @@ class Simulation:
         from .plotting.simulation import plot_simulation
 
         return plot_simulation(self, **kwargs)
+
+    def describing_function(self):
+        """Limit cycle predicted by the describing function for this loop (Section 6).
+
+        :func:`stictiondiag.describing.predict_limit_cycle` with the run's process,
+        controller and stiction parameters.  For the physical valve the quasi-static
+        data-driven equivalent is used (:meth:`PhysicalValve.data_driven_equivalent`):
+        with calibration ``c`` the valve output is ``c`` times that of a data-driven
+        valve with ``S`` and ``J / c`` on the op axis, so the process gain is
+        multiplied by ``c``.  For the linear valve there is no nonlinearity and no
+        cycle.
+
+        Returns
+        -------
+        tuple of (LimitCyclePrediction, dict)
+            The prediction and the basis of it: ``{"S", "J", "process_gain_factor",
+            "source"}``.
+        """
+        import dataclasses
+
+        from .describing import predict_limit_cycle
+
+        if self.process is None or self.controller is None:
+            raise UsageError("this simulation does not carry its process and controller")
+        valve = self.settings.get("valve")
+        process = self.process
+        if valve == "physical":
+            eq = self.physical.data_driven_equivalent()
+            gain = eq["gain"]
+            S, J = eq["S"], eq["J"] / gain
+            if gain != 1.0:
+                process = dataclasses.replace(process, gain=process.gain * gain)
+            source = (
+                "quasi-static equivalent of the physical valve, S=(Fs+Fc)/(c k), J=(Fs-Fc)/(c k)"
+            )
+        elif valve in ("choudhury", "kano"):
+            S, J, gain = float(self.settings["S"]), float(self.settings["J"]), 1.0
+            source = "data-driven S and J"
+        else:
+            S, J, gain = 0.0, 0.0, 1.0
+            source = "linear valve (no nonlinearity)"
+        prediction = predict_limit_cycle(process, self.controller, S, J)
+        basis = {"S": S, "J": J, "process_gain_factor": gain, "source": source}
+        return prediction, basis
+
+    def summary(self, transient: float | None = None) -> dict:
+        """JSON-able summary: simulated cycle and describing-function prediction.
+
+        Keys: ``limit_cycle`` (bool), ``period_s`` (pv period [s] or None),
+        ``amplitude`` {op, mv [% of span], pv [pv units]} (half peak-to-peak),
+        ``describing_function`` {limit_cycle, period_s, amplitude (X_m, % of span),
+        S, J, basis}, ``oscillation`` (per-signal detail) and ``settings``.
+        """
+        lc = self.limit_cycle(transient)
+        prediction, basis = self.describing_function()
+        return {
+            "limit_cycle": bool(lc.present),
+            "period_s": _plain(lc.period_s),
+            "amplitude": {k: _plain(lc.amplitude[k]) for k in ("op", "mv", "pv")},
+            "describing_function": {
+                "limit_cycle": bool(prediction.limit_cycle),
+                "period_s": _plain(prediction.period_s),
+                "amplitude": _plain(prediction.amplitude_op),
+                "S": float(basis["S"]),
+                "J": float(basis["J"]),
+                "basis": basis["source"],
+            },
+            "oscillation": lc.to_dict(),
+            "settings": self.settings,
+        }
 
     def limit_cycle(self, transient: float | None = None) -> LimitCycle:
         """Detect the sustained cycle of pv, op and mv after the start-up transient.
@@ -599,6 +678,9 @@ def simulate_loop(
         mv=out_mv,
         dt=dt,
         settings=settings,
+        process=process,
+        controller=controller,
+        physical=physical if valve == "physical" else None,
     )
 
 

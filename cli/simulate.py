@@ -1,0 +1,245 @@
+"""``stiction simulate``: a PI loop with a sticky valve, and its limit cycle.
+
+Numeric options are read as text and converted here, so that a bad value (``--S
+abc``, ``--S -1``) gets the same one-line message and exit code 2 as every other
+usage error instead of a multi-line usage box.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from stictiondiag.errors import UsageError
+
+from .common import friendly_errors, info
+from .main import app
+
+_VALVES = {"datadriven": "choudhury", "kano": "kano", "physical": "physical", "linear": "linear"}
+
+
+def _float(option: str, text: str | None, *, minimum: float | None = None, positive=False):
+    if text is None:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"{option} must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise UsageError(f"{option} must be a finite number, got {text!r}")
+    if positive and value <= 0:
+        raise UsageError(f"{option} must be > 0, got {text}")
+    if minimum is not None and value < minimum:
+        raise UsageError(f"{option} must be >= {minimum:g}, got {text}")
+    return value
+
+
+def _fmt(x, spec: str = ".3g") -> str:
+    return "n/a" if x is None else format(x, spec)
+
+
+def render_summary(loop: str, summary: dict) -> str:
+    """Readable summary of :meth:`stictiondiag.loops.Simulation.summary` for stderr."""
+    st = summary["settings"]
+    valve = st["valve"]
+    if valve in ("choudhury", "kano"):
+        name = "data-driven (Choudhury et al.)" if valve == "choudhury" else "Kano et al."
+        valve_text = f"{name}: S = {st['S']:g} %, J = {st['J']:g} %"
+    elif valve == "physical":
+        ph, eq = st["physical"], st["data_driven_equivalent"]
+        valve_text = (
+            f"physical: Fs = {ph['Fs']:g} N, Fc = {ph['Fc']:g} N, Fv = {ph['Fv']:g} N s/m, "
+            f"calibration x{ph['calibration']:g} (quasi-static S = {eq['S']:.2f} %, "
+            f"J = {eq['J']:.2f} %)"
+        )
+    else:
+        valve_text = "linear (no stiction)"
+    amp = summary["amplitude"]
+    df = summary["describing_function"]
+    lines = [
+        f"loop         {loop}",
+        f"valve        {valve_text}",
+        f"simulated    {st['duration_s']:g} s, recorded every {st['dt_s']:g} s"
+        + (
+            f" (integrated at {st['integration_step_s']:g} s)"
+            if st["integration_step_s"] != st["dt_s"]
+            else ""
+        )
+        + (f", integral band {st['integral_band']:g}" if st["integral_band"] is not None else ""),
+    ]
+    if summary["limit_cycle"]:
+        lines.append(
+            f"limit cycle  YES: pv period {_fmt(summary['period_s'], '.1f')} s; amplitude "
+            f"pv {_fmt(amp['pv'])}, op {_fmt(amp['op'])} %, mv {_fmt(amp['mv'])} %"
+        )
+    else:
+        reason = summary["oscillation"]["oscillations"]["pv"]["reason"]
+        lines.append(f"limit cycle  no ({reason})")
+    if df["limit_cycle"]:
+        lines.append(
+            f"describing   predicts a cycle: period {_fmt(df['period_s'], '.1f')} s, "
+            f"op amplitude {_fmt(df['amplitude'])} %  [{df['basis']}]"
+        )
+    else:
+        lines.append(f"describing   predicts no limit cycle  [{df['basis']}]")
+    return "\n".join(lines)
+
+
+@app.command()
+def simulate(
+    S: Annotated[
+        str, typer.Option("--S", metavar="FLOAT", help="Deadband plus stickband [% of span], >= 0.")
+    ] = "5",
+    J: Annotated[
+        str, typer.Option("--J", metavar="FLOAT", help="Slip jump [% of span], >= 0.")
+    ] = "2",
+    loop: Annotated[
+        str | None,
+        typer.Option(
+            metavar="LOOP",
+            help="The paper's loop (Eq. 3, Table 3): concentration (G = 3e^{-10s}/(10s+1), "
+            "PI 0.2, 10 s) or level (G = 1/s, PI 0.4, 2 s). Default: concentration "
+            "(stictiondiag.processes.DEFAULT_LOOP).",
+        ),
+    ] = None,
+    valve: Annotated[
+        str,
+        typer.Option(
+            metavar="VALVE",
+            help="datadriven (Choudhury et al. 2005, uses --S/--J), kano (Kano et al. 2004), "
+            "physical (Section 4, uses --case/--Fs/--Fc/--Fv/--calibration) or linear.",
+        ),
+    ] = "datadriven",
+    case: Annotated[
+        str,
+        typer.Option(
+            metavar="CASE",
+            help="Physical valve parameter set (Tables 1-2): nominal, linear, deadband, "
+            "undershoot_open_loop, undershoot_closed_loop, no_offset, miscalibrated.",
+        ),
+    ] = "nominal",
+    Fs: Annotated[
+        str | None, typer.Option("--Fs", metavar="N", help="Static friction [N] (physical).")
+    ] = None,
+    Fc: Annotated[
+        str | None, typer.Option("--Fc", metavar="N", help="Coulomb friction [N] (physical).")
+    ] = None,
+    Fv: Annotated[
+        str | None,
+        typer.Option("--Fv", metavar="N_S_PER_M", help="Viscous friction [N s/m] (physical)."),
+    ] = None,
+    calibration: Annotated[
+        str | None,
+        typer.Option(
+            metavar="FACTOR",
+            help="Multiplier on the calibration factor k/A (physical; 1.25 = Fig. 8).",
+        ),
+    ] = None,
+    duration: Annotated[str, typer.Option(metavar="SECONDS", help="Simulated time [s].")] = "3000",
+    dt: Annotated[
+        str | None, typer.Option(metavar="SECONDS", help="Sample time [s]. Default: 0.1.")
+    ] = None,
+    integral_band: Annotated[
+        str | None,
+        typer.Option(
+            metavar="PV_UNITS",
+            help="Variable-integral PI (Gerry & Ruel, Section 6.4): no integral action while "
+            "|sp - pv| is below this.",
+        ),
+    ] = None,
+    noise: Annotated[
+        str, typer.Option(metavar="PV_UNITS", help="Measurement noise standard deviation on pv.")
+    ] = "0",
+    seed: Annotated[int | None, typer.Option(help="Seed of the noise.")] = None,
+    kick: Annotated[
+        str,
+        typer.Option(
+            metavar="PERCENT",
+            help="The valve starts stuck this far [% of span] from the operating point.",
+        ),
+    ] = "1",
+    plot: Annotated[
+        Path | None, typer.Option(metavar="PATH", help="Write trends and mv-op plot (png/svg/pdf).")
+    ] = None,
+    csv: Annotated[
+        Path | None, typer.Option(metavar="PATH", help="Write time, sp, pv, op, mv as CSV.")
+    ] = None,
+    json_out: Annotated[
+        str | None,
+        typer.Option("--json", metavar="PATH", help="Write the summary as JSON ('-' = stdout)."),
+    ] = None,
+) -> None:
+    """Simulate a PI loop with a sticky valve and report its limit cycle.
+
+    Runs the loop of Choudhury, Thornhill & Shah (2005), Eq. 3 / Table 3, from a
+    stuck valve, detects the limit cycle of pv, and compares it with the describing
+    function prediction (Section 6; for the physical valve through its quasi-static
+    S and J). The summary goes to stderr, data to the files asked for.
+    """
+    from stictiondiag import loops, physical, processes
+    from stictiondiag.atomic import atomic_path, write_atomic
+
+    with friendly_errors():
+        loop_name = processes.DEFAULT_LOOP if loop is None else loop
+        if loop_name not in processes.LOOP_PARAMETERS:
+            raise UsageError(
+                f"unknown loop {loop_name!r}: use one of {', '.join(processes.LOOP_PARAMETERS)}"
+            )
+        if valve not in _VALVES:
+            raise UsageError(f"unknown valve {valve!r}: use one of {', '.join(_VALVES)}")
+        kwargs: dict = {
+            "valve": _VALVES[valve],
+            "duration": _float("--duration", duration, positive=True),
+            "dt": _float("--dt", dt, positive=True),
+            "integral_band": _float("--integral-band", integral_band, minimum=0.0),
+            "noise_std": _float("--noise", noise, minimum=0.0),
+            "seed": seed,
+            "kick": _float("--kick", kick),
+        }
+        s_value = _float("--S", S, minimum=0.0)
+        j_value = _float("--J", J, minimum=0.0)
+        given = [
+            opt
+            for opt, text in (
+                ("--Fs", Fs),
+                ("--Fc", Fc),
+                ("--Fv", Fv),
+                ("--calibration", calibration),
+            )
+            if text is not None
+        ]
+        if given and valve != "physical":
+            raise UsageError(f"{', '.join(given)} apply to --valve physical only")
+        if valve == "physical":
+            overrides = {
+                name: _float(f"--{name}", text, minimum=0.0)
+                for name, text in (("Fs", Fs), ("Fc", Fc), ("Fv", Fv))
+                if text is not None
+            }
+            if calibration is not None:
+                overrides["calibration"] = _float("--calibration", calibration, positive=True)
+            kwargs["physical"] = physical.PhysicalValve.from_case(case, **overrides)
+        sim = loops.simulate_paper_loop(loop_name, s_value, j_value, **kwargs)
+        summary = sim.summary()
+        summary = {"loop": loop_name, **summary}
+        info(render_summary(loop_name, summary))
+        text = json.dumps(summary, indent=2, allow_nan=False) + "\n"
+        if json_out == "-":
+            typer.echo(text, nl=False)
+        elif json_out is not None:
+            write_atomic(json_out, text)
+        if csv is not None:
+            write_atomic(csv, sim.to_pandas().to_csv(index=False))
+        if plot is not None:
+            import matplotlib.pyplot as plt
+
+            fig = sim.plot()
+            try:
+                with atomic_path(plot) as tmp:
+                    fig.savefig(tmp)
+            finally:
+                plt.close(fig)
