@@ -260,14 +260,16 @@ def _frequency_grid(process, controller: PI, n: int) -> np.ndarray:
     return np.logspace(math.log10(1e-6 / t_slow), math.log10(1e2 / t_fast), n)
 
 
-def _phase_crossings(phase: np.ndarray, target: float) -> list[tuple[int, int, float]]:
+def _phase_crossings(
+    phase: np.ndarray, target: float, lo: float, hi: float
+) -> list[tuple[int, int, float]]:
     """Crossings of the unwrapped phase with ``target + 2 pi m`` for every m.
 
-    Returns (m, index, fraction) with the crossing between grid points ``index`` and
+    Only ``m`` with ``target + 2 pi m`` in [lo, hi] are tried.  Returns (m, index,
+    fraction) with the crossing between grid points ``index`` and
     ``index + 1``; ``m`` and the order of crossings with the same ``m`` identify a
     branch that can be followed as ``X_m`` changes.
     """
-    lo, hi = phase.min(), phase.max()
     m_lo = math.ceil((lo - target) / (2 * math.pi))
     m_hi = math.floor((hi - target) / (2 * math.pi))
     out = []
@@ -290,13 +292,17 @@ def _bracket_intersections(phase, log_mag, log_w, log_excess, target_phase, targ
     through the fold, so a sign change between them is an intersection too.
     """
     brackets = []
+    # Where |G0| is below half the smallest |1/N| there can be no intersection; the
+    # phase wraps of a dead time there would only cost time.
+    reach = log_mag >= np.min(target_logmag[ok]) - math.log(2.0) if ok.any() else log_mag > -np.inf
+    lo, hi = (phase[reach].min(), phase[reach].max()) if reach.any() else (0.0, -1.0)
     previous: dict[int, list[tuple[float, float]]] = {}
     for i in range(log_excess.size):
         if not ok[i]:
             previous = {}
             continue
         current: dict[int, list[tuple[float, float]]] = {}
-        for m, j, frac in _phase_crossings(phase, float(target_phase[i])):
+        for m, j, frac in _phase_crossings(phase, float(target_phase[i]), lo, hi):
             lw = log_w[j] + frac * (log_w[j + 1] - log_w[j])
             mismatch = log_mag[j] + frac * (log_mag[j + 1] - log_mag[j]) - target_logmag[i]
             current.setdefault(m, []).append((lw, mismatch))
