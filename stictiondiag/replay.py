@@ -362,6 +362,8 @@ def replay(
     process: FOPTD | Integrating | ProcessFit | None = None,
     integrating: bool | None = None,
     valve: str = "choudhury",
+    noise_std: float = 0.0,
+    seed: int | None = 0,
 ) -> Replay:
     """Replay a recorded loop with the fitted valve and compare with the data.
 
@@ -380,6 +382,12 @@ def replay(
         Process structure for the identification; None chooses by fit.
     valve : {"choudhury", "kano"}
         Data-driven valve model of the replay (Section 5.1; Kano et al. 2004).
+    noise_std : float
+        White measurement noise added to the replayed pv [pv units]; 0 replays the
+        deterministic loop.  Choudhury's model needs a smooth input (Section 5.1
+        asks for an EWMA filter on noisy op), so use ``valve="kano"`` with noise.
+    seed : int, optional
+        Seed of the replay noise.
 
     Returns
     -------
@@ -487,6 +495,8 @@ def replay(
         initial_op=op0,
         initial_mv=float(np.clip(u[0], 0.0, 100.0)),
         initial_integral=initial_integral,
+        noise_std=noise_std,
+        seed=seed,
     )
     pv_r, op_r, mv_r = sim.pv[:n], sim.op[:n], sim.mv[:n]
 
@@ -525,6 +535,7 @@ def replay(
         "initial_mv": float(sim.settings["initial_mv"]),
         "integral_time_simulated_s": ti,
         "sp_recorded": sp_rec is not None,
+        "noise_std": float(noise_std),
     }
     return Replay(
         time=np.arange(n) * dt,
