@@ -19,9 +19,18 @@ from .describing import (
     predict_limit_cycle,
 )
 from .errors import DataError, StictionError, UsageError
+from .identify import (
+    ControllerFit,
+    ProcessFit,
+    controller_fit,
+    identify_controller,
+    identify_process,
+    process_fit,
+)
 from .loops import LimitCycle, Simulation, simulate_loop, simulate_paper_loop
 from .oscillation import Oscillation, detect_oscillation, dominant_period
 from .physical import VALVE_PARAMETERS, PhysicalValve, karnopp
+from .replay import Replay
 from .tags import Tags, read_frame, read_tags, scale
 from .valve import (
     STICTION_MODEL_PARAMETERS,
@@ -71,4 +80,11 @@ __all__ = [
     "VALVE_PARAMETERS",
     "PhysicalValve",
     "karnopp",
+    "ControllerFit",
+    "ProcessFit",
+    "controller_fit",
+    "identify_controller",
+    "identify_process",
+    "process_fit",
+    "Replay",
 ]
