@@ -1,0 +1,322 @@
+"""Tests of the withheld-effect generator (stictiondiag.synthetic).
+
+The generator must produce each hidden effect at a size that shows, and its base
+valve must be the two-parameter stick-slip model when no effect is hidden. Effect
+checks use the noise-free internal signals in ``SyntheticCase.hidden`` to locate
+slips, and the recorded data where the effect is to be seen.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from stictiondiag.errors import UsageError
+from stictiondiag.synthetic import EFFECTS, generate_case, write_benchmark
+from stictiondiag.valve import kano_model
+
+BASES = [pytest.param(False, id="data_driven"), pytest.param(True, id="karnopp")]
+
+
+def _reversal_slips(op: np.ndarray, valve: np.ndarray) -> np.ndarray:
+    """Rows (sample, direction, op travel while stuck, jump) of slips that reverse.
+
+    ``op travel`` runs from the last demand before the valve stopped to the demand at
+    the slip, which is S of the slip's direction for the stick-slip element.
+    """
+    moved = np.abs(np.diff(valve)) > 1e-9
+    rows = []
+    last_dir = 0.0
+    stuck_from = None
+    for k in range(1, valve.shape[0]):
+        if moved[k - 1]:
+            d = math.copysign(1.0, valve[k] - valve[k - 1])
+            if stuck_from is not None and stuck_from > 0 and last_dir != 0.0 and d != last_dir:
+                rows.append((k, d, abs(op[k] - op[stuck_from - 1]), abs(valve[k] - valve[k - 1])))
+            last_dir = d
+            stuck_from = None
+        elif stuck_from is None:
+            stuck_from = k
+    return np.array(rows).reshape(-1, 4)
+
+
+def _synchronised(model: np.ndarray, valve: np.ndarray, tol: float, run: int = 200):
+    """First sample from which ``model`` matches ``valve`` for ``run`` samples, and the
+    share of matching samples from there on (None, 0 if they never match)."""
+    ok = np.abs(model - valve) <= tol
+    windows = np.convolve(ok.astype(int), np.ones(run, dtype=int), "valid")
+    start = np.flatnonzero(windows == run)
+    if start.size == 0:
+        return None, 0.0
+    return int(start[0]), float(ok[start[0] :].mean())
+
+
+def test_effect_names():
+    assert EFFECTS == (
+        "none",
+        "actuator_lag",
+        "miscalibration",
+        "asymmetry",
+        "valve_characteristic",
+        "quantization",
+        "external_disturbance",
+        "time_varying_stiction",
+    )
+
+
+def test_same_seed_same_case_other_seed_other_case():
+    a = generate_case("asymmetry", 11)
+    b = generate_case("asymmetry", 11)
+    pd.testing.assert_frame_equal(a.data, b.data)
+    assert a.truth == b.truth
+    c = generate_case("asymmetry", 12)
+    assert len(c.data) != len(a.data) or not np.allclose(c.data.pv, a.data.pv)
+
+
+def test_unknown_effect_and_bad_arguments_raise_usage_error():
+    with pytest.raises(UsageError, match="unknown effect"):
+        generate_case("backlash", 0)
+    with pytest.raises(UsageError, match="n_samples"):
+        generate_case("none", 0, n_samples=10)
+    with pytest.raises(UsageError, match="ts"):
+        generate_case("none", 0, ts=-1.0)
+
+
+@pytest.mark.parametrize("effect", EFFECTS)
+def test_columns_ranges_and_truth(effect):
+    case = generate_case(effect, 5)
+    data, truth = case.data, case.truth
+    assert list(data.columns) == ["time", "sp", "pv", "op", "mv"]
+    assert 5000 <= len(data) <= 10000
+    assert np.all(np.isfinite(data.to_numpy()))
+    # The clock is exactly uniform: time = k ts.
+    np.testing.assert_allclose(np.diff(data.time), truth["ts"], rtol=1e-12)
+    assert data.time.iloc[0] == 0.0
+    for column in ("op", "mv"):
+        assert data[column].between(0.0, 100.0).all()
+    # A loop that sat at a travel stop would hide every valve effect.
+    assert data.op.between(0.5, 99.5).mean() > 0.95
+    assert truth["effect"] == effect
+    assert truth["valve"]["base"] in ("data_driven", "karnopp")
+    assert truth["S"] > 0 and truth["J"] >= 0
+    assert truth["process"]["type"] in ("foptd", "integrating")
+    json.dumps(truth, allow_nan=False)  # JSON-able, no NaN
+
+
+def test_physical_valve_share_and_equivalent_parameters():
+    bases = [generate_case("none", s, n_samples=300).truth["valve"] for s in range(80)]
+    share = np.mean([b["base"] == "karnopp" for b in bases])
+    # 30 % of cases; 80 draws give a binomial standard deviation of 0.05, so
+    # 0.15-0.45 is three standard deviations either side.
+    assert 0.15 <= share <= 0.45
+    for b in bases:
+        if b["base"] == "karnopp":
+            k = b["karnopp"]["spring_constant_N_per_m"] * 0.01  # N per % of span
+            # Quasi-static correspondence, Section 4 / REFERENCE.md: exact by construction.
+            assert b["S"] == pytest.approx((b["karnopp"]["Fs_N"] + b["karnopp"]["Fc_N"]) / k)
+            assert b["J"] == pytest.approx((b["karnopp"]["Fs_N"] - b["karnopp"]["Fc_N"]) / k)
+            assert b["karnopp"]["mass_kg"] == 1.36 and b["karnopp"]["substep_s"] == 1e-4
+
+
+@pytest.mark.parametrize("physical", BASES)
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_none_is_a_two_parameter_stick_slip(seed, physical):
+    case = generate_case("none", seed, physical=physical)
+    truth, op = case.truth, case.data.op.to_numpy()
+    valve = case.hidden["valve_output"]
+    model = kano_model(op, truth["S"], truth["J"], initial_position=valve[0])
+    # The valve's stuck point at the start of the record is unknown to an outside
+    # model, so compare from the first stretch where both agree. The stick-slip
+    # element matches to rounding. The Karnopp valve matches its quasi-static
+    # equivalent to 0.1 % of span most of the time; where it comes to rest a few
+    # hundredths of a % away (inertia, settling within the sample) a slip near the
+    # threshold can come some samples earlier or later, hence 85 %.
+    tol, share = (1e-9, 0.999) if not physical else (0.1, 0.85)
+    start, agree = _synchronised(model, valve, tol)
+    assert start is not None and start < 0.6 * len(op)
+    assert agree >= share
+    # The recorded mv is that model plus position-transmitter noise only: the
+    # residual spread equals the noise within 5 % (25 % for the physical valve,
+    # whose shifted slips add to the residual).
+    residual = np.std(case.data.mv.to_numpy()[start:] - model[start:])
+    assert residual == pytest.approx(truth["noise"]["mv_std"], rel=0.25 if physical else 0.05)
+    # And mv follows every slip within the sample: no lag between valve and record.
+    jump = np.diff(valve)
+    slips = np.flatnonzero(np.abs(jump) > 5.0 * truth["noise"]["mv_std"]) + 1
+    if slips.size:
+        mv = case.data.mv.to_numpy()
+        seen = (mv[slips] - mv[slips - 1]) / jump[slips - 1]
+        assert np.median(seen) == pytest.approx(1.0, abs=0.2)  # 5-sigma jumps
+
+
+@pytest.mark.parametrize("physical", BASES)
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_actuator_lag_delays_mv_after_a_slip(seed, physical):
+    case = generate_case("actuator_lag", seed, physical=physical)
+    valve, mv = case.hidden["valve_output"], case.data.mv.to_numpy()
+    jump = np.diff(valve)
+    slips = np.flatnonzero(np.abs(jump) > 8.0 * case.truth["noise"]["mv_std"]) + 1
+    assert slips.size >= 5
+    seen = np.median((mv[slips] - mv[slips - 1]) / jump[slips - 1])
+    tau = case.truth["effect_parameters"]["lag_time_constant_s"]
+    # First-order lag: the share of a slip seen after one sample is 1 - e^{-ts/tau}
+    # (<= 0.4 for tau >= 2 ts, where the model without lag sees all of it);
+    # 0.1 absolute covers mv noise on slips of >= 8 noise standard deviations.
+    assert seen == pytest.approx(1.0 - math.exp(-case.truth["ts"] / tau), abs=0.1)
+    assert seen <= 0.5
+
+
+@pytest.mark.parametrize("physical", BASES)
+@pytest.mark.parametrize("seed", [0, 2])
+def test_miscalibration_changes_the_moving_phase_slope(seed, physical):
+    def moving_slope(case):
+        op, valve = case.data.op.to_numpy(), case.hidden["valve_output"]
+        d_valve, d_op = np.diff(valve), np.diff(op)
+        moving = np.abs(d_valve) > 1e-3
+        # Moving phase: the valve moved in this sample and the one before (no slip).
+        keep = moving[1:] & moving[:-1] & (np.abs(d_op[1:]) > 1e-6)
+        assert keep.sum() >= 10
+        return np.median(d_valve[1:][keep] / d_op[1:][keep])
+
+    case = generate_case("miscalibration", seed, physical=physical)
+    gain = case.truth["effect_parameters"]["calibration_gain"]
+    assert abs(gain - 1.0) >= 0.2
+    # Fig. 8 bottom row: the moving-phase gradient of mv against op is the
+    # calibration gain; 2 % covers the Karnopp valve's settling within a sample.
+    assert moving_slope(case) == pytest.approx(gain, rel=0.02)
+    assert moving_slope(generate_case("none", seed, physical=physical)) == pytest.approx(
+        1.0, rel=0.02
+    )
+
+
+@pytest.mark.parametrize("physical", BASES)
+@pytest.mark.parametrize("seed", [0, 1, 5])
+def test_asymmetry_gives_different_bands_and_jumps(seed, physical):
+    case = generate_case("asymmetry", seed, physical=physical)
+    p = case.truth["effect_parameters"]
+    slips = _reversal_slips(case.data.op.to_numpy(), case.hidden["valve_output"])
+    up, down = slips[slips[:, 1] > 0], slips[slips[:, 1] < 0]
+    assert len(up) >= 3 and len(down) >= 3
+    jump_open = (p["S_open"] + p["J_open"]) / 2 - (p["S_close"] - p["J_close"]) / 2
+    jump_close = (p["S_close"] + p["J_close"]) / 2 - (p["S_open"] - p["J_open"]) / 2
+    # Reversal band and jump per direction, within 15 % (one sample of op ramp and
+    # the Karnopp valve's finite settling).
+    assert np.median(up[:, 2]) == pytest.approx(p["S_open"], rel=0.15)
+    assert np.median(down[:, 2]) == pytest.approx(p["S_close"], rel=0.15)
+    assert np.median(up[:, 3]) == pytest.approx(jump_open, rel=0.15)
+    assert np.median(down[:, 3]) == pytest.approx(jump_close, rel=0.15)
+    # Different enough opening and closing to matter (Loop 1, Section 3).
+    ratio_S = max(p["S_open"], p["S_close"]) / min(p["S_open"], p["S_close"])
+    ratio_jump = max(jump_open, jump_close) / min(jump_open, jump_close)
+    assert max(ratio_S, ratio_jump) >= 1.8
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_valve_characteristic_bends_flow_over_the_visited_range(seed):
+    case = generate_case("valve_characteristic", seed)
+    position, flow = case.hidden["position"], case.hidden["flow"]
+    lo, hi = np.percentile(position, [5, 95])
+    curve = np.polyfit(position, flow, 2)
+    slopes = np.polyval(np.polyder(curve), [lo, hi])
+    # Installed gain changes by at least a quarter between the ends of the
+    # operating range the loop visits: a linear process model cannot fit both.
+    assert max(slopes) / min(slopes) >= 1.25
+    none = generate_case("none", seed)
+    np.testing.assert_allclose(none.hidden["flow"], none.hidden["position"], atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_quantization_leaves_few_levels(seed):
+    case = generate_case("quantization", seed)
+    p, data, noise = case.truth["effect_parameters"], case.data, case.truth["noise"]
+    checked = 0
+    for signal, quantum, noise_std in (
+        ("pv", p["pv_quantum"], noise["pv_std"]),
+        ("mv", p["mv_quantum_pct"], noise["mv_std"]),
+    ):
+        if quantum is None:
+            continue
+        x = data[signal].to_numpy()
+        levels = np.unique(x)
+        # Every value on the grid (to float rounding) and few distinct levels.
+        np.testing.assert_allclose(x / quantum, np.round(x / quantum), atol=1e-6)
+        assert len(levels) <= np.ptp(x) / quantum + 1.5
+        assert len(levels) <= 150
+        # A step of the grid stands out from the noise.
+        assert quantum >= 3.0 * noise_std
+        checked += 1
+    assert checked >= 1
+    unquantised = generate_case("none", seed).data
+    assert len(np.unique(unquantised.pv)) > 1000 and len(np.unique(unquantised.mv)) > 1000
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_external_disturbance_is_a_spectral_line_in_pv(seed):
+    case = generate_case("external_disturbance", seed)
+    p, ts = case.truth["effect_parameters"], case.truth["ts"]
+    pv = case.data.pv.to_numpy()
+    n = pv.shape[0]
+    detrended = pv - np.polyval(np.polyfit(np.arange(n), pv, 1), np.arange(n))
+    power = np.abs(np.fft.rfft(detrended * np.hanning(n))) ** 2
+    freqs = np.fft.rfftfreq(n, ts)
+    k = int(np.argmin(np.abs(freqs - 1.0 / p["period_s"])))
+    line = power[max(k - 2, 0) : k + 3].max()
+    neighbours = np.r_[power[max(k - 40, 1) : max(k - 5, 1)], power[k + 6 : k + 41]]
+    # A sinusoid of >= 5 noise standard deviations over thousands of samples
+    # stands 20 times (13 dB) above the neighbouring spectrum at the very least.
+    assert line >= 20.0 * np.median(neighbours)
+    assert p["amplitude"] >= 5.0 * case.truth["noise"]["pv_std"]
+    own = p["loop_period_without_disturbance_s"]
+    if own is not None:
+        assert not 0.6 < p["period_s"] / own < 1.6
+    assert np.ptp(generate_case("none", seed).hidden["output_disturbance"]) == 0.0
+
+
+@pytest.mark.parametrize("physical", BASES)
+@pytest.mark.parametrize("seed", [0, 2, 5])
+def test_time_varying_stiction_changes_the_band(seed, physical):
+    case = generate_case("time_varying_stiction", seed, physical=physical)
+    p = case.truth["effect_parameters"]
+    n = len(case.data)
+    slips = _reversal_slips(case.data.op.to_numpy(), case.hidden["valve_output"])
+    early = slips[slips[:, 0] < 0.3 * n, 2]
+    late = slips[slips[:, 0] > 0.7 * n, 2]
+    assert len(early) >= 2 and len(late) >= 2
+    # The change happens between 30 % and 70 % of the record; the band before and
+    # after is S and S * factor within 15 % plus one sample of op movement (the
+    # slip is seen at the first sample beyond the band).
+    op_step = np.median(np.abs(np.diff(case.data.op)))
+    assert np.median(early) == pytest.approx(p["S_start"], rel=0.15, abs=op_step)
+    assert np.median(late) == pytest.approx(p["S_end"], rel=0.15, abs=op_step)
+    assert max(p["factor"], 1.0 / p["factor"]) >= 2.0
+
+
+def test_write_benchmark_is_balanced_and_reproducible(tmp_path):
+    written = write_benchmark(tmp_path / "a", n_cases=9, seed=3)
+    assert len(written) == 9
+    effects = [truth["effect"] for _, truth in written]
+    # 9 // 8 = 1 of each, the one left over goes to the first effect.
+    assert effects.count("none") == 2
+    assert all(effects.count(e) == 1 for e in EFFECTS[1:])
+    manifest = json.loads((tmp_path / "a" / "truth.json").read_text())
+    assert [c["file"] for c in manifest["cases"]] == [p.name for p, _ in written]
+    for path, truth in written:
+        data = pd.read_csv(path)
+        assert list(data.columns) == ["time", "sp", "pv", "op", "mv"]
+        assert len(data) == truth["n_samples"]
+        assert truth["effect"] not in path.name  # file names do not give the effect away
+    again = write_benchmark(tmp_path / "b", n_cases=9, seed=3)
+    for (pa, _), (pb, _) in zip(written, again, strict=True):
+        assert pa.read_bytes() == pb.read_bytes()
+    assert (tmp_path / "a" / "truth.json").read_text() == (
+        tmp_path / "b" / "truth.json"
+    ).read_text()
+
+
+def test_write_benchmark_rejects_no_cases(tmp_path):
+    with pytest.raises(UsageError, match="n_cases"):
+        write_benchmark(tmp_path, n_cases=0, seed=1)
