@@ -345,12 +345,13 @@ def _loop_kernel(
     inv_Ti = 1.0 / Ti
     for k in range(n):
         spk = sp[k]
+        band_k = band[k]
         disturbance = pv_bias + load[k] + noise[k]
         for j in range(n_sub):
             pv = y + disturbance
             e = spk - pv
             trial = integral
-            if band < 0.0 or abs(e) >= band:
+            if band_k < 0.0 or abs(e) >= band_k:
                 trial = integral + e * h  # Gerry & Ruel: integrate only outside the band
             op = op_bias + Kc * (e + trial * inv_Ti)
             if (op > 100.0 and Kc * (trial - integral) > 0.0) or (
@@ -446,6 +447,36 @@ def _series(name: str, value, n: int, default: float) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
+def _integral_band(value, n: int) -> np.ndarray:
+    """One band per sample [pv units]; -1 where the PI integrates normally."""
+    if value is None:
+        return np.full(n, -1.0)
+    arr = np.asarray(value, dtype=float) if not isinstance(value, str) else None
+    if arr is None or (arr.ndim == 0 and isinstance(value, bool)):
+        raise UsageError(f"integral_band must be a number, got {value!r}")
+    if arr.ndim == 0:
+        return np.full(n, _number("integral_band", float(arr), minimum=0.0))
+    if arr.ndim != 1 or arr.size != n:
+        raise UsageError(
+            f"integral_band must be a number or an array of one value per sample ({n}), "
+            f"got shape {arr.shape}"
+        )
+    if np.any(arr < 0) or np.any(np.isinf(arr)):
+        raise UsageError("integral_band must be >= 0 and finite (NaN = normal PI)")
+    return np.where(np.isnan(arr), -1.0, arr)
+
+
+def _band_setting(band: np.ndarray):
+    """JSON-able description of the band: None, one number, or a summary."""
+    on = band[band >= 0.0]
+    if on.size == 0:
+        return None
+    if on.size == band.size and np.all(on == on[0]):
+        return float(on[0])
+    first = int(np.flatnonzero(band >= 0.0)[0])
+    return {"values": sorted({float(v) for v in np.unique(on)})[:10], "first_sample": first}
+
+
 def _check_loop(process, controller) -> None:
     if not isinstance(process, FOPTD | Integrating):
         raise UsageError("process must be a FOPTD or Integrating model (stictiondiag.processes)")
@@ -476,7 +507,7 @@ def simulate_loop(
     op_bias: float = 50.0,
     pv_bias: float = 0.0,
     kick: float = DEFAULT_KICK,
-    integral_band: float | None = None,
+    integral_band: float | np.ndarray | None = None,
     characteristic: str = "linear",
     initial_op: float | None = None,
     initial_mv: float | None = None,
@@ -524,9 +555,11 @@ def simulate_loop(
     kick : float
         The valve starts stuck ``kick`` % of span away from ``op_bias`` (see the
         module docstring).  Ignored when ``initial_mv`` is given.
-    integral_band : float, optional
+    integral_band : float or ndarray, optional
         Gerry & Ruel (2001) variable-integral PI (Section 6.4): no integral action
-        while ``|sp - pv| < integral_band`` [pv units].
+        while ``|sp - pv| < integral_band`` [pv units].  An array gives one band per
+        sample, NaN meaning a normal PI at that sample (to switch the scheme on
+        during a run).
     characteristic : {"linear", "equal_percentage", "quick_opening"}
         Valve characteristic between position and flow (the process sees the flow).
     initial_op, initial_mv : float, optional
@@ -570,9 +603,7 @@ def simulate_loop(
     pv_bias = _number("pv_bias", pv_bias)
     kick = _number("kick", kick)
     noise_std = _number("noise_std", noise_std, minimum=0.0)
-    band = -1.0
-    if integral_band is not None:
-        band = _number("integral_band", integral_band, minimum=0.0)
+    band = _integral_band(integral_band, n)
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
         raise UsageError(f"seed must be an integer or None, got {seed!r}")
 
@@ -665,7 +696,7 @@ def simulate_loop(
         "kick": kick,
         "initial_op": op0,
         "initial_mv": mv0,
-        "integral_band": None if integral_band is None else band,
+        "integral_band": _band_setting(band),
         "noise_std": noise_std,
         "seed": None if seed is None else int(seed),
         "characteristic": characteristic,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
@@ -186,6 +187,31 @@ def test_variable_integral_pi_removes_limit_cycle():
     assert 0.5 < abs(offset) < 4.0  # a real offset, inside the band (2.95 here)
 
 
+def test_variable_integral_switched_on_during_the_cycle():
+    # The same scheme switched on at t = 2000 s into the established S=5, J=2 cycle
+    # (pv amplitude 4.29).  A band above the error amplitude (5) stops the cycle at
+    # the next stick phase and leaves the error of that moment as a permanent
+    # offset (4.3 pv units); a band below it (3) does not: the error leaves the
+    # band every half cycle and the integral drives the valve through its stiction.
+    n = 60000
+    results = {}
+    for value in (3.0, 5.0):
+        band = np.full(n, np.nan)
+        band[20000:] = value
+        sim = simulate_paper_loop("concentration", 5, 2, duration=6000.0, integral_band=band)
+        results[value] = sim
+        assert sim.settings["integral_band"] == {"values": [value], "first_sample": 20000}
+    assert simulate_paper_loop("concentration", 5, 2, duration=2000.0).limit_cycle().present
+    assert results[3.0].limit_cycle(transient=3000.0).present
+    stopped = results[5.0]
+    assert not stopped.limit_cycle(transient=3000.0).present
+    assert np.ptp(stopped.mv[20000:]) == 0.0  # stuck from the switch-on to the end
+    offset = float(stopped.pv[-1])
+    # The offset left is the error at the last stick: about the cycle's pv amplitude
+    # (4.29); 10 % for where in the half cycle the valve stuck.
+    assert abs(offset) == pytest.approx(4.29, rel=0.1)
+
+
 def test_linear_valve_tracks_setpoint_and_rejects_load():
     proc, ctrl = (
         LOOP_PARAMETERS["concentration"]["process"],
@@ -302,6 +328,7 @@ def test_simulation_result_api(tmp_path):
     assert lcd["present"] is True and set(lcd["amplitude"]) == {"pv", "op", "mv"}
     fig = sim.plot()
     fig.savefig(tmp_path / "sim.png")
+    plt.close(fig)
     assert (tmp_path / "sim.png").stat().st_size > 1000
     with pytest.raises(UsageError):
         sim.limit_cycle(transient=1e6)
@@ -333,6 +360,7 @@ def test_initial_state_and_kick():
         ({"noise_std": -0.1}, "noise_std"),
         ({"op_bias": 120.0}, "op_bias"),
         ({"integral_band": -1.0}, "integral_band"),
+        ({"integral_band": np.zeros(3)}, "integral_band"),
         ({"characteristic": "cubic"}, "characteristic"),
         ({"valve": "physical", "physical": {"Fs": 1}}, "PhysicalValve"),
         ({"valve": "physical", "duration": 1e6}, "integration steps"),
