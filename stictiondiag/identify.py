@@ -14,8 +14,9 @@ Controller (:func:`identify_controller`)
     so the fit needs no initial condition.  ``Kc`` may be negative (a reverse-acting
     controller in the paper's sign convention ``e = sp - pv``).  When the integral
     term is not significant the controller is proportional only (``Ti = inf``).
-    Differences that touch a saturated ``op`` (at 0 or 100 % or on a plateau at the
-    recorded extreme) are excluded: there the controller's law does not hold.
+    Differences that touch a saturated ``op`` (at 0 or 100 %, or held at one value,
+    see :func:`saturated_samples`) are excluded: there the controller's law does not
+    hold.
     Without a recorded setpoint the setpoint is taken as constant at the mean of pv
     (an integrating controller holds pv at its setpoint on average).
 
@@ -55,9 +56,11 @@ from .processes import FOPTD, PI, Integrating
 
 #: t-statistic of the integral term below which the controller is called P-only [-].
 INTEGRAL_T_THRESHOLD = 3.0
-#: op within this distance of 0 or 100 % counts as saturated [% of span].
-SATURATION_TOLERANCE = 0.05
-#: A plateau at the recorded op extreme this long or longer counts as saturated [samples].
+#: op within this distance of 0 or 100 % counts as saturated [% of span].  Wider than
+#: rounding: anti-windup schemes act next to the limit (conditional integration lets op
+#: chatter just below it, integrating on some samples and not on others).
+SATURATION_TOLERANCE = 1.0
+#: op held at one value this long or longer counts as saturated [samples].
 SATURATION_PLATEAU = 3
 #: Integrating model chosen when its simulation R^2 is at most this much below the FOPTD's.
 INTEGRATING_R2_MARGIN = 0.01
@@ -236,29 +239,30 @@ def _r2(y: np.ndarray, y_hat: np.ndarray) -> float:
 
 
 def saturated_samples(op: np.ndarray) -> np.ndarray:
-    """Boolean mask of samples where op is saturated.
+    """Boolean mask of samples where the PI law cannot be seen in op.
 
-    op at 0 or 100 % of span (within :data:`SATURATION_TOLERANCE`), or sitting on a
-    plateau of at least :data:`SATURATION_PLATEAU` samples at its recorded minimum or
-    maximum (a clamp whose limits are not 0-100 %).
+    op at 0 or 100 % of span (within :data:`SATURATION_TOLERANCE`), or held at one
+    value for at least :data:`SATURATION_PLATEAU` samples.  A PI controller with a
+    non-zero error always moves its output, so a held op is a clamp (limits other
+    than 0-100 %, or conditional-integration anti-windup holding op just below the
+    limit), a manual or tracking mode, or a historian repeating old values: in each
+    case the law does not hold there.  With zero error a held op carries no
+    information, so leaving it out costs nothing.
     """
     op = np.asarray(op, dtype=float)
     sat = (op <= SATURATION_TOLERANCE) | (op >= 100.0 - SATURATION_TOLERANCE)
-    if op.size == 0:
+    if op.size < SATURATION_PLATEAU:
         return sat
     span = float(np.nanmax(op) - np.nanmin(op))
-    if span <= 0.0:
-        return sat
-    tol = 1e-9 * max(1.0, span)
-    for extreme in (np.nanmin(op), np.nanmax(op)):
-        at = np.abs(op - extreme) <= tol
-        # Runs of consecutive samples at the extreme.
-        edges = np.diff(np.concatenate(([0], at.astype(np.int8), [0])))
-        starts = np.flatnonzero(edges == 1)
-        ends = np.flatnonzero(edges == -1)
-        for s, e in zip(starts, ends, strict=True):
-            if e - s >= SATURATION_PLATEAU:
-                sat[s:e] = True
+    tol = 1e-12 * max(1.0, span)
+    same = np.abs(np.diff(op)) <= tol  # op[k+1] equals op[k]
+    # Runs of equal consecutive differences; a run of m equal steps is m + 1 samples.
+    edges = np.diff(np.concatenate(([0], same.astype(np.int8), [0])))
+    starts = np.flatnonzero(edges == 1)
+    ends = np.flatnonzero(edges == -1)
+    for s0, e0 in zip(starts, ends, strict=True):
+        if e0 - s0 + 1 >= SATURATION_PLATEAU:
+            sat[s0 : e0 + 1] = True
     return sat
 
 
