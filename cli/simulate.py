@@ -139,9 +139,12 @@ def simulate(
             help="Multiplier on the calibration factor k/A (physical; 1.25 = Fig. 8).",
         ),
     ] = None,
-    duration: Annotated[str, typer.Option(metavar="SECONDS", help="Simulated time [s].")] = "3000",
+    duration: Annotated[
+        str, typer.Option(metavar="SECONDS", help="Simulated time in seconds.")
+    ] = "3000",
     dt: Annotated[
-        str | None, typer.Option(metavar="SECONDS", help="Sample time [s]. Default: 0.1.")
+        str | None,
+        typer.Option(metavar="SECONDS", help="Sample time in seconds. Default: the loop's, 0.1."),
     ] = None,
     integral_band: Annotated[
         str | None,
@@ -175,10 +178,9 @@ def simulate(
 ) -> None:
     """Simulate a PI loop with a sticky valve and report its limit cycle.
 
-    Runs the loop of Choudhury, Thornhill & Shah (2005), Eq. 3 / Table 3, from a
-    stuck valve, detects the limit cycle of pv, and compares it with the describing
-    function prediction (Section 6; for the physical valve through its quasi-static
-    S and J). The summary goes to stderr, data to the files asked for.
+    Runs the loop of Choudhury, Thornhill & Shah (2005), Eq. 3 and Table 3, from a stuck valve, detects the limit cycle of pv and compares it with the describing-function prediction (Section 6; for the physical valve through its quasi-static S and J).
+
+    The summary goes to stderr; JSON, CSV and the plot go to the files asked for (JSON to stdout with --json -). Exit codes: 0 done, 2 bad option value or unwritable output.
     """
     from stictiondiag import loops, physical, processes
     from stictiondiag.atomic import atomic_path, write_atomic
