@@ -1,12 +1,12 @@
 """Write a generated plant: N closed control loops, one file per loop, for ``stiction scan``.
 
-Each loop is a PI-controlled first-order-plus-dead-time process
-(:func:`stictiondiag.loops.simulate_loop`) with a data-driven valve
-(Choudhury et al. 2005, Section 5.1). About ``sticky_share`` of the valves are sticky
-(S 2-6 % of span, J 0.2-1 x S): they cycle on their own (Sections 4.2.2 and 5.3). The
-others are healthy (S = J = 0) and move only with a random-walk load disturbance.
-All loops carry white measurement noise on pv; process, tuning and noise differ per
-loop.
+About ``sticky_share`` of the loops have a sticky valve: cases of
+:func:`stictiondiag.synthetic.generate_case` with no further effect (self-regulating
+or integrating process, data-driven or Karnopp valve with S 0.8-6 % of span, load
+and set-point changes, noise; Choudhury et al. 2005, Sections 4 and 5). The others
+have a healthy valve (S = J = 0): a PI-controlled first-order-plus-dead-time process
+(:func:`stictiondiag.loops.simulate_loop`) moved by a random-walk load, with white
+measurement noise on pv. Process, tuning and noise differ per loop.
 
 The truth (S, J, process, controller) goes to ``truth.json``, which ``stiction scan``
 does not read.
@@ -32,8 +32,9 @@ import pandas as pd
 
 from stictiondiag.loops import simulate_loop
 from stictiondiag.processes import FOPTD, PI
+from stictiondiag.synthetic import generate_case
 
-#: Sample time of every generated loop [s].
+#: Sample time of the healthy loops [s] (the sticky cases draw theirs).
 SAMPLE_TIME_S = 1.0
 
 
@@ -47,9 +48,10 @@ def make_loop(
     seed : int
         Seed of the random process, tuning, valve and noise choices.
     n_samples : int
-        Samples in the record (sample time :data:`SAMPLE_TIME_S`).
+        Samples in the record.
     sticky : bool
-        Sticky valve (S, J > 0) or healthy valve (S = J = 0).
+        Sticky valve (a :func:`~stictiondiag.synthetic.generate_case` case) or healthy
+        valve (S = J = 0, sample time :data:`SAMPLE_TIME_S`).
     record_mv : bool
         Whether the valve position column ``mv`` is written.
 
@@ -59,6 +61,19 @@ def make_loop(
         Columns ``time`` [s], ``sp``, ``pv`` [pv units], ``op`` (and ``mv``) [% of
         span]; the truth as a JSON-able dict.
     """
+    if sticky:
+        case = generate_case("none", seed, n_samples=n_samples)
+        frame = case.data[["time", "sp", "pv", "op", "mv"]].copy()
+        truth = {"sticky": True, **case.truth}
+    else:
+        frame, truth = _healthy_loop(seed, n_samples)
+    if not record_mv:
+        frame = frame.drop(columns="mv")
+    truth["has_mv"] = record_mv
+    return frame, truth
+
+
+def _healthy_loop(seed: int, n_samples: int) -> tuple[pd.DataFrame, dict]:
     rng = np.random.default_rng(seed)
     gain = float(rng.uniform(0.5, 3.0))  # pv units per % of span
     time_constant = float(rng.uniform(10.0, 60.0))  # [s]
@@ -68,20 +83,16 @@ def make_loop(
     Ti = min(time_constant, 8.0 * dead_time)
     process = FOPTD(gain=gain, time_constant=time_constant, dead_time=dead_time)
     controller = PI(gain=Kc, integral_time=Ti)
-    S = float(rng.uniform(2.0, 6.0)) if sticky else 0.0
-    J = float(S * rng.uniform(0.2, 1.0)) if sticky else 0.0
     pv_bias = float(np.round(rng.uniform(20.0, 80.0), 1))
     noise_std = float(rng.uniform(0.01, 0.05) * gain)
-    # A slow random-walk load keeps healthy loops moving (real loops are never still).
+    # A slow random-walk load keeps a healthy loop moving (real loops are never still).
     walk = np.cumsum(rng.standard_normal(n_samples)) * gain * 0.05
     sim = simulate_loop(
         process,
         controller,
         duration=n_samples * SAMPLE_TIME_S,
         dt=SAMPLE_TIME_S,
-        valve="choudhury",
-        S=S,
-        J=J,
+        valve="linear",
         sp=pv_bias,
         load=walk,
         noise_std=noise_std,
@@ -89,17 +100,14 @@ def make_loop(
         op_bias=float(rng.uniform(35.0, 65.0)),
         pv_bias=pv_bias,
     )
-    frame = pd.DataFrame({"time": sim.time, "sp": sim.sp, "pv": sim.pv, "op": sim.op})
-    if record_mv:
-        frame["mv"] = sim.mv
+    frame = pd.DataFrame({"time": sim.time, "sp": sim.sp, "pv": sim.pv, "op": sim.op, "mv": sim.mv})
     truth = {
-        "sticky": sticky,
-        "S": S,
-        "J": J,
+        "sticky": False,
+        "S": 0.0,
+        "J": 0.0,
         "process": {"gain": gain, "time_constant_s": time_constant, "dead_time_s": dead_time},
         "controller": {"gain": Kc, "integral_time_s": Ti},
         "noise_std": noise_std,
-        "has_mv": record_mv,
     }
     return frame, truth
 
