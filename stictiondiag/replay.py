@@ -60,7 +60,7 @@ from .identify import (
 from .processes import FOPTD, PI, Integrating
 
 #: Points of phase per cycle in the average cycle shape.
-CYCLE_BINS = 64
+CYCLE_BINS = 256
 #: Hysteresis of the cycle cutter, as a fraction of the signal's standard deviation.
 CYCLE_HYSTERESIS = 0.25
 #: Cycles shorter or longer than this factor of the median cycle are left out.
