@@ -55,6 +55,35 @@ def read_options(
     }
 
 
+def check_outputs(out: Path | None, json_path: str | None) -> None:
+    """Refuse output locations that cannot be written before the analysis runs.
+
+    The analysis takes seconds; a typo in ``--out`` or ``--json`` should cost none.
+
+    Raises
+    ------
+    UsageError
+        ``--out`` is an existing file, or ``--json`` is a directory or lies below a file.
+    """
+    from stictiondiag.errors import UsageError
+
+    if out is not None and out.exists() and not out.is_dir():
+        raise UsageError(f"cannot write plots to {out}: it is a file; give a directory for --out")
+    if json_path in (None, "-"):
+        return
+    target = Path(json_path)
+    if target.is_dir():
+        raise UsageError(f"cannot write {target}: it is a directory; give a file name for --json")
+    for parent in target.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(
+                    f"cannot write {target}: {parent} is a file, not a directory; "
+                    "choose another --json path"
+                )
+            break
+
+
 def _fmt(x, spec=".2f", none="n/a") -> str:
     return none if x is None else format(x, spec)
 
@@ -147,6 +176,7 @@ def analyze(
     from stictiondiag.atomic import atomic_path, write_atomic
 
     with friendly_errors():
+        check_outputs(out, json_path)
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
         info(f"analysing {file} ...")
         result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
