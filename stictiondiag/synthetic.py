@@ -28,23 +28,27 @@ Effects (:data:`EFFECTS`)
     Positioner span error: the friction element is driven by
     ``pivot + gain (op - pivot)`` with a gain of 0.65-0.8 or 1.2-1.4, so the
     moving-phase slope of ``mv`` against ``op`` is not 1 (Section 4.2.1, Fig. 8
-    bottom row).
+    bottom row). J is kept at or below 0.8 S so that there is a moving phase.
 ``asymmetry``
     Different S and J opening and closing, as the large downward slip of Loop 1,
     Section 3: ratio 1.8-3 for S and 1-3 for J with the stick-slip element; for the
     Karnopp valve per-direction friction forces giving slip jumps in a ratio
     1.8-3 (its reversal bands then differ by the difference of the jumps).
 ``valve_characteristic``
-    Equal-percentage (rangeability 25-50) or quick-opening installed
-    characteristic between valve position and flow (valve authority 0.4-1); the
-    recorded ``mv`` is the stem position, the process sees the flow.
+    Equal-percentage (rangeability 25-50, valve authority 0.6-1) or quick-opening
+    (``1 - (1 - x)^m``, m 2-3, authority 0.3-1) installed characteristic between
+    valve position and flow, drawn until the installed gain differs by at least
+    half between the ends of the travel the loop visits. The recorded ``mv`` is the
+    stem position; the process sees the flow.
 ``quantization``
     Historian or instrument resolution: ``mv`` quantised to 0.5-2 % of span
     (Loop 4, Section 3), or ``pv`` to 12-40 levels over its range, or both. With
     instrument resolution the controller acts on the quantised ``pv``.
 ``external_disturbance``
     A periodic load (fundamental plus a weaker second harmonic) entering at the
-    process output, with a period at least 40 % away from the loop's own cycle.
+    process output, with a period at least 40 % away from the loop's own cycle,
+    sized so that 0.7-1.5 times the loop's own error spread (and at least 5 noise
+    standard deviations) gets through the controller to pv.
 ``time_varying_stiction``
     S and J scaled by 2-3 (or 1/3-1/2) during the record, as a step or a ramp.
 
@@ -572,6 +576,23 @@ def _flow_slope(kind: int, rangeability: float, authority: float, position: floa
     return (hi - lo) / (2.0 * dp)
 
 
+def _linear_sensitivity(
+    w: float,
+    integrating: bool,
+    gain: float,
+    time_constant: float,
+    dead_time: float,
+    Kc: float,
+    Ti: float,
+    filter_time: float,
+) -> float:
+    """``|1 / (1 + G C F)|`` at ``w`` [rad/s] for the loop with a linear valve."""
+    s = 1j * w
+    process = gain * np.exp(-dead_time * s) / (s if integrating else time_constant * s + 1.0)
+    controller = Kc * (1.0 + 1.0 / (Ti * s)) / (filter_time * s + 1.0)
+    return float(abs(1.0 / (1.0 + process * controller)))
+
+
 def _dominant_period(x: np.ndarray, ts: float) -> float:
     """Period [s] of the largest spectral peak of a detrended signal (0 if none)."""
     x = x - np.mean(x)
@@ -648,7 +669,7 @@ def generate_case(
     n_total = n + _WARMUP_SAMPLES
 
     S = float(rng.uniform(0.8, 6.0))
-    J = float(S * rng.uniform(0.1, 1.0) if use_physical else S * rng.uniform(0.0, 1.4))
+    J = float(S * rng.uniform(0.25, 1.0) if use_physical else S * rng.uniform(0.25, 1.4))
 
     # Process and PI tuning (SIMC rules, randomly detuned) --------------------------
     integrating = bool(rng.random() < 0.35)
@@ -701,7 +722,7 @@ def generate_case(
     noise_std = float(rng.uniform(0.03, 0.15) * pv_per_pct * max(J, 0.5 * S))
     noise_phi = float(rng.uniform(0.0, 0.6))
     noise = _ar1_noise(rng, n_total, noise_std, noise_phi)
-    mv_noise_std = float(rng.uniform(0.03, 0.2))
+    mv_noise_std = float(rng.uniform(0.03, 0.15))
     mv_noise = rng.standard_normal(n_total) * mv_noise_std
 
     # Effect parameters ------------------------------------------------------------
@@ -720,8 +741,17 @@ def generate_case(
 
     if effect == "actuator_lag":
         lag_time = float(rng.uniform(2.0, 6.0) * ts)
+        # A lag shows on slips: keep them clear of the position-transmitter noise.
+        quieter = min(mv_noise_std, J / 10.0)
+        mv_noise = mv_noise * (quieter / mv_noise_std)
+        mv_noise_std = quieter
         effect_params = {"lag_time_constant_s": lag_time, "lag_samples": lag_time / ts}
     elif effect == "miscalibration":
+        # The slope shows in the moving phase, which a valve with J >= S in an
+        # integrating loop hardly has: keep some deadband.
+        J = min(J, 0.8 * S)
+        J_open[:] = J
+        J_close[:] = J
         if rng.random() < 0.5:
             cal_gain = float(rng.uniform(0.65, 0.8))
         else:
@@ -773,25 +803,6 @@ def generate_case(
             "S_open: op travel after a reversal before an opening slip; J_open: opening "
             "slip jump; S and J are the geometric means of the two directions"
         )
-    elif effect == "valve_characteristic":
-        if rng.random() < 0.6:
-            char_kind = _CHAR_EQUAL_PERCENTAGE
-            rangeability = float(rng.uniform(25.0, 50.0))
-            authority = float(rng.uniform(0.6, 1.0))
-        else:
-            char_kind = _CHAR_QUICK_OPENING
-            rangeability = float(rng.uniform(2.0, 3.0))  # exponent m
-            authority = float(rng.uniform(0.5, 1.0))
-        effect_params = {
-            "characteristic": "equal_percentage"
-            if char_kind == _CHAR_EQUAL_PERCENTAGE
-            else "quick_opening",
-            "rangeability": rangeability if char_kind == _CHAR_EQUAL_PERCENTAGE else None,
-            "quick_opening_exponent": rangeability if char_kind == _CHAR_QUICK_OPENING else None,
-            "authority": authority,
-            "note": "mv is the stem position; the process sees the installed flow, "
-            "scaled to the linear valve's slope at the operating point",
-        }
     elif effect == "time_varying_stiction":
         factor = float(rng.uniform(2.0, 3.0))
         if rng.random() < 0.5:
@@ -820,10 +831,6 @@ def generate_case(
 
     kp = KARNOPP_PARAMETERS
     flow0, dflow0 = 0.0, 1.0
-    if char_kind != _CHAR_LINEAR:
-        position0 = cal_pivot + cal_gain * (op_bias - cal_pivot)
-        flow0 = float(_characteristic(position0, char_kind, rangeability, authority))
-        dflow0 = _flow_slope(char_kind, rangeability, authority, position0)
 
     def run(pv_quantum: float, output_disturbance: np.ndarray):
         return _closed_loop(
@@ -863,12 +870,58 @@ def generate_case(
             kp["stick_velocity_m_per_s"],
         )
 
-    if effect in ("quantization", "external_disturbance"):
+    if effect in ("quantization", "external_disturbance", "valve_characteristic"):
         # A pilot run of the same loop sizes the effect against what the loop does.
         pilot = run(0.0, load_out)
         pilot_pv = pilot[0][_WARMUP_SAMPLES:]
         pilot_err = pilot_pv - sp[_WARMUP_SAMPLES:]
-        if effect == "quantization":
+        if effect == "valve_characteristic":
+            # Draw characteristics until the installed gain differs by half between
+            # the ends of the range of travel the loop visits (5th-95th percentile).
+            lo, hi = np.percentile(pilot[3][_WARMUP_SAMPLES:], [5.0, 95.0])
+            position0 = cal_pivot + cal_gain * (op_bias - cal_pivot)
+            need_lo, need_hi = np.percentile(pilot[3][_WARMUP_SAMPLES:] - position0, [1.0, 99.0])
+            for _ in range(200):
+                if rng.random() < 0.6:
+                    char_kind = _CHAR_EQUAL_PERCENTAGE
+                    rangeability = float(rng.uniform(25.0, 50.0))
+                    authority = float(rng.uniform(0.6, 1.0))
+                else:
+                    char_kind = _CHAR_QUICK_OPENING
+                    rangeability = float(rng.uniform(2.0, 3.0))  # exponent m
+                    authority = float(rng.uniform(0.3, 1.0))
+                slopes = [_flow_slope(char_kind, rangeability, authority, p) for p in (lo, hi)]
+                flow0 = float(_characteristic(position0, char_kind, rangeability, authority))
+                dflow0 = _flow_slope(char_kind, rangeability, authority, position0)
+                # The valve must still pass the flows the loop needs, with margin.
+                reach_lo = (
+                    _characteristic(2.0, char_kind, rangeability, authority) - flow0
+                ) / dflow0
+                reach_hi = (
+                    _characteristic(98.0, char_kind, rangeability, authority) - flow0
+                ) / dflow0
+                if (
+                    max(slopes) >= 1.5 * min(slopes)
+                    and reach_lo <= need_lo - 3.0
+                    and reach_hi >= need_hi + 3.0
+                ):
+                    break
+            flow0 = float(_characteristic(position0, char_kind, rangeability, authority))
+            dflow0 = _flow_slope(char_kind, rangeability, authority, position0)
+            effect_params = {
+                "characteristic": "equal_percentage"
+                if char_kind == _CHAR_EQUAL_PERCENTAGE
+                else "quick_opening",
+                "rangeability": rangeability if char_kind == _CHAR_EQUAL_PERCENTAGE else None,
+                "quick_opening_exponent": rangeability
+                if char_kind == _CHAR_QUICK_OPENING
+                else None,
+                "authority": authority,
+                "gain_ratio_over_travel": max(slopes) / min(slopes),
+                "note": "mv is the stem position; the process sees the installed flow, "
+                "scaled to the linear valve's slope at the operating point",
+            }
+        elif effect == "quantization":
             where = str(rng.choice(["mv", "pv", "both"]))
             levels = float(rng.uniform(12.0, 40.0))
             spread = float(np.percentile(pilot_pv, 99) - np.percentile(pilot_pv, 1))
@@ -894,17 +947,24 @@ def generate_case(
                 period = float(rng.uniform(15.0, 200.0) * ts)
                 if own_period <= 0.0 or not (0.6 < period / own_period < 1.6):
                     break
-            amplitude = max(float(rng.uniform(0.7, 1.5) * np.std(pilot_err)), 5.0 * noise_std)
+            w = 2.0 * math.pi / period
+            # Size the line by what reaches pv: the loop takes out a slow
+            # disturbance, by the linear sensitivity 1/(1 + G C F) at its frequency.
+            in_pv = max(float(rng.uniform(0.7, 1.5) * np.std(pilot_err)), 5.0 * noise_std)
+            sensitivity = _linear_sensitivity(
+                w, integrating, gain, time_constant, dead * ts, Kc, Ti, filter_time
+            )
+            amplitude = in_pv / max(sensitivity, 0.1)
             phase = float(rng.uniform(0.0, 2.0 * math.pi))
             harmonic = float(rng.uniform(0.0, 0.3))
             t_all = np.arange(n_total) * ts
-            w = 2.0 * math.pi / period
             load_out = amplitude * (
                 np.sin(w * t_all + phase) + harmonic * np.sin(2.0 * w * t_all + 2.0 * phase)
             )
             effect_params = {
                 "period_s": period,
                 "amplitude": amplitude,
+                "amplitude_in_pv_linear": amplitude * max(sensitivity, 0.1),
                 "second_harmonic_ratio": harmonic,
                 "loop_period_without_disturbance_s": own_period if own_period > 0 else None,
                 "enters": "process output",

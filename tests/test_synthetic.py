@@ -45,11 +45,14 @@ def _reversal_slips(op: np.ndarray, valve: np.ndarray) -> np.ndarray:
 
 
 def _synchronised(model: np.ndarray, valve: np.ndarray, tol: float, run: int = 200):
-    """First sample from which ``model`` matches ``valve`` for ``run`` samples, and the
-    share of matching samples from there on (None, 0 if they never match)."""
+    """First sample from which ``model`` matches ``valve`` for ``run`` samples with a
+    slip among them (both at rest says nothing), and the share of matching samples
+    from there on (None, 0 if they never match)."""
     ok = np.abs(model - valve) <= tol
     windows = np.convolve(ok.astype(int), np.ones(run, dtype=int), "valid")
-    start = np.flatnonzero(windows == run)
+    slipped = np.abs(np.diff(valve, prepend=valve[0])) > 10.0 * tol
+    slips = np.convolve(slipped.astype(int), np.ones(run, dtype=int), "valid")
+    start = np.flatnonzero((windows == run) & (slips > 0))
     if start.size == 0:
         return None, 0.0
     return int(start[0]), float(ok[start[0] :].mean())
@@ -137,13 +140,15 @@ def test_none_is_a_two_parameter_stick_slip(seed, physical):
     # threshold can come some samples earlier or later, hence 85 %.
     tol, share = (1e-9, 0.999) if not physical else (0.1, 0.85)
     start, agree = _synchronised(model, valve, tol)
-    assert start is not None and start < 0.6 * len(op)
+    assert start is not None and len(op) - start >= 1000
     assert agree >= share
     # The recorded mv is that model plus position-transmitter noise only: the
-    # residual spread equals the noise within 5 % (25 % for the physical valve,
-    # whose shifted slips add to the residual).
-    residual = np.std(case.data.mv.to_numpy()[start:] - model[start:])
-    assert residual == pytest.approx(truth["noise"]["mv_std"], rel=0.25 if physical else 0.05)
+    # robust spread (1.4826 MAD, blind to the few shifted slips) of the residual
+    # equals the noise standard deviation within 10 % (the MAD of 1 000 or more
+    # normal samples scatters by 4 % at most).
+    residual = case.data.mv.to_numpy()[start:] - model[start:]
+    spread = 1.4826 * np.median(np.abs(residual - np.median(residual)))
+    assert spread == pytest.approx(truth["noise"]["mv_std"], rel=0.1)
     # And mv follows every slip within the sample: no lag between valve and record.
     jump = np.diff(valve)
     slips = np.flatnonzero(np.abs(jump) > 5.0 * truth["noise"]["mv_std"]) + 1
@@ -159,7 +164,15 @@ def test_actuator_lag_delays_mv_after_a_slip(seed, physical):
     case = generate_case("actuator_lag", seed, physical=physical)
     valve, mv = case.hidden["valve_output"], case.data.mv.to_numpy()
     jump = np.diff(valve)
-    slips = np.flatnonzero(np.abs(jump) > 8.0 * case.truth["noise"]["mv_std"]) + 1
+    # Slips out of a rest of 30 samples (5 time constants at most): the lagged
+    # position has settled before the valve jumps.
+    rest = np.convolve((np.abs(jump) < 1e-9).astype(int), np.ones(30, dtype=int), "full")
+    k = np.arange(1, valve.shape[0] - 1)
+    after_rest = np.zeros(valve.shape[0], dtype=bool)
+    after_rest[k + 1] = rest[k - 1] == 30
+    big = np.zeros(valve.shape[0], dtype=bool)
+    big[1:] = np.abs(jump) > 8.0 * case.truth["noise"]["mv_std"]
+    slips = np.flatnonzero(big & after_rest)
     assert slips.size >= 5
     seen = np.median((mv[slips] - mv[slips - 1]) / jump[slips - 1])
     tau = case.truth["effect_parameters"]["lag_time_constant_s"]
@@ -176,11 +189,14 @@ def test_miscalibration_changes_the_moving_phase_slope(seed, physical):
     def moving_slope(case):
         op, valve = case.data.op.to_numpy(), case.hidden["valve_output"]
         d_valve, d_op = np.diff(valve), np.diff(op)
-        moving = np.abs(d_valve) > 1e-3
-        # Moving phase: the valve moved in this sample and the one before (no slip).
-        keep = moving[1:] & moving[:-1] & (np.abs(d_op[1:]) > 1e-6)
-        assert keep.sum() >= 10
-        return np.median(d_valve[1:][keep] / d_op[1:][keep])
+        moving = np.abs(d_valve) > 0.02
+        # Moving phase: the valve moved in this sample and the two before, so the
+        # sample is neither a slip nor the end of a slip that straddled a sample;
+        # 0.02 % of span is above the few thousandths of a % the Karnopp valve
+        # coasts on after a reversal.
+        keep = moving[2:] & moving[1:-1] & moving[:-2] & (np.abs(d_op[2:]) > 1e-6)
+        assert keep.sum() >= 5
+        return np.median(d_valve[2:][keep] / d_op[2:][keep])
 
     case = generate_case("miscalibration", seed, physical=physical)
     gain = case.truth["effect_parameters"]["calibration_gain"]
@@ -203,12 +219,14 @@ def test_asymmetry_gives_different_bands_and_jumps(seed, physical):
     assert len(up) >= 3 and len(down) >= 3
     jump_open = (p["S_open"] + p["J_open"]) / 2 - (p["S_close"] - p["J_close"]) / 2
     jump_close = (p["S_close"] + p["J_close"]) / 2 - (p["S_open"] - p["J_open"]) / 2
-    # Reversal band and jump per direction, within 15 % (one sample of op ramp and
-    # the Karnopp valve's finite settling).
-    assert np.median(up[:, 2]) == pytest.approx(p["S_open"], rel=0.15)
-    assert np.median(down[:, 2]) == pytest.approx(p["S_close"], rel=0.15)
-    assert np.median(up[:, 3]) == pytest.approx(jump_open, rel=0.15)
-    assert np.median(down[:, 3]) == pytest.approx(jump_close, rel=0.15)
+    # Reversal band and jump per direction, within 15 % (the Karnopp valve's
+    # finite settling) plus two typical op steps: the slip comes at the first
+    # sample beyond the band, overshooting it by up to a step or two of op.
+    op_step = 2.0 * np.median(np.abs(np.diff(case.data.op)))
+    assert np.median(up[:, 2]) == pytest.approx(p["S_open"], rel=0.15, abs=op_step)
+    assert np.median(down[:, 2]) == pytest.approx(p["S_close"], rel=0.15, abs=op_step)
+    assert np.median(up[:, 3]) == pytest.approx(jump_open, rel=0.15, abs=op_step)
+    assert np.median(down[:, 3]) == pytest.approx(jump_close, rel=0.15, abs=op_step)
     # Different enough opening and closing to matter (Loop 1, Section 3).
     ratio_S = max(p["S_open"], p["S_close"]) / min(p["S_open"], p["S_close"])
     ratio_jump = max(jump_open, jump_close) / min(jump_open, jump_close)
@@ -269,7 +287,7 @@ def test_external_disturbance_is_a_spectral_line_in_pv(seed):
     # A sinusoid of >= 5 noise standard deviations over thousands of samples
     # stands 20 times (13 dB) above the neighbouring spectrum at the very least.
     assert line >= 20.0 * np.median(neighbours)
-    assert p["amplitude"] >= 5.0 * case.truth["noise"]["pv_std"]
+    assert p["amplitude_in_pv_linear"] >= 5.0 * case.truth["noise"]["pv_std"]
     own = p["loop_period_without_disturbance_s"]
     if own is not None:
         assert not 0.6 < p["period_s"] / own < 1.6
@@ -287,9 +305,9 @@ def test_time_varying_stiction_changes_the_band(seed, physical):
     late = slips[slips[:, 0] > 0.7 * n, 2]
     assert len(early) >= 2 and len(late) >= 2
     # The change happens between 30 % and 70 % of the record; the band before and
-    # after is S and S * factor within 15 % plus one sample of op movement (the
-    # slip is seen at the first sample beyond the band).
-    op_step = np.median(np.abs(np.diff(case.data.op)))
+    # after is S and S * factor within 15 % plus two typical op steps (the slip
+    # comes at the first sample beyond the band).
+    op_step = 2.0 * np.median(np.abs(np.diff(case.data.op)))
     assert np.median(early) == pytest.approx(p["S_start"], rel=0.15, abs=op_step)
     assert np.median(late) == pytest.approx(p["S_end"], rel=0.15, abs=op_step)
     assert max(p["factor"], 1.0 / p["factor"]) >= 2.0
