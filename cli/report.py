@@ -16,6 +16,7 @@ import typer
 
 from stictiondiag.errors import EXIT_FINDING, EXIT_PARTIAL
 
+from .analyze import LoopType, OpUnits, read_options
 from .common import fail, friendly_errors, info
 from .main import app
 
@@ -40,17 +41,42 @@ def report(
         str | None, typer.Option(help="Also write the Markdown summary to PATH ('-' = stdout).")
     ] = None,
     gap: Annotated[bool, typer.Option(help="Include the sim-to-real gap diagnosis.")] = True,
+    pv: Annotated[str | None, typer.Option(help="Column holding pv (every file).")] = None,
+    op: Annotated[str | None, typer.Option(help="Column holding op (every file).")] = None,
+    mv: Annotated[str | None, typer.Option(help="Column holding mv (every file).")] = None,
+    sp: Annotated[str | None, typer.Option(help="Column holding sp (every file).")] = None,
+    time: Annotated[str | None, typer.Option(help="Time column (seconds or timestamps).")] = None,
     ts: Annotated[
-        float | None, typer.Option(help="Sampling time [s] for files without a time column.")
+        float | None,
+        typer.Option(help="Sampling time in seconds, for files without a time column."),
+    ] = None,
+    op_units: Annotated[OpUnits, typer.Option(help="Units of op and mv.")] = OpUnits.percent,
+    op_range: Annotated[
+        tuple[float, float] | None,
+        typer.Option(help="LO HI of op in its own units, mapped to 0-100 % of span."),
+    ] = None,
+    loop_type: Annotated[
+        LoopType, typer.Option(help="What the loops control (level implies integrating).")
+    ] = LoopType.other,
+    integrating: Annotated[
+        bool | None,
+        typer.Option(
+            "--integrating/--self-regulating", help="Process type; default from --loop-type."
+        ),
     ] = None,
 ) -> None:
-    """Write a self-contained HTML report per loop, an index page, summary.md and JSON."""
+    """Write a self-contained HTML report per loop, an index page, summary.md and JSON.
+
+    Exit codes: 0 success, 1 stiction found (with --fail-on-stiction), 2 usage error,
+    3 no input could be read, 4 some inputs could not be analysed.
+    """
     from stictiondiag.atomic import write_atomic
     from stictiondiag.report import build_report, render_markdown
 
     if fail_on_stiction is not None and not 0.0 <= fail_on_stiction <= 1.0:
         fail(f"--fail-on-stiction threshold must be in [0, 1], got {fail_on_stiction}", 2)
     with friendly_errors():
+        options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
 
         def progress(i: int, n: int, name: str) -> None:
             if name:
@@ -59,7 +85,7 @@ def report(
         result = build_report(
             [str(f) for f in files],
             out,
-            read_options={"ts": ts} if ts else {},
+            read_options=options,
             gap=gap,
             clean=clean,
             progress=progress,
@@ -72,13 +98,16 @@ def report(
         info(f"wrote {result.outputs['index']} and {result.outputs['markdown']}")
         for f, msg in result.failed:
             info(f"failed: {f}: {msg}")
+    worst = result.max_stiction_confidence()
+    finding = fail_on_stiction is not None and worst is not None and worst >= fail_on_stiction
+    if finding:
+        info(f"stiction found (confidence {worst:.2f} >= {fail_on_stiction:g})")
+    # A partial failure outranks a finding: the report is incomplete either way.
     if result.failed:
+        info(f"{len(result.failed)} of {len(files)} input(s) could not be analysed: exit 4")
         raise typer.Exit(EXIT_PARTIAL)
-    if fail_on_stiction is not None:
-        worst = result.max_stiction_confidence()
-        if worst is not None and worst >= fail_on_stiction:
-            info(f"stiction found (confidence {worst:.2f} >= {fail_on_stiction}): exit 1")
-            raise typer.Exit(EXIT_FINDING)
+    if finding:
+        raise typer.Exit(EXIT_FINDING)
 
 
 def normalise_argv(args: list[str]) -> list[str]:
