@@ -71,6 +71,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.csv as pa_csv
 
 from ._jit import jit
 from .atomic import write_atomic
@@ -1066,6 +1068,20 @@ def generate_case(
     return SyntheticCase(data=data, truth=_plain(truth), hidden=hidden)
 
 
+def _csv_bytes(data: pd.DataFrame, decimals: int = 6) -> bytes:
+    """CSV text of ``data`` (header unquoted, values rounded to ``decimals``).
+
+    pyarrow's writer is an order of magnitude faster than pandas' for the ~10 MB of
+    a 40-case benchmark.
+    """
+    table = pa.Table.from_pandas(data.round(decimals), preserve_index=False)
+    sink = pa.BufferOutputStream()
+    options = pa_csv.WriteOptions(include_header=False, quoting_style="none")
+    pa_csv.write_csv(table, sink, write_options=options)
+    header = (",".join(data.columns) + "\n").encode()
+    return header + sink.getvalue().to_pybytes()
+
+
 def benchmark_effects(n_cases: int, seed: int) -> list[str]:
     """Effects of a benchmark of ``n_cases``: balanced, in a seed-dependent order.
 
@@ -1107,7 +1123,7 @@ def write_benchmark(out_dir: str | Path, n_cases: int, seed: int) -> list[tuple[
     for i, (effect, case_seed) in enumerate(zip(effects, seeds, strict=True)):
         case = generate_case(effect, int(case_seed))
         path = out / f"case_{i:0{width}d}.csv"
-        case.data.to_csv(path, index=False, float_format="%.6g")
+        path.write_bytes(_csv_bytes(case.data))
         truth = dict(case.truth, file=path.name)
         written.append((path, truth))
     manifest = {
