@@ -1,0 +1,107 @@
+"""Wall time of a report over the bundled sample loops; prints a table.
+
+Measures
+
+1. ``stiction report sample_data/*.csv --out DIR`` as a CI job runs it: a fresh
+   process (imports, numba's on-disk cache, analysis, figures, HTML), timed from the
+   outside; target: < 30 s with the gap diagnosis;
+2. :func:`stictiondiag.report.build_report` over the same files in this process, per
+   loop (analysis + figures + writing), with and without the gap diagnosis; the first
+   pass in this process pays imports and cache loading, the second is warm.
+
+Usage: ``python benchmarks/bench_report.py [--files GLOB] [--skip-cli]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGET_S = 30.0
+
+
+def time_cli(files: list[str], gap: bool) -> tuple[float, int]:
+    """Seconds and exit code of the ``stiction report`` command in a fresh process."""
+    out = tempfile.mkdtemp(prefix="bench_report_cli_")
+    try:
+        # The console-script entry point, run by this interpreter.
+        entry = "from stiction_cli.main import main; main()"
+        cmd = [sys.executable, "-c", entry, "report", *files, "--out", out]
+        if not gap:
+            cmd.append("--no-gap")
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        elapsed = time.perf_counter() - t0
+        if proc.returncode not in (0, 1):
+            print(proc.stderr[-2000:], file=sys.stderr)
+        return elapsed, proc.returncode
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+
+
+def time_library(files: list[str], gap: bool) -> tuple[float, dict[str, float], list]:
+    """Total seconds, seconds per loop, and the index rows of one :func:`build_report`."""
+    from stictiondiag.report import build_report
+
+    marks: list[tuple[float, str]] = []
+
+    def progress(i: int, n: int, name: str) -> None:
+        marks.append((time.perf_counter(), name))
+
+    out = tempfile.mkdtemp(prefix="bench_report_lib_")
+    try:
+        t0 = time.perf_counter()
+        result = build_report(files, out, gap=gap, progress=progress)
+        total = time.perf_counter() - t0
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    per_loop = {name: marks[k + 1][0] - t for k, (t, name) in enumerate(marks[:-1])}
+    return total, per_loop, result.rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--files", default=str(ROOT / "sample_data" / "*.csv"))
+    parser.add_argument("--skip-cli", action="store_true", help="only the in-process timing")
+    args = parser.parse_args()
+    files = sorted(glob.glob(args.files))
+    if not files:
+        sys.exit(f"no files match {args.files}")
+    print(f"{len(files)} loops: {', '.join(Path(f).stem for f in files)}\n")
+
+    if not args.skip_cli:
+        print("| stiction report (fresh process) | wall [s] | exit | target |")
+        print("|---|---|---|---|")
+        for gap in (True, False):
+            seconds, code = time_cli(files, gap)
+            flag = "" if gap else " --no-gap"
+            verdict = "ok" if seconds < TARGET_S else "OVER"
+            print(
+                f"| `report sample_data/*.csv{flag}` | {seconds:.1f} | {code} | "
+                f"< {TARGET_S:.0f} s {verdict} |"
+            )
+        print()
+
+    runs = {}
+    for label, gap in (("gap, first pass", True), ("gap, warm", True), ("no gap, warm", False)):
+        runs[label] = time_library(files, gap)
+    print("| loop | verdict | " + " | ".join(f"{k} [s]" for k in runs) + " |")
+    print("|---|---|" + "---|" * len(runs))
+    rows = {r["loop"]: r for r in runs["gap, warm"][2]}
+    for f in files:
+        name = Path(f).stem
+        cells = " | ".join(f"{runs[k][1].get(name, float('nan')):.2f}" for k in runs)
+        print(f"| {name} | {rows.get(name, {}).get('verdict', '?')} | {cells} |")
+    totals = " | ".join(f"**{runs[k][0]:.1f}**" for k in runs)
+    print(f"| total build_report | | {totals} |")
+
+
+if __name__ == "__main__":
+    main()
