@@ -14,28 +14,38 @@ Controller (:func:`identify_controller`)
     so the fit needs no initial condition.  ``Kc`` may be negative (a reverse-acting
     controller in the paper's sign convention ``e = sp - pv``).  When the integral
     term is not significant the controller is proportional only (``Ti = inf``).
-    Differences that touch a saturated ``op`` (at 0 or 100 %, or held at one value,
-    see :func:`saturated_samples`) are excluded: there the controller's law does not
-    hold.
+    Differences that touch a saturated ``op`` (held at its recorded minimum or
+    maximum, see :func:`saturated_samples`) are excluded: there the controller's law
+    does not hold.  Differences the law does not explain elsewhere (anti-windup acting
+    next to a limit, manual mode, historian glitches) are trimmed as outliers:
+    residuals beyond :data:`TRIM_SIGMAS` robust standard deviations are left out and
+    the fit repeated.
     Without a recorded setpoint the setpoint is taken as constant at the mean of pv
     (an integrating controller holds pv at its setpoint on average).
 
 Process (:func:`identify_process`)
-    1. A scan over integer dead times ``d`` [samples] of the one-step ARX models
-       ``pv[k+1] = a pv[k] + b u[k-d] + c`` (FOPTD) and
-       ``pv[k+1] - pv[k] = b u[k-d] + c`` (integrating), all delays at once from
-       normal equations built with correlations (vectorised, no loop over delays).
-    2. Output-error refinement: the model is *simulated* from ``u`` and the squared
-       simulation error minimised, over the time constant (a scalar search; gain,
-       bias and initial state enter linearly and are solved by least squares at each
-       step) and over the dead time near the ARX choice.  The one-step ARX fit is
-       biased by measurement noise on pv (the regressor ``pv[k]`` is noisy); the
-       output-error fit is not, and it is the simulated response that the replay
-       needs.
-    3. With ``integrating=None`` the integrating model is chosen when its simulation
-       fit is within :data:`INTEGRATING_R2_MARGIN` of the FOPTD's: an integrator is
-       the limit of an FOPTD with a long time constant, so the FOPTD always fits at
-       least about as well and the simpler model wins ties.
+    Output-error fit: the model is *simulated* from ``u`` and the squared
+    simulation error minimised.  Gain, initial state and balance input enter
+    linearly and are solved by least squares; the dead time (whole samples) is
+    scanned over all delays at once (normal equations from prefix sums and
+    correlations), on a coarse grid of time constants for the FOPTD, followed by a
+    scalar search of the time constant and a local walk along the dead time.  A
+    one-step ARX fit would be biased by measurement noise on pv (the regressor
+    ``pv[k]`` is noisy); the output-error fit is not, and it is the simulated
+    response that the replay needs (the ARX R^2 is reported for reference).
+
+    Model and data are compared after a first-order high-pass (time constant a few
+    oscillation periods): plant pv drifts with unmeasured disturbances, which an
+    integrator or a slow lag would otherwise chase.  The samples within the first
+    dead time are left out (pv there answers to inputs from before the record);
+    free-response regressors absorb what those unknown inputs leave behind, so the
+    fit is exact on noise-free data from the model.  Operating point and initial
+    state are then fitted on the raw data with the dynamics fixed.
+
+    With ``integrating=None`` the integrating model is chosen when its fit is
+    within :data:`INTEGRATING_R2_MARGIN` of the FOPTD's: an integrator is the limit
+    of an FOPTD with a long time constant, so the FOPTD always fits at least about
+    as well and the simpler model wins ties.
 
 A limit cycle is (nearly) periodic, so a dead time ``d`` and ``d + P`` (``P`` the
 period in samples) explain the data about equally well; the scan takes the shortest
@@ -54,19 +64,26 @@ from scipy.signal import correlate, lfilter
 from .errors import DataError, UsageError
 from .processes import FOPTD, PI, Integrating
 
+#: Outlier trimming of the velocity-form fit: residuals beyond this many robust
+#: standard deviations are left out [-], for at most TRIM_ROUNDS refits.
+TRIM_SIGMAS = 5.0
+TRIM_ROUNDS = 4
 #: t-statistic of the integral term below which the controller is called P-only [-].
 INTEGRAL_T_THRESHOLD = 3.0
-#: op within this distance of 0 or 100 % counts as saturated [% of span].  Wider than
-#: rounding: anti-windup schemes act next to the limit (conditional integration lets op
-#: chatter just below it, integrating on some samples and not on others).
-SATURATION_TOLERANCE = 1.0
-#: op held at one value this long or longer counts as saturated [samples].
+#: op within this fraction of its recorded range of the recorded minimum or maximum
+#: counts as at the limit [-] (rounding of a clamped value).
+SATURATION_TOLERANCE = 1e-6
+#: op held at a limit this long or longer counts as saturated [samples].
 SATURATION_PLATEAU = 3
 #: Integrating model chosen when its simulation R^2 is at most this much below the FOPTD's.
 INTEGRATING_R2_MARGIN = 0.01
-#: Dead-time scan: shortest delay whose ARX cost is within this fraction of the range
+#: Dead-time scan: shortest delay whose cost is within this fraction of the range
 #: between the best and the median cost (periodic data make d and d + P ambiguous).
 DEAD_TIME_TOLERANCE = 0.02
+#: Drift high-pass of the process fit: time constant in periods of pv's dominant
+#: oscillation, or as a fraction of the record when pv has no dominant period.
+DRIFT_PERIODS = 1.0
+DRIFT_RECORD_FRACTION = 0.2
 #: Longest dead time searched, as a fraction of the record [-].
 MAX_DEAD_TIME_FRACTION = 0.25
 #: Fewest usable samples for an identification.
@@ -95,8 +112,9 @@ class ControllerFit:
         ``Kc < 0`` in the convention ``e = sp - pv``.
     sp_assumed : bool
         No setpoint was given; it was taken as constant at mean(pv).
-    n_used, n_saturated : int
-        Differences used in the fit; samples flagged as saturated.
+    n_used, n_saturated, n_outliers : int
+        Differences used in the fit; samples flagged as saturated; differences left
+        out as outliers of the PI law.
     integral_t_stat : float
         t-statistic of the integral coefficient [-].
     """
@@ -111,6 +129,7 @@ class ControllerFit:
     n_used: int
     n_saturated: int
     integral_t_stat: float
+    n_outliers: int = 0
 
     def to_dict(self) -> dict:
         """JSON-able dict (``integral_time_s`` is None for a P-only controller)."""
@@ -127,6 +146,7 @@ class ControllerFit:
             "sp_assumed": bool(self.sp_assumed),
             "n_used": int(self.n_used),
             "n_saturated": int(self.n_saturated),
+            "n_outliers": int(self.n_outliers),
             "integral_t_stat": _plain(self.integral_t_stat),
         }
 
@@ -150,9 +170,9 @@ class ProcessFit:
         FOPTD: pv[0] minus the steady state of ``u[0]`` (a decaying free response with
         the time constant) [pv units]; 0 for the integrating model.
     fit_r2 : float
-        R^2 of the simulated (output-error) response against pv [-], over the samples
-        after the first dead time (before it pv answers to inputs from before the
-        record).
+        R^2 of the simulated (output-error) response against pv, both high-passed
+        against drift (``drift_time_constant``), over the samples after the first dead
+        time (before it pv answers to inputs from before the record) [-].
     arx_r2 : float
         R^2 of the one-step ARX model at the chosen dead time, on pv differences [-].
     integrating : bool
@@ -160,7 +180,11 @@ class ProcessFit:
     dead_time_samples : int
         Dead time [samples].
     candidates : dict
-        Simulation R^2 of each structure that was fitted (``foptd``, ``integrating``).
+        ``fit_r2`` of each structure that was fitted (``foptd``, ``integrating``).
+    unfiltered_r2 : float
+        R^2 of the simulated response against the raw pv (drift included) [-].
+    drift_time_constant : float or None
+        Time constant of the drift high-pass [s]; None when the fit was unfiltered.
     """
 
     process: FOPTD | Integrating
@@ -172,6 +196,8 @@ class ProcessFit:
     integrating: bool
     dead_time_samples: int
     candidates: dict = field(default_factory=dict)
+    unfiltered_r2: float = math.nan
+    drift_time_constant: float | None = None
 
     def simulate(self, u: np.ndarray, dt: float) -> np.ndarray:
         """Open-loop response of the fitted model to ``u`` [pv units] (same length)."""
@@ -199,6 +225,8 @@ class ProcessFit:
                 "arx_r2": _plain(self.arx_r2),
                 "dead_time_samples": int(self.dead_time_samples),
                 "candidates": {k: _plain(v) for k, v in self.candidates.items()},
+                "unfiltered_r2": _plain(self.unfiltered_r2),
+                "drift_time_constant_s": _plain(self.drift_time_constant),
             }
         )
         return out
@@ -239,30 +267,31 @@ def _r2(y: np.ndarray, y_hat: np.ndarray) -> float:
 
 
 def saturated_samples(op: np.ndarray) -> np.ndarray:
-    """Boolean mask of samples where the PI law cannot be seen in op.
+    """Boolean mask of samples where op is pinned at a limit.
 
-    op at 0 or 100 % of span (within :data:`SATURATION_TOLERANCE`), or held at one
-    value for at least :data:`SATURATION_PLATEAU` samples.  A PI controller with a
-    non-zero error always moves its output, so a held op is a clamp (limits other
-    than 0-100 %, or conditional-integration anti-windup holding op just below the
-    limit), a manual or tracking mode, or a historian repeating old values: in each
-    case the law does not hold there.  With zero error a held op carries no
-    information, so leaving it out costs nothing.
+    op held for at least :data:`SATURATION_PLATEAU` samples at its recorded minimum
+    or maximum (within :data:`SATURATION_TOLERANCE` of the op range): a clamp, at 0 or
+    100 % or at other output limits.  The units of op are not assumed (plant data are
+    often scaled), so the limits are taken from the record.  Other stretches where
+    the PI law does not hold (anti-windup acting next to a limit, manual mode) are
+    left to the outlier trimming of :func:`identify_controller`.
     """
     op = np.asarray(op, dtype=float)
-    sat = (op <= SATURATION_TOLERANCE) | (op >= 100.0 - SATURATION_TOLERANCE)
+    sat = np.zeros(op.size, dtype=bool)
     if op.size < SATURATION_PLATEAU:
         return sat
-    span = float(np.nanmax(op) - np.nanmin(op))
-    tol = 1e-12 * max(1.0, span)
-    same = np.abs(np.diff(op)) <= tol  # op[k+1] equals op[k]
-    # Runs of equal consecutive differences; a run of m equal steps is m + 1 samples.
-    edges = np.diff(np.concatenate(([0], same.astype(np.int8), [0])))
-    starts = np.flatnonzero(edges == 1)
-    ends = np.flatnonzero(edges == -1)
-    for s0, e0 in zip(starts, ends, strict=True):
-        if e0 - s0 + 1 >= SATURATION_PLATEAU:
-            sat[s0 : e0 + 1] = True
+    lo, hi = float(np.nanmin(op)), float(np.nanmax(op))
+    tol = SATURATION_TOLERANCE * (hi - lo)
+    if hi - lo <= 0.0:
+        return sat
+    for at in (op <= lo + tol, op >= hi - tol):
+        edges = np.diff(np.concatenate(([0], at.astype(np.int8), [0])))
+        starts = np.flatnonzero(edges == 1)
+        ends = np.flatnonzero(edges == -1)
+        for s0, e0 in zip(starts, ends, strict=True):
+            # Held, not passing through: the run must be flat, not a turning peak.
+            if e0 - s0 >= SATURATION_PLATEAU and np.ptp(op[s0:e0]) <= tol:
+                sat[s0:e0] = True
     return sat
 
 
@@ -299,7 +328,19 @@ def identify_controller(
     de, ek, dop = data.de, data.ek, data.dop
     if np.ptp(ek) == 0.0 and np.ptp(de) == 0.0:
         raise DataError("the control error is constant: pv and sp carry no information")
-    coef, t_int, _ = _lstsq_t(np.column_stack([de, ek]), dop)
+    X = np.column_stack([de, ek])
+    keep = np.ones(dop.size, dtype=bool)
+    floor = 1e-9 * max(float(np.std(dop)), 1e-300)
+    for _ in range(TRIM_ROUNDS):
+        coef, *_ = np.linalg.lstsq(X[keep], dop[keep], rcond=None)
+        resid = dop - X @ coef
+        r_in = resid[keep]
+        sigma = 1.4826 * float(np.median(np.abs(r_in - np.median(r_in))))
+        inlier = np.abs(resid) <= max(TRIM_SIGMAS * sigma, floor)
+        if inlier.sum() < max(MIN_SAMPLES, dop.size // 2) or np.array_equal(inlier, keep):
+            break
+        keep = inlier
+    coef, t_int, _ = _lstsq_t(X[keep], dop[keep])
     kc, ki_dt = float(coef[0]), float(coef[1])
     record = data.e.size * data.dt
     ti = math.inf
@@ -310,11 +351,11 @@ def identify_controller(
         if 0.0 < ti_candidate < 100.0 * record:
             ti = ti_candidate
     if math.isinf(ti):
-        coef1, *_ = np.linalg.lstsq(de[:, None], dop, rcond=None)
+        coef1, *_ = np.linalg.lstsq(de[keep, None], dop[keep], rcond=None)
         kc = float(coef1[0])
     if kc == 0.0 or not math.isfinite(kc):
         raise DataError("op does not respond to the control error: no PI law found")
-    return data.result(kc, ti, float(t_int))
+    return data.result(kc, ti, float(t_int), keep)
 
 
 def controller_fit(
@@ -385,11 +426,16 @@ class _ControllerData:
     def ek(self) -> np.ndarray:
         return self.e[1:][self.use]
 
-    def result(self, kc: float, ti: float, t_int: float) -> ControllerFit:
+    def result(
+        self, kc: float, ti: float, t_int: float, keep: np.ndarray | None = None
+    ) -> ControllerFit:
         dop = self.dop
+        if keep is None:
+            keep = np.ones(dop.size, dtype=bool)
         p_only = math.isinf(ti)
         ki_dt = 0.0 if p_only else kc * self.dt / ti
-        resid = dop - kc * self.de - ki_dt * self.ek
+        resid = (dop - kc * self.de - ki_dt * self.ek)[keep]
+        dop = dop[keep]
         fit_r2 = 1.0 - float(resid @ resid) / max(float(np.sum((dop - dop.mean()) ** 2)), 1e-300)
         # op level: integral frozen while saturated (conditional-integration anti-windup).
         e, good = self.e, self.good
@@ -405,8 +451,9 @@ class _ControllerData:
             p_only=p_only,
             reverse_acting=kc < 0.0,
             sp_assumed=self.sp_assumed,
-            n_used=int(self.use.sum()),
+            n_used=int(keep.sum()),
             n_saturated=self.n_saturated,
+            n_outliers=int(keep.size - keep.sum()),
             integral_t_stat=t_int,
         )
 
@@ -455,70 +502,8 @@ def _integrating_regressors(u: np.ndarray, d: int, dt: float) -> np.ndarray:
     return np.column_stack([np.ones(u.size), dt * np.cumsum(x), dt * k])
 
 
-def _window_sums(x: np.ndarray, start: np.ndarray, length: int) -> np.ndarray:
-    c = np.concatenate(([0.0], np.cumsum(x)))
-    return c[start + length] - c[start]
-
-
-def _arx_scan(u: np.ndarray, pv: np.ndarray, d_max: int, integrating: bool) -> np.ndarray:
-    """Residual sum of squares of the one-step ARX model for every dead time 0..d_max.
-
-    Rows ``k = d_max .. n-2`` are common to all delays so the costs compare.  The
-    normal equations need, per delay, window sums of ``u`` and ``u^2`` and the
-    correlations of ``u`` with ``pv[k]`` and ``pv[k+1]``, all computed at once.
-    """
-    n = u.size
-    m = n - 1 - d_max
-    k0 = d_max
-    y_next = pv[k0 + 1 : n]
-    y_now = pv[k0 : n - 1]
-    starts = k0 - np.arange(d_max + 1)  # u[k-d] for k in [k0, n-2] starts at k0 - d
-    su = _window_sums(u, starts, m)
-    suu = _window_sums(u * u, starts, m)
-    # corr[d] = sum_k y[k] u[k - d]; scipy's correlate picks FFT for long signals.
-    full_next = correlate(y_next, u, mode="full", method="auto")
-    full_now = correlate(y_now, u, mode="full", method="auto")
-    # correlate(a, b)[j] = sum_i a[i] b[i + (len(b) - 1) - j]... index for shift s:
-    # sum_i y[i] u[i + k0 - d]  -> lag index = (len(u) - 1) - (k0 - d)
-    idx = (n - 1) - starts
-    syu = full_next[idx]
-    if integrating:
-        dy = y_next - y_now
-        sdu = syu - full_now[idx]
-        A = np.empty((d_max + 1, 2, 2))
-        A[:, 0, 0] = suu
-        A[:, 0, 1] = su
-        A[:, 1, 0] = su
-        A[:, 1, 1] = m
-        g = np.stack([sdu, np.full(d_max + 1, dy.sum())], axis=1)
-        syy = float(dy @ dy)
-    else:
-        spu = full_now[idx]
-        sp = float(y_now.sum())
-        spp = float(y_now @ y_now)
-        A = np.empty((d_max + 1, 3, 3))
-        A[:, 0, 0] = spp
-        A[:, 0, 1] = spu
-        A[:, 0, 2] = sp
-        A[:, 1, 0] = spu
-        A[:, 1, 1] = suu
-        A[:, 1, 2] = su
-        A[:, 2, 0] = sp
-        A[:, 2, 1] = su
-        A[:, 2, 2] = m
-        g = np.stack(
-            [np.full(d_max + 1, float(y_next @ y_now)), syu, np.full(d_max + 1, y_next.sum())],
-            axis=1,
-        )
-        syy = float(y_next @ y_next)
-    # Tiny ridge keeps a constant-input window (singular) from failing the batch.
-    A = A + 1e-12 * np.trace(A, axis1=1, axis2=2)[:, None, None] * np.eye(A.shape[1])
-    beta = np.linalg.solve(A, g[..., None])[..., 0]
-    return syy - np.einsum("di,di->d", beta, g)
-
-
 def _pick_dead_time(cost: np.ndarray) -> int:
-    """Shortest delay whose ARX cost is close to the best (see module docstring)."""
+    """Shortest delay whose cost is close to the best (see module docstring)."""
     best = float(cost.min())
     spread = float(np.median(cost)) - best
     ok = np.flatnonzero(cost <= best + DEAD_TIME_TOLERANCE * max(spread, 0.0))
@@ -529,76 +514,93 @@ def _pick_dead_time(cost: np.ndarray) -> int:
     return d
 
 
-def _foptd_oe(u: np.ndarray, pv: np.ndarray, d: int, a: float, u_bias: float):
-    """Linear part of the FOPTD output-error fit for fixed dead time and pole.
+def _highpass(x: np.ndarray, b: float) -> np.ndarray:
+    """First-order high-pass ``y[k] = b (y[k-1] + x[k] - x[k-1])`` with pole ``b``,
+    started at rest at ``x[0]`` (``y[0] = 0``); ``b = 1`` only removes ``x[0]``."""
+    x = np.asarray(x, dtype=float) - x[0]
+    if b >= 1.0:
+        return x
+    return lfilter([b, -b], [1.0, -b], x)
 
-    Rows ``k <= d`` are left out: there pv depends on inputs from before the record,
-    and from ``k = d + 1`` on any error in those shows only as a free response
-    ``a^k``, which the third regressor absorbs.  Returns the mean squared error and
-    the coefficients (gain, pv bias, initial deviation).
+
+def _solve_normal(A: np.ndarray, g: np.ndarray, yy: np.ndarray, rows: np.ndarray):
+    """Batched least squares from normal equations; mean squared error per batch."""
+    beta = np.linalg.solve(A, g[..., None])[..., 0]
+    return (yy - np.einsum("...i,...i->...", beta, g)) / rows, beta
+
+
+def _foptd_oe(u: np.ndarray, y_f: np.ndarray, d: int, a: float, b: float):
+    """Filtered output-error fit of the FOPTD for fixed dead time and pole.
+
+    Regressors, high-passed like ``y_f``: the lag response ``z`` (coefficient: the
+    gain) and the free response ``a^k`` (the initial state); plus ``b^k``, the
+    filter's own free response, which carries whatever the rows ``k <= d`` (where pv
+    answers to inputs from before the record) leave in the filter.  Rows ``k > d``.
+    Returns the mean squared error and the coefficients.
     """
-    z = _lag_response(u, d, a)
-    k = np.arange(d + 1, u.size)
-    X = np.column_stack([z[k] - u_bias, np.ones(k.size), a**k])
-    y = pv[k]
-    # Normal equations (3 x 3) are several times faster than an SVD solve here; the
-    # tiny ridge on the free-response column keeps them regular when a^k vanishes.
+    n = u.size
+    k = np.arange(d + 1, n)
+    X = np.column_stack(
+        [_highpass(_lag_response(u, d, a), b)[k], _highpass(a ** np.arange(n), b)[k], b**k]
+    )
     A = X.T @ X
+    # Free responses vanish for fast poles: a tiny ridge keeps the solve regular.
+    A[1, 1] += 1e-12 * k.size
     A[2, 2] += 1e-12 * k.size
-    coef = np.linalg.solve(A, X.T @ y)
-    resid = y - X @ coef
-    return float(resid @ resid) / k.size, coef
+    mse, coef = _solve_normal(A, X.T @ y_f[k], float(y_f[k] @ y_f[k]), k.size)
+    return float(mse), coef
 
 
 def _prefix(x: np.ndarray) -> np.ndarray:
     return np.concatenate(([0.0], np.cumsum(x)))
 
 
-def _oe_delay_scan(z0: np.ndarray, pv: np.ndarray, a: float, d_max: int) -> np.ndarray:
-    """Output-error mean squared error of the FOPTD for every dead time 0..d_max at a
-    fixed pole (rows ``k > d`` as in :func:`_foptd_oe`).
+def _delay_scan(w: np.ndarray, r: np.ndarray, y_f: np.ndarray, b: float, d_max: int):
+    """Mean squared error of a filtered output-error fit for every dead time 0..d_max.
 
-    ``z0`` is the lag response without dead time; delaying the input delays it, so the
-    regressors for dead time ``d`` are ``[z0[k - d], 1, a^k]`` for ``k > d``.  Their
-    normal equations come from prefix sums and one correlation, for all delays at once.
+    Regressors for dead time ``d``, rows ``k > d``: ``w[k - d]`` (the high-passed
+    response to the input without dead time, ``w[0] = 0``: delaying the input delays
+    the response, and the high-pass started at rest keeps the shift), ``r[k]`` (a
+    delay-free column) and ``b^k`` (the filter's free response).  The normal
+    equations come from prefix sums and two correlations for all delays at once.
     """
-    n = z0.size
+    n = w.size
     dd = np.arange(d_max + 1)
-    r = a ** np.arange(n)
-    cz, czz, czr = _prefix(z0), _prefix(z0 * z0), _prefix(z0 * r)
-    cr, crr, cp = _prefix(r), _prefix(r * r), _prefix(pv)
-    crp, cpp = _prefix(r * pv), _prefix(pv * pv)
-    top = n - dd  # z0[1 .. n-1-d] appear
+    q = b ** np.arange(n)
     first = dd + 1  # rows k = d+1 .. n-1
-    # sum_{k>=d} pv[k] z0[k-d] is the correlation of pv with z0 at lag d.
-    full = correlate(pv, z0, mode="full", method="auto")
+    top = n - dd  # w[1 .. n-1-d] appear
+    cww, cwq = _prefix(w * w), _prefix(w * q)
+    crr, crq, cqq = _prefix(r * r), _prefix(r * q), _prefix(q * q)
+    cry, cqy, cyy = _prefix(r * y_f), _prefix(q * y_f), _prefix(y_f * y_f)
+    # sum_{k>=d} v[k] w[k-d]: correlation of v with w at lag d (w[0] = 0 drops k = d).
+    wr = correlate(r, w, mode="full", method="auto")[(n - 1) + dd]
+    wy = correlate(y_f, w, mode="full", method="auto")[(n - 1) + dd]
     A = np.empty((d_max + 1, 3, 3))
-    A[:, 0, 0] = czz[top] - czz[1]
-    A[:, 0, 1] = A[:, 1, 0] = cz[top] - cz[1]
-    A[:, 0, 2] = A[:, 2, 0] = (a**dd) * (czr[top] - czr[1])
-    A[:, 1, 1] = n - first
-    A[:, 1, 2] = A[:, 2, 1] = cr[n] - cr[first]
-    A[:, 2, 2] = crr[n] - crr[first]
-    g = np.stack(
-        [full[(n - 1) + dd] - z0[0] * pv[dd], cp[n] - cp[first], crp[n] - crp[first]], axis=1
-    )
-    # The free-response column vanishes for a fast pole (a^k -> 0); a tiny ridge on
-    # it (the column is bounded by 1, like the constant) keeps the solve regular.
-    A[:, 2, 2] += 1e-12 * n
-    beta = np.linalg.solve(A, g[..., None])[..., 0]
-    sse = (cpp[n] - cpp[first]) - np.einsum("di,di->d", beta, g)
-    return sse / (n - first)
+    A[:, 0, 0] = cww[top] - cww[1]
+    A[:, 0, 1] = A[:, 1, 0] = wr
+    A[:, 0, 2] = A[:, 2, 0] = (b**dd) * (cwq[top] - cwq[1])
+    A[:, 1, 1] = crr[n] - crr[first] + 1e-12 * n * max(float(np.max(np.abs(r))), 1.0) ** 2
+    A[:, 1, 2] = A[:, 2, 1] = crq[n] - crq[first]
+    A[:, 2, 2] = cqq[n] - cqq[first] + 1e-12 * n
+    g = np.stack([wy, cry[n] - cry[first], cqy[n] - cqy[first]], axis=1)
+    mse, _ = _solve_normal(A, g, cyy[n] - cyy[first], n - first)
+    return mse
 
 
-def _fit_foptd(u, pv, dt, d_max, tau_max):
-    """Output-error FOPTD fit: a coarse grid over time constant and every dead time
-    (vectorised), then a walk along the dead time with the time constant refined
-    at each step."""
-    u_bias = float(u.mean())
+def _oe_delay_scan(u: np.ndarray, y_f: np.ndarray, a: float, b: float, d_max: int):
+    """:func:`_foptd_oe` for every dead time 0..d_max at a fixed pole (vectorised)."""
+    k = np.arange(u.size)
+    return _delay_scan(_highpass(_lag_response(u, 0, a), b), _highpass(a**k, b), y_f, b, d_max)
+
+
+def _fit_foptd(u, y_f, dt, b, d_max, tau_max):
+    """Filtered output-error FOPTD fit: a coarse grid over the time constant with every
+    dead time (vectorised), then a walk along the dead time with the time constant
+    refined at each step.  Returns (dead time [samples], tau [s], gain, mse)."""
     log_lo, log_hi = math.log(0.2 * dt), math.log(tau_max)
 
-    def sse(d: int, log_tau: float) -> float:
-        return _foptd_oe(u, pv, d, math.exp(-dt / math.exp(log_tau)), u_bias)[0]
+    def mse(d: int, log_tau: float) -> float:
+        return _foptd_oe(u, y_f, d, math.exp(-dt / math.exp(log_tau)), b)[0]
 
     grid = np.linspace(log_lo, log_hi, 25)
     spacing = float(grid[1] - grid[0])
@@ -609,7 +611,7 @@ def _fit_foptd(u, pv, dt, d_max, tau_max):
         lo, hi = max(centre - spacing, log_lo), min(centre + spacing, log_hi)
         for _ in range(8):
             res = minimize_scalar(
-                lambda g: sse(d, g), bounds=(lo, hi), method="bounded", options={"xatol": 1e-4}
+                lambda g: mse(d, g), bounds=(lo, hi), method="bounded", options={"xatol": 1e-4}
             )
             x = float(res.x)
             if x - lo < 0.05 * spacing and lo > log_lo:
@@ -626,8 +628,7 @@ def _fit_foptd(u, pv, dt, d_max, tau_max):
     profile = np.full(d_max + 1, np.inf)
     tau_at = np.zeros(d_max + 1)
     for g in grid:
-        a = math.exp(-dt / math.exp(g))
-        costs = _oe_delay_scan(_lag_response(u, 0, a), pv, a, d_max)
+        costs = _oe_delay_scan(u, y_f, math.exp(-dt / math.exp(g)), b, d_max)
         better = costs < profile
         profile[better] = costs[better]
         tau_at[better] = g
@@ -643,39 +644,56 @@ def _fit_foptd(u, pv, dt, d_max, tau_max):
     for step in (1, -1):
         while 0 <= d + step <= d_max and cost(d + step, cache[d][0]) < cache[d][1]:
             d += step
-    log_tau = cache[d][0]
-    tau = math.exp(log_tau)
-    sse_, coef = _foptd_oe(u, pv, d, math.exp(-dt / tau), u_bias)
-    gain, pv_bias, x0 = (float(c) for c in coef)
-    return d, tau, gain, pv_bias, x0, u_bias, sse_
+    tau = math.exp(cache[d][0])
+    mse_, coef = _foptd_oe(u, y_f, d, math.exp(-dt / tau), b)
+    return d, tau, float(coef[0]), mse_
 
 
-def _fit_integrating(u, pv, dt, d0):
+def _integrating_oe(u, y_f, dt, d, b):
+    """Filtered output-error fit of the integrator for a fixed dead time: regressors
+    (high-passed) ``dt sum u`` (gain) and ``dt k`` (minus gain x balance input), and
+    the filter's free response ``b^k``; rows ``k > d``."""
     n = u.size
+    k = np.arange(d + 1, n)
+    cols = _integrating_regressors(u, d, dt)
+    X = np.column_stack([_highpass(cols[:, 1], b)[k], _highpass(cols[:, 2], b)[k], b**k])
+    A = X.T @ X
+    A[2, 2] += 1e-12 * k.size
+    mse, coef = _solve_normal(A, X.T @ y_f[k], float(y_f[k] @ y_f[k]), k.size)
+    return float(mse), coef
 
-    def fit(d: int):
-        # Rows k <= d depend on inputs from before the record; from k = d + 1 on an
-        # error in those is a constant offset, which the first regressor absorbs.
-        X = _integrating_regressors(u, d, dt)[d + 1 :]
-        coef, *_ = np.linalg.lstsq(X, pv[d + 1 :], rcond=None)
-        r = pv[d + 1 :] - X @ coef
-        return float(r @ r) / r.size, coef
 
-    cache: dict[int, tuple[float, np.ndarray]] = {}
+def _fit_integrating(u, y_f, dt, b, d_max):
+    """Filtered output-error integrator fit; every dead time at once (the model is
+    linear in its parameters, so the scan is exact).  Returns (dead time, gain,
+    balance input, mse)."""
+    # With the input shifted to start at zero the integrated input for dead time d is
+    # the one for no dead time shifted by d; the shift moves into the balance input.
+    cols = _integrating_regressors(u - u[0], 0, dt)
+    costs = _delay_scan(_highpass(cols[:, 1], b), _highpass(cols[:, 2], b), y_f, b, d_max)
+    d = _pick_dead_time(costs)
+    mse, coef = _integrating_oe(u, y_f, dt, d, b)
+    gain = float(coef[0])
+    u_bias = -float(coef[1]) / gain if gain != 0.0 else float(u.mean())
+    return d, gain, u_bias, mse
 
-    def cost(d: int) -> float:
-        if d not in cache:
-            cache[d] = fit(d)
-        return cache[d][0]
 
-    d = d0
-    for step in (1, -1):
-        while 0 <= d + step < n // 2 and cost(d + step) < cost(d):
-            d += step
-    sse, coef = cache[d] if d in cache else fit(d)
-    pv0, gain, slope = (float(c) for c in coef)
-    u_bias = -slope / gain if gain != 0.0 else float(u.mean())
-    return d, gain, pv0, u_bias, sse
+def _drift_pole(pv: np.ndarray, dt: float, drift_time_constant: float | None):
+    """Pole ``b`` of the drift high-pass and its time constant [s] (None: no filter)."""
+    if drift_time_constant is None:
+        from .oscillation import dominant_period
+
+        period = dominant_period(pv, dt)
+        if period is not None:
+            drift_time_constant = DRIFT_PERIODS * period
+        else:
+            drift_time_constant = DRIFT_RECORD_FRACTION * pv.size * dt
+    T = float(drift_time_constant)
+    if math.isnan(T) or T <= 0.0:
+        raise UsageError(f"drift_time_constant must be > 0 s (inf: no filter), got {T}")
+    if math.isinf(T):
+        return 1.0, None
+    return math.exp(-dt / T), T
 
 
 def identify_process(
@@ -685,6 +703,7 @@ def identify_process(
     *,
     integrating: bool | None = None,
     max_dead_time: float | None = None,
+    drift_time_constant: float | None = None,
 ) -> ProcessFit:
     """Identify an FOPTD or integrating process from ``u`` to ``pv`` (Eq. 3, Table 3).
 
@@ -701,6 +720,13 @@ def identify_process(
         Force the integrating (True) or FOPTD (False) structure; None chooses by fit.
     max_dead_time : float, optional
         Longest dead time searched [s]; default a quarter of the record.
+    drift_time_constant : float, optional
+        Time constant of the high-pass applied to model and data before they are
+        compared [s]: slow drifts of plant data (unmeasured disturbances) then do not
+        pull the fit, while the loop's oscillation passes.  Default
+        :data:`DRIFT_PERIODS` periods of pv's dominant oscillation, or
+        :data:`DRIFT_RECORD_FRACTION` of the record when pv has none; ``math.inf``
+        compares the signals unfiltered.
 
     Returns
     -------
@@ -728,73 +754,80 @@ def identify_process(
             raise UsageError(f"max_dead_time must be >= 0 s, got {max_dead_time}")
         d_max = min(d_max, int(max_dead_time / dt))
     d_max = max(d_max, 0)
+    b, drift_T = _drift_pole(pv, dt, drift_time_constant)
     # Centre the signals: the normal equations are then well conditioned.
     uc = u - u.mean()
     pc = pv - pv.mean()
+    y_f = _highpass(pc, b)
     record = n * dt
     sst_dy = float(np.sum((np.diff(pc) - np.diff(pc).mean()) ** 2)) or 1e-300
 
-    results: dict[str, tuple] = {}
+    def r2_of(mse: float, d: int) -> float:
+        return 1.0 - mse / (float(np.mean(y_f[d + 1 :] ** 2)) or 1e-300)
+
+    results: dict[str, dict] = {}
     if integrating in (None, False):
-        d, tau, gain, pv_bias_c, x0, ub_c, sse = _fit_foptd(uc, pc, dt, d_max, 20.0 * record)
-        results["foptd"] = (
-            1.0 - sse / (float(np.var(pc[d + 1 :])) or 1e-300),
-            _arx_r2_at(uc, pc, d, False, sst_dy),
-            dict(
-                d=d,
-                tau=tau,
-                gain=gain,
-                pv_bias=pv_bias_c + pv.mean(),
-                x0=x0,
-                u_bias=ub_c + u.mean(),
-            ),
-        )
+        d, tau, gain, mse = _fit_foptd(uc, y_f, dt, b, d_max, 20.0 * record)
+        results["foptd"] = dict(d=d, tau=tau, gain=gain, r2=r2_of(mse, d))
     if integrating in (None, True):
-        cost = _arx_scan(uc, pc, d_max, integrating=True)
-        d0 = _pick_dead_time(cost)
-        d, gain, pv0_c, ub_c, sse = _fit_integrating(uc, pc, dt, d0)
-        results["integrating"] = (
-            1.0 - sse / (float(np.var(pc[d + 1 :])) or 1e-300),
-            _arx_r2_at(uc, pc, d, True, sst_dy),
-            dict(d=d, gain=gain, pv_bias=pv0_c + pv.mean(), u_bias=ub_c + u.mean()),
-        )
+        d, gain, ub_c, mse = _fit_integrating(uc, y_f, dt, b, d_max)
+        results["integrating"] = dict(d=d, gain=gain, u_bias=ub_c + u.mean(), r2=r2_of(mse, d))
     if integrating is None:
         chosen = (
             "integrating"
-            if results["integrating"][0] >= results["foptd"][0] - INTEGRATING_R2_MARGIN
+            if results["integrating"]["r2"] >= results["foptd"]["r2"] - INTEGRATING_R2_MARGIN
             else "foptd"
         )
     else:
         chosen = "integrating" if integrating else "foptd"
-    r2, arx_r2, p = results[chosen]
-    candidates = {k: v[0] for k, v in results.items()}
+    p = results[chosen]
+    if p["gain"] == 0.0 or not math.isfinite(p["gain"]):
+        raise DataError(f"pv does not respond to the process input: no {chosen} model")
+    d = p["d"]
     if chosen == "integrating":
-        if p["gain"] == 0.0:
-            raise DataError("pv does not respond to the process input: no integrating model")
-        return ProcessFit(
-            process=Integrating(gain=p["gain"], dead_time=p["d"] * dt),
-            u_bias=p["u_bias"],
-            pv_bias=p["pv_bias"],
-            initial_deviation=0.0,
-            fit_r2=r2,
-            arx_r2=arx_r2,
-            integrating=True,
-            dead_time_samples=p["d"],
-            candidates=candidates,
-        )
-    if p["gain"] == 0.0:
-        raise DataError("pv does not respond to the process input: no FOPTD model")
+        process = Integrating(gain=p["gain"], dead_time=d * dt)
+    else:
+        process = FOPTD(gain=p["gain"], time_constant=p["tau"], dead_time=d * dt)
+    # Biases and initial state from the unfiltered data, dynamics fixed.
+    fit = _biases(process, u, pv, dt, d, u_bias=p.get("u_bias"))
     return ProcessFit(
-        process=FOPTD(gain=p["gain"], time_constant=p["tau"], dead_time=p["d"] * dt),
-        u_bias=p["u_bias"],
-        pv_bias=p["pv_bias"],
-        initial_deviation=p["x0"],
-        fit_r2=r2,
-        arx_r2=arx_r2,
-        integrating=False,
-        dead_time_samples=p["d"],
-        candidates=candidates,
+        process=process,
+        u_bias=fit.u_bias,
+        pv_bias=fit.pv_bias,
+        initial_deviation=fit.initial_deviation,
+        fit_r2=p["r2"],
+        arx_r2=_arx_r2_at(uc, pc, d, chosen == "integrating", sst_dy),
+        integrating=chosen == "integrating",
+        dead_time_samples=d,
+        candidates={k: v["r2"] for k, v in results.items()},
+        unfiltered_r2=_r2(pv[d + 1 :], fit.simulate(u, dt)[d + 1 :]),
+        drift_time_constant=drift_T,
     )
+
+
+def _biases(process, u, pv, dt, d, *, u_bias=None) -> ProcessFit:
+    """Operating point and initial state for given dynamics (rows ``k > d``).
+
+    FOPTD: ``pv_bias`` at ``u_bias = mean(u)`` and the initial deviation.
+    Integrating: the balance input (``u_bias`` when given, else fitted) and the pv
+    the simulated response starts from.
+    """
+    gain = float(process.gain)
+    k = np.arange(d + 1, u.size)
+    if isinstance(process, Integrating):
+        X = _integrating_regressors(u, d, dt)[k]
+        target = pv[k] - gain * X[:, 1]
+        if u_bias is None:
+            coef, *_ = np.linalg.lstsq(X[:, [0, 2]], target, rcond=None)
+            pv0, u_bias = float(coef[0]), -float(coef[1]) / gain
+        else:
+            pv0 = float(np.mean(target + gain * u_bias * X[:, 2]))
+        return ProcessFit(process, float(u_bias), pv0, 0.0, math.nan, math.nan, True, d)
+    a = math.exp(-dt / float(process.time_constant))
+    u_bias = float(u.mean())
+    target = pv[k] - gain * (_lag_response(u, d, a)[k] - u_bias)
+    coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(k.size), a**k]), target, rcond=None)
+    return ProcessFit(process, u_bias, float(coef[0]), float(coef[1]), math.nan, math.nan, False, d)
 
 
 def _arx_r2_at(u, pv, d, integrating, sst_dy) -> float:
@@ -836,22 +869,7 @@ def process_fit(
         raise DataError(
             f"{u.size} samples are too few for a process with a dead time of {d} samples"
         )
-    k = np.arange(u.size)
-    if isinstance(process, Integrating):
-        X = _integrating_regressors(u, d, dt)[d + 1 :]
-        target = pv[d + 1 :] - gain * X[:, 1]
-        coef, *_ = np.linalg.lstsq(X[:, [0, 2]], target, rcond=None)
-        pv0, slope = float(coef[0]), float(coef[1])
-        fit = ProcessFit(process, -slope / gain, pv0, 0.0, math.nan, math.nan, True, d)
-    else:
-        a = math.exp(-dt / float(process.time_constant))
-        u_bias = float(u.mean())
-        k = k[d + 1 :]
-        target = pv[k] - gain * (_lag_response(u, d, a)[k] - u_bias)
-        coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(k.size), a**k]), target, rcond=None)
-        fit = ProcessFit(
-            process, u_bias, float(coef[0]), float(coef[1]), math.nan, math.nan, False, d
-        )
+    fit = _biases(process, u, pv, dt, d)
     # Rows within the first dead time are left out, as in identify_process.
     r2 = _r2(pv[d + 1 :], fit.simulate(u, dt)[d + 1 :])
     kind = "integrating" if fit.integrating else "foptd"
@@ -867,4 +885,5 @@ def process_fit(
         integrating=fit.integrating,
         dead_time_samples=d,
         candidates={kind: r2},
+        unfiltered_r2=r2,
     )
