@@ -67,6 +67,8 @@ CYCLE_HYSTERESIS = 0.25
 CYCLE_LENGTH_FACTOR = 1.6
 #: Integral time standing in for "no integral action" in the simulator [x record].
 P_ONLY_INTEGRAL_FACTOR = 1.0e6
+#: Fewest samples a replay covers.
+MIN_REPLAY_SAMPLES = 100
 #: Identification R^2 below which the replay carries a warning [-].
 LOW_FIT_R2 = 0.5
 
@@ -80,7 +82,8 @@ class Replay:
     Attributes
     ----------
     time : ndarray
-        Time [s] from the first sample.
+        Time [s] from the first sample of the record (the replay starts at
+        ``settings["start_sample"]`` when the fitted valve model starts there).
     sp : ndarray
         Setpoint used [pv units] (recorded, or constant at mean(pv) when missing).
     pv, op, mv : ndarray
@@ -422,6 +425,22 @@ def replay(
     if u is None or u.size != n:
         raise DataError("replay needs the valve position: record mv or pass a fit with mv_model")
     warnings: list[str] = []
+    # A fitted valve output may be defined only from some sample on (the fit starts
+    # its valve at a known state, e.g. the first extreme of op, and holds it before):
+    # without a recorded mv, the replay covers that part of the record only.
+    start = 0
+    if mv_rec is None:
+        details = getattr(fit, "details", None)
+        if isinstance(details, dict):
+            start = int(details.get("start_sample") or 0)
+        if not 0 <= start <= n - MIN_REPLAY_SAMPLES:
+            start = 0
+        if start > 0:
+            pv, op, u = pv[start:], op[start:], u[start:]
+            sp_rec = None if sp_rec is None else sp_rec[start:]
+            mv_model = mv_model[start:]
+            n = pv.size
+            warnings.append(f"replay starts at sample {start}, where the fitted valve model starts")
 
     # 1. Controller.
     if controller is None:
@@ -535,10 +554,11 @@ def replay(
         "initial_mv": float(sim.settings["initial_mv"]),
         "integral_time_simulated_s": ti,
         "sp_recorded": sp_rec is not None,
+        "start_sample": start,
         "noise_std": float(noise_std),
     }
     return Replay(
-        time=np.arange(n) * dt,
+        time=(start + np.arange(n)) * dt,
         sp=sp_used,
         pv=pv_r,
         op=op_r,
