@@ -54,7 +54,7 @@ def scan(
 
     with friendly_errors():
         console = Console(file=sys.stderr)
-        with Progress(
+        bar = Progress(
             TextColumn("[bold]scan"),
             BarColumn(),
             MofNCompleteColumn(),
@@ -62,12 +62,16 @@ def scan(
             TextColumn("{task.description}"),
             console=console,
             transient=False,
-        ) as bar:
-            task = bar.add_task("", total=None)
+        )
+        task = bar.add_task("", total=None)
 
-            def progress(done: int, total: int, loop: str) -> None:
-                bar.update(task, completed=done, total=total, description=loop)
+        def progress(done: int, total: int, loop: str) -> None:
+            # The bar appears once the loops are found: a bad PATH prints one line only.
+            if not bar.live.is_started:
+                bar.start()
+            bar.update(task, completed=done, total=total, description=loop)
 
+        try:
             result = run_scan(
                 path,
                 out=out,
@@ -80,6 +84,9 @@ def scan(
                 read_options={"ts": ts} if ts else {},
                 progress=progress,
             )
+        finally:
+            if bar.live.is_started:
+                bar.stop()
         t = result.table
         n_st = int((t["verdict"] == "stiction").sum()) if len(t) else 0
         info(

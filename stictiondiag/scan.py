@@ -630,7 +630,7 @@ def loop_html(row: dict, analysis: dict | None) -> str:
     from .report import _page, render_loop_html
 
     if analysis is not None:
-        page = render_loop_html(analysis, {})
+        page = render_loop_html(analysis, {}, json_name=f"{_safe_name(row['loop'])}.json")
         return page.replace('<a href="index.html">', '<a href="../index.html">')
     body = (
         f"<h1>Loop {escape(str(row.get('loop')))}</h1>"
