@@ -119,8 +119,10 @@ class Replay:
     dt : float
         Sample time [s].
     settings : dict
-        Simulator settings derived from the identification (op bias, pv bias,
-        initial state, valve).
+        Simulator settings derived from the identification, in the units of the
+        data: op bias (the process operating point) and pv bias, initial op and mv,
+        valve, ``op_offset`` (shift of op and mv into the simulator's 0-100 % when
+        the recorded op leaves that range), ``start_sample``.
     process_fit : ProcessFit
     controller_fit : ControllerFit
     warnings : tuple of str
@@ -469,17 +471,26 @@ def replay(
             "the replay is unstable; check the sign convention of op and pv"
         )
 
-    # 3. Simulator settings.  The process operating point is the identification's
-    # input reference; a reference outside the span is clipped and the difference
-    # carried by the load, which also carries the free response of the recorded
-    # initial state (the simulator starts the process at rest, its dead-time line
-    # filled with the operating point).
-    op_bias_sim = float(np.clip(pf.u_bias, 0.0, 100.0))
+    # 3. Simulator settings.  The simulator's op lives in [0, 100] % of span.  Data
+    # whose op leaves that range (scaled or mean-centred records) are replayed with
+    # op and mv shifted into it: the valve model and the linear blocks do not care
+    # about an offset, the clamp at 0 and 100 % is then out of the way.
+    op_lo = float(min(op.min(), u.min()))
+    op_hi = float(max(op.max(), u.max()))
+    offset = 0.0
+    if (op_lo < 0.0 or op_hi > 100.0) and op_hi - op_lo < 100.0:
+        offset = 50.0 - 0.5 * (op_lo + op_hi)
+    # The process operating point is the identification's input reference; one
+    # outside the span is clipped and the difference carried by the load, which also
+    # carries the free response of the recorded initial state (the simulator starts
+    # the process at rest, its dead-time line filled with the operating point).
+    op_bias_sim = float(np.clip(pf.u_bias + offset, 0.0, 100.0))
+    ref = op_bias_sim - offset  # the operating point in the units of the data
     if pf.integrating:
         pv_bias_sim = pf.pv_bias
     else:
-        pv_bias_sim = pf.pv_bias + gain * (op_bias_sim - pf.u_bias)
-    free = _open_loop_like_simulator(pf, u, dt, op_bias_sim, pv_bias_sim)
+        pv_bias_sim = pf.pv_bias + gain * (ref - pf.u_bias)
+    free = _open_loop_like_simulator(pf, u, dt, ref, pv_bias_sim)
     load = pf.simulate(u, dt) - free
     # Within the first dead time pv answers to inputs from before the record, which
     # the replay cannot know: it takes the recorded pv there.
@@ -487,17 +498,17 @@ def replay(
     load[:warm] = pv[:warm] - free[:warm]
     sp_used = sp_rec if sp_rec is not None else np.full(n, float(pv.mean()))
     ti = cf.controller.integral_time
-    op0 = float(np.clip(op[0], 0.0, 100.0))
+    op0 = float(np.clip(op[0] + offset, 0.0, 100.0)) - offset
     e0 = float(sp_used[0] - (pv_bias_sim + load[0]))
     if math.isinf(ti):
         # P-only: the simulator needs a finite Ti; a very long one with the integral
         # set to give the identified manual reset acts as a pure gain.
         ti = P_ONLY_INTEGRAL_FACTOR * max(n * dt, dt)
-        initial_integral = ti * (cf.op_bias - op_bias_sim) / kc
+        initial_integral = ti * (cf.op_bias - ref) / kc
     else:
         # The recorded op[0] already holds the first sample's integration step, which
         # the simulator adds before computing its first output.
-        initial_integral = ti * ((op0 - op_bias_sim) / kc - e0) - e0 * dt
+        initial_integral = ti * ((op0 - ref) / kc - e0) - e0 * dt
     sim_controller = PI(gain=kc, integral_time=ti)
     sim = simulate_loop(
         pf.process,
@@ -511,13 +522,13 @@ def replay(
         load=load,
         op_bias=op_bias_sim,
         pv_bias=pv_bias_sim,
-        initial_op=op0,
-        initial_mv=float(np.clip(u[0], 0.0, 100.0)),
+        initial_op=op0 + offset,
+        initial_mv=float(np.clip(u[0] + offset, 0.0, 100.0)),
         initial_integral=initial_integral,
         noise_std=noise_std,
         seed=seed,
     )
-    pv_r, op_r, mv_r = sim.pv[:n], sim.op[:n], sim.mv[:n]
+    pv_r, op_r, mv_r = sim.pv[:n], sim.op[:n] - offset, sim.mv[:n] - offset
 
     # 4. Comparison.
     pairs = {"pv": (pv, pv_r), "op": (op, op_r)}
@@ -548,10 +559,11 @@ def replay(
     settings = {
         "valve": valve,
         "process_input": source,
-        "op_bias": op_bias_sim,
+        "op_bias": ref,
         "pv_bias": pv_bias_sim,
-        "initial_op": float(sim.settings["initial_op"]),
-        "initial_mv": float(sim.settings["initial_mv"]),
+        "initial_op": float(sim.settings["initial_op"]) - offset,
+        "initial_mv": float(sim.settings["initial_mv"]) - offset,
+        "op_offset": offset,
         "integral_time_simulated_s": ti,
         "sp_recorded": sp_rec is not None,
         "start_sample": start,

@@ -108,6 +108,23 @@ def test_replay_starts_where_the_fitted_valve_starts():
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT
 
 
+def test_replay_of_offset_op_is_the_same():
+    # Invariant: op and mv recorded with an offset (mean-centred plant data, outside
+    # 0-100 %) replay the same loop, shifted by the offset.  Rounding only.
+    sim = loop_data("level", 3.0, 3.0)
+    base = replay(
+        Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, sp=sim.sp, ts=DT), fit_of(3.0, 3.0, sim.mv)
+    )
+    shifted = replay(
+        Tags.from_arrays(sim.pv, sim.op - 40.0, mv=sim.mv - 40.0, sp=sim.sp, ts=DT),
+        fit_of(3.0, 3.0, sim.mv - 40.0),
+    )
+    assert shifted.settings["op_offset"] != 0.0
+    np.testing.assert_allclose(shifted.pv, base.pv, atol=1e-6)
+    np.testing.assert_allclose(shifted.op, base.op - 40.0, atol=1e-6)
+    assert shifted.period_s["replay"] == pytest.approx(base.period_s["replay"], rel=1e-6)
+
+
 def test_replay_with_true_models_reproduces_data():
     # Invariant: with the true controller and process the replay is the data (the
     # start-up state and the first dead time are carried over from the record).
