@@ -8,8 +8,11 @@ slips, and the recorded data where the effect is to be seen.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -17,7 +20,7 @@ import pytest
 
 from stictiondiag.errors import UsageError
 from stictiondiag.synthetic import EFFECTS, generate_case, write_benchmark
-from stictiondiag.valve import kano_model
+from stictiondiag.valve import choudhury_model, kano_model
 
 BASES = [pytest.param(False, id="data_driven"), pytest.param(True, id="karnopp")]
 
@@ -338,3 +341,67 @@ def test_write_benchmark_is_balanced_and_reproducible(tmp_path):
 def test_write_benchmark_rejects_no_cases(tmp_path):
     with pytest.raises(UsageError, match="n_cases"):
         write_benchmark(tmp_path, n_cases=0, seed=1)
+
+
+# --------------------------------------------------------------------------------------
+# Bundled sample data (scripts/make_sample_data.py)
+# --------------------------------------------------------------------------------------
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _sample_specs():
+    spec = importlib.util.spec_from_file_location(
+        "_make_sample_data", ROOT / "scripts" / "make_sample_data.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module.LOOPS
+
+
+SAMPLE_LOOPS = _sample_specs()
+
+
+def _read_sample(spec) -> pd.DataFrame:
+    data = pd.read_csv(ROOT / "sample_data" / spec.file)
+    if spec.tags:
+        data = data.rename(columns={v: k for k, v in spec.tags.items()})
+    return data
+
+
+@pytest.mark.parametrize("spec", SAMPLE_LOOPS, ids=lambda s: s.file)
+def test_sample_file_layout(spec):
+    path = ROOT / "sample_data" / spec.file
+    assert path.stat().st_size < 1_000_000
+    data = _read_sample(spec)
+    expected = ["time", "sp", "pv", "op"] + ([] if spec.drop_mv else ["mv"])
+    assert list(data.columns) == expected
+    assert len(data) == spec.n and 3000 <= spec.n <= 10000
+    assert data["op"].between(0.0, 100.0).all()
+    if spec.timestamps:
+        stamps = pd.to_datetime(data["time"])
+        seconds = (stamps - stamps.iloc[0]).dt.total_seconds().to_numpy()
+        np.testing.assert_allclose(np.diff(seconds), spec.ts)
+    else:
+        np.testing.assert_allclose(np.diff(data["time"]), spec.ts)
+    assert spec.file in (ROOT / "sample_data" / "README.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [s for s in SAMPLE_LOOPS if not s.drop_mv and s.split_position == 0.0],
+    ids=lambda s: s.file,
+)
+def test_sample_mv_is_the_stated_valve(spec):
+    data = _read_sample(spec)
+    op, mv = data["op"].to_numpy(), data["mv"].to_numpy()
+    model = choudhury_model(op, spec.S, spec.J, initial_position=mv[0])
+    if spec.mv_quantum > 0.0:
+        model = spec.mv_quantum * np.round(model / spec.mv_quantum)
+    # op is stored at the resolution the valve saw, so after the first slips (the
+    # stuck point at the start of the record is not in the file) the stated S and
+    # J reproduce mv to the file's 4 decimals (a quantised mv to its level).
+    start, agree = _synchronised(model, mv, 1e-4, run=50 if spec.S > 0 else 1)
+    assert start is not None and start < 0.05 * len(op)
+    assert agree == 1.0
