@@ -720,6 +720,9 @@ def build_report(
             from .plotting import figure_png
 
             images = {k: figure_png(fig) for k, fig in result.figures().items()}
+            base = safe_name(result.loop)
+            page = render_loop_html(d, images, json_name=f"{base}.json")
+            data = json.dumps(d, indent=2) + "\n"
         except StictionError as exc:
             message = _first_line(exc)
         except Exception as exc:  # one broken loop must not stop the report of the others
@@ -727,11 +730,10 @@ def build_report(
             where = f" at {last[0].name}" if last else ""
             message = f"internal error{where}: {type(exc).__name__}: {_first_line(exc)}"
         else:
-            base = safe_name(result.loop)
-            write_atomic(out / f"{base}.json", json.dumps(d, indent=2) + "\n")
-            write_atomic(
-                out / f"{base}.html", render_loop_html(d, images, json_name=f"{base}.json")
-            )
+            # Writing is outside the try: an output that cannot be written stops the
+            # report (a usage error) instead of being blamed on the loop.
+            write_atomic(out / f"{base}.json", data)
+            write_atomic(out / f"{base}.html", page)
             row = result.summary_row()
             row["page"] = f"{base}.html"
             rows[str(result.loop)] = row
