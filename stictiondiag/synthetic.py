@@ -52,6 +52,18 @@ Effects (:data:`EFFECTS`)
 ``time_varying_stiction``
     S and J scaled by 2-3 (or 1/3-1/2) during the record, as a step or a ramp.
 
+Reading of the stick-slip model
+-------------------------------
+Section 5.1 says the input at which the valve stuck, ``x_ss``, "is kept in memory
+and does not change until the valve gets stuck again". The element here keeps it
+for as long as the valve is stuck, whatever the input does; only a valve that has
+moved can stick again. This is also how Kano et al. (2004) state the model and how
+the Karnopp valve behaves (the force builds up from where the stem stopped). A
+reading that re-arms ``x_ss`` at every reversal of the input slope while stuck
+(Fig. 10 taken literally) holds the valve for good once the controller output
+carries measurement noise; replaying this benchmark with that reading needs the
+EWMA pre-filter of Section 5.1.
+
 Base valves
 -----------
 About 70 % of the cases use the data-driven stick-slip element
@@ -1042,6 +1054,7 @@ def generate_case(
         "noise": {"pv_std": noise_std, "pv_ar1": noise_phi, "mv_std": mv_noise_std},
         "load": {
             "enters": "process input [% of span]",
+            # Steps at negative times came before the record starts.
             "steps": [{"time_s": (t - _WARMUP_SAMPLES) * ts, "size": s} for t, s in load_step_list],
             "random_walk_range": walk_range,
             "lag_s": load_time,
