@@ -15,6 +15,24 @@ reproduces the limit cycles seen in plant data (Figs. 3-6 against Figs. 12-15).
    (:func:`stictiondiag.loops.simulate_loop`);
 4. compare replay and data, signal by signal.
 
+Start-up
+--------
+The replay starts from the recorded state: op and valve position of the first
+sample, the integral set so the first op is reproduced, and the process's free
+response from its identified initial state (carried by the simulator's ``load``
+input, as is any operating point the simulator cannot take directly).  Within the
+first dead time pv answers to inputs from before the record, so the replay takes
+the recorded pv there.  With the true controller and process the replay reproduces
+noise-free data from the model to rounding.  Records whose op leaves 0-100 % (scaled
+data) are replayed with op and mv shifted into the simulator's range.  Without a
+recorded mv, the replay starts where the stiction fit's valve model starts
+(``fit.details["start_sample"]``).
+
+The replay is deterministic by default.  Choudhury's model re-arms its stuck band at
+every reversal of its input, so in-loop measurement noise keeps it stuck (the paper
+asks for an EWMA filter on noisy op, Section 5.1); ``noise_std`` is meant for the
+Kano valve.
+
 Comparison measures
 -------------------
 A stiction limit cycle is self-sustained: its phase drifts freely, so after a few
