@@ -1,0 +1,484 @@
+"""Stiction parameters S and J from plant data, and the stiction verdict.
+
+The data-driven valve model of Choudhury, Thornhill & Shah (2005), Section 5.1 and
+Fig. 10, has two parameters, both in % of span: ``S`` (deadband plus stickband, on
+the input axis) and ``J`` (slip jump, on the output axis).  They are estimated in one
+of two ways:
+
+* from the valve's own position ``mv`` when it is recorded
+  (:func:`stictiondiag.segments.estimate_from_mv`): the stick and slip segments of the
+  mv-op plot (Figs. 2-3 and 6), refined by a least-squares fit of the model to ``mv``;
+* from ``op`` and ``pv`` alone (:func:`stictiondiag.hammerstein.fit_hammerstein`): the
+  valve model in series with a linear process (a Hammerstein model), fitted together.
+
+Both return a :class:`StictionFit`.  :func:`stiction_verdict` then asks the question of
+Section 5.3: is there an oscillation, and does the stiction model explain it better
+than a linear valve, by how much, and how consistently over the cycles.
+
+This module also holds what the two estimators share: the compiled batch evaluation
+of the valve model over many (S, J) pairs, the effective number of independent
+samples of a residual, and the profile-cost intervals.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from ._jit import jit
+from .valve import choudhury_step, kano_step, valve_state
+
+#: Width of the play operator that keeps noise reversals of op away from the valve
+#: model, in robust noise standard deviations of op (see :func:`valve_variants`).
+PLAY_WIDTH_SIGMAS = 4.0
+
+#: Coverage of the reported S and J intervals (profile-cost intervals, F test).
+INTERVAL_LEVEL = 0.95
+
+
+# --------------------------------------------------------------------------------------
+# Result dataclasses
+# --------------------------------------------------------------------------------------
+
+
+def _plain(v: Any) -> Any:
+    """JSON-able copy: numpy scalars -> float/int, NaN/inf -> None, arrays -> lists."""
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return [_plain(x) for x in v.tolist()]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        f = float(v)
+        return f if math.isfinite(f) else None
+    return v
+
+
+@dataclass(frozen=True)
+class StictionFit:
+    """Estimated stiction parameters of the data-driven model (Section 5.1).
+
+    Attributes
+    ----------
+    S : float
+        Deadband plus stickband [% of op span].
+    J : float
+        Slip jump [% of op span] (the model's output axis is in the units of op).
+    S_scaled, J_scaled : float
+        S and J divided by the standard deviation of op [units of scaled op, as in the
+        mean-centred unit-variance plots of Section 3].
+    S_interval, J_interval : tuple of float, or None
+        Interval [% of op span] of the values the data cannot tell apart from the
+        estimate (see ``details["interval_method"]``); None when not determined.
+    method : str
+        ``"mv_segments"`` (valve position recorded) or ``"hammerstein"`` (op and pv).
+    mv_model : ndarray
+        Fitted valve position for the recorded op [% of span].
+    n_slips : int
+        Number of slips (breakaways) of the fitted valve over the record [-].
+    cost : float
+        Sum of squared residuals of the stiction model (mv fit: [% of span]^2;
+        Hammerstein fit: [scaled pv]^2, pv scaled to unit variance).
+    linear_cost : float
+        The same cost with a linear valve (S = J = 0), fitted the same way.
+    details : dict
+        Method-specific, JSON-able diagnostics: both estimates of the mv method,
+        determinacy, the valve model variant, per-cycle costs used by the verdict.
+    """
+
+    S: float
+    J: float
+    S_scaled: float
+    J_scaled: float
+    S_interval: tuple[float, float] | None
+    J_interval: tuple[float, float] | None
+    method: str
+    mv_model: np.ndarray = field(repr=False)
+    n_slips: int
+    cost: float
+    linear_cost: float
+    details: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def improvement(self) -> float | None:
+        """Fraction of the linear valve's residual removed by the stiction model [-]."""
+        if not (self.linear_cost > 0 and math.isfinite(self.linear_cost)):
+            return None
+        return 1.0 - self.cost / self.linear_cost
+
+    def to_dict(self) -> dict:
+        """JSON-able summary (no time series; ``mv_model`` is left out)."""
+        return _plain(
+            {
+                "S": self.S,
+                "J": self.J,
+                "S_scaled": self.S_scaled,
+                "J_scaled": self.J_scaled,
+                "S_interval": None if self.S_interval is None else list(self.S_interval),
+                "J_interval": None if self.J_interval is None else list(self.J_interval),
+                "method": self.method,
+                "n_slips": self.n_slips,
+                "cost": self.cost,
+                "linear_cost": self.linear_cost,
+                "improvement": self.improvement,
+                "details": self.details,
+            }
+        )
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Is the oscillation caused by valve stiction?
+
+    Attributes
+    ----------
+    status : str
+        ``"stiction"``, ``"no_stiction"`` or ``"inconclusive"``.
+    detected : bool or None
+        True for stiction, False for no stiction, None when inconclusive.
+    confidence : float
+        Support for ``status`` in [0, 1], measured from the data (see
+        :func:`stiction_verdict` for the formula); for ``"inconclusive"`` it is the
+        support for stiction, which fell between the decision levels.
+    reasons : tuple of str
+        Human-readable reasons, most important first.
+    evidence : dict
+        The measured quantities behind the decision (JSON-able).
+    """
+
+    status: str
+    detected: bool | None
+    confidence: float
+    reasons: tuple[str, ...]
+    evidence: dict = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict:
+        return _plain(
+            {
+                "status": self.status,
+                "verdict": self.status,
+                "detected": self.detected,
+                "confidence": self.confidence,
+                "reasons": list(self.reasons),
+                "evidence": self.evidence,
+            }
+        )
+
+
+# --------------------------------------------------------------------------------------
+# Valve model variants and compiled kernels shared by the estimators
+# --------------------------------------------------------------------------------------
+
+
+def noise_std(x: np.ndarray) -> float:
+    """Robust standard deviation of white measurement noise on ``x`` [units of x].
+
+    From the second difference (insensitive to ramps) with the median absolute
+    deviation (insensitive to slips): ``1.4826 MAD(diff2 x) / sqrt(6)``.
+    """
+    d2 = np.diff(np.asarray(x, dtype=float), 2)
+    if d2.size == 0:
+        return 0.0
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    return 1.4826 * mad / math.sqrt(6.0)
+
+
+@jit
+def play(x, width):
+    """Play (backlash) operator of total ``width``: follows ``x`` at ``width/2`` behind,
+    and holds while ``x`` turns back by less than ``width``."""
+    n = x.shape[0]
+    y = np.empty(n)
+    if n == 0:
+        return y
+    h = 0.5 * width
+    y[0] = x[0]
+    for k in range(1, n):
+        y[k] = min(max(y[k - 1], x[k] - h), x[k] + h)
+    return y
+
+
+@dataclass(frozen=True)
+class ValveVariant:
+    """One way of running the data-driven valve model on a recorded op.
+
+    * ``choudhury``: the published flowchart (Fig. 10).  It re-arms the stuck band at
+      every reversal of the input's slope, so on a noisy op it hardly ever slips
+      (which is why Section 5.1 asks for a filter in front of it).
+    * ``kano``: Kano et al. (2004), which keeps the stuck position while the input
+      wanders inside the band.
+    * ``+play``: op passes first through a play operator of width ``w`` (4 robust
+      noise standard deviations of op), so that noise reversals neither re-arm nor
+      stop the valve.  The play operator lags op by ``w/2`` in the direction of travel,
+      so the model with ``S - w`` on the played op is the model with ``S`` on op
+      itself (breakaway after a travel of ``S``, Eq. 4 offset ``(S - J)/2``); the
+      variant is therefore parametrised by the ``S`` of the raw op.
+    """
+
+    name: str
+    kano: bool
+    play_width: float = 0.0
+
+    def prepare(self, op: np.ndarray) -> np.ndarray:
+        """The input the valve model sees [units of op]."""
+        op = np.ascontiguousarray(op, dtype=float)
+        return play(op, self.play_width) if self.play_width > 0 else op
+
+    def model_S(self, S):
+        """``S`` to give the model for a band ``S`` on the raw op."""
+        return np.maximum(np.asarray(S, dtype=float) - self.play_width, 0.0)
+
+
+def valve_variants(op: np.ndarray) -> list[ValveVariant]:
+    """The valve variants a fit tries on ``op``: both flowcharts, raw and, when op
+    carries noise, behind the play operator."""
+    out = [ValveVariant("choudhury", False), ValveVariant("kano", True)]
+    w = PLAY_WIDTH_SIGMAS * noise_std(op)
+    if w > 1e-9 * max(float(np.ptp(op)), 1e-300):
+        out += [ValveVariant("choudhury+play", False, w), ValveVariant("kano+play", True, w)]
+    return out
+
+
+@jit
+def _valve_step(x, st, S, J, kano):
+    if kano:
+        return kano_step(x, st, S, J)
+    return choudhury_step(x, st, S, J)
+
+
+@jit
+def _start_state(op, S, J, k_start, d_start, offset):
+    """Valve state at sample ``k_start``.
+
+    ``offset < 0``: moving in direction ``d_start`` (Eq. 4 output).  ``offset >= 0``:
+    stuck since the demand was ``op[k_start] - d_start * offset``, its last movement in
+    direction ``d_start``.
+    """
+    st = valve_state(op[k_start], False)
+    st[2] = d_start
+    st[3] = d_start
+    if offset < 0.0:
+        st[0] = op[k_start] - d_start * (S - J) / 2.0
+    else:
+        x_ss = op[k_start] - d_start * offset
+        st[1] = x_ss
+        st[4] = 1.0
+        st[0] = x_ss - d_start * (S - J) / 2.0
+    return st
+
+
+@jit
+def valve_run(op, S, J, kano, k_start, d_start, offset):
+    """Valve position for a recorded ``op`` (Fig. 10), from a given state at ``k_start``.
+
+    A record starts at an arbitrary point of the valve's history, and in a replay of
+    recorded op a model out of step with the real valve may never slip at all (the
+    recorded op stops ramping when the *real* valve slipped).  The model is therefore
+    started in a stated state (see :func:`_start_state`): moving in direction
+    ``d_start`` (+1/-1, 0 unknown) right after a recorded slip (``offset < 0``), or
+    stuck at an extreme of op with its stop point ``offset`` back from it (a valve
+    that slipped on the way to the extreme and stuck).  Output before ``k_start`` is
+    held at the starting value; fits leave those samples out.
+
+    Unlike :func:`stictiondiag.valve.choudhury_model` the input is not clipped to
+    [0, 100]: a recorded op is already what the valve saw, and no clipping keeps the
+    fit invariant to the units of op.
+
+    Returns
+    -------
+    y : ndarray
+        Valve position [units of op].
+    n_slips : int
+        Number of breakaways (stuck -> moving transitions) after ``k_start``.
+    """
+    n = op.shape[0]
+    y = np.empty(n)
+    if n == 0:
+        return y, 0
+    st = _start_state(op, S, J, k_start, d_start, offset)
+    for k in range(k_start + 1):
+        y[k] = st[0]
+    slips = 0
+    for k in range(k_start + 1, n):
+        was_stuck = st[4] == 1.0
+        y[k] = _valve_step(op[k], st, S, J, kano)
+        if was_stuck and st[4] == 0.0:
+            slips += 1
+    return y, slips
+
+
+@jit
+def valve_sse_batch(op, mv, S_arr, J_arr, kano, k0, k_start, d_start, offset):
+    """Sum of squared residuals of ``mv - (valve(op; S, J) + bias)`` for many (S, J).
+
+    The valve starts as in :func:`valve_run`.  The bias (a constant offset between
+    recorded mv and the model, e.g. a positioner zero error) is fitted in closed form
+    for every pair.  Samples before ``k0`` (> ``k_start``) are left out.
+    """
+    m = S_arr.shape[0]
+    n = op.shape[0]
+    out = np.empty(m)
+    cnt = n - k0
+    for i in range(m):
+        st = _start_state(op, S_arr[i], J_arr[i], k_start, d_start, offset)
+        s1 = 0.0
+        s2 = 0.0
+        for k in range(k_start + 1, n):
+            y = _valve_step(op[k], st, S_arr[i], J_arr[i], kano)
+            if k >= k0:
+                r = mv[k] - y
+                s1 += r
+                s2 += r * r
+        out[i] = s2 - s1 * s1 / cnt if cnt > 0 else 0.0
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Statistics shared by the estimators
+# --------------------------------------------------------------------------------------
+
+
+def _schmitt_period(x: np.ndarray) -> float | None:
+    """Mean period [samples] from crossings of a +-half-robust-std band around zero."""
+    s = 1.4826 * float(np.median(np.abs(x - np.median(x))))
+    if s <= 0:
+        return None
+    h = 0.5 * s
+    up = x > h
+    down = x < -h
+    state = np.where(up, 1, np.where(down, -1, 0))
+    state = state[state != 0]
+    idx = np.flatnonzero(np.where(up, 1, np.where(down, -1, 0)) != 0)
+    if state.size < 2:
+        return None
+    change = np.flatnonzero(state[1:] != state[:-1]) + 1
+    if change.size < 3:
+        return None
+    k = idx[change]
+    return float(2.0 * (k[-1] - k[0]) / (change.size - 1))
+
+
+def cycle_samples(x: np.ndarray) -> int:
+    """Time scale of the cycle of ``x`` [samples]: its mean period, measured robustly.
+
+    Plant records carry load steps, set-point moves and drifts next to the cycle,
+    which defeat an autocorrelation period.  Here ``x`` is detrended by a running
+    median (which follows steps without smearing them) over three periods, and the
+    period is twice the mean interval between crossings of a band of +-half the
+    robust standard deviation (a Schmitt trigger, so noise does not add crossings);
+    the window and the period are iterated to agreement.  Falls back to a tenth of
+    the record.  The result sets time scales of the fits, not a reported period
+    (that is :func:`stictiondiag.oscillation.detect_oscillation`'s job).
+    """
+    from scipy.ndimage import median_filter
+
+    x = np.asarray(x, dtype=float)
+    n = x.size
+    fallback = max(2, n // 10)
+    if n < 20 or np.ptp(x) <= 0:
+        return fallback
+    window = n / 4.0
+    period = None
+    for _ in range(6):
+        xd = x - median_filter(x, size=max(3, int(window) | 1), mode="nearest")
+        p = _schmitt_period(xd)
+        if p is None:
+            break
+        done = period is not None and abs(p - period) < 0.05 * period
+        period = p
+        if done:
+            break
+        window = 3.0 * period
+    if period is None or not math.isfinite(period):
+        return fallback
+    return int(max(4, min(round(period), n // 3)))
+
+
+def effective_samples(residual: np.ndarray) -> float:
+    """Effective number of independent samples of a residual [-].
+
+    ``N / tau`` with the integrated autocorrelation time ``tau = 1 + 2 sum rho_k``,
+    summed over the initial positive sequence of the autocorrelation (Geyer 1992).
+    Closed-loop residuals are coloured; counting every sample as independent would
+    make intervals and tests far too confident.
+    """
+    r = np.asarray(residual, dtype=float)
+    r = r[np.isfinite(r)]
+    n = r.size
+    if n < 4:
+        return float(max(n, 1))
+    r = r - r.mean()
+    var = float(np.dot(r, r))
+    if var <= 0.0:
+        return float(n)
+    nfft = 1 << int(math.ceil(math.log2(2 * n)))
+    f = np.fft.rfft(r, nfft)
+    acf = np.fft.irfft(f * np.conj(f), nfft)[: n // 2] / var
+    tau = 1.0
+    for k in range(1, acf.size):
+        if acf[k] <= 0.0:
+            break
+        tau += 2.0 * acf[k]
+    return float(max(2.0, n / tau))
+
+
+def cost_threshold(cost_min: float, n_eff: float, n_params: int) -> float:
+    """Cost below which a parameter value cannot be told apart from the optimum.
+
+    Profile-likelihood F test for one parameter (Seber & Wild 1989, Section 5.9):
+    ``C <= C_min (1 + F_{0.95}(1, nu) / nu)`` with ``nu = N_eff - p``.
+    """
+    nu = max(1.0, n_eff - n_params)
+    return float(cost_min * (1.0 + stats.f.ppf(INTERVAL_LEVEL, 1, nu) / nu))
+
+
+def profile_interval(
+    values: np.ndarray, costs: np.ndarray, threshold: float, lo: float, hi: float
+) -> tuple[tuple[float, float], bool, bool]:
+    """Interval of one parameter from evaluated (value, cost) pairs of a grid search.
+
+    The profile cost at a value is the smallest cost evaluated there (the other
+    parameters free).  The interval spans the values whose profile cost is within
+    ``threshold``, widened to the neighbouring evaluated values (the true edge lies
+    between them) and clipped to the searched range [lo, hi].
+
+    Returns
+    -------
+    interval : (float, float)
+    reaches_lo, reaches_hi : bool
+        Whether the interval reaches the lowest / highest searched value (then the data
+        do not bound the parameter on that side).
+    """
+    v = np.asarray(values, dtype=float)
+    c = np.asarray(costs, dtype=float)
+    ok = np.isfinite(c)
+    v, c = v[ok], c[ok]
+    uv, inv = np.unique(v, return_inverse=True)
+    prof = np.full(uv.size, np.inf)
+    np.minimum.at(prof, inv, c)
+    inside = np.flatnonzero(prof <= threshold)
+    if inside.size == 0:
+        inside = np.array([int(np.argmin(prof))])
+    i0, i1 = int(inside[0]), int(inside[-1])
+    a = float(uv[i0 - 1]) if i0 > 0 else float(lo)
+    b = float(uv[i1 + 1]) if i1 + 1 < uv.size else float(hi)
+    return (max(float(lo), a), min(float(hi), b)), i0 == 0, i1 == uv.size - 1
+
+
+def block_sse(residual: np.ndarray, block: int, start: int = 0) -> np.ndarray:
+    """Sum of squared residuals per consecutive block of ``block`` samples."""
+    r = np.asarray(residual, dtype=float)[start:]
+    block = max(1, int(block))
+    nb = r.size // block
+    if nb == 0:
+        return np.array([float(np.sum(r * r))])
+    return (r[: nb * block] ** 2).reshape(nb, block).sum(axis=1)

@@ -1,0 +1,785 @@
+"""S and J without the valve position: a Hammerstein fit to op and pv.
+
+Most plant data have no valve position (Section 3: only loops 1 and 4 had one).  The
+valve model of Fig. 10 is then fitted together with a linear process, the valve
+output feeding the process (a Hammerstein model, op -> valve(S, J) -> G(q) -> pv):
+
+* for fixed (S, J) the valve output ``u = valve(op; S, J)`` is computed by the
+  compiled flowchart and the linear part is linear in its parameters, so it is
+  fitted by least squares;
+* S and J are found by a coarse-to-fine grid search over (S, J), every grid point
+  evaluated in one compiled batch.
+
+The linear part
+---------------
+``pv`` is modelled as a sum of first-order responses to the delayed valve output,
+``H pv[k] = c + sum_i b_i (H F_i u)[k - d]``, with ``F_i`` first-order lags whose time
+constants span 1/64 to 1 oscillation period (a fixed basis, so any stable, smooth
+process response is within reach without a pole search), ``d >= 1`` samples of dead
+time (searched) and ``H`` a slow high-pass (corner at four periods) applied to both
+sides, which removes drifts and setpoint moves the valve does not explain without
+changing the valve-to-pv relation.  It is an output-error fit: the residual is what
+the model cannot reproduce from op alone, not a one-step-ahead prediction error
+(which the last pv sample would dominate, hiding the valve).
+
+* Integrating processes (``integrating=True``, a level loop, Table 3): the basis is
+  integrated, ``H pv = sum_i b_i (L F_i u)[k - d]`` with ``L = H / (1 - q^-1)`` a leaky
+  integrator (the high-pass keeps an unknown inflow from accumulating).
+* Flow loops (``flow_loop=True``, Section 5.3.1: "in liquid flow loops ... pv can be
+  taken to be proportional to valve opening"): ``pv = a mv + b`` with a small lag, one
+  to three samples of delay.
+
+How well S and J are determined
+-------------------------------
+From the cost profile: the 95 % interval holds the values whose best cost (other
+parameters free) is within an F-test threshold of the minimum, with the number of
+independent samples taken from the residual's autocorrelation.  Without mv the
+breakaway point S trades off against the process dead time in a perfectly periodic
+limit cycle, and J against the process gain when the valve hardly moves smoothly;
+intervals then come out wide and ``details["determinacy"]`` says "poorly determined".
+
+Speed
+-----
+Slowly sampled loops (many samples per cycle) are evaluated on every ``r``-th
+regression row, ``r = floor(period / 60)``: at least 60 rows per cycle.  The valve and
+the filters still run at the full rate, so the breakaway timing keeps the full
+resolution of op; only the least-squares sums are thinned.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._jit import jit
+from .errors import DataError
+from .estimate import (
+    StictionFit,
+    ValveVariant,
+    block_sse,
+    cost_threshold,
+    cycle_samples,
+    effective_samples,
+    profile_interval,
+    valve_run,
+    valve_variants,
+)
+from .segments import _determinacy
+
+#: Range of the process time constant searched, in oscillation periods, and the
+#: number of (log-spaced) values on the coarse grid.
+TAU_PERIODS = (0.01, 2.0)
+N_TAUS = 10
+
+#: Lags of the flow-loop structure [samples] (measurement and flow dynamics).
+FLOW_LAGS = (0.3, 1.0, 3.0)
+
+#: Corner of the high-pass applied to pv and the regressors, in oscillation periods.
+HIGHPASS_PERIODS = 4.0
+
+#: Fewest regression rows per oscillation period (sets the row stride).
+ROWS_PER_PERIOD = 60
+
+
+#: Longest dead time searched, as a fraction of the oscillation period.
+MAX_DELAY_PERIODS = 0.5
+
+#: Starting states tried: the valve is started stuck at the first extreme of op, its
+#: stop point this far back from the extreme, in cycle travels of op (see
+#: :func:`first_extreme`).  With a noisy op a sticky valve sticks again right after
+#: every slip, so the point it stopped at is not the extreme of op, and a model
+#: started from the wrong point stays out of step with the valve.
+START_OFFSETS = (0.0, 0.01, 0.03, 0.1, 0.2, 0.35, 0.5)
+
+#: Most regression rows used (the row stride grows for longer records).
+MAX_ROWS = 2500
+
+#: Dead times searched for flow loops [samples].
+FLOW_DELAYS = (1, 2, 3)
+
+
+# --------------------------------------------------------------------------------------
+# Compiled kernels
+# --------------------------------------------------------------------------------------
+
+
+@jit
+def _lag(x, T, k0):
+    """First-order lag, unit gain, time constant ``T`` [samples] (T <= 0: a copy),
+    started in steady state at sample ``k0``; zero before ``k0``."""
+    n = x.shape[0]
+    y = np.zeros(n)
+    if T <= 0.0:
+        for k in range(k0, n):
+            y[k] = x[k]
+        return y
+    a = math.exp(-1.0 / T)
+    y[k0] = x[k0]
+    for k in range(k0 + 1, n):
+        y[k] = a * y[k - 1] + (1.0 - a) * x[k]
+    return y
+
+
+@jit
+def _highpass(x, a, k0):
+    """``(1 - q^-1) / (1 - a q^-1)`` started at rest at sample ``k0``; zero before."""
+    n = x.shape[0]
+    y = np.zeros(n)
+    for k in range(k0 + 1, n):
+        y[k] = a * y[k - 1] + x[k] - x[k - 1]
+    return y
+
+
+@jit
+def _leaky_integral(x, a, k0):
+    """``(1 - a) / (1 - a q^-1)`` applied to ``x - x[k0]`` from rest at ``k0``: an
+    integrator seen through the high-pass ``(1 - q^-1) / (1 - a q^-1)``, scaled to unit
+    gain at zero frequency; zero before ``k0``."""
+    n = x.shape[0]
+    y = np.zeros(n)
+    for k in range(k0 + 1, n):
+        y[k] = a * y[k - 1] + (1.0 - a) * (x[k] - x[k0])
+    return y
+
+
+@jit
+def _regressors(u, tau, integrating, a_hp, k0):
+    """Columns of the linear part for one process time constant ``tau`` [samples].
+
+    ``[F u, F lag(u, tau), 1, a^(k - k0)]`` with ``F`` the high-pass (self-regulating)
+    or the integrator seen through the high-pass (integrating).  The first two are the
+    process (a direct part and a first-order lag, gains of one sign); the last two are
+    free: a constant and the high-pass response to a step at the start, which
+    together carry what the start and an integrating process's unknown inflow
+    imbalance leave behind.  Everything starts at sample ``k0``, so no history from
+    before the start (where the valve state is unknown) enters.
+    """
+    n = u.shape[0]
+    phi = np.zeros((n, 4))
+    if integrating:
+        g0 = _leaky_integral(u, a_hp, k0)
+        g1 = _leaky_integral(_lag(u, tau, k0), a_hp, k0)
+    else:
+        g0 = _highpass(u, a_hp, k0)
+        g1 = _highpass(_lag(u, tau, k0), a_hp, k0)
+    e = 1.0
+    for k in range(k0, n):
+        phi[k, 0] = g0[k]
+        phi[k, 1] = g1[k]
+        phi[k, 2] = 1.0
+        phi[k, 3] = e
+        e *= a_hp
+    return phi
+
+
+@jit
+def _normal_equations(u, taus, integrating, a_hp, k0, yf, j0, j1, stride, delays):
+    """Normal equations of the linear part for every time constant and delay, in one pass.
+
+    The columns are those of :func:`_regressors`, computed on the fly (no arrays):
+    returns ``A[t]`` (4 x 4) and ``B[t][:, i]`` = sum over rows ``j`` of
+    ``phi_t[j] yf[j + delays[i]]``, rows ``j = j0, j0 + stride, ... < j1``.
+    """
+    nt = taus.shape[0]
+    nd = delays.shape[0]
+    n = u.shape[0]
+    A = np.zeros((nt, 4, 4))
+    B = np.zeros((nt, 4, nd))
+    bl = np.empty(nt)
+    for t in range(nt):
+        bl[t] = math.exp(-1.0 / taus[t]) if taus[t] > 0.0 else 0.0
+    lag = np.full(nt, u[k0])
+    g1 = np.zeros(nt)
+    g0 = 0.0
+    e = 1.0
+    u0 = u[k0]
+    phi = np.empty(4)
+    next_row = j0
+    for k in range(k0, n):
+        if k > k0:
+            uk = u[k]
+            if integrating:
+                g0 = a_hp * g0 + (1.0 - a_hp) * (uk - u0)
+            else:
+                g0 = a_hp * g0 + uk - u[k - 1]
+            for t in range(nt):
+                prev = lag[t]
+                lag[t] = bl[t] * prev + (1.0 - bl[t]) * uk
+                if integrating:
+                    g1[t] = a_hp * g1[t] + (1.0 - a_hp) * (lag[t] - u0)
+                else:
+                    g1[t] = a_hp * g1[t] + lag[t] - prev
+            e *= a_hp
+        if k == next_row and k < j1:
+            next_row += stride
+            phi[0] = g0
+            phi[2] = 1.0
+            phi[3] = e
+            for t in range(nt):
+                phi[1] = g1[t]
+                for p in range(4):
+                    for q in range(p, 4):
+                        A[t, p, q] += phi[p] * phi[q]
+                for i in range(nd):
+                    yv = yf[k + delays[i]]
+                    for p in range(4):
+                        B[t, p, i] += phi[p] * yv
+    for t in range(nt):
+        tr = 0.0
+        for p in range(4):
+            for q in range(p):
+                A[t, p, q] = A[t, q, p]
+            tr += A[t, p, p]
+        ridge = 1e-10 * tr / 4.0 + 1e-300
+        for p in range(4):
+            A[t, p, p] += ridge
+    return A, B
+
+
+@jit
+def _solve_subset(A, b, idx, k, theta):
+    """Solve ``A[idx, idx] theta = b[idx]`` (symmetric positive definite, k <= 8) by
+    Cholesky; returns ``theta . b[idx]`` (the explained sum of squares) or -1.0 when
+    the subsystem is singular."""
+    L = np.zeros((8, 8))
+    for i in range(k):
+        for j in range(i + 1):
+            s = A[idx[i], idx[j]]
+            for p in range(j):
+                s -= L[i, p] * L[j, p]
+            if i == j:
+                if s <= 0.0:
+                    return -1.0
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    z = np.empty(8)
+    for i in range(k):
+        s = b[idx[i]]
+        for p in range(i):
+            s -= L[i, p] * z[p]
+        z[i] = s / L[i, i]
+    for i in range(k - 1, -1, -1):
+        s = z[i]
+        for p in range(i + 1, k):
+            s -= L[p, i] * theta[p]
+        theta[i] = s / L[i, i]
+    e = 0.0
+    for i in range(k):
+        e += theta[i] * b[idx[i]]
+    return e
+
+
+@jit
+def _same_sign_fit(A, b, yy, nb):
+    """Least squares with the first ``nb`` (basis) gains of one common sign.
+
+    The remaining columns are free.  A combination of first-order lags with gains of
+    one sign has a monotone step response: a process, and not the inverse of the
+    controller, which an unconstrained fit to closed-loop data finds instead (through
+    the PI law of Eq. 3, pv is a high-pass of op).  Solved exactly by enumerating the
+    active sets (at most 2^4 small systems).  Returns the sum of squared residuals.
+    """
+    m = A.shape[0]
+    idx = np.empty(8, dtype=np.int64)
+    theta = np.empty(8)
+    best = yy
+    for mask in range(0, 1 << nb):
+        k = 0
+        for i in range(nb):
+            if mask & (1 << i):
+                idx[k] = i
+                k += 1
+        kb = k
+        for i in range(nb, m):
+            idx[k] = i
+            k += 1
+        e = _solve_subset(A, b, idx, k, theta)
+        if e < 0.0:
+            continue
+        pos = True
+        neg = True
+        for i in range(kb):
+            if theta[i] < 0.0:
+                pos = False
+            if theta[i] > 0.0:
+                neg = False
+        if (pos or neg) and yy - e < best:
+            best = yy - e
+    return max(best, 0.0)
+
+
+@jit
+def _batch_cost(
+    x,
+    yf,
+    S_arr,
+    J_arr,
+    offsets,
+    taus,
+    kano,
+    k_start,
+    d_start,
+    integrating,
+    a_hp,
+    j0,
+    j1,
+    stride,
+    delays,
+    yy,
+):
+    """Best cost over start offsets, process time constants and delays for every (S, J).
+
+    Returns the cost and, for each pair, the indices of the best delay, start offset
+    and time constant.
+    """
+    m = S_arr.shape[0]
+    cost = np.empty(m)
+    best_d = np.zeros(m, dtype=np.int64)
+    best_o = np.zeros(m, dtype=np.int64)
+    best_t = np.zeros(m, dtype=np.int64)
+    nt = taus.shape[0]
+    nd = delays.shape[0]
+    for i in range(m):
+        cost[i] = np.inf
+        for io in range(offsets.shape[0]):
+            u, _ = valve_run(x, S_arr[i], J_arr[i], kano, k_start, d_start, offsets[io])
+            A, B = _normal_equations(
+                u, taus, integrating, a_hp, k_start, yf, j0, j1, stride, delays
+            )
+            for t in range(nt):
+                for k in range(nd):
+                    sse = _same_sign_fit(A[t], B[t, :, k], yy[k], 2)
+                    if sse < cost[i]:
+                        cost[i] = sse
+                        best_d[i] = k
+                        best_o[i] = io
+                        best_t[i] = t
+            if S_arr[i] == 0.0:
+                break  # a linear valve has no stuck state to start from
+    return cost, best_d, best_o, best_t
+
+
+# --------------------------------------------------------------------------------------
+# The fit
+# --------------------------------------------------------------------------------------
+
+
+def _check(op, pv, dt) -> tuple[np.ndarray, np.ndarray, float]:
+    op = np.asarray(op, dtype=float)
+    pv = np.asarray(pv, dtype=float)
+    if op.ndim != 1 or pv.ndim != 1 or op.shape != pv.shape:
+        raise DataError(
+            f"op and pv must be one-dimensional and of equal length, got {op.shape} and {pv.shape}"
+        )
+    if op.size < 50:
+        raise DataError(f"only {op.size} samples of op and pv: need at least 50 for a fit")
+    if not (np.all(np.isfinite(op)) and np.all(np.isfinite(pv))):
+        raise DataError("op or pv contains NaN or inf: fill or drop the gaps first")
+    try:
+        dt = float(dt)
+    except (TypeError, ValueError):
+        raise DataError(f"sampling time must be a number, got {dt!r}") from None
+    if not (dt > 0 and math.isfinite(dt)):
+        raise DataError(f"sampling time must be positive, got {dt}")
+    if np.ptp(op) <= 0:
+        raise DataError("op is constant: the valve demand never moves, nothing to fit")
+    if np.ptp(pv) <= 0:
+        raise DataError("pv is constant: nothing to fit")
+    return op, pv, dt
+
+
+def _moving_average(x: np.ndarray, width: int) -> np.ndarray:
+    if width <= 1:
+        return x.copy()
+    k = np.ones(width) / width
+    pad = width // 2
+    xp = np.concatenate((np.full(pad, x[0]), x, np.full(width - 1 - pad, x[-1])))
+    return np.convolve(xp, k, mode="valid")
+
+
+def first_extreme(op: np.ndarray, period: int) -> tuple[int, float]:
+    """Sample of the first clear extreme of op, and the direction of travel into it.
+
+    A sticky valve in a limit cycle is moving with op when op turns (Figs. 12 and
+    14: it slipped on the way), so the model is started moving there.  The extreme is
+    taken on op smoothed over an eighth of a period; (0, 0.0) when op has none.
+    """
+    n = op.size
+    win = min(n, max(3, int(1.5 * period)))
+    s = _moving_average(op[:win], max(1, period // 8))
+    edge = max(2, period // 16)
+    cand = []
+    for k, d in ((int(np.argmax(s)), 1.0), (int(np.argmin(s)), -1.0)):
+        if edge <= k < win - edge:
+            cand.append((k, d))
+    if not cand:
+        return 0, 0.0
+    k, d = min(cand)
+    # The recorded op at the extreme, not the smoothed one: the valve saw the former.
+    lo, hi = max(0, k - edge), min(n, k + edge + 1)
+    seg = op[lo:hi]
+    k = lo + int(np.argmax(d * seg))
+    return k, d
+
+
+def _delay_grid(d_max: int, n_coarse: int = 16) -> np.ndarray:
+    d_max = max(1, int(d_max))
+    if d_max <= n_coarse:
+        return np.arange(1, d_max + 1, dtype=np.int64)
+    return np.unique(np.round(np.linspace(1, d_max, n_coarse)).astype(np.int64))
+
+
+def _same_sign_lstsq(X: np.ndarray, y: np.ndarray, nb: int) -> np.ndarray:
+    """Parameters of :func:`_same_sign_fit` (first ``nb`` gains of one sign)."""
+    m = X.shape[1]
+    best, best_theta = np.inf, np.zeros(m)
+    for mask in range(0, 1 << nb):
+        cols = [i for i in range(nb) if mask & (1 << i)] + list(range(nb, m))
+        th, *_ = np.linalg.lstsq(X[:, cols], y, rcond=None)
+        g = th[: len(cols) - (m - nb)]
+        if g.size and not (np.all(g >= 0) or np.all(g <= 0)):
+            continue
+        sse = float(np.sum((y - X[:, cols] @ th) ** 2))
+        if sse < best:
+            best = sse
+            best_theta = np.zeros(m)
+            best_theta[cols] = th
+    return best_theta
+
+
+class _Problem:
+    """Everything the cost of one (S, J) needs, fixed for one fit.
+
+    Regression rows are ``j0, j0 + stride, ... < j1``; ``j1`` leaves room for the
+    longest dead time, so every delay uses the same rows.
+    """
+
+    def __init__(self, x, yf, taus, integrating, a_hp, k_start, d_start, j0, j1, stride, delays):
+        self.x, self.yf = x, yf
+        self.taus = np.asarray(taus, dtype=float)
+        self.integrating, self.a_hp = bool(integrating), float(a_hp)
+        self.k_start, self.d_start = int(k_start), float(d_start)
+        self.j0, self.j1, self.stride = int(j0), int(j1), int(stride)
+        self.rows = np.arange(self.j0, self.j1, self.stride, dtype=np.int64)
+        self.inputs: dict[str, np.ndarray] = {}
+        self.set_delays(delays)
+
+    def set_delays(self, delays):
+        self.delays = np.asarray(delays, dtype=np.int64)
+        self.yy = np.array([float(np.sum(self.yf[self.rows + d] ** 2)) for d in self.delays])
+
+    def cost(self, S, J, variant: ValveVariant, offsets):
+        """Cost, best delay, start offset and time constant for every (S, J) pair."""
+        S = np.atleast_1d(np.asarray(S, dtype=float))
+        J = np.atleast_1d(np.asarray(J, dtype=float))
+        x = self.inputs.setdefault(variant.name, variant.prepare(self.x))
+        off = np.atleast_1d(np.asarray(offsets, dtype=float))
+        c, bd, bo, bt = _batch_cost(
+            x,
+            self.yf,
+            variant.model_S(S),
+            J,
+            off,
+            self.taus,
+            variant.kano,
+            self.k_start,
+            self.d_start,
+            self.integrating,
+            self.a_hp,
+            self.j0,
+            self.j1,
+            self.stride,
+            self.delays,
+            self.yy,
+        )
+        return c, self.delays[bd], off[bo], self.taus[bt]
+
+    def residual(self, S, J, variant: ValveVariant, delay, offset, tau):
+        """Residual on the regression rows, fitted parameters and valve output."""
+        x = self.inputs.setdefault(variant.name, variant.prepare(self.x))
+        u, n_slips = valve_run(
+            x,
+            float(variant.model_S(S)),
+            float(J),
+            variant.kano,
+            self.k_start,
+            self.d_start,
+            float(offset),
+        )
+        phi = _regressors(u, float(tau), self.integrating, self.a_hp, self.k_start)
+        X = phi[self.rows]
+        y = self.yf[self.rows + int(delay)]
+        theta = _same_sign_lstsq(X, y, 2)
+        return y - X @ theta, theta, u, n_slips
+
+
+def _grid(S_lo, S_hi, J_lo, J_hi, n):
+    Sg = np.linspace(S_lo, S_hi, n)
+    Jg = np.linspace(J_lo, J_hi, n)
+    SS, JJ = np.meshgrid(Sg, Jg, indexing="ij")
+    return SS.ravel(), JJ.ravel(), Sg[1] - Sg[0], Jg[1] - Jg[0]
+
+
+def cycle_travel(x: np.ndarray, period: int) -> float:
+    """Typical peak-to-peak travel of ``x`` over a cycle [units of x].
+
+    The 90th percentile of the ranges of windows two periods long of ``x`` detrended
+    by a running median over three periods: a bound on the band S of a sticky valve
+    that slips every cycle, without the load moves of op that a range of the whole
+    record would include.
+    """
+    from scipy.ndimage import median_filter
+
+    xd = x - median_filter(x, size=max(3, int(3 * period) | 1), mode="nearest")
+    m = max(2, int(2 * period))
+    nw = xd.size // m
+    if nw < 1:
+        return float(np.ptp(xd))
+    w = xd[: nw * m].reshape(nw, m)
+    return float(np.percentile(w.max(axis=1) - w.min(axis=1), 90))
+
+
+def _delay_window(d_best: int, d_max: int, half: int, most: int) -> np.ndarray:
+    """Dead times within ``half`` of ``d_best`` (at most ``most``, evenly spread)."""
+    d = np.arange(max(1, d_best - half), min(d_max, d_best + half) + 1, dtype=np.int64)
+    if d.size > most:
+        d = np.unique(np.round(np.linspace(d[0], d[-1], most)).astype(np.int64))
+    return d
+
+
+def fit_hammerstein(
+    op: np.ndarray,
+    pv: np.ndarray,
+    dt: float,
+    *,
+    integrating: bool,
+    flow_loop: bool,
+    period_s: float | None = None,
+) -> StictionFit:
+    """S and J from op and pv by fitting valve model and linear process together.
+
+    Parameters
+    ----------
+    op : ndarray
+        Controller output / valve demand [% of span].
+    pv : ndarray
+        Controlled variable [any units; scaled to unit variance inside].
+    dt : float
+        Sampling time [s].
+    integrating : bool
+        The process integrates (level loop): the linear part includes an integrator.
+    flow_loop : bool
+        pv is (nearly) proportional to the valve opening (Section 5.3.1): the linear
+        part is a gain, a small lag and one to three samples of delay.  Ignored when
+        ``integrating`` is set.
+    period_s : float, optional
+        Cycle period [s] that sets the time scales of the linear basis and the row
+        stride; by default measured on op (:func:`stictiondiag.estimate.cycle_samples`).
+
+    Returns
+    -------
+    StictionFit
+        ``method="hammerstein"``; costs are sums of squared residuals of the
+        high-passed, unit-variance pv.  ``details`` holds the linear part (dead time,
+        basis), the valve model variant, determinacy and per-cycle costs.
+
+    Notes
+    -----
+    Search, every cost minimised over the dead times of the current set and over the
+    starting phases :data:`START_PHASES`:
+
+    1. every valve variant on a 9 x 9 (S, J) grid with a coarse set of dead times
+       (up to half a cycle) picks the variant and the dead time;
+    2. a 15 x 15 grid with the dead times near the best one (within half of it, at
+       least 3 samples), then three zooms of 7 x 7 around each of the three best
+       cells;
+    3. every dead time near the best one at one-sample resolution, and three more
+       zooms around the best pair.
+
+    S and J are searched up to 1.25 times the typical cycle travel of op.  The profile
+    intervals use only the points of steps 2 and 3, whose dead times adapt to S.
+    """
+    op, pv, dt = _check(op, pv, dt)
+    n = op.size
+    op_mean, op_std = float(np.mean(op)), float(np.std(op))
+    x = op - op_mean  # the valve model is shift-equivariant; centring helps the sums
+    y = (pv - np.mean(pv)) / np.std(pv)
+    if period_s is not None and period_s > 0 and math.isfinite(period_s):
+        period = int(max(4, min(round(period_s / dt), n // 3)))
+    else:
+        period = cycle_samples(op)
+    stride = max(1, period // ROWS_PER_PERIOD, -(-n // MAX_ROWS))
+    a_hp = math.exp(-1.0 / (HIGHPASS_PERIODS * period))
+
+    if integrating:
+        structure = "integrating"
+    elif flow_loop:
+        structure = "flow"
+    else:
+        structure = "self-regulating"
+    if structure == "flow":
+        taus = np.array(FLOW_LAGS, dtype=float)
+        d_max = max(FLOW_DELAYS)
+        coarse_delays = np.array(FLOW_DELAYS, dtype=np.int64)
+    else:
+        taus = np.geomspace(max(0.3, period * TAU_PERIODS[0]), period * TAU_PERIODS[1], N_TAUS)
+        d_max = max(1, min(int(MAX_DELAY_PERIODS * period), n // 4))
+        coarse_delays = _delay_grid(d_max, 10)
+
+    k_start, d_start = first_extreme(x, period)
+    # Both sides of the model start at k_start; the process's own response to its
+    # unknown state there dies out within half a period or so.
+    yf = _highpass(y, a_hp, k_start)
+    j0 = k_start + max(1, period // 2)
+    j1 = n - d_max
+    if (j1 - j0) // stride < 30:
+        raise DataError(
+            f"record too short for a Hammerstein fit: {n} samples with a {period}-sample "
+            "cycle; record at least three cycles"
+        )
+    prob = _Problem(x, yf, taus, integrating, a_hp, k_start, d_start, j0, j1, stride, coarse_delays)
+
+    travel = cycle_travel(x, period)
+    S_max = float(min(1.25 * travel, np.ptp(x)))
+    S_max = max(S_max, 1e-9 * max(float(np.ptp(x)), 1e-300))
+    J_max = S_max
+    offsets_all = np.array(START_OFFSETS) * travel
+
+    # 1. Valve variant, start offset, process time constant and dead time on a coarse
+    #    grid.
+    SS, JJ, _, _ = _grid(0.0, S_max, 0.0, J_max, 7)
+    variants = {v.name: v for v in valve_variants(x)}
+    if any(v.play_width > 0 for v in variants.values()):
+        # On a noisy op the published flowchart re-arms at every noise reversal and
+        # never slips: not worth its evaluations.
+        variants.pop("choudhury")
+    coarse = {name: prob.cost(SS, JJ, v, offsets_all) for name, v in variants.items()}
+    model = min(coarse, key=lambda k: float(coarse[k][0].min()))
+    variant = variants[model]
+    c0, d0, o0, t0 = coarse[model]
+    i0 = int(np.argmin(c0))
+    d_best, off_best, tau_best = int(d0[i0]), float(o0[i0]), float(t0[i0])
+    n_eval = len(coarse) * SS.size * offsets_all.size
+
+    # From here on: the best start offset and its neighbours.
+    k_off = int(np.argmin(np.abs(offsets_all - off_best)))
+    offsets = offsets_all[max(0, k_off - 1) : k_off + 2]
+
+    pts: dict[str, list] = {k: [] for k in "SJCDOT"}
+
+    def evaluate(S_arr, J_arr):
+        nonlocal n_eval
+        c, bd, bo, bt = prob.cost(S_arr, J_arr, variant, offsets)
+        for k, v in zip("SJCDOT", (S_arr, J_arr, c, bd, bo, bt), strict=True):
+            pts[k].append(v)
+        n_eval += S_arr.size * offsets.size
+        return c
+
+    def zoom(sb, jb, ds, dj, levels):
+        for _ in range(levels):
+            Sz, Jz, zs, zj = _grid(
+                max(0.0, sb - ds), min(S_max, sb + ds), max(0.0, jb - dj), min(J_max, jb + dj), 7
+            )
+            c = evaluate(Sz, Jz)
+            k = int(np.argmin(c))
+            sb, jb = Sz[k], Jz[k]
+            ds, dj = 2 * zs, 2 * zj
+
+    def best():
+        k = int(np.argmin(np.concatenate(pts["C"])))
+        return tuple(np.concatenate(pts[key])[k] for key in "SJDT")
+
+    # 2. Time constants and dead times near the best ones; grid and zooms.
+    if structure == "flow":
+        delays = coarse_delays
+    else:
+        step = int(np.max(np.diff(coarse_delays))) if coarse_delays.size > 1 else 1
+        delays = _delay_window(d_best, d_max, max(3, step, d_best // 2), 11)
+        prob.taus = tau_best * np.array([0.8, 1.0, 1.25])
+    prob.set_delays(delays)
+    SS, JJ, step_s, step_j = _grid(0.0, S_max, 0.0, J_max, 13)
+    c = evaluate(SS, JJ)
+    for k in np.argsort(c)[:3]:
+        zoom(SS[k], JJ[k], 2 * step_s, 2 * step_j, 2)
+
+    # 3. Dead time at one-sample resolution and a finer time constant near the best
+    #    pair, then zoom again.
+    sb, jb, d_best, tau_best = best()
+    if structure != "flow":
+        spacing = int(np.max(np.diff(delays))) if delays.size > 1 else 1
+        prob.set_delays(_delay_window(int(d_best), d_max, max(2, spacing), 9))
+        prob.taus = float(tau_best) * np.array([0.9, 1.0, 1.11])
+        zoom(sb, jb, 2 * step_s / 3, 2 * step_j / 3, 3)
+
+    S_all, J_all, C_all, D_all, O_all, T_all = (np.concatenate(pts[k]) for k in "SJCDOT")
+    i = int(np.argmin(C_all))
+    S_hat, J_hat, cost = float(S_all[i]), float(J_all[i]), float(C_all[i])
+    delay, offset, tau = int(D_all[i]), float(O_all[i]), float(T_all[i])
+
+    # The linear valve gets every time constant and dead time searched, so it is not
+    # handicapped.
+    linear = ValveVariant("linear", False)
+    prob.taus = np.union1d(taus, prob.taus)
+    prob.set_delays(np.union1d(coarse_delays, prob.delays))
+    lin_c, lin_d, _, lin_t = prob.cost(0.0, 0.0, linear, 0.0)
+    linear_cost = float(lin_c[0])
+    lin_resid, *_ = prob.residual(0.0, 0.0, linear, int(lin_d[0]), 0.0, float(lin_t[0]))
+    resid, theta, mv_model, n_slips = prob.residual(S_hat, J_hat, variant, delay, offset, tau)
+
+    n_eff = effective_samples(resid)
+    n_par = 4 + 5  # two gains, two free columns; S, J, dead time, time constant, offset
+    thr = cost_threshold(cost, n_eff, n_par)
+    S_iv, _, S_open = profile_interval(S_all, C_all, thr, 0.0, S_max)
+    J_iv, _, J_open = profile_interval(J_all, C_all, thr, 0.0, J_max)
+    d_iv, _, _ = profile_interval(D_all.astype(float), C_all, thr, 1.0, float(d_max))
+
+    block = max(2, period // stride)
+    details = {
+        "valve_model": model,
+        "play_width": variant.play_width,
+        "structure": structure,
+        "period_samples": period,
+        "row_stride": stride,
+        "dead_time_s": delay * dt,
+        "dead_time_interval_s": [d_iv[0] * dt, d_iv[1] * dt],
+        "linear_valve_dead_time_s": float(lin_d[0]) * dt,
+        "time_constant_s": tau * dt,
+        "process_gains": {"direct": float(theta[0]), "lag": float(theta[1])},
+        "highpass_corner_s": HIGHPASS_PERIODS * period * dt,
+        "search_limit": S_max,
+        "start_sample": k_start,
+        "start_offset": offset,
+        "cost_by_valve_model": {k: float(v[0].min()) for k, v in coarse.items()},
+        "determinacy": _determinacy(S_hat, S_iv, S_open, J_hat, J_iv, J_open),
+        "interval_method": (
+            "95 % profile-cost interval over the grid search (F test with the "
+            "residual's effective number of samples)"
+        ),
+        "effective_samples": n_eff,
+        "n_samples": int(resid.size),
+        "n_parameters": {"stiction": n_par, "linear": n_par - 2},
+        "block_samples": block,
+        "block_sse": {
+            "stiction": block_sse(resid, block).tolist(),
+            "linear": block_sse(lin_resid, block).tolist(),
+        },
+        "n_evaluations": int(n_eval),
+    }
+    if integrating and flow_loop:
+        details["note"] = "loop type flow but integrating: the integrating structure was used"
+    return StictionFit(
+        S=S_hat,
+        J=J_hat,
+        S_scaled=S_hat / op_std,
+        J_scaled=J_hat / op_std,
+        S_interval=S_iv,
+        J_interval=J_iv,
+        method="hammerstein",
+        mv_model=mv_model + op_mean,
+        n_slips=int(n_slips),
+        cost=cost,
+        linear_cost=linear_cost,
+        details=details,
+    )
