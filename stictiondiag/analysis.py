@@ -158,7 +158,8 @@ class Analysis:
         """Figures by name: ``phase`` (Figs. 3-6 style), ``reconstruction``, gap plots."""
         from .plotting.analysis import plot_phase
 
-        figs = {"phase": plot_phase(self.tags, fit=self.fit, title=self.loop)}
+        period = self.oscillation.period_s or self.oscillation_op.period_s
+        figs = {"phase": plot_phase(self.tags, fit=self.fit, title=self.loop, period_s=period)}
         if self.replay is not None:
             figs["reconstruction"] = self.replay.plot()
         if self.gap is not None and hasattr(self.gap, "figures"):
