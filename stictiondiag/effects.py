@@ -1,0 +1,2293 @@
+"""Catalogue of unmodelled effects: augmentations of the driven replay of a loop.
+
+The two-parameter model of Choudhury, Thornhill & Shah (2005) (Section 5.1, Fig. 10,
+Eq. 4) never matches a real valve exactly.  Each entry of :data:`EFFECT_MODELS` adds
+one named effect to the replay, with its own parameters fitted by least squares, so
+:mod:`stictiondiag.gap` can ask which effect explains the departure of the replay from
+the data.
+
+The *driven replay* feeds every element of the loop with its recorded input, so a
+departure is located in the element that causes it:
+
+* valve: ``mv_hat = valve(op)`` (the stiction model, Section 5.1);
+* process: ``pv_hat = G(mv)`` (a low-order linear model with dead time, Section 4.2.2,
+  Eq. 3), driven by the recorded mv (or the modelled mv when mv is not recorded);
+* controller: ``op_hat = C(sp - pv)`` (a PI controller, Eq. 3).
+
+The effects and where they act:
+
+=====================  ======  =====================================================
+effect                 signal  augmentation (extra parameters)
+=====================  ======  =====================================================
+actuator_lag           mv      first-order positioner/actuator lag after the friction
+                               element (time constant)
+miscalibration         mv      moving-phase slope of mv against op not 1 and an offset
+                               (Section 4.2.1, Fig. 8 bottom row) (slope, offset)
+asymmetry              mv      S and J differ opening and closing (Loop 1, Section 3)
+                               (S and J of the second direction)
+valve_characteristic   pv, mv  installed characteristic between valve position and
+                               flow (Section 5.1, last step of Fig. 10): curvature of an
+                               exponential (equal-percentage-like) or power
+                               (quick-opening-like) curve, on the process input or on mv
+quantization           any     historian or instrument resolution (Loop 4, Section 3):
+                               the model output rounded to the resolution found in the
+                               data (step and offset per quantised signal)
+external_disturbance   pv      an oscillation entering the loop that the valve did not
+                               cause: a sinusoid and its second harmonic added to pv
+                               (frequency, amplitudes, phases)
+time_varying_stiction  mv      S and J drifting linearly during the record, or
+                               stepping at one instant (end values, step time)
+=====================  ======  =====================================================
+
+Every fitter takes per-sample weights (0 or 1) so the same code fits on a training
+part of the record and is validated on the held-back part (:mod:`stictiondiag.gap`).
+Per-sample loops are compiled (:func:`stictiondiag._jit.jit`); the process fits are
+vectorised linear least squares over a small grid of poles and dead times.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+from scipy.signal import lfilter
+
+from ._jit import jit
+from .errors import UsageError
+
+#: Effect names in the order they are reported; ``none`` is the base two-parameter model.
+EFFECTS: tuple[str, ...] = (
+    "none",
+    "actuator_lag",
+    "miscalibration",
+    "asymmetry",
+    "valve_characteristic",
+    "quantization",
+    "external_disturbance",
+    "time_varying_stiction",
+)
+
+#: One-line description of each effect (used in reports and ``--help`` texts).
+EFFECT_DESCRIPTIONS: dict[str, str] = {
+    "none": "the two-parameter model explains the data to within its noise",
+    "actuator_lag": "positioner or actuator dynamics after the friction element",
+    "miscalibration": "moving-phase slope of mv against op not 1 (Fig. 8, bottom row)",
+    "asymmetry": "different S and J opening and closing (Loop 1, Section 3)",
+    "valve_characteristic": "non-linear installed characteristic between position and flow",
+    "quantization": "historian or instrument resolution (Loop 4, Section 3)",
+    "external_disturbance": "an oscillation entering the loop that the valve did not cause",
+    "time_varying_stiction": "S or J changing during the record",
+}
+
+#: Effects that act on the valve and need a recorded mv to be assessed.
+VALVE_SIDE_EFFECTS: frozenset[str] = frozenset(
+    {"actuator_lag", "miscalibration", "asymmetry", "time_varying_stiction"}
+)
+
+# Phase codes written by the valve kernel (used by the gap breakdown).
+PHASE_MOVING = 0
+PHASE_STUCK = 1
+PHASE_SLIP = 2
+PHASE_REVERSAL = 3
+PHASE_NAMES = {
+    PHASE_STUCK: "stuck",
+    PHASE_SLIP: "slip",
+    PHASE_MOVING: "moving",
+    PHASE_REVERSAL: "reversal",
+}
+
+
+# --------------------------------------------------------------------------------------
+# Compiled kernels
+# --------------------------------------------------------------------------------------
+
+# Per-sample helpers are inlined into the compiled loops: a call per sample would
+# cost more than the state machine itself.
+_inline = numba.njit(inline="always", cache=True, nogil=True)
+
+# Layout of the valve state vector used by the compiled step.
+_Y, _XSS, _DIR, _VOLD, _STUCK, _XPREV = 0, 1, 2, 3, 4, 5
+
+# Columns of a parameter row of :func:`_valve_sse_batch`.
+_P_COLUMNS = (
+    "S_open",
+    "S_open_end",
+    "S_close",
+    "S_close_end",
+    "J_open",
+    "J_open_end",
+    "J_close",
+    "J_close_end",
+    "lag_weight",
+)
+
+_FAMILY_CODES = {"linear": 0, "exponential": 1, "power": 2}
+
+
+@_inline
+def _sgn(v):
+    if v > 0.0:
+        return 1.0
+    if v < 0.0:
+        return -1.0
+    return 0.0
+
+
+@_inline
+def _valve_init(x0, y0, d0, s_u, s_d, j_u, j_d):  # pragma: no cover - compiled
+    """State of a valve at rest at ``y0`` after moving in direction ``d0``.
+
+    By Eq. 4 the demand was ``y0 + d0 (S - J)/2`` when the valve stopped; with
+    ``d0 = 0`` (unknown) the stop point is the first demand and the first breakaway
+    needs S.
+    """
+    st = np.zeros(6)
+    st[_Y] = y0
+    if d0 > 0.0:
+        st[_XSS] = y0 + (s_u - j_u) / 2.0
+    elif d0 < 0.0:
+        st[_XSS] = y0 - (s_d - j_d) / 2.0
+    else:
+        st[_XSS] = x0
+    st[_DIR] = d0
+    st[_STUCK] = 1.0
+    st[_XPREV] = x0
+    return st
+
+
+@_inline
+def _valve_step(x, st, s_u, s_d, j_u, j_d, kano):  # pragma: no cover - compiled
+    """One sample of the data-driven valve with direction-dependent S and J.
+
+    The state machine of :func:`stictiondiag.valve.choudhury_step` (Fig. 10) or,
+    with ``kano``, of :func:`stictiondiag.valve.kano_step`; the breakaway threshold
+    and the moving-phase offset of Eq. 4 use the values of the direction of travel.
+    Returns the (unclipped) position and the phase code.
+    """
+    vnew = _sgn(x - st[_XPREV])
+    if kano:
+        if st[_STUCK] == 0.0:
+            if vnew == 0.0 or (st[_DIR] != 0.0 and vnew != st[_DIR]):
+                st[_STUCK] = 1.0
+                st[_XSS] = st[_XPREV]
+            else:
+                st[_DIR] = vnew
+                if vnew > 0.0:
+                    st[_Y] = x - (s_u - j_u) / 2.0
+                else:
+                    st[_Y] = x + (s_d - j_d) / 2.0
+    else:
+        if vnew != st[_VOLD] and vnew != 0.0 and st[_VOLD] != 0.0:
+            st[_STUCK] = 1.0
+            st[_XSS] = st[_XPREV]
+        elif vnew == 0.0 and st[_VOLD] == 0.0:
+            if st[_STUCK] == 0.0:
+                st[_STUCK] = 1.0
+                st[_XSS] = st[_XPREV]
+    phase = PHASE_MOVING
+    if st[_STUCK] == 1.0:
+        dx = x - st[_XSS]
+        d = _sgn(dx)
+        reversal = True
+        slipped = False
+        if d != 0.0:
+            if d > 0.0:
+                s_dd = s_u
+                j_dd = j_u
+            else:
+                s_dd = s_d
+                j_dd = j_d
+            reversal = st[_DIR] == 0.0 or d != st[_DIR]
+            thr = s_dd if reversal else j_dd
+            if abs(dx) > thr:
+                st[_STUCK] = 0.0
+                slipped = True
+                st[_DIR] = d
+                st[_Y] = x - d * (s_dd - j_dd) / 2.0
+        if slipped:
+            phase = PHASE_SLIP
+        elif reversal and abs(dx) <= 0.5 * max(s_u, s_d):
+            phase = PHASE_REVERSAL
+        else:
+            phase = PHASE_STUCK
+    elif not kano and vnew != 0.0:
+        st[_DIR] = vnew
+        if vnew > 0.0:
+            st[_Y] = x - (s_u - j_u) / 2.0
+        else:
+            st[_Y] = x + (s_d - j_d) / 2.0
+    st[_VOLD] = vnew
+    st[_XPREV] = x
+    return st[_Y], phase
+
+
+@_inline
+def _characteristic(z, curvature, family):  # pragma: no cover - compiled
+    if family == 0:
+        return z
+    zz = min(max(z, 0.0), 100.0) / 100.0
+    if family == 1:
+        if abs(curvature) < 1e-9:
+            return 100.0 * zz
+        return 100.0 * math.expm1(curvature * zz) / math.expm1(curvature)
+    return 100.0 * zz ** math.exp(curvature)
+
+
+@jit
+def _valve_series(op, s_up, s_dn, j_up, j_dn, kano, y0, d0, lag):  # pragma: no cover - compiled
+    """Valve position (after an optional first-order lag) and phase for one parameter set.
+
+    ``s_up`` etc. have length 1 (constant) or ``len(op)``; ``lag`` is the weight of
+    the previous lagged value (0: no lag).
+    """
+    n = op.shape[0]
+    out = np.empty(n)
+    phase = np.zeros(n, dtype=np.int8)
+    if n == 0:
+        return out, phase
+    tv = s_up.shape[0] > 1
+    x0 = min(max(op[0], 0.0), 100.0)
+    st = _valve_init(x0, y0, d0, s_up[0], s_dn[0], j_up[0], j_dn[0])
+    yl = y0
+    out[0] = y0
+    phase[0] = PHASE_STUCK
+    for k in range(1, n):
+        i = k if tv else 0
+        x = min(max(op[k], 0.0), 100.0)
+        y, ph = _valve_step(x, st, s_up[i], s_dn[i], j_up[i], j_dn[i], kano)
+        y = min(max(y, 0.0), 100.0)
+        yl = lag * yl + (1.0 - lag) * y
+        out[k] = yl
+        phase[k] = ph
+    return out, phase
+
+
+@jit
+def _valve_sse_batch(
+    op, mv, w, P, h, kano, y0, d0, affine, curvature, family, bound
+):  # pragma: no cover
+    """Weighted sum of squared mv errors for many parameter rows at once.
+
+    Each row of ``P`` holds S and J opening and closing at the start and end of the
+    profile ``h`` (length 1: constant) and the lag weight (columns as
+    ``_P_COLUMNS``).  The valve output goes through the lag and the characteristic
+    (``family`` 0: none); with ``affine`` the best ``mv = b + k z`` is solved in
+    closed form from running sums, so the returned error is already minimised over
+    slope and offset.  Without ``affine`` a row is abandoned (its partial error,
+    already above, is returned) as soon as its error exceeds ``bound`` or the best
+    complete row so far: most rows of a search grid are far from the minimum.
+    """
+    m = P.shape[0]
+    n = op.shape[0]
+    costs = np.empty(m)
+    limit = bound
+    tv = h.shape[0] > 1
+    for r in range(m):
+        su0, su1, sd0, sd1 = P[r, 0], P[r, 1], P[r, 2], P[r, 3]
+        ju0, ju1, jd0, jd1 = P[r, 4], P[r, 5], P[r, 6], P[r, 7]
+        lag = P[r, 8]
+        h0 = h[0]
+        x0 = min(max(op[0], 0.0), 100.0)
+        st = _valve_init(
+            x0,
+            y0,
+            d0,
+            su0 + (su1 - su0) * h0,
+            sd0 + (sd1 - sd0) * h0,
+            ju0 + (ju1 - ju0) * h0,
+            jd0 + (jd1 - jd0) * h0,
+        )
+        yl = y0
+        sw = 0.0
+        sz = 0.0
+        szz = 0.0
+        sm = 0.0
+        smm = 0.0
+        szm = 0.0
+        sse = 0.0
+        su, sd, ju, jd = su0, sd0, ju0, jd0
+        if not tv:
+            su = max(su0 + (su1 - su0) * h0, 0.0)
+            sd = max(sd0 + (sd1 - sd0) * h0, 0.0)
+            ju = max(ju0 + (ju1 - ju0) * h0, 0.0)
+            jd = max(jd0 + (jd1 - jd0) * h0, 0.0)
+        for k in range(n):
+            if k > 0:
+                if tv:
+                    hk = h[k]
+                    su = max(su0 + (su1 - su0) * hk, 0.0)
+                    sd = max(sd0 + (sd1 - sd0) * hk, 0.0)
+                    ju = max(ju0 + (ju1 - ju0) * hk, 0.0)
+                    jd = max(jd0 + (jd1 - jd0) * hk, 0.0)
+                x = min(max(op[k], 0.0), 100.0)
+                y, ph = _valve_step(x, st, su, sd, ju, jd, kano)
+                y = min(max(y, 0.0), 100.0)
+                if lag > 0.0:
+                    yl = lag * yl + (1.0 - lag) * y
+                else:
+                    yl = y
+            wk = w[k]
+            if wk == 0.0:
+                continue
+            z = yl if family == 0 else _characteristic(yl, curvature, family)
+            if affine:
+                sw += wk
+                sz += wk * z
+                szz += wk * z * z
+                sm += wk * mv[k]
+                smm += wk * mv[k] * mv[k]
+                szm += wk * z * mv[k]
+            else:
+                e = z - mv[k]
+                sse += wk * e * e
+                if sse > limit:
+                    break
+        if affine:
+            if sw <= 0.0:
+                costs[r] = 0.0
+                continue
+            vz = szz - sz * sz / sw
+            vm = smm - sm * sm / sw
+            cz = szm - sz * sm / sw
+            costs[r] = vm - cz * cz / vz if vz > 1e-12 * max(vm, 1e-300) else vm
+        else:
+            costs[r] = sse
+            if sse < limit:
+                limit = sse
+    return costs
+
+
+def valve_replay(
+    op: np.ndarray,
+    S: float | np.ndarray,
+    J: float | np.ndarray,
+    *,
+    S_down: float | np.ndarray | None = None,
+    J_down: float | np.ndarray | None = None,
+    kano: bool = False,
+    initial_position: float | None = None,
+    initial_direction: float = 0.0,
+    lag_time_constant: float = 0.0,
+    dt: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Valve position from the demand with direction- and time-dependent S and J.
+
+    Generalises :func:`stictiondiag.valve.choudhury_model` (Section 5.1, Fig. 10,
+    Eq. 4) for the effects of the catalogue: ``S`` and ``J`` apply to opening
+    (rising mv), ``S_down`` and ``J_down`` to closing, each may be one value per
+    sample, and a first-order actuator lag may follow the friction element.
+
+    Parameters
+    ----------
+    op : ndarray
+        Valve demand [% of span].
+    S, J : float or ndarray
+        Deadband plus stickband [% of input span] and slip jump [% of output span]
+        opening (and closing when ``S_down``/``J_down`` are not given).
+    S_down, J_down : float or ndarray, optional
+        The same for closing.
+    kano : bool
+        Stuck-phase logic of Kano et al. (2004) instead of Fig. 10: noise reversals
+        while stuck do not move the point the breakaway is measured from.
+    initial_position : float, optional
+        Valve position at the first sample [% of span]; default ``op[0]``.
+    initial_direction : {-1, 0, 1}
+        Direction of the movement that brought the valve to rest before the record
+        starts (0: unknown; the first breakaway then needs S).  A record starts in
+        the middle of the valve's history; with the right direction the replay is in
+        step with the valve from the first sample on.
+    lag_time_constant : float
+        Time constant of a first-order lag after the friction element [s] (0: none).
+    dt : float
+        Sample time [s] (only used with a lag).
+
+    Returns
+    -------
+    mv : ndarray
+        Valve position [% of span].
+    phase : ndarray of int8
+        Valve phase per sample: 0 moving, 1 stuck, 2 breakaway (slip), 3 stuck after
+        a reversal while the demand is within S/2 of where the valve stopped.
+    """
+    x = np.ascontiguousarray(op, dtype=float)
+    arrays = [
+        np.atleast_1d(np.asarray(v, dtype=float)) for v in (S, S_down, J, J_down) if v is not None
+    ]
+    s_up = np.atleast_1d(np.asarray(S, dtype=float))
+    j_up = np.atleast_1d(np.asarray(J, dtype=float))
+    s_dn = s_up if S_down is None else np.atleast_1d(np.asarray(S_down, dtype=float))
+    j_dn = j_up if J_down is None else np.atleast_1d(np.asarray(J_down, dtype=float))
+    size = max(a.size for a in arrays)
+    if size not in (1, x.size):
+        raise UsageError(f"S and J must be scalars or one value per sample ({x.size}), got {size}")
+    s_up, s_dn, j_up, j_dn = (
+        np.ascontiguousarray(np.broadcast_to(a, (size,)), dtype=float)
+        for a in (s_up, s_dn, j_up, j_dn)
+    )
+    y0 = float(x[0]) if initial_position is None else float(initial_position)
+    lag = math.exp(-dt / lag_time_constant) if lag_time_constant > 0.0 else 0.0
+    return _valve_series(
+        x,
+        np.maximum(s_up, 0.0),
+        np.maximum(s_dn, 0.0),
+        np.maximum(j_up, 0.0),
+        np.maximum(j_dn, 0.0),
+        bool(kano),
+        min(max(y0, 0.0), 100.0),
+        float(np.sign(initial_direction)),
+        lag,
+    )
+
+
+def characteristic_curve(x: np.ndarray, curvature: float, family: str) -> np.ndarray:
+    """Normalised installed characteristic, flow [% of max] at position x [% of travel].
+
+    ``exponential``: ``100 (e^{c x/100} - 1)/(e^c - 1)`` (equal-percentage-like for
+    c > 0, c = ln R for rangeability R; quick-opening-like for c < 0);
+    ``power``: ``100 (x/100)^p`` with ``p = e^{curvature}`` (quick-opening for p < 1,
+    ``p = 1/2`` the square root of Section 5.1).  Both are the identity at curvature
+    0 (the look-up table in the last step of Fig. 10).
+    """
+    z = np.clip(np.asarray(x, dtype=float), 0.0, 100.0) / 100.0
+    if family == "power":
+        return 100.0 * z ** math.exp(curvature)
+    if family == "linear" or abs(curvature) < 1e-9:
+        return 100.0 * z
+    return 100.0 * np.expm1(curvature * z) / math.expm1(curvature)
+
+
+def first_order_lag(x: np.ndarray, time_constant: float, dt: float) -> np.ndarray:
+    """First-order lag ``tau dy/dt = x - y`` sampled exactly (zero-order hold), started at rest.
+
+    Parameters
+    ----------
+    x : ndarray
+        Input [any units].
+    time_constant : float
+        tau [s], >= 0 (0 returns ``x``).
+    dt : float
+        Sample time [s].
+    """
+    if time_constant <= 0.0:
+        return np.asarray(x, dtype=float)
+    a = math.exp(-dt / time_constant)
+    y, _ = lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]])
+    return y
+
+
+def quantize(x: np.ndarray, step: float, offset: float = 0.0) -> np.ndarray:
+    """Round ``x`` to the grid ``offset + step * integer`` (instrument or historian resolution)."""
+    return offset + step * np.round((np.asarray(x, dtype=float) - offset) / step)
+
+
+def detect_quantization(x: np.ndarray | None) -> tuple[float, float] | None:
+    """Resolution of a recorded signal: the step and offset of the grid its values lie on.
+
+    A signal counts as quantised when all its distinct values are whole multiples of
+    the smallest difference between them (to 1 % of that step), that step is at least
+    1/1000 of the signal's standard deviation (a coarser grid than the decimals of a
+    CSV file), and there are at least two levels.
+
+    Returns
+    -------
+    (step, offset) or None
+        Step [units of x] and the level nearest zero, or None when not quantised.
+    """
+    if x is None:
+        return None
+    values = np.unique(np.asarray(x, dtype=float)[np.isfinite(x)])
+    if values.size < 2:
+        return None
+    sd = float(np.std(x))
+    if not sd > 0.0:
+        return None
+    diffs = np.diff(values)
+    step = float(np.min(diffs))
+    if step < 1e-3 * sd:
+        return None
+    rel = (values - values[0]) / step
+    if float(np.max(np.abs(rel - np.round(rel)))) > 0.01:
+        return None
+    offset = float(values[0] - step * np.round(values[0] / step))
+    return step, offset
+
+
+# --------------------------------------------------------------------------------------
+# Fitting helpers
+# --------------------------------------------------------------------------------------
+
+
+def pattern_search(
+    cost: Callable[[np.ndarray], float],
+    x0: np.ndarray,
+    steps: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    *,
+    min_step: np.ndarray | None = None,
+    max_evals: int = 600,
+) -> tuple[np.ndarray, float]:
+    """Compass search: try +-step on each coordinate, keep improvements, halve on failure.
+
+    Derivative-free, as the stiction models are piecewise constant in S (a slip moves
+    by whole samples); bounds are enforced by clipping.
+    """
+    x = np.clip(np.asarray(x0, dtype=float), lower, upper)
+    step = np.asarray(steps, dtype=float).copy()
+    floor = step / 64.0 if min_step is None else np.asarray(min_step, dtype=float)
+    best = cost(x)
+    evals = 1
+    while evals < max_evals and np.any(step > floor):
+        improved = False
+        for i in range(x.size):
+            if step[i] <= floor[i]:
+                continue
+            for sign in (1.0, -1.0):
+                trial = x.copy()
+                trial[i] = min(max(trial[i] + sign * step[i], lower[i]), upper[i])
+                if trial[i] == x[i]:
+                    continue
+                c = cost(trial)
+                evals += 1
+                if c < best:
+                    best, x = c, trial
+                    improved = True
+                    break
+        if not improved:
+            step = step / 2.0
+    return x, best
+
+
+def zoom_search(
+    batch_cost: Callable[[np.ndarray], np.ndarray],
+    x0: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    *,
+    pairs: tuple[tuple[int, int], ...],
+    floor: np.ndarray,
+    rel: float = 0.3,
+    n_grid: int = 13,
+    n_zoom: int = 3,
+    rounds: int = 2,
+) -> tuple[np.ndarray, float]:
+    """Zooming grid search over pairs of parameters, evaluated in batches.
+
+    The replay error of a stiction model is a rugged function of S and J: every
+    breakaway of the replay moves by whole samples, so the minimum is narrow and a
+    descent method stalls on the steps.  For each pair ``(i, j)`` a grid of
+    ``n_grid x n_grid`` points spanning ``+-rel`` of the current values (at least
+    ``+-rel floor``) is evaluated in one compiled call; the grid then shrinks around
+    its best point (to two of its steps either side) ``n_zoom`` times.  A pair with
+    ``i == j`` is a one-dimensional scan.
+
+    Returns the best point and its cost.
+    """
+    x = np.clip(np.asarray(x0, dtype=float), lower, upper)
+    best = float(batch_cost(x[None, :])[0])
+    for _ in range(rounds):
+        start = best
+        for i, j in pairs:
+            hw_i = rel * max(abs(x[i]), floor[i])
+            hw_j = rel * max(abs(x[j]), floor[j])
+            for _ in range(n_zoom):
+                if i == j:
+                    gi = np.clip(
+                        np.linspace(x[i] - hw_i, x[i] + hw_i, 2 * n_grid + 1), lower[i], upper[i]
+                    )
+                    X = np.repeat(x[None, :], gi.size, axis=0)
+                    X[:, i] = gi
+                    step_i = gi[1] - gi[0] if gi.size > 1 else hw_i
+                    step_j = step_i
+                else:
+                    gi = np.clip(np.linspace(x[i] - hw_i, x[i] + hw_i, n_grid), lower[i], upper[i])
+                    gj = np.clip(np.linspace(x[j] - hw_j, x[j] + hw_j, n_grid), lower[j], upper[j])
+                    GI, GJ = np.meshgrid(gi, gj, indexing="ij")
+                    X = np.repeat(x[None, :], GI.size, axis=0)
+                    X[:, i] = GI.ravel()
+                    X[:, j] = GJ.ravel()
+                    step_i, step_j = 2 * hw_i / (n_grid - 1), 2 * hw_j / (n_grid - 1)
+                c = batch_cost(X)
+                k = int(np.argmin(c))
+                if c[k] < best:
+                    best, x = float(c[k]), X[k].copy()
+                hw_i, hw_j = max(2.0 * step_i, 1e-9), max(2.0 * step_j, 1e-9)
+        if best >= start * (1.0 - 1e-9):
+            break
+    return x, best
+
+
+def needle_search(
+    batch_cost: Callable[[np.ndarray, float], np.ndarray],
+    x0: np.ndarray,
+    pair: tuple[int, int],
+    lower: np.ndarray,
+    upper: np.ndarray,
+    *,
+    rel: float = 0.15,
+    n_grid: int = 31,
+    beam: int = 3,
+    zooms: int = 2,
+    floor: float | None = None,
+) -> tuple[np.ndarray, float]:
+    """Dense grid over two parameters, then zooming grids around the best few points.
+
+    The replay error of a stiction model with a noisy demand is a rugged function of
+    S and J: each breakaway happens at the first noisy sample beyond the threshold,
+    so the replay matches the data only in a narrow region (about 1 % of J) and is
+    off by whole slips elsewhere.  A descent method stalls on the steps; this search
+    lays an ``n_grid x n_grid`` grid over ``+-rel`` of the starting values (at least
+    ``+-rel floor``), keeps the ``beam`` best points and zooms around each to two of
+    the previous steps either side, ``zooms`` times.  ``batch_cost(X, bound)``
+    evaluates all rows of X in one compiled call and may abandon rows above
+    ``bound``.  A pair ``(i, i)`` is a one-dimensional scan.
+
+    Returns the best point and its cost.
+    """
+    i, j = pair
+    x0 = np.clip(np.asarray(x0, dtype=float), lower, upper)
+    best_c = float(batch_cost(x0[None, :], np.inf)[0])
+    best_x = x0
+    fl = max(abs(x0[i]), abs(x0[j])) if floor is None else floor
+
+    def grid(x, hw_i, hw_j, m):
+        gi = np.clip(np.linspace(x[i] - hw_i, x[i] + hw_i, m), lower[i], upper[i])
+        if i == j:
+            X = np.repeat(x[None, :], gi.size, axis=0)
+            X[:, i] = gi
+            return X
+        gj = np.clip(np.linspace(x[j] - hw_j, x[j] + hw_j, m), lower[j], upper[j])
+        GI, GJ = np.meshgrid(gi, gj, indexing="ij")
+        X = np.repeat(x[None, :], GI.size, axis=0)
+        X[:, i] = GI.ravel()
+        X[:, j] = GJ.ravel()
+        return X
+
+    m0 = 4 * n_grid if i == j else n_grid
+    hw_i = rel * max(abs(x0[i]), 0.5 * fl, 1e-6)
+    hw_j = rel * max(abs(x0[j]), 0.5 * fl, 1e-6)
+    X = grid(x0, hw_i, hw_j, m0 if i == j else n_grid)
+    c = batch_cost(X, best_c)
+    order = np.argsort(c)[:beam]
+    if c[order[0]] < best_c:
+        best_c, best_x = float(c[order[0]]), X[order[0]].copy()
+    starts = [X[k].copy() for k in order]
+    step_i = 2 * hw_i / max((m0 if i == j else n_grid) - 1, 1)
+    step_j = 2 * hw_j / max(n_grid - 1, 1)
+    for x in starts:
+        si, sj = step_i, step_j
+        for _ in range(zooms):
+            m = 21 if i == j else 11
+            Z = grid(x, 2 * si, 2 * sj, m)
+            cz = batch_cost(Z, best_c)
+            k = int(np.argmin(cz))
+            x = Z[k].copy()
+            if cz[k] < best_c:
+                best_c, best_x = float(cz[k]), x
+            si, sj = 4 * si / (m - 1), 4 * sj / (m - 1)
+    return best_x, best_c
+
+
+def _golden(cost: Callable[[float], float], lo: float, hi: float, n_iter: int = 30) -> float:
+    """Minimise a unimodal scalar function on [lo, hi] by golden-section search."""
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = cost(c), cost(d)
+    for _ in range(n_iter):
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = cost(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = cost(d)
+    return c if fc < fd else d
+
+
+def _wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted linear least squares (weights 0/1) by the normal equations.
+
+    Columns are scaled to unit norm and a tiny ridge keeps collinear columns
+    solvable; far faster than an SVD for the few columns used here.
+    """
+    Xw = X * w[:, None]
+    A = Xw.T @ X
+    b = Xw.T @ y
+    d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    As = A / np.outer(d, d)
+    As[np.diag_indices_from(As)] += 1e-10
+    try:
+        return np.linalg.solve(As, b / d) / d
+    except np.linalg.LinAlgError:
+        sw = np.sqrt(w)
+        coef, *_ = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)
+        return coef
+
+
+def dominant_period_samples(x: np.ndarray) -> float | None:
+    """Period of the largest spectral peak of ``x`` [samples], or None.
+
+    Slow drift (fewer than four cycles in the record) is excluded, so a load change
+    does not pass for the oscillation; the periodogram is smoothed over three bins.
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.size
+    if n < 16 or not np.std(x) > 0:
+        return None
+    xd = x - np.mean(x)
+    nfft = 1 << int(math.ceil(math.log2(2 * n)))
+    spec = np.abs(np.fft.rfft(xd * np.hanning(n), nfft)) ** 2
+    spec = np.convolve(spec, np.ones(3) / 3.0, mode="same")
+    f = np.arange(spec.size) / nfft  # [cycles/sample]
+    ok = (f >= 4.0 / n) & (f <= 0.25)
+    if not np.any(ok):
+        return None
+    i = int(np.argmax(np.where(ok, spec, -1.0)))
+    return float(1.0 / f[i])
+
+
+class SlowLoad:
+    """Unmeasured slow load on pv: a piecewise-linear curve with knots every ``spacing`` samples.
+
+    Plant loops carry load changes the replay cannot know: the controller moves the
+    valve to cancel them, so the driven process replay ``G(mv)`` departs from pv by
+    ``G(load)``.  The replay compares pv after removing this slow part; the knot
+    spacing is twice the longest oscillation period of the loop, so a
+    piecewise-linear curve cannot follow the oscillations themselves (a sinusoid
+    needs knots at most a quarter period apart).
+
+    Parameters
+    ----------
+    n : int
+        Record length [samples].
+    spacing : float
+        Knot spacing [samples].
+    """
+
+    def __init__(self, n: int, spacing: float):
+        spacing = max(float(spacing), 2.0)
+        self.n = int(n)
+        self.m = max(int(math.ceil((n - 1) / spacing)) + 1, 2)
+        self.spacing = (n - 1) / (self.m - 1)
+        pos = np.arange(n) / self.spacing
+        self.j = np.minimum(np.floor(pos).astype(np.int64), self.m - 2)
+        self.t = pos - self.j
+
+    def _ht(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """``H^T diag(w) x`` for a matrix x (n x c)."""
+        out = np.empty((self.m, x.shape[1]))
+        a, b = w * (1.0 - self.t), w * self.t
+        for c in range(x.shape[1]):
+            out[:, c] = np.bincount(self.j, a * x[:, c], minlength=self.m) + np.bincount(
+                self.j + 1, b * x[:, c], minlength=self.m
+            )
+        return out
+
+    def solve(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Knot values of the weighted least-squares fit of each column of ``x``."""
+        from scipy.linalg import solveh_banded
+
+        x2 = x[:, None] if x.ndim == 1 else x
+        a, b = w * (1.0 - self.t), w * self.t
+        diag = np.bincount(self.j, a * (1.0 - self.t), minlength=self.m) + np.bincount(
+            self.j + 1, b * self.t, minlength=self.m
+        )
+        off = np.bincount(self.j, a * self.t, minlength=self.m)[: self.m - 1]
+        ridge = 1e-6 * max(float(diag.max()), 1e-12)
+        ab = np.zeros((2, self.m))
+        ab[0, 1:] = off
+        ab[1] = diag + ridge
+        beta = solveh_banded(ab, self._ht(x2, w))
+        return beta if x.ndim > 1 else beta[:, 0]
+
+    def evaluate(self, beta: np.ndarray) -> np.ndarray:
+        """The curve(s) at every sample."""
+        if beta.ndim == 1:
+            return beta[self.j] * (1.0 - self.t) + beta[self.j + 1] * self.t
+        return beta[self.j] * (1.0 - self.t)[:, None] + beta[self.j + 1] * self.t[:, None]
+
+    def residualize(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """``x`` minus its weighted least-squares slow part."""
+        return x - self.evaluate(self.solve(x, w))
+
+
+# --------------------------------------------------------------------------------------
+# Loop data and fitted replays
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LoopSignals:
+    """Recorded signals of one loop, uniformly sampled.
+
+    Attributes
+    ----------
+    op : ndarray
+        Controller output [% of span].
+    pv : ndarray
+        Process variable [pv units].
+    dt : float
+        Sample time [s].
+    mv : ndarray or None
+        Valve position [% of span], None when not recorded.
+    sp : ndarray or None
+        Set point [pv units], None when not recorded.
+    """
+
+    op: np.ndarray
+    pv: np.ndarray
+    dt: float
+    mv: np.ndarray | None = None
+    sp: np.ndarray | None = None
+
+    @property
+    def n(self) -> int:
+        return int(self.op.size)
+
+    def variance(self, signal: str) -> float:
+        """Variance of a recorded signal [units^2], floored so a constant signal is usable."""
+        x = getattr(self, signal)
+        v = float(np.var(x))
+        scale = max(float(np.mean(np.abs(x))), 1.0)
+        return max(v, (1e-6 * scale) ** 2)
+
+
+@dataclass(frozen=True)
+class ReplayContext:
+    """What every fitter needs besides the weights.
+
+    Attributes
+    ----------
+    sig : LoopSignals
+        Recorded signals.
+    load : SlowLoad
+        Basis of the unmeasured slow load on pv.
+    w_eval : ndarray
+        Weights of the samples the replay is judged on (all but the first few, whose
+        initial state the replay cannot know); the slow load is fitted on these.
+    start : (S, J) or None
+        Stiction estimate to start the search from [% of span].
+    mv_model : ndarray or None
+        Valve output that drives the process when mv is not recorded [% of span].
+    slips : dict or None
+        Slips measured in the data (:func:`measure_slips`): per slip the time
+        [samples], direction, S and J [% of span]; seeds the searches.
+    norm : dict
+        Normaliser of each signal's squared error: the variance of its cycle-scale
+        part (the signal minus its slow part) [units^2].
+    """
+
+    sig: LoopSignals
+    load: SlowLoad
+    w_eval: np.ndarray
+    start: tuple[float, float] | None = None
+    mv_model: np.ndarray | None = None
+    slips: dict | None = None
+    norm: dict = field(default_factory=dict)
+
+
+def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float) -> dict | None:
+    """S and J of every slip read off the data (the stick and slip segments of Fig. 2).
+
+    Uses :func:`stictiondiag.segments.segment_valve`; the values only seed the
+    least-squares searches, so a failure there is not an error (None).
+    """
+    try:
+        from .segments import segment_valve
+
+        seg = segment_valve(op, mv, dt)
+    except Exception:  # noqa: BLE001 - seeds are optional; the searches have grids too
+        return None
+    if seg.n_slips == 0:
+        return None
+    return {
+        "time": np.asarray(seg.slip[:, 0], dtype=float),
+        "direction": np.asarray(seg.direction, dtype=float),
+        "S": np.asarray(seg.band, dtype=float),
+        "J": np.asarray(seg.jump, dtype=float),
+    }
+
+
+def build_context(
+    sig: LoopSignals,
+    *,
+    start: tuple[float, float] | None = None,
+    mv_model: np.ndarray | None = None,
+    load_spacing: float | None = None,
+) -> ReplayContext:
+    """Everything the fits share: slow-load basis, judged samples, normalisers, slips.
+
+    Parameters
+    ----------
+    sig : LoopSignals
+        Recorded signals.
+    start : (S, J), optional
+        Stiction estimate [% of span] to start the valve searches from.
+    mv_model : ndarray, optional
+        Valve output driving the process when mv is not recorded [% of span].
+    load_spacing : float, optional
+        Knot spacing of the slow load [samples]; default a sixteenth of the record
+        (at least 40 samples), so the eight validation blocks of
+        :mod:`stictiondiag.gap` hold two knots each.
+
+    Notes
+    -----
+    The replay cannot know the valve's state before the record starts, so it is
+    judged from the first slip measured in the data on (at least the first 2 % of
+    the record, at most the first 20 %).
+    """
+    n = sig.n
+    spacing = max(n / 16.0, 40.0) if load_spacing is None else float(load_spacing)
+    load = SlowLoad(n, min(spacing, max(n - 1, 2)))
+    slips = measure_slips(sig.op, sig.mv, sig.dt) if sig.mv is not None else None
+    warm = max(n // 50, 20)
+    if slips is not None and slips["time"].size:
+        warm = max(warm, min(int(slips["time"][0]) + 10, n // 5))
+    w_eval = np.ones(n)
+    w_eval[: min(warm, n // 2)] = 0.0
+    norm = {}
+    for name in ("op", "mv", "pv"):
+        x = getattr(sig, name)
+        if x is None:
+            continue
+        r = load.residualize(np.asarray(x, dtype=float), w_eval)
+        v = float(np.dot(w_eval, r * r) / max(w_eval.sum(), 1.0))
+        norm[name] = max(v, 1e-6 * sig.variance(name), 1e-18)
+    return ReplayContext(
+        sig=sig, load=load, w_eval=w_eval, start=start, mv_model=mv_model, slips=slips, norm=norm
+    )
+
+
+@dataclass(frozen=True)
+class ValveFit:
+    """The fitted two-parameter valve replay.
+
+    Attributes
+    ----------
+    mv : ndarray
+        Replayed valve position [% of span].
+    phase : ndarray
+        Valve phase codes of the stiction element (see :func:`valve_replay`).
+    params : dict
+        S and J [% of span].
+    kano : bool
+        Stuck-phase logic of Kano et al. (2004) instead of Fig. 10.
+    initial_direction : float
+        Direction of travel before the record (+1 opening, -1 closing).
+    """
+
+    mv: np.ndarray
+    phase: np.ndarray
+    params: dict
+    kano: bool = False
+    initial_direction: float = 0.0
+
+
+@dataclass(frozen=True)
+class ProcessFit:
+    """A fitted process replay: pv predicted one sample ahead (Section 4.2.2, Eq. 3).
+
+    Attributes
+    ----------
+    pv : ndarray
+        One-step-ahead prediction of pv [pv units].
+    model : ProcessModel
+        Pole (1 for an integrating process), dead time [samples] and the load-to-noise
+        variance ratio of the load tracking.
+    coef : ndarray
+        Linear coefficients (input gains at two adjacent dead times, then any extra
+        columns).
+    params : dict
+        Readable parameters: gain, time constant [s], dead time [s], integrating.
+    """
+
+    pv: np.ndarray
+    model: ProcessModel
+    coef: np.ndarray
+    params: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class EffectFit:
+    """One fitted candidate: the base replay with one effect added.
+
+    Attributes
+    ----------
+    effect : str
+        Effect name (one of :data:`EFFECTS`).
+    variant : str
+        Which form of the effect fitted best (e.g. ``step`` or ``ramp`` for
+        ``time_varying_stiction``).
+    n_params : int
+        Parameters beyond the base model's.
+    params : dict
+        Fitted parameters, units in the key names (``_s`` seconds, ``_pct`` % of
+        span; S and J always in % of span).
+    predictions : dict
+        Replayed signals this effect changes (``mv``, ``pv`` or ``op``) [their units].
+    x : tuple
+        The searched parameter vector (starts the search on a part of the record).
+    """
+
+    effect: str
+    variant: str
+    n_params: int
+    params: dict
+    predictions: dict
+    x: tuple = ()
+
+
+@dataclass(frozen=True)
+class BaseFit:
+    """The base replay on one set of weights: two-parameter valve, process, controller.
+
+    Attributes
+    ----------
+    valve : ValveFit or None
+        None when mv is not recorded.
+    process : ProcessFit
+        Process replay driven by the recorded mv (or ``mv_model``).
+    op : ndarray
+        Controller replay [% of span].
+    controller : dict
+        Controller parameters (see :func:`fit_controller`).
+    mv_model : ndarray
+        Valve output of the two-parameter model [% of span].
+    """
+
+    valve: ValveFit | None
+    process: ProcessFit
+    op: np.ndarray
+    controller: dict
+    mv_model: np.ndarray
+
+    def predictions(self) -> dict:
+        """Replayed signals by name [their units]."""
+        out = {"op": self.op, "pv": self.process.pv}
+        if self.valve is not None:
+            out["mv"] = self.valve.mv
+        return out
+
+
+# --------------------------------------------------------------------------------------
+# Valve fitting
+# --------------------------------------------------------------------------------------
+
+_CONSTANT = np.zeros(1)
+
+
+class _ValveProblem:
+    """Recorded op and mv with the weights and the fixed valve settings of one fit.
+
+    Attributes
+    ----------
+    op, mv, w : ndarray
+        Demand and position [% of span], sample weights.
+    var : float
+        Normaliser of the squared error [(% of span)^2].
+    kano : bool
+        Stuck-phase logic of Kano et al. (2004).
+    d0, y0 : float
+        Direction of travel before the first sample and the position then.
+    """
+
+    def __init__(self, op, mv, w, var, kano, d0, y0):
+        self.op = np.ascontiguousarray(op, dtype=float)
+        self.mv = np.ascontiguousarray(mv, dtype=float)
+        self.w = np.ascontiguousarray(w, dtype=float)
+        self.var = float(var)
+        self.kano = bool(kano)
+        self.d0 = float(d0)
+        self.y0 = min(max(float(y0), 0.0), 100.0)
+
+    @classmethod
+    def of(cls, ctx: ReplayContext, w: np.ndarray, kano: bool, d0: float) -> _ValveProblem:
+        mv = ctx.sig.mv
+        y0 = float(np.median(mv[: max(min(3, mv.size // 100), 1)]))
+        return cls(ctx.sig.op, mv, w, ctx.norm["mv"], kano, d0, y0)
+
+    def costs(self, P, h=_CONSTANT, *, affine=False, curvature=0.0, family="linear", bound=np.inf):
+        """Normalised weighted squared mv error for every row of P (see ``_P_COLUMNS``).
+
+        Rows whose error exceeds ``bound`` (normalised) or the best row so far are
+        abandoned early; their returned error is then only a lower bound.
+        """
+        c = _valve_sse_batch(
+            self.op,
+            self.mv,
+            self.w,
+            np.ascontiguousarray(P, dtype=float),
+            np.ascontiguousarray(h, dtype=float),
+            self.kano,
+            self.y0,
+            self.d0,
+            bool(affine),
+            float(curvature),
+            _FAMILY_CODES[family],
+            float(bound) * self.var,
+        )
+        return c / self.var
+
+    def series(self, row, h=_CONSTANT):
+        """Valve position and phase for one parameter row [% of span]."""
+        row = np.asarray(row, dtype=float)
+        h = np.asarray(h, dtype=float)
+
+        def prof(a, b):
+            return np.maximum(a + (b - a) * h, 0.0) if h.size > 1 else np.array([max(a, 0.0)])
+
+        return _valve_series(
+            self.op,
+            prof(row[0], row[1]),
+            prof(row[2], row[3]),
+            prof(row[4], row[5]),
+            prof(row[6], row[7]),
+            self.kano,
+            self.y0,
+            self.d0,
+            float(row[8]),
+        )
+
+
+def _rows(
+    S_open,
+    J_open,
+    S_close=None,
+    J_close=None,
+    S_open_end=None,
+    J_open_end=None,
+    S_close_end=None,
+    J_close_end=None,
+    lag=None,
+):
+    """Parameter rows (``_P_COLUMNS``) from columns; missing ones default to symmetric,
+    constant in time and without lag."""
+    S_close = S_open if S_close is None else S_close
+    J_close = J_open if J_close is None else J_close
+    cols = [
+        S_open,
+        S_open if S_open_end is None else S_open_end,
+        S_close,
+        S_close if S_close_end is None else S_close_end,
+        J_open,
+        J_open if J_open_end is None else J_open_end,
+        J_close,
+        J_close if J_close_end is None else J_close_end,
+        0.0 if lag is None else lag,
+    ]
+    m = max(np.size(c) for c in cols)
+    return np.column_stack([np.broadcast_to(np.asarray(c, dtype=float), (m,)) for c in cols])
+
+
+def _travel(op: np.ndarray) -> float:
+    return max(float(np.percentile(op, 99) - np.percentile(op, 1)), 0.2)
+
+
+def _slip_medians(slips: dict | None, mask=None) -> tuple[float, float] | None:
+    """Median S and J [% of span] of the measured slips (all, or those in ``mask``)."""
+    if slips is None:
+        return None
+    sel = np.ones(slips["S"].size, dtype=bool) if mask is None else mask
+    if sel.sum() < 2:
+        return None
+    S = float(np.median(slips["S"][sel]))
+    J = float(np.median(slips["J"][sel]))
+    if not (math.isfinite(S) and math.isfinite(J)):
+        return None
+    return max(S, 0.0), max(J, 0.0)
+
+
+def _sj_bounds(travel: float) -> tuple[np.ndarray, np.ndarray]:
+    return np.zeros(2), np.array([travel, 1.5 * travel])
+
+
+def _needle_sj(
+    prob: _ValveProblem,
+    seeds,
+    travel: float,
+    *,
+    rel: float = 0.15,
+    zooms: int = 2,
+    n_grid: int = 31,
+    **row_kw,
+):
+    """Best (S, J) from each seed by :func:`needle_search`; returns (x, cost)."""
+    lower, upper = _sj_bounds(travel)
+
+    def cost(X, bound):
+        return prob.costs(_rows(X[:, 0], X[:, 1], **row_kw), bound=bound)
+
+    best = None
+    for s in seeds:
+        x, c = needle_search(
+            cost, np.asarray(s, dtype=float), (0, 1), lower, upper, rel=rel, zooms=zooms
+        )
+        if best is None or c < best[1]:
+            best = (x, c)
+    return best
+
+
+def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None) -> ValveFit:
+    """Least-squares S and J of the two-parameter model on the recorded mv.
+
+    A coarse grid (S geometric, J in proportion to S) for Fig. 10 and for Kano's
+    stuck-phase logic, then :func:`needle_search` around its best points, the
+    stiction estimate and the medians of the slips measured in the data; then the
+    direction of travel before the record.
+
+    Parameters
+    ----------
+    ctx : ReplayContext
+        Needs a recorded mv.
+    w : ndarray
+        Sample weights (0 or 1): samples that count in the fit.
+    like : ValveFit, optional
+        A fit on the whole record: keep its logic and initial direction and search
+        near its S and J (fits on parts of the record for validation).
+    """
+    travel = _travel(ctx.sig.op)
+    if like is not None:
+        prob = _ValveProblem.of(ctx, w, like.kano, like.initial_direction)
+        x, _ = _needle_sj(
+            prob, [(like.params["S"], like.params["J"])], travel, rel=0.03, zooms=1, n_grid=11
+        )
+        v, ph = prob.series(_rows(x[0], x[1])[0])
+        return ValveFit(
+            v, ph, {"S": float(x[0]), "J": float(x[1])}, like.kano, like.initial_direction
+        )
+
+    S_grid = travel * np.geomspace(0.003, 0.6, 36)
+    SS, RR = np.meshgrid(S_grid, np.linspace(0.0, 1.6, 9), indexing="ij")
+    coarse = np.column_stack([SS.ravel(), (SS * RR).ravel()])
+    extra = []
+    if ctx.start is not None and all(math.isfinite(v) for v in ctx.start):
+        extra.append((max(float(ctx.start[0]), 0.0), max(float(ctx.start[1]), 0.0)))
+    med = _slip_medians(ctx.slips)
+    if med is not None:
+        extra.append(med)
+    # The stuck-phase logic from the coarse grid and the seeds (the two differ only
+    # in how noise reversals re-arm a stuck valve), then the fine search.
+    best = None
+    for kano in (False, True):
+        prob = _ValveProblem.of(ctx, w, kano, 1.0)
+        X = np.vstack([coarse, np.array(extra).reshape(-1, 2)])
+        c = prob.costs(_rows(X[:, 0], X[:, 1]))
+        i = int(np.argmin(c))
+        if best is None or c[i] < best[0]:
+            best = (float(c[i]), kano, tuple(X[i]))
+    _, kano, top = best
+    prob = _ValveProblem.of(ctx, w, kano, 1.0)
+    x, c = _needle_sj(prob, list(dict.fromkeys([top, *extra])), travel)
+    # The direction of travel before the record only matters until the first slip.
+    prob_neg = _ValveProblem.of(ctx, w, kano, -1.0)
+    d0 = -1.0 if prob_neg.costs(_rows(x[0], x[1]))[0] < c else 1.0
+    prob = _ValveProblem.of(ctx, w, kano, d0)
+    v, ph = prob.series(_rows(x[0], x[1])[0])
+    return ValveFit(v, ph, {"S": float(x[0]), "J": float(x[1])}, kano, d0)
+
+
+def _delayed(u: np.ndarray, d: int) -> np.ndarray:
+    if d <= 0:
+        return u
+    out = np.empty_like(u)
+    out[:d] = u[0]
+    out[d:] = u[:-d]
+    return out
+
+
+@jit
+def _riccati_gains(pole, load_ratio):  # pragma: no cover - compiled
+    p11, p12, p22 = 1.0 + load_ratio, 0.0, 1.0 + load_ratio
+    k1 = k2 = 0.0
+    for _ in range(2000):
+        s = p11 + 1.0
+        n1, n2 = p11 / s, p12 / s
+        f11 = p11 - n1 * p11
+        f12 = p12 - n1 * p12
+        f22 = p22 - n2 * p12
+        # P = F Pf F' + Q with F = [[a, 1], [0, 1]].
+        q11 = pole * pole * f11 + 2.0 * pole * f12 + f22
+        q12 = pole * f12 + f22
+        q22 = f22 + load_ratio
+        done = abs(n1 - k1) < 1e-13 and abs(n2 - k2) < 1e-13
+        k1, k2 = n1, n2
+        p11, p12, p22 = q11, q12, q22
+        if done:
+            break
+    return k1, k2, p11, p12, p22
+
+
+def kalman_gains(pole: float, load_ratio: float) -> tuple[float, float]:
+    """Steady-state Kalman gains of the process-with-load model.
+
+    States: the process output ``y`` and an unmeasured load ``l`` (a random walk)
+    entering with the valve: ``y[k+1] = a y[k] + b u[k-d] + l[k]``, ``l[k+1] = l[k] +
+    v[k]``, measured ``pv = y + e``; ``load_ratio`` is var(v)/var(e).  Returns the
+    gains of the filtered estimates of ``y`` and ``l`` on the innovation.
+    """
+    k1, k2, *_ = _riccati_gains(float(pole), float(load_ratio))
+    return float(k1), float(k2)
+
+
+def prediction_variance_ratio(pole: float, load_ratio: float, horizon: int) -> tuple[float, float]:
+    """Variances of the one-step innovation and of the ``horizon``-step prediction error,
+    in units of the measurement-noise variance, for the process-with-load model.
+
+    A correct model's ``horizon``-step error variance is the second value times the
+    measurement noise variance: measurement noise plus the load the filter could not
+    foresee.
+    """
+    k1, k2, p11, p12, p22 = _riccati_gains(float(pole), float(load_ratio))
+    s1 = p11 + 1.0
+    # Filtered covariance.
+    f11, f12, f22 = p11 - k1 * p11, p12 - k1 * p12, p22 - k2 * p12
+    P = np.array([[f11, f12], [f12, f22]])
+    F = np.array([[pole, 1.0], [0.0, 1.0]])
+    Q = np.array([[0.0, 0.0], [0.0, load_ratio]])
+    acc = np.zeros((2, 2))
+    Fj = np.eye(2)
+    for _ in range(max(int(horizon), 1)):
+        acc += Fj @ Q @ Fj.T
+        Fj = F @ Fj
+    Pm = Fj @ P @ Fj.T + acc
+    return float(s1), float(Pm[0, 0] + 1.0)
+
+
+@jit
+def _prediction_errors(z, drive, pole, k1, k2, y0, horizon):  # pragma: no cover - compiled
+    """Errors of the ``horizon``-step-ahead predictions of the steady-state filter.
+
+    ``z`` are the measurements, ``drive`` the known input term added to the next
+    process output.  The filter runs on every sample; the prediction of ``z[k]`` is
+    made at ``k - horizon`` from the filtered state then, with the known inputs in
+    between and the load held (samples before the horizon get the one-step error).
+    """
+    n = z.shape[0]
+    yf = np.empty(n)
+    lf = np.empty(n)
+    err = np.empty(n)
+    yh = y0
+    lh = 0.0
+    for k in range(n):
+        e = z[k] - yh
+        err[k] = e
+        yf[k] = yh + k1 * e
+        lf[k] = lh + k2 * e
+        yh = pole * yf[k] + lf[k] + drive[k]
+        lh = lf[k]
+    if horizon > 1:
+        for k in range(n - 1, horizon - 1, -1):
+            j0 = k - horizon
+            y = yf[j0]
+            for j in range(j0, k):
+                y = pole * y + lf[j0] + drive[j]
+            err[k] = z[k] - y
+    return err
+
+
+@dataclass(frozen=True)
+class ProcessModel:
+    """Structure of the process replay.
+
+    Attributes
+    ----------
+    pole : float
+        Discrete pole of the lag (1: integrating).
+    delay : int
+        Dead time [samples].
+    load_ratio : float
+        Load-to-noise variance ratio of the load tracking.
+    horizon : int
+        Prediction horizon [samples]: pv is predicted this far ahead.
+    """
+
+    pole: float
+    delay: int
+    load_ratio: float
+    horizon: int = 1
+
+    @property
+    def gains(self) -> tuple[float, float]:
+        return kalman_gains(self.pole, self.load_ratio)
+
+
+def _process_regressors(u: np.ndarray, model: ProcessModel, k1: float, k2: float) -> np.ndarray:
+    """Innovation responses to a unit gain on the input at two adjacent dead times."""
+    u0 = u - u[0]
+    base = _prediction_errors(
+        np.zeros(u.size), np.ascontiguousarray(u0), model.pole, k1, k2, 0.0, model.horizon
+    )
+    return np.column_stack([_delayed(base, model.delay), _delayed(base, model.delay + 1)])
+
+
+def fit_process(
+    u: np.ndarray,
+    ctx: ReplayContext,
+    w: np.ndarray,
+    *,
+    extra: np.ndarray | None = None,
+    model: ProcessModel | None = None,
+) -> ProcessFit:
+    """One-step-ahead process replay with the unmeasured load tracked (Section 4.2.2, Eq. 3).
+
+    The process is a first-order lag with dead time (or an integrator, pole 1), as
+    in Eq. 3 and Table 3.  Plant loops carry load changes that the controller
+    answers with the valve: a replay that drives the process with the recorded mv
+    alone departs from pv by the whole load, which is as large as the cycle itself.
+    The replay therefore tracks the load with a steady-state Kalman filter (a
+    random-walk load entering with the valve, white measurement noise) and predicts
+    pv one sample ahead; what it cannot predict is the pv gap.  The innovations are
+    linear in the gain (and in a fractional dead time), solved by least squares on a
+    grid of poles, dead times and load-to-noise ratios (the prediction-error fit,
+    which unlike a plain output-error fit is not biased by the load the controller
+    answers).
+
+    Parameters
+    ----------
+    u : ndarray
+        Process input (valve position or flow) [% of span].
+    ctx : ReplayContext
+        pv and the evaluation weights.
+    w : ndarray
+        Weights of the samples the process is fitted on (0 or 1).
+    extra : ndarray, optional
+        Extra columns (n x m) added to pv (an output disturbance), fitted with the
+        process.
+    model : ProcessModel, optional
+        Keep this structure and fit only the linear coefficients.
+    """
+    pv, dt = ctx.sig.pv, ctx.sig.dt
+    n = u.size
+    u = np.ascontiguousarray(u, dtype=float)
+    pv = np.ascontiguousarray(pv, dtype=float)
+    zeros = np.zeros(n)
+    extra_cols = None if extra is None else np.atleast_2d(extra.T).T
+
+    def solve(m: ProcessModel, regs=None):
+        k1, k2 = kalman_gains(m.pole, m.load_ratio)
+        e0 = _prediction_errors(pv, zeros, m.pole, k1, k2, float(pv[0]), m.horizon)
+        X = _process_regressors(u, m, k1, k2) if regs is None else regs
+        if extra_cols is not None:
+            # pv = y + d + e: the disturbance enters like a measurement offset.
+            E = np.column_stack(
+                [
+                    -_prediction_errors(
+                        np.ascontiguousarray(c), zeros, m.pole, k1, k2, 0.0, m.horizon
+                    )
+                    for c in extra_cols.T
+                ]
+            )
+            X = np.column_stack([X, E])
+        coef = _wls(X, -e0, w)
+        r = e0 + X @ coef
+        return float(np.dot(w, r * r)), coef, r
+
+    if model is None:
+        taus = np.geomspace(0.5, max(n / 8.0, 2.0), 14)
+        pole_grid = np.concatenate([np.exp(-1.0 / taus), [1.0]])
+        ratios = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1)
+        d_max = int(min(max(n // 10, 5), 200))
+        d_grid = np.unique(
+            np.concatenate(
+                [np.arange(0, min(d_max, 8)), np.geomspace(8, max(d_max, 9), 10).astype(int)]
+            )
+        )
+        best = None
+        shifts = np.unique(np.concatenate([d_grid, d_grid + 1]))
+        where = {int(d): i for i, d in enumerate(shifts)}
+        for pole in pole_grid:
+            for lr in ratios:
+                k1, k2 = kalman_gains(pole, lr)
+                e0 = _prediction_errors(pv, zeros, pole, k1, k2, float(pv[0]), 1)
+                base_reg = _prediction_errors(
+                    zeros, np.ascontiguousarray(u - u[0]), pole, k1, k2, 0.0, 1
+                )
+                # All dead times at once: Gram matrix of the shifted regressors.
+                Xs = np.stack([_delayed(base_reg, int(d)) for d in shifts])
+                Xw = Xs * w
+                G = Xw @ Xs.T
+                g = Xw @ e0
+                ee = float(np.dot(w * e0, e0))
+                for d in d_grid:
+                    i, j = where[int(d)], where[int(d) + 1]
+                    A = np.array([[G[i, i], G[i, j]], [G[j, i], G[j, j]]])
+                    rhs = -np.array([g[i], g[j]])
+                    A[0, 0] += 1e-12 * (A[0, 0] + 1e-300)
+                    A[1, 1] += 1e-12 * (A[1, 1] + 1e-300)
+                    try:
+                        coef = np.linalg.solve(A, rhs)
+                    except np.linalg.LinAlgError:
+                        continue
+                    sse = ee + float(rhs @ coef) * -1.0
+                    if best is None or sse < best[0]:
+                        best = (sse, ProcessModel(float(pole), int(d), float(lr)))
+        m = best[1]
+        # Refine the dead time to the sample, then the pole and the load ratio.
+        i = int(np.searchsorted(d_grid, m.delay))
+        for d in range(int(d_grid[max(i - 1, 0)]), int(d_grid[min(i + 1, d_grid.size - 1)]) + 1):
+            cand = ProcessModel(m.pole, d, m.load_ratio)
+            sse = solve(cand)[0]
+            if sse < best[0]:
+                best = (sse, cand)
+        m = best[1]
+        if m.pole < 1.0:
+            lt0 = math.log(-1.0 / math.log(m.pole))
+            lt = _golden(
+                lambda v: solve(ProcessModel(math.exp(-1.0 / math.exp(v)), m.delay, m.load_ratio))[
+                    0
+                ],
+                lt0 - 0.6,
+                lt0 + 0.6,
+                12,
+            )
+            cand = ProcessModel(math.exp(-1.0 / math.exp(lt)), m.delay, m.load_ratio)
+            sse = solve(cand)[0]
+            if sse < best[0]:
+                best = (sse, cand)
+        m = best[1]
+        # Predict as far ahead as the process takes to answer a valve step (dead time
+        # plus one time constant): one step ahead, the load tracking hides most of a
+        # wrong gain or a slow disturbance.
+        tau = 10.0 if m.pole >= 1.0 else -1.0 / math.log(max(m.pole, 1e-12))
+        horizon = int(min(max(round(m.delay + tau), 2), 60, max(n // 20, 2)))
+        m = ProcessModel(m.pole, m.delay, m.load_ratio, horizon)
+        lo, hi = math.log10(m.load_ratio) - 2.0, math.log10(m.load_ratio) + 2.0
+        ll = _golden(
+            lambda v: solve(ProcessModel(m.pole, m.delay, 10.0**v, horizon))[0], lo, hi, 14
+        )
+        cand = ProcessModel(m.pole, m.delay, 10.0**ll, horizon)
+        if solve(cand)[0] < solve(m)[0]:
+            m = cand
+        model = m
+    _, coef, r = solve(model)
+    params = _process_params(model, coef, dt)
+    return ProcessFit(pv=pv - r, model=model, coef=coef, params=params)
+
+
+def _process_params(model: ProcessModel, coef: np.ndarray, dt: float) -> dict:
+    pole = model.pole
+    integrating = pole >= 1.0
+    b = float(coef[0] + coef[1])
+    frac = float(coef[1] / b) if abs(b) > 1e-12 else 0.0
+    frac = min(max(frac, 0.0), 1.0)
+    if integrating:
+        gain, tau = b / dt, None
+    else:
+        gain = b / (1.0 - pole)
+        tau = -dt / math.log(pole) if pole > 0.0 else 0.0
+    return {
+        "integrating": integrating,
+        "gain": gain,
+        "time_constant_s": tau,
+        "dead_time_s": (model.delay + frac) * dt,
+        "load_to_noise_ratio": model.load_ratio,
+    }
+
+
+def process_noise_floor(u: np.ndarray, ctx: ReplayContext, fit: ProcessFit) -> float:
+    """Variance of the pv prediction error that a correct process replay still makes [pv^2].
+
+    The measurement-noise variance is read from the one-step innovations of the fitted
+    replay (their variance is a known multiple of it for the fitted load-to-noise
+    ratio), and the horizon's error is that multiple of it again
+    (:func:`prediction_variance_ratio`): measurement noise plus the load the filter
+    could not foresee.
+    """
+    m = fit.model
+    k1, k2 = kalman_gains(m.pole, m.load_ratio)
+    pv = np.ascontiguousarray(ctx.sig.pv, dtype=float)
+    zeros = np.zeros(pv.size)
+    one = ProcessModel(m.pole, m.delay, m.load_ratio, 1)
+    e0 = _prediction_errors(pv, zeros, m.pole, k1, k2, float(pv[0]), 1)
+    X = _process_regressors(np.ascontiguousarray(u, dtype=float), one, k1, k2)
+    e1 = e0 + X @ fit.coef[:2]
+    w = ctx.w_eval
+    s1 = float(np.dot(w, e1 * e1)) / max(float(w.sum()), 1.0)
+    r1, rm = prediction_variance_ratio(m.pole, m.load_ratio, m.horizon)
+    return s1 / r1 * rm
+
+
+def fit_controller(sig: LoopSignals, w: np.ndarray) -> tuple[np.ndarray, dict]:
+    """PI controller replay on a filtered measurement (Eq. 3).
+
+    ``op = bias + Kc (e + (1/Ti) integral(e))``, ``e = sp - pv_f`` with ``pv_f`` a
+    first-order filtered pv (a transmitter or DCS filter); linear least squares in
+    (bias, Kc, Kc/Ti) for each filter time on a short grid.  Without a recorded set
+    point a ramp column absorbs the constant set point in the integral.
+
+    Returns
+    -------
+    op_hat : ndarray
+        Replayed controller output [% of span].
+    params : dict
+        ``gain`` Kc [% / pv units], ``integral_time_s`` Ti [s] (None without integral
+        action), ``filter_time_s`` [s], ``bias`` [% of span].
+    """
+    n = sig.n
+    sp = sig.sp if sig.sp is not None else np.zeros(n)
+    best = None
+    for tf in (0.0, 0.5, 1.0, 2.0, 3.0, 5.0):
+        pvf = first_order_lag(sig.pv, tf * sig.dt, sig.dt) if tf > 0 else sig.pv
+        e = sp - pvf
+        cols = [np.ones(n), e, np.cumsum(e) * sig.dt]
+        if sig.sp is None:
+            cols.append(np.arange(n, dtype=float) * sig.dt)
+        X = np.column_stack(cols)
+        coef = _wls(X, sig.op, w)
+        pred = np.clip(X @ coef, 0.0, 100.0)
+        sse = float(np.dot(w, (pred - sig.op) ** 2))
+        if best is None or sse < best[0]:
+            best = (sse, pred, coef, tf)
+    _, pred, coef, tf = best
+    kc, ki = float(coef[1]), float(coef[2])
+    ti = kc / ki if abs(ki) > 1e-12 and kc / ki > 0 else None
+    return pred, {
+        "gain": kc,
+        "integral_time_s": ti,
+        "filter_time_s": tf * sig.dt,
+        "bias": float(coef[0]),
+    }
+
+
+# --------------------------------------------------------------------------------------
+# Base replay and candidate effects
+# --------------------------------------------------------------------------------------
+
+
+def _process_input(ctx: ReplayContext, base: BaseFit | None = None) -> np.ndarray:
+    if ctx.sig.mv is not None:
+        return ctx.sig.mv
+    if base is not None:
+        return base.mv_model
+    return ctx.mv_model
+
+
+def fit_base(ctx: ReplayContext, w: np.ndarray, *, like: BaseFit | None = None) -> BaseFit:
+    """Fit the base replay: the two-parameter valve, the process and the controller.
+
+    Parameters
+    ----------
+    ctx : ReplayContext
+        Signals, slow-load basis, starting S and J.
+    w : ndarray
+        Sample weights (0 or 1).
+    like : BaseFit, optional
+        The fit on the whole record, to start from (fits on parts of the record).
+    """
+    sig = ctx.sig
+    valve = None
+    if sig.mv is not None:
+        valve = fit_valve(ctx, w, like=None if like is None else like.valve)
+        mvm = valve.mv
+    else:
+        mvm = ctx.mv_model
+        if mvm is None:
+            S, J = ctx.start if ctx.start is not None else (0.0, 0.0)
+            mvm, _ = valve_replay(sig.op, S, J)
+    u = sig.mv if sig.mv is not None else mvm
+    process = fit_process(u, ctx, w, model=None if like is None else like.process.model)
+    op_hat, ctrl = fit_controller(sig, w)
+    return BaseFit(valve=valve, process=process, op=op_hat, controller=ctrl, mv_model=mvm)
+
+
+def _problem(ctx: ReplayContext, w: np.ndarray, base: BaseFit) -> _ValveProblem:
+    return _ValveProblem.of(ctx, w, base.valve.kano, base.valve.initial_direction)
+
+
+def _scale(*values: float) -> float:
+    return max(max(values), 0.05)
+
+
+def _lag_weight(tau_samples: float) -> float:
+    return math.exp(-1.0 / tau_samples) if tau_samples > 1e-6 else 0.0
+
+
+def fit_actuator_lag(
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
+) -> EffectFit:
+    """Positioner/actuator dynamics after the friction element: ``mv = lag(valve(op))``.
+
+    The stiction element of Fig. 10 is followed by a first-order lag with time
+    constant tau [s].  The breakaways of the element do not depend on the lag, so S
+    and J are searched with a provisional lag, then tau by golden-section search,
+    then S and J again.
+    """
+    prob = _problem(ctx, w, base)
+    travel = _travel(ctx.sig.op)
+    dt = ctx.sig.dt
+    tau_max = max(ctx.sig.n / 20.0, 2.0)
+
+    def cost_tau(S, J):
+        return lambda t: float(prob.costs(_rows(S, J, lag=_lag_weight(t)))[0])
+
+    if init is not None:
+        S, J, tau = init.x
+        (S, J), _ = _needle_sj(
+            prob, [(S, J)], travel, rel=0.03, zooms=1, n_grid=11, lag=_lag_weight(tau)
+        )
+    else:
+        seeds = [(base.valve.params["S"], base.valve.params["J"])]
+        med = _slip_medians(ctx.slips)
+        if med is not None:
+            seeds.append(med)
+        # The breakaways do not depend on the lag: S and J with a provisional lag.
+        tau = 2.0
+        (S, J), _ = _needle_sj(prob, seeds, travel, lag=_lag_weight(tau))
+        lt = _golden(lambda v: cost_tau(S, J)(math.exp(v)), math.log(0.1), math.log(tau_max), 24)
+        tau = math.exp(lt)
+        (S, J), _ = _needle_sj(prob, [(S, J)], travel, rel=0.05, n_grid=15, lag=_lag_weight(tau))
+    lt = _golden(
+        lambda v: cost_tau(S, J)(math.exp(v)),
+        math.log(max(tau / 3, 0.05)),
+        math.log(min(3 * tau + 0.1, tau_max)),
+        16,
+    )
+    tau = math.exp(lt)
+    mv_hat, _ = prob.series(_rows(S, J, lag=_lag_weight(tau))[0])
+    return EffectFit(
+        effect="actuator_lag",
+        variant="first_order",
+        n_params=1,
+        params={"S": float(S), "J": float(J), "time_constant_s": float(tau * dt)},
+        predictions={"mv": mv_hat},
+        x=(float(S), float(J), float(tau)),
+    )
+
+
+def _affine(v: np.ndarray, mv: np.ndarray, w: np.ndarray) -> tuple[float, float]:
+    """Least-squares ``mv = b + k v`` on the weighted samples: (k, b)."""
+    sw = w > 0
+    vv, mm = v[sw], mv[sw]
+    vm = vv.mean()
+    den = float(np.dot(vv - vm, vv - vm))
+    if den <= 0.0:
+        return 1.0, float(mm.mean() - vm)
+    k = float(np.dot(vv - vm, mm - mm.mean()) / den)
+    return k, float(mm.mean() - k * vm)
+
+
+def fit_miscalibration(
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
+) -> EffectFit:
+    """Miscalibrated positioner: ``mv = offset + slope * valve(op)`` (Section 4.2.1, Fig. 8).
+
+    A calibration factor that is too large makes the moving-phase slope of mv
+    against op greater than 1.  The data-driven model scales exactly with its input,
+    so a span error before the friction element (``demand = pivot + slope (op -
+    pivot)``) is this model with S and J divided by the slope; S and J on the op
+    axis are searched, slope and offset solved in closed form for every trial.
+    """
+    prob = _problem(ctx, w, base)
+    travel = _travel(ctx.sig.op)
+    S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    if init is not None:
+        x, _ = _needle_sj_affine(prob, [init.x], travel, rel=0.03, zooms=1, n_grid=11)
+    else:
+        slopes = np.geomspace(0.4, 2.5, 41)
+        c = prob.costs(_rows(S0 / slopes, J0 / slopes), affine=True)
+        seeds = [(S0 / slopes[i], J0 / slopes[i]) for i in np.argsort(c)[:2]]
+        x, _ = _needle_sj_affine(prob, seeds, travel * 3)
+    v, _ = prob.series(_rows(x[0], x[1])[0])
+    slope, offset = _affine(v, ctx.sig.mv, w)
+    return EffectFit(
+        effect="miscalibration",
+        variant="slope_offset",
+        n_params=2,
+        params={
+            "S": float(x[0] * slope),
+            "J": float(x[1] * slope),
+            "S_on_op_axis": float(x[0]),
+            "J_on_op_axis": float(x[1]),
+            "slope": slope,
+            "offset_pct": offset,
+        },
+        predictions={"mv": offset + slope * v},
+        x=(float(x[0]), float(x[1])),
+    )
+
+
+def _needle_sj_affine(prob: _ValveProblem, seeds, travel: float, *, rel=0.15, zooms=2, n_grid=31):
+    lower, upper = _sj_bounds(travel)
+
+    def cost(X, bound):
+        return prob.costs(_rows(X[:, 0], X[:, 1]), affine=True)
+
+    best = None
+    for s in seeds:
+        x, c = needle_search(
+            cost, np.asarray(s, dtype=float), (0, 1), lower, upper, rel=rel, zooms=zooms
+        )
+        if best is None or c < best[1]:
+            best = (x, c)
+    return best
+
+
+def fit_asymmetry(
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
+) -> EffectFit:
+    """Different S and J opening and closing (Loop 1 of Section 3, Fig. 3).
+
+    Fig. 10 and Eq. 4 with S and J taken from the direction of travel: four
+    parameters instead of two, searched a direction at a time (the other held) from
+    the base fit and from the slips measured in each direction.
+    """
+    prob = _problem(ctx, w, base)
+    travel = _travel(ctx.sig.op)
+    lower, upper = np.zeros(4), np.array([travel, 1.5 * travel] * 2)
+
+    def cost(X, bound):
+        return prob.costs(_rows(X[:, 0], X[:, 1], X[:, 2], X[:, 3]), bound=bound)
+
+    S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    if init is not None:
+        x = np.array(init.x)
+        rel, zooms, rounds, n_grid = 0.03, 1, 1, 11
+    else:
+        seeds = [np.array([S0, J0, S0, J0])]
+        if ctx.slips is not None:
+            up = _slip_medians(ctx.slips, ctx.slips["direction"] > 0)
+            dn = _slip_medians(ctx.slips, ctx.slips["direction"] < 0)
+            if up is not None and dn is not None:
+                seeds.append(np.array([up[0], up[1], dn[0], dn[1]]))
+        c = cost(np.array(seeds), np.inf)
+        x = seeds[int(np.argmin(c))]
+        rel, zooms, rounds, n_grid = 0.2, 2, 2, 31
+    for _ in range(rounds):
+        for pair in ((0, 1), (2, 3)):
+            x, _ = needle_search(cost, x, pair, lower, upper, rel=rel, zooms=zooms, n_grid=n_grid)
+        rel = min(rel, 0.08)
+    mv_hat, _ = prob.series(_rows(x[0], x[1], x[2], x[3])[0])
+    return EffectFit(
+        effect="asymmetry",
+        variant="open_close",
+        n_params=2,
+        params={
+            "S_open": float(x[0]),
+            "J_open": float(x[1]),
+            "S_close": float(x[2]),
+            "J_close": float(x[3]),
+        },
+        predictions={"mv": mv_hat},
+        x=tuple(float(v) for v in x),
+    )
+
+
+def _profile(n: int, t1: float, t2: float) -> np.ndarray:
+    """0 before sample t1, 1 after t2, linear between (a step when t2 <= t1)."""
+    k = np.arange(n, dtype=float)
+    if t2 <= t1 + 1e-9:
+        return (k >= t1).astype(float)
+    return np.clip((k - t1) / (t2 - t1), 0.0, 1.0)
+
+
+def _window_fits(ctx: ReplayContext, w: np.ndarray, base: BaseFit, n_win: int) -> list:
+    """S and J fitted on each of ``n_win`` windows of the record on its own.
+
+    Each window is replayed from the data: it starts at the window's first sample
+    and is judged from its first measured slip on (the valve state before is
+    unknown), so a window costs a fraction of a whole-record replay.
+    """
+    sig = ctx.sig
+    n = sig.n
+    travel = _travel(sig.op)
+    S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    edges = np.linspace(0, n, n_win + 1).astype(int)
+    slip_t = ctx.slips["time"] if ctx.slips is not None else np.zeros(0)
+    slip_d = ctx.slips["direction"] if ctx.slips is not None else np.zeros(0)
+    out = []
+    for i in range(n_win):
+        a, b = edges[i], edges[i + 1]
+        ww = w[a:b].copy()
+        inside = (slip_t >= a) & (slip_t < b)
+        first = int(slip_t[inside][0]) - a if inside.any() else (b - a) // 10
+        ww[: first + 2] = 0.0
+        if ww.sum() < 0.25 * (b - a):
+            out.append(None)
+            continue
+        before = slip_d[slip_t < a]
+        d0 = float(before[-1]) if before.size else base.valve.initial_direction
+        prob = _ValveProblem(
+            sig.op[a:b],
+            sig.mv[a:b],
+            ww,
+            ctx.norm["mv"],
+            base.valve.kano,
+            d0,
+            float(np.median(sig.mv[a : a + 3])),
+        )
+        seeds = [(S0, J0)]
+        med = _slip_medians(ctx.slips, inside)
+        if med is not None:
+            seeds.append(med)
+        ratios = np.geomspace(1 / 3, 3.0, 13)
+        RR, JJ = np.meshgrid(ratios, np.linspace(0.0, 1.5, 7), indexing="ij")
+        sc = _scale(S0, J0)
+        coarse = np.column_stack([(sc * RR).ravel(), (sc * RR * JJ).ravel()])
+        c = prob.costs(_rows(coarse[:, 0], coarse[:, 1]))
+        seeds += [tuple(coarse[k]) for k in np.argsort(c)[:2]]
+        x, _ = _needle_sj(prob, seeds, travel, rel=0.15, zooms=1)
+        out.append((0.5 * (a + b), float(x[0]), float(x[1]), float(ww.sum())))
+    return out
+
+
+def fit_time_varying_stiction(
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
+) -> EffectFit:
+    """S and J changing during the record: a step, a ramp between two instants, or a drift.
+
+    ``S(t) = S0 + (S1 - S0) h(t)``, the same for J, with ``h`` rising from 0 to 1
+    between t1 and t2 (a step when t1 = t2; a drift over the record when t1 = 0 and
+    t2 = T).  S and J are first fitted on six windows of the record; the profile
+    that best matches those values starts the joint search.
+    """
+    n = ctx.sig.n
+    prob = _problem(ctx, w, base)
+    travel = _travel(ctx.sig.op)
+    lower, upper = np.zeros(4), np.array([travel, 1.5 * travel] * 2)
+
+    def cost_h(h):
+        def cost(X, bound):
+            return prob.costs(
+                _rows(
+                    X[:, 0],
+                    X[:, 1],
+                    S_open_end=X[:, 2],
+                    J_open_end=X[:, 3],
+                    S_close_end=X[:, 2],
+                    J_close_end=X[:, 3],
+                ),
+                h,
+                bound=bound,
+            )
+
+        return cost
+
+    def search(t1, t2, x, rel, zooms):
+        cost = cost_h(_profile(n, t1, t2))
+        for pair in ((0, 1), (2, 3)):
+            x, c = needle_search(
+                cost, x, pair, lower, upper, rel=rel, zooms=zooms, n_grid=11 if rel < 0.1 else 31
+            )
+        return x, c
+
+    S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    win = []
+    if init is not None:
+        t1, t2 = (
+            init.params["change_start_s"] / ctx.sig.dt,
+            init.params["change_end_s"] / ctx.sig.dt,
+        )
+        x, c = search(t1, t2, np.array(init.x), 0.03, 1)
+        results = [(c, x, t1, t2)]
+    else:
+        win = _window_fits(ctx, w, base, 6)
+        pts = [v for v in win if v is not None]
+        shapes = [(0.0, float(n - 1))]
+        if len(pts) >= 3:
+            centers = np.array([p[0] for p in pts])
+            vals = np.array([[p[1], p[2]] for p in pts])
+            best_shape = None
+            for t1 in np.linspace(0.1, 0.9, 17) * n:
+                for width in (0.0, 0.15 * n, 0.3 * n):
+                    if width > 0:
+                        h = np.clip((centers - t1) / width, 0.0, 1.0)
+                    else:
+                        h = (centers >= t1).astype(float)
+                    A = np.column_stack([1.0 - h, h])
+                    coef, *_ = np.linalg.lstsq(A, vals, rcond=None)
+                    c = float(np.sum((A @ coef - vals) ** 2))
+                    if best_shape is None or c < best_shape[0]:
+                        best_shape = (c, t1, t1 + width)
+            shapes.append((best_shape[1], best_shape[2]))
+        results = []
+        for t1, t2 in shapes:
+            early = [p for p in pts if p[0] < t1] or pts[:1]
+            late = [p for p in pts if p[0] > t2] or pts[-1:]
+            if early and late:
+                x = np.array(
+                    [
+                        np.median([p[1] for p in early]),
+                        np.median([p[2] for p in early]),
+                        np.median([p[1] for p in late]),
+                        np.median([p[2] for p in late]),
+                    ]
+                )
+            else:
+                x = np.array([S0, J0, S0, J0])
+            x, c = search(t1, t2, x, 0.15, 2)
+            # Move the instants by a few percent of the record while that helps.
+            for _ in range(4):
+                moved = False
+                for d1, d2 in ((-1, -1), (1, 1), (-1, 0), (1, 0), (0, -1), (0, 1)):
+                    a, b = t1 + d1 * 0.02 * n, t2 + d2 * 0.02 * n
+                    if a < 0 or b > n - 1 or b < a:
+                        continue
+                    cc = float(cost_h(_profile(n, a, b))(x[None, :], np.inf)[0])
+                    if cc < c:
+                        c, t1, t2, moved = cc, a, b, True
+                if not moved:
+                    break
+            x, c = search(t1, t2, x, 0.05, 1)
+            results.append((c, x, t1, t2))
+    c, x, t1, t2 = min(results, key=lambda r: r[0])
+    h = _profile(n, t1, t2)
+    row = _rows(x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3])[0]
+    mv_hat, _ = prob.series(row, h)
+    if t1 <= 0.0 and t2 >= n - 1:
+        variant, n_params = "drift", 2
+    elif t2 - t1 < 1.0:
+        variant, n_params = "step", 3
+    else:
+        variant, n_params = "ramp", 4
+    params = {
+        "S_start": float(x[0]),
+        "J_start": float(x[1]),
+        "S_end": float(x[2]),
+        "J_end": float(x[3]),
+        "change_start_s": float(t1) * ctx.sig.dt,
+        "change_end_s": float(t2) * ctx.sig.dt,
+    }
+    if win:
+        params["windows"] = [
+            None if v is None else {"time_s": v[0] * ctx.sig.dt, "S": v[1], "J": v[2]} for v in win
+        ]
+    return EffectFit(
+        effect="time_varying_stiction",
+        variant=variant,
+        n_params=n_params,
+        params=params,
+        predictions={"mv": mv_hat},
+        x=tuple(float(v) for v in x),
+    )
+
+
+_CURVATURE_GRIDS = {
+    "exponential": (np.linspace(-6.0, 6.0, 13), (-10.0, 10.0)),
+    "power": (np.linspace(-1.5, 1.5, 13), (-2.5, 2.5)),
+}
+
+
+def _search_curvature(cost: Callable[[float], float], family: str) -> tuple[float, float]:
+    grid, bounds = _CURVATURE_GRIDS[family]
+    costs = [cost(float(c)) for c in grid]
+    i = int(np.argmin(costs))
+    c = _golden(cost, float(grid[max(i - 1, 0)]), float(grid[min(i + 1, grid.size - 1)]), 14)
+    c = float(np.clip(c, *bounds))
+    cc = cost(c)
+    return (c, cc) if cc < costs[i] else (float(grid[i]), costs[i])
+
+
+def fit_valve_characteristic(
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
+) -> EffectFit:
+    """A non-linear installed characteristic between valve position and flow.
+
+    Process side: ``pv = G(f(mv))``, the curvature of ``f`` searched with the process
+    dynamics of the base fit and its gain, initial state and slow load refitted.
+    Valve side (mv itself flow-like): ``mv = a + b f(valve(op))``.  Two families,
+    exponential and power; the form with the lower error on mv and pv together is
+    kept.
+    """
+    sig = ctx.sig
+    u = _process_input(ctx, base)
+    model = base.process.model
+    pv, var_pv = sig.pv, ctx.norm["pv"]
+    base_pv_cost = float(np.dot(w, (base.process.pv - pv) ** 2)) / var_pv
+    forms = ["process_exponential", "process_power"]
+    if sig.mv is not None:
+        forms += ["valve_exponential", "valve_power"]
+        prob = _problem(ctx, w, base)
+        row = _rows(base.valve.params["S"], base.valve.params["J"])
+        base_mv_cost = float(prob.costs(row)[0])
+    if init is not None:
+        forms = [init.variant]
+    results = []
+    for form in forms:
+        side, family = form.split("_")
+        if side == "process":
+
+            def cost_pv(c, family=family):
+                f = fit_process(characteristic_curve(u, c, family), ctx, w, model=model)
+                return float(np.dot(w, (f.pv - pv) ** 2)) / var_pv
+
+            if init is not None:
+                c = float(init.params["curvature"])
+                cc = cost_pv(c)
+            else:
+                c, cc = _search_curvature(cost_pv, family)
+            f = fit_process(characteristic_curve(u, c, family), ctx, w, model=model)
+            results.append(
+                (cc, form, 1, {"curvature": c, "family": family, "side": side}, {"pv": f.pv})
+            )
+        else:
+
+            def cost_mv(c, family=family):
+                return float(prob.costs(row, affine=True, curvature=c, family=family)[0])
+
+            if init is not None:
+                c = float(init.params["curvature"])
+                cc = cost_mv(c)
+            else:
+                c, cc = _search_curvature(cost_mv, family)
+            g = characteristic_curve(base.valve.mv, c, family)
+            k, b = _affine(g, sig.mv, w)
+            # On the same footing as the process side: error on mv and pv together.
+            results.append(
+                (
+                    cc + base_pv_cost - base_mv_cost,
+                    form,
+                    3,
+                    {"curvature": c, "family": family, "side": side},
+                    {"mv": b + k * g},
+                )
+            )
+    _, variant, n_params, params, preds = min(results, key=lambda r: r[0])
+    return EffectFit(
+        effect="valve_characteristic",
+        variant=variant,
+        n_params=n_params,
+        params=params,
+        predictions=preds,
+        x=(params["curvature"],),
+    )
+
+
+def fit_quantization(
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
+) -> EffectFit | None:
+    """Historian or instrument resolution (Loop 4 of Section 3, Fig. 6).
+
+    The resolution of each recorded signal is read from the data
+    (:func:`detect_quantization`); the replay of every quantised signal is rounded
+    to the same grid.  None when no signal is quantised.
+    """
+    preds, params = {}, {}
+    base_preds = base.predictions()
+    for name in ("op", "mv", "pv"):
+        x = getattr(ctx.sig, name)
+        q = detect_quantization(x)
+        if q is None or name not in base_preds:
+            continue
+        step, offset = q
+        preds[name] = quantize(base_preds[name], step, offset)
+        params[f"{name}_step"] = step
+        params[f"{name}_offset"] = offset
+    if not preds:
+        return None
+    return EffectFit(
+        effect="quantization",
+        variant="+".join(preds),
+        n_params=2 * len(preds),
+        params=params,
+        predictions=preds,
+    )
+
+
+def _sinusoids(n: int, omega: float, harmonics: int) -> np.ndarray:
+    k = np.arange(n, dtype=float)
+    cols = []
+    for h in range(1, harmonics + 1):
+        cols += [np.cos(h * omega * k), np.sin(h * omega * k)]
+    return np.column_stack(cols)
+
+
+def fit_external_disturbance(
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
+) -> EffectFit:
+    """An oscillation entering the loop that the valve did not cause.
+
+    ``pv = G(mv) + A1 sin(w t + p1) [+ A2 sin(2 w t + p2)]``: the frequency starts at
+    one of the largest peaks of the spectrum of the process-replay residual, is
+    refined by golden-section search, and the process is refitted together with the
+    sinusoids (a disturbance biases the process fit, so they are fitted together).
+    Periods longer than the slow load's knot spacing belong to the load.
+    """
+    sig = ctx.sig
+    u = _process_input(ctx, base)
+    pv, n = sig.pv, sig.n
+    var_pv = ctx.norm["pv"]
+    model = base.process.model
+
+    def cost(om, harmonics, model=model):
+        f = fit_process(u, ctx, w, extra=_sinusoids(n, om, harmonics), model=model)
+        return float(np.dot(w, (f.pv - pv) ** 2)) / var_pv, f
+
+    if init is not None:
+        om = 2.0 * math.pi * sig.dt / init.params["period_s"]
+        harmonics = 1 if init.variant == "fundamental" else 2
+        c, f = cost(om, harmonics)
+    else:
+        r = (pv - base.process.pv) * w
+        nfft = 1 << int(math.ceil(math.log2(4 * n)))
+        spec = np.abs(np.fft.rfft(r, nfft)) ** 2
+        omega = 2.0 * math.pi * np.arange(spec.size) / nfft  # [rad/sample]
+        lo = max(2.0 * math.pi * 2.0 / n, 2.0 * math.pi / ctx.load.spacing)
+        ok = (omega >= lo) & (omega <= 2.0 * math.pi / 3.0)
+        cand = np.where(ok)[0]
+        if cand.size < 3:
+            cand = np.arange(1, spec.size)
+        s = spec[cand]
+        peaks = [cand[i] for i in range(1, s.size - 1) if s[i] >= s[i - 1] and s[i] >= s[i + 1]]
+        peaks = sorted(peaks, key=lambda i: -spec[i])[:3] or [cand[int(np.argmax(s))]]
+        best = None
+        width = 2.0 * math.pi / nfft * 4.0
+        for i in peaks:
+            om0 = omega[i]
+            om = _golden(lambda o: cost(o, 1)[0], max(om0 - width, 1e-6), om0 + width, n_iter=14)
+            for harmonics in (1, 2):
+                c, f = cost(om, harmonics)
+                if best is None or c < best[0]:
+                    best = (c, om, harmonics, f)
+        c, om, harmonics, f = best
+        # The process dynamics refitted with the disturbance in the model.
+        c2, f2 = cost(om, harmonics, model=None)
+        if c2 < c:
+            f = f2
+    amp = f.coef[-2 * harmonics :]
+    amplitudes = [float(math.hypot(amp[2 * h], amp[2 * h + 1])) for h in range(harmonics)]
+    return EffectFit(
+        effect="external_disturbance",
+        variant="fundamental" if harmonics == 1 else "fundamental_and_second_harmonic",
+        n_params=1 + 2 * harmonics,
+        params={
+            "period_s": float(2.0 * math.pi / om * sig.dt),
+            "amplitude": amplitudes[0],
+            "amplitude_second_harmonic": amplitudes[1] if harmonics > 1 else 0.0,
+        },
+        predictions={"pv": f.pv},
+        x=(float(om),),
+    )
+
+
+#: The catalogue: effect name -> fitter ``f(context, weights, base, init=None)``
+#: returning an :class:`EffectFit` (None when the effect does not apply, e.g. no
+#: signal is quantised).  ``init`` is the fit on the whole record, to start from.
+EFFECT_MODELS: dict[str, Callable[..., EffectFit | None]] = {
+    "actuator_lag": fit_actuator_lag,
+    "miscalibration": fit_miscalibration,
+    "asymmetry": fit_asymmetry,
+    "valve_characteristic": fit_valve_characteristic,
+    "quantization": fit_quantization,
+    "external_disturbance": fit_external_disturbance,
+    "time_varying_stiction": fit_time_varying_stiction,
+}
+
+
+def assessable_effects(has_mv: bool) -> tuple[list[str], list[str]]:
+    """Effects that can and cannot be assessed with or without a recorded mv.
+
+    Without mv the valve-side effects (lag, miscalibration, asymmetry, time-varying
+    S and J) are confounded with the process dynamics and gain in pv; the
+    process-side ones remain.
+    """
+    names = [e for e in EFFECTS if e != "none"]
+    if has_mv:
+        return names, []
+    return [e for e in names if e not in VALVE_SIDE_EFFECTS], [
+        e for e in names if e in VALVE_SIDE_EFFECTS
+    ]
