@@ -5,3 +5,5 @@ from . import report  # noqa: F401
 from . import scan  # noqa: F401
 from . import validate  # noqa: F401
 from . import simulate  # noqa: F401
+from . import gap  # noqa: F401
+from . import benchmark  # noqa: F401

@@ -18,7 +18,9 @@ from .describing import (
     describing_function_numeric,
     predict_limit_cycle,
 )
+from .effects import EFFECT_MODELS, EFFECTS, valve_replay
 from .errors import DataError, StictionError, UsageError
+from .gap import GapDiagnosis, diagnose_gap
 from .identify import (
     ControllerFit,
     ProcessFit,
@@ -87,4 +89,9 @@ __all__ = [
     "identify_process",
     "process_fit",
     "Replay",
+    "EFFECTS",
+    "EFFECT_MODELS",
+    "valve_replay",
+    "GapDiagnosis",
+    "diagnose_gap",
 ]

@@ -1699,6 +1699,22 @@ def _problem(ctx: ReplayContext, w: np.ndarray, base: BaseFit) -> _ValveProblem:
     return _ValveProblem.of(ctx, w, base.valve.kano, base.valve.initial_direction)
 
 
+def _pick_problem(ctx, w, base, init, evaluate) -> _ValveProblem:
+    """The stuck-phase logic for an augmented valve: the one of the whole-record fit
+    ``init``, else whichever makes ``evaluate(problem)`` (the error at the starting
+    points) lower.  The base fit's logic is not enough: an effect can make the other
+    logic the better reading of the same data."""
+    d0 = base.valve.initial_direction
+    if init is not None:
+        return _ValveProblem.of(ctx, w, init.params.get("logic") == "kano", d0)
+    probs = [_ValveProblem.of(ctx, w, k, d0) for k in (False, True)]
+    return min(probs, key=evaluate)
+
+
+def _logic(prob: _ValveProblem) -> str:
+    return "kano" if prob.kano else "choudhury"
+
+
 def _scale(*values: float) -> float:
     return max(max(values), 0.05)
 
@@ -1717,7 +1733,17 @@ def fit_actuator_lag(
     and J are searched with a provisional lag, then tau by golden-section search,
     then S and J again.
     """
-    prob = _problem(ctx, w, base)
+    seeds = [(base.valve.params["S"], base.valve.params["J"])]
+    med = _slip_medians(ctx.slips)
+    if med is not None:
+        seeds.append(med)
+    prob = _pick_problem(
+        ctx,
+        w,
+        base,
+        init,
+        lambda pr: float(np.min(pr.costs(_rows(*np.array(seeds).T, lag=_lag_weight(2.0))))),
+    )
     travel = _travel(ctx.sig.op)
     dt = ctx.sig.dt
     tau_max = max(ctx.sig.n / 20.0, 2.0)
@@ -1731,10 +1757,6 @@ def fit_actuator_lag(
             prob, [(S, J)], travel, rel=0.03, zooms=1, n_grid=11, lag=_lag_weight(tau)
         )
     else:
-        seeds = [(base.valve.params["S"], base.valve.params["J"])]
-        med = _slip_medians(ctx.slips)
-        if med is not None:
-            seeds.append(med)
         # The breakaways do not depend on the lag: S and J with a provisional lag.
         tau = 2.0
         (S, J), _ = _needle_sj(prob, seeds, travel, lag=_lag_weight(tau))
@@ -1753,7 +1775,12 @@ def fit_actuator_lag(
         effect="actuator_lag",
         variant="first_order",
         n_params=1,
-        params={"S": float(S), "J": float(J), "time_constant_s": float(tau * dt)},
+        params={
+            "S": float(S),
+            "J": float(J),
+            "time_constant_s": float(tau * dt),
+            "logic": _logic(prob),
+        },
         predictions={"mv": mv_hat},
         x=(float(S), float(J), float(tau)),
     )
@@ -1782,13 +1809,19 @@ def fit_miscalibration(
     pivot)``) is this model with S and J divided by the slope; S and J on the op
     axis are searched, slope and offset solved in closed form for every trial.
     """
-    prob = _problem(ctx, w, base)
     travel = _travel(ctx.sig.op)
     S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    slopes = np.geomspace(0.4, 2.5, 41)
+    prob = _pick_problem(
+        ctx,
+        w,
+        base,
+        init,
+        lambda pr: float(np.min(pr.costs(_rows(S0 / slopes, J0 / slopes), affine=True))),
+    )
     if init is not None:
         x, _ = _needle_sj_affine(prob, [init.x], travel, rel=0.03, zooms=1, n_grid=11)
     else:
-        slopes = np.geomspace(0.4, 2.5, 41)
         c = prob.costs(_rows(S0 / slopes, J0 / slopes), affine=True)
         seeds = [(S0 / slopes[i], J0 / slopes[i]) for i in np.argsort(c)[:2]]
         x, _ = _needle_sj_affine(prob, seeds, travel * 3)
@@ -1805,6 +1838,7 @@ def fit_miscalibration(
             "J_on_op_axis": float(x[1]),
             "slope": slope,
             "offset_pct": offset,
+            "logic": _logic(prob),
         },
         predictions={"mv": offset + slope * v},
         x=(float(x[0]), float(x[1])),
@@ -1836,25 +1870,26 @@ def fit_asymmetry(
     parameters instead of two, searched a direction at a time (the other held) from
     the base fit and from the slips measured in each direction.
     """
-    prob = _problem(ctx, w, base)
     travel = _travel(ctx.sig.op)
     lower, upper = np.zeros(4), np.array([travel, 1.5 * travel] * 2)
+    S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    seeds = [np.array([S0, J0, S0, J0])]
+    if ctx.slips is not None:
+        up = _slip_medians(ctx.slips, ctx.slips["direction"] > 0)
+        dn = _slip_medians(ctx.slips, ctx.slips["direction"] < 0)
+        if up is not None and dn is not None:
+            seeds.append(np.array([up[0], up[1], dn[0], dn[1]]))
+    S4 = np.array(seeds)
+    prob = _pick_problem(ctx, w, base, init, lambda pr: float(np.min(pr.costs(_rows(*S4.T)))))
 
     def cost(X, bound):
         return prob.costs(_rows(X[:, 0], X[:, 1], X[:, 2], X[:, 3]), bound=bound)
 
-    S0, J0 = base.valve.params["S"], base.valve.params["J"]
     if init is not None:
         x = np.array(init.x)
         rel, zooms, rounds, n_grid = 0.03, 1, 1, 11
     else:
-        seeds = [np.array([S0, J0, S0, J0])]
-        if ctx.slips is not None:
-            up = _slip_medians(ctx.slips, ctx.slips["direction"] > 0)
-            dn = _slip_medians(ctx.slips, ctx.slips["direction"] < 0)
-            if up is not None and dn is not None:
-                seeds.append(np.array([up[0], up[1], dn[0], dn[1]]))
-        c = cost(np.array(seeds), np.inf)
+        c = cost(S4, np.inf)
         x = seeds[int(np.argmin(c))]
         rel, zooms, rounds, n_grid = 0.2, 2, 2, 31
     for _ in range(rounds):
@@ -1871,6 +1906,7 @@ def fit_asymmetry(
             "J_open": float(x[1]),
             "S_close": float(x[2]),
             "J_close": float(x[3]),
+            "logic": _logic(prob),
         },
         predictions={"mv": mv_hat},
         x=tuple(float(v) for v in x),
@@ -1946,9 +1982,9 @@ def fit_time_varying_stiction(
     that best matches those values starts the joint search.
     """
     n = ctx.sig.n
-    prob = _problem(ctx, w, base)
     travel = _travel(ctx.sig.op)
     lower, upper = np.zeros(4), np.array([travel, 1.5 * travel] * 2)
+    prob = _problem(ctx, w, base) if init is None else _pick_problem(ctx, w, base, init, None)
 
     def cost_h(h):
         def cost(X, bound):
@@ -1983,7 +2019,7 @@ def fit_time_varying_stiction(
             init.params["change_end_s"] / ctx.sig.dt,
         )
         x, c = search(t1, t2, np.array(init.x), 0.03, 1)
-        results = [(c, x, t1, t2)]
+        results = [(c, x, t1, t2, prob)]
     else:
         win = _window_fits(ctx, w, base, 6)
         pts = [v for v in win if v is not None]
@@ -2006,6 +2042,7 @@ def fit_time_varying_stiction(
             shapes.append((best_shape[1], best_shape[2]))
         results = []
         for t1, t2 in shapes:
+            # Either stuck-phase logic, whichever reads the profile's start better.
             early = [p for p in pts if p[0] < t1] or pts[:1]
             late = [p for p in pts if p[0] > t2] or pts[-1:]
             if early and late:
@@ -2019,6 +2056,13 @@ def fit_time_varying_stiction(
                 )
             else:
                 x = np.array([S0, J0, S0, J0])
+            h0 = _profile(n, t1, t2)
+            row0 = _rows(
+                x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3]
+            )
+            prob = _pick_problem(
+                ctx, w, base, None, lambda pr, h0=h0, row0=row0: float(pr.costs(row0, h0)[0])
+            )
             x, c = search(t1, t2, x, 0.15, 2)
             # Move the instants by a few percent of the record while that helps.
             for _ in range(4):
@@ -2033,8 +2077,8 @@ def fit_time_varying_stiction(
                 if not moved:
                     break
             x, c = search(t1, t2, x, 0.05, 1)
-            results.append((c, x, t1, t2))
-    c, x, t1, t2 = min(results, key=lambda r: r[0])
+            results.append((c, x, t1, t2, prob))
+    c, x, t1, t2, prob = min(results, key=lambda r: r[0])
     h = _profile(n, t1, t2)
     row = _rows(x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3])[0]
     mv_hat, _ = prob.series(row, h)
@@ -2051,6 +2095,7 @@ def fit_time_varying_stiction(
         "J_end": float(x[3]),
         "change_start_s": float(t1) * ctx.sig.dt,
         "change_end_s": float(t2) * ctx.sig.dt,
+        "logic": _logic(prob),
     }
     if win:
         params["windows"] = [
@@ -2157,14 +2202,40 @@ def fit_valve_characteristic(
     )
 
 
+def expected_quantized(x: np.ndarray, step: float, offset: float, noise_std: float) -> np.ndarray:
+    """Expected recorded value of ``x + noise`` rounded to ``offset + step * integer``.
+
+    With noise before the rounding (an instrument's noise, then the historian's
+    resolution) the rounded value of a model's prediction flips between levels near
+    the level boundaries; the expectation over a Gaussian noise of ``noise_std`` is
+    the prediction that minimises the squared error.
+    """
+    from scipy.special import ndtr
+
+    z = (np.asarray(x, dtype=float) - offset) / step
+    if noise_std <= 1e-9 * step:
+        return offset + step * np.round(z)
+    s = noise_std / step
+    centre = np.round(z)
+    out = np.zeros_like(z)
+    span = int(min(max(math.ceil(4.0 * s), 1), 20))
+    for j in range(-span, span + 1):
+        lev = centre + j
+        p = ndtr((lev + 0.5 - z) / s) - ndtr((lev - 0.5 - z) / s)
+        out += lev * p
+    return offset + step * out
+
+
 def fit_quantization(
     ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
 ) -> EffectFit | None:
     """Historian or instrument resolution (Loop 4 of Section 3, Fig. 6).
 
-    The resolution of each recorded signal is read from the data
-    (:func:`detect_quantization`); the replay of every quantised signal is rounded
-    to the same grid.  None when no signal is quantised.
+    The resolution (step and offset) of each recorded signal is read from the data
+    (:func:`detect_quantization`); the replay of every quantised signal is replaced by
+    its expected recorded value (:func:`expected_quantized`), with the noise before
+    the rounding fitted (one more parameter per signal).  None when no signal is
+    quantised.
     """
     preds, params = {}, {}
     base_preds = base.predictions()
@@ -2174,15 +2245,25 @@ def fit_quantization(
         if q is None or name not in base_preds:
             continue
         step, offset = q
-        preds[name] = quantize(base_preds[name], step, offset)
+        pred = base_preds[name]
+        if init is not None and f"{name}_noise_std" in init.params:
+            sigma = float(init.params[f"{name}_noise_std"])
+        else:
+            grid = step * np.concatenate([[0.0], np.geomspace(0.02, 2.0, 25)])
+            errs = [
+                float(np.dot(w, (expected_quantized(pred, step, offset, g) - x) ** 2)) for g in grid
+            ]
+            sigma = float(grid[int(np.argmin(errs))])
+        preds[name] = expected_quantized(pred, step, offset, sigma)
         params[f"{name}_step"] = step
         params[f"{name}_offset"] = offset
+        params[f"{name}_noise_std"] = sigma
     if not preds:
         return None
     return EffectFit(
         effect="quantization",
         variant="+".join(preds),
-        n_params=2 * len(preds),
+        n_params=len(preds),
         params=params,
         predictions=preds,
     )

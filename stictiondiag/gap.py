@@ -73,6 +73,7 @@ METRIC_DEFINITION = (
 )
 
 SIGNALS = ("op", "mv", "pv")
+_DEBUG = False
 
 
 # --------------------------------------------------------------------------------------
@@ -164,6 +165,8 @@ class GapDiagnosis:
     not_assessed : tuple of str
         Effects that cannot be assessed with the data (e.g. valve-side effects
         without a recorded mv).
+    heldout_before : float
+        Gap of the two-parameter replay on held-out data [%] (the score of ``none``).
     base : dict
         The base replay's parameters: S and J [% of span], valve logic, process,
         controller.
@@ -183,6 +186,7 @@ class GapDiagnosis:
     candidates: tuple
     breakdown: dict
     not_assessed: tuple = ()
+    heldout_before: float = 0.0
     base: dict = field(default_factory=dict)
     series: dict = field(default_factory=dict, repr=False, compare=False)
 
@@ -202,6 +206,7 @@ class GapDiagnosis:
                 "candidates": [c.to_dict() for c in self.candidates],
                 "breakdown": self.breakdown,
                 "not_assessed": list(self.not_assessed),
+                "heldout_before": self.heldout_before,
                 "base": self.base,
             }
         )
@@ -466,12 +471,28 @@ def diagnose_gap(
     scores = {"none": (base_total, as_gap(held["none"]), True)}
     for name, ef in fits.items():
         d = totals["none"] - totals[name]
-        improvement = float(d.sum())
-        se = float(np.std(d, ddof=1)) * math.sqrt(n_blocks)
+        # The improvement without its best and its worst block (scaled back to the
+        # whole record): one block where the replay happens to fall in or out of step
+        # with the data must not decide.
+        trimmed = (float(d.sum()) - float(d.max()) - float(d.min())) * n_blocks / (n_blocks - 2)
+        # Scatter of the block improvements, robust to a few blocks where a real
+        # effect matters most (a characteristic away from the operating point).
+        se = 1.4826 * float(np.median(np.abs(d - np.median(d)))) * math.sqrt(n_blocks)
         penalty = max(SIGNIFICANCE * se, PENALTY_PER_PARAMETER * ef.n_params * base_total)
-        total = float(totals[name].sum())
-        accepted = improvement > penalty
-        scores[name] = (total + penalty, as_gap(held[name]), accepted, penalty)
+        consistent = int(np.sum(d > 0)) >= n_blocks // 2
+        accepted = trimmed > penalty and consistent
+        if _DEBUG:
+            print(
+                name,
+                "d per block",
+                np.round(d, 1),
+                "trimmed",
+                round(trimmed, 1),
+                "pen",
+                round(penalty, 1),
+            )
+        score = base_total - trimmed + penalty if consistent else base_total + penalty
+        scores[name] = (score, as_gap(held[name]), accepted, score - float(totals[name].sum()))
 
     # In-sample gaps before and after.
     per_base = {s: meas.nmse(s, p, getattr(sig, s)) for s, p in base.predictions().items()}
@@ -546,6 +567,7 @@ def diagnose_gap(
         candidates=tuple(cands),
         breakdown=_plain(breakdown),
         not_assessed=tuple(not_assessed),
+        heldout_before=scores["none"][1],
         base=_plain(base_info),
         series=series,
     )

@@ -1,0 +1,107 @@
+"""``stiction gap FILE``: where the replay departs from the data, and which effect explains it."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from .common import friendly_errors, info
+from .main import app
+
+
+def _fmt(x, spec: str = ".1f") -> str:
+    return "n/a" if x is None else format(x, spec)
+
+
+def render_gap(d: dict) -> str:
+    """Readable summary of :meth:`GapDiagnosis.to_dict`."""
+    lines = [
+        f"gap         {d['metric']}: before {_fmt(d['before'])} %, after {_fmt(d['after'])} % "
+        f"({_fmt(d['shrink_pct'], '.0f')} % shrink)",
+        f"effect      {d['effect']}  (runner-up {d['runner_up']}, margin {_fmt(d['margin'])} %)",
+    ]
+    sig = (d.get("breakdown") or {}).get("signal") or {}
+    if sig:
+        lines.append(
+            "by signal   "
+            + ", ".join(f"{s} {_fmt(v['before'])} -> {_fmt(v['after'])} %" for s, v in sig.items())
+        )
+    lines.append(
+        "candidates  effect                 after %  shrink %  held-out %  score %  accepted"
+    )
+    for c in d.get("candidates") or []:
+        lines.append(
+            f"            {c['effect']:<22} {_fmt(c['after']):>7}  {_fmt(c['shrink_pct'], '.0f'):>8}"
+            f"  {_fmt(c['heldout']):>10}  {_fmt(c['penalised_score']):>7}  {'yes' if c['accepted'] else 'no'}"
+        )
+    if d.get("not_assessed"):
+        lines.append(
+            "not assessed " + ", ".join(d["not_assessed"]) + " (no valve position recorded)"
+        )
+    return "\n".join(lines)
+
+
+@app.command()
+def gap(
+    file: Annotated[Path, typer.Argument(help="CSV or Parquet file with one loop's tags.")],
+    pv: Annotated[str | None, typer.Option(help="Column holding pv.")] = None,
+    op: Annotated[str | None, typer.Option(help="Column holding op (controller output).")] = None,
+    mv: Annotated[str | None, typer.Option(help="Column holding mv (valve position).")] = None,
+    sp: Annotated[str | None, typer.Option(help="Column holding sp (setpoint).")] = None,
+    time: Annotated[str | None, typer.Option(help="Time column (seconds or timestamps).")] = None,
+    ts: Annotated[
+        float | None, typer.Option(help="Sampling time in seconds when there is no time column.")
+    ] = None,
+    json_path: Annotated[
+        str | None, typer.Option("--json", help="Write the result as JSON to PATH ('-' = stdout).")
+    ] = None,
+    plot: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write where the gap lies to PATH (PNG) and the replay before and after the "
+            "winning effect to PATH with '_replay' added to its name."
+        ),
+    ] = None,
+) -> None:
+    """Sim-to-real gap: measure and locate it, and name the unmodelled effect that explains it."""
+    from stictiondiag.atomic import atomic_path, write_atomic
+    from stictiondiag.errors import UsageError
+    from stictiondiag.gap import diagnose_file
+
+    with friendly_errors():
+        if plot is not None and plot.is_dir():
+            raise UsageError(f"cannot write {plot}: it is a directory; give a file name for --plot")
+        if json_path not in (None, "-") and Path(json_path).is_dir():
+            raise UsageError(
+                f"cannot write {json_path}: it is a directory; give a file name for --json"
+            )
+        info(f"diagnosing the gap of {file} ...")
+        result = diagnose_file(file, pv=pv, op=op, mv=mv, sp=sp, time=time, ts=ts)
+        d = result.to_dict()
+        summary = render_gap(d)
+        if json_path == "-":
+            info(summary)
+            sys.stdout.write(json.dumps(d, indent=2) + "\n")
+        else:
+            typer.echo(summary)
+            if json_path:
+                write_atomic(json_path, json.dumps(d, indent=2) + "\n")
+                info(f"wrote {json_path}")
+        if plot is not None:
+            import matplotlib.pyplot as plt
+
+            figs = result.figures()
+            suffix = plot.suffix or ".png"
+            targets = {
+                "gap_breakdown": plot if plot.suffix else plot.with_suffix(suffix),
+                "gap_replay": plot.with_name(f"{plot.stem}_replay{suffix}"),
+            }
+            for name, fig in figs.items():
+                with atomic_path(targets[name]) as tmp:
+                    fig.savefig(tmp, dpi=110, format=suffix.lstrip(".") or "png")
+                plt.close(fig)
+                info(f"wrote {targets[name]}")

@@ -1,0 +1,246 @@
+"""Plots of the sim-to-real gap (:mod:`stictiondiag.gap`).
+
+:func:`plot_gap_breakdown` shows where the gap lies (signal, valve phase, frequency,
+time) and how each candidate effect scored; :func:`plot_gap_replay` shows the replay
+against the data before and after the winning effect, as time trends and as the
+mv-op plot that Section 5.3.1 of Choudhury et al. (2005) recommends for valve faults.
+"""
+
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.figure import Figure
+
+_BEFORE = "tab:orange"
+_AFTER = "tab:green"
+_DATA = "0.25"
+
+
+def _bars(ax, labels, before, after, title, ylabel):
+    x = np.arange(len(labels))
+    ax.bar(
+        x - 0.2, [np.nan if v is None else v for v in before], 0.4, color=_BEFORE, label="before"
+    )
+    ax.bar(x + 0.2, [np.nan if v is None else v for v in after], 0.4, color=_AFTER, label="after")
+    ax.set_xticks(x, labels)
+    ax.set_title(title, fontsize=10)
+    ax.set_ylabel(ylabel)
+
+
+def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
+    """Where the gap lies, before and after the winning effect, and the candidates.
+
+    Parameters
+    ----------
+    diagnosis : GapDiagnosis
+        Result of :func:`stictiondiag.gap.diagnose_gap`.
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    Figure
+    """
+    b = diagnosis.breakdown
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7.5))
+    ax = axes[0, 0]
+    sig = b.get("signal", {})
+    names = list(sig)
+    _bars(
+        ax,
+        names,
+        [sig[s]["before"] for s in names],
+        [sig[s]["after"] for s in names],
+        "By signal",
+        "gap [%]",
+    )
+    ax.plot(
+        np.arange(len(names)),
+        [sig[s]["noise_floor"] for s in names],
+        "k_",
+        markersize=18,
+        label="noise floor",
+    )
+    ax.legend(fontsize=8)
+
+    ax = axes[0, 1]
+    ph = b.get("phase")
+    if ph:
+        labels = list(ph)
+        _bars(
+            ax,
+            labels,
+            [ph[p].get("mv_share_pct_before") for p in labels],
+            [ph[p].get("mv_share_pct_after") for p in labels],
+            "By valve phase (share of mv error)",
+            "% of squared error",
+        )
+        for i, p in enumerate(labels):
+            ax.text(
+                i,
+                0,
+                f"{ph[p]['samples_pct']:.0f}% of\nsamples",
+                ha="center",
+                va="bottom",
+                fontsize=7,
+            )
+    else:
+        ax.text(0.5, 0.5, "no valve position recorded", ha="center", transform=ax.transAxes)
+        ax.set_axis_off()
+
+    ax = axes[0, 2]
+    fr = b.get("frequency", {})
+    sigs = [s for s in ("mv", "pv", "op") if s in fr]
+    if sigs:
+        parts = ("fundamental", "harmonics", "other")
+        x = np.arange(len(sigs))
+        bottom = np.zeros(len(sigs))
+        for part, color in zip(parts, ("tab:blue", "tab:purple", "0.7"), strict=True):
+            vals = np.array([fr[s].get(f"{part}_pct_before") or 0.0 for s in sigs])
+            ax.bar(x, vals, 0.5, bottom=bottom, color=color, label=part)
+            bottom += vals
+        ax.set_xticks(x, sigs)
+        period = fr.get("fundamental_period_s")
+        ax.set_title(
+            "By frequency, before"
+            + ("" if period is None else f" (fundamental period {period:.0f} s)"),
+            fontsize=10,
+        )
+        ax.set_ylabel("% of error energy")
+        ax.legend(fontsize=8)
+    else:
+        ax.set_axis_off()
+
+    ax = axes[1, 0]
+    tm = b.get("time", {})
+    labels, before, after = [], [], []
+    for s, v in tm.items():
+        for half in ("early", "late"):
+            labels.append(f"{s}\n{half}")
+            before.append(v.get(f"{half}_before"))
+            after.append(v.get(f"{half}_after"))
+    if labels:
+        _bars(ax, labels, before, after, "Over time (first and second half)", "gap [%]")
+    else:
+        ax.set_axis_off()
+
+    ax = axes[1, 1]
+    cands = list(diagnosis.candidates)
+    if cands:
+        y = np.arange(len(cands))
+        ax.barh(y, [c.heldout for c in cands], color="0.6", label="held-out gap")
+        ax.scatter(
+            [c.penalised_score for c in cands],
+            y,
+            color=["tab:green" if c.accepted else "tab:red" for c in cands],
+            zorder=3,
+            label="penalised score",
+        )
+        ax.set_yticks(y, [c.effect for c in cands], fontsize=8)
+        ax.invert_yaxis()
+        ax.axvline(diagnosis.heldout_before, color="k", lw=0.8, ls="--", label="none (base)")
+        ax.set_xlabel("gap [%]")
+        ax.set_title("Candidates (green: beats the base on held-out data)", fontsize=10)
+        ax.legend(fontsize=7, loc="lower right")
+    else:
+        ax.set_axis_off()
+
+    ax = axes[1, 2]
+    ax.set_axis_off()
+    lines = [
+        f"gap before: {diagnosis.before:.1f} %",
+        f"effect: {diagnosis.effect}",
+        f"gap after: {diagnosis.after:.1f} % (shrink {diagnosis.shrink_pct:.0f} %)",
+        f"runner-up: {diagnosis.runner_up} (margin {diagnosis.margin:.1f} %)",
+    ]
+    valve = b.get("feature", {}).get("valve")
+    if valve:
+        for key, label in (
+            ("jump_up", "jump up"),
+            ("jump_down", "jump down"),
+            ("moving_slope", "moving slope"),
+            ("corner_rise_samples", "slip rise [samples]"),
+        ):
+            vals = [valve[w].get(key) for w in ("data", "before", "after")]
+            txt = " / ".join("-" if v is None else f"{v:.2f}" for v in vals)
+            lines.append(f"{label} (data/before/after): {txt}")
+    if diagnosis.not_assessed:
+        lines.append("not assessed: " + ", ".join(diagnosis.not_assessed))
+    ax.text(
+        0.0, 1.0, "\n".join(lines), va="top", family="monospace", fontsize=8, transform=ax.transAxes
+    )
+    fig.suptitle(title or "Sim-to-real gap: where the replay departs from the data")
+    fig.tight_layout()
+    return fig
+
+
+def plot_gap_replay(diagnosis, *, window: int | None = None, title: str | None = None) -> Figure:
+    """Replay against data before and after the winning effect.
+
+    Parameters
+    ----------
+    diagnosis : GapDiagnosis
+        Result of :func:`stictiondiag.gap.diagnose_gap`.
+    window : int, optional
+        Samples shown (the last ones of the record); default the last quarter, at
+        most 2000.
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    Figure
+    """
+    s = diagnosis.series
+    t = np.asarray(s["time"])
+    n = t.size
+    m = min(max(n // 4, 200), 2000) if window is None else int(window)
+    sl = slice(max(n - m, 0), n)
+    rows = [name for name in ("mv", "pv", "op") if s.get(name) is not None]
+    fig, axes = plt.subplots(
+        len(rows),
+        2,
+        figsize=(13, 2.7 * len(rows)),
+        squeeze=False,
+        gridspec_kw={"width_ratios": [2.4, 1]},
+    )
+    for i, name in enumerate(rows):
+        ax = axes[i, 0]
+        ax.plot(t[sl], s[name][sl], color=_DATA, lw=0.8, label="data")
+        ax.plot(t[sl], s[f"{name}_before"][sl], color=_BEFORE, lw=0.8, label="replay before")
+        if diagnosis.effect != "none":
+            ax.plot(
+                t[sl],
+                s[f"{name}_after"][sl],
+                color=_AFTER,
+                lw=0.8,
+                label=f"with {diagnosis.effect}",
+            )
+        ax.set_ylabel(name)
+        ax.legend(fontsize=7, loc="upper right")
+        ax2 = axes[i, 1]
+        if name == "mv":
+            ax2.plot(s["op"][sl], s["mv"][sl], color=_DATA, lw=0.6, label="data")
+            ax2.plot(s["op"][sl], s["mv_before"][sl], color=_BEFORE, lw=0.6, label="before")
+            if diagnosis.effect != "none":
+                ax2.plot(s["op"][sl], s["mv_after"][sl], color=_AFTER, lw=0.6, label="after")
+            ax2.set_xlabel("op [% of span]")
+            ax2.set_ylabel("mv [% of span]")
+            ax2.set_title("mv-op plot", fontsize=9)
+        else:
+            r0 = s[name][sl] - s[f"{name}_before"][sl]
+            r1 = s[name][sl] - s[f"{name}_after"][sl]
+            ax2.plot(t[sl], r0, color=_BEFORE, lw=0.6, label="before")
+            if diagnosis.effect != "none":
+                ax2.plot(t[sl], r1, color=_AFTER, lw=0.6, label="after")
+            ax2.set_title(f"{name} replay error", fontsize=9)
+        ax2.legend(fontsize=7)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.suptitle(
+        title
+        or f"Replay against data: before and after {diagnosis.effect} "
+        f"(gap {diagnosis.before:.1f} % -> {diagnosis.after:.1f} %)"
+    )
+    fig.tight_layout()
+    return fig
