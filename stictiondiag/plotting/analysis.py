@@ -100,7 +100,10 @@ def plot_phase(
     has_mv = tags.mv is not None
     mv_model = None if fit is None else getattr(fit, "mv_model", None)
     has_model = mv_model is not None and np.size(mv_model) == tags.n
-    has_sp = tags.sp is not None and float(np.std(tags.sp)) > 0
+    win = trend_window(tags.n, float(tags.ts), period_s)
+    # pv-sp is for a set point that moves with the cycle (cascade slave, Fig. 5);
+    # a set point that is constant over the window (or steps once) adds nothing.
+    has_sp = tags.sp is not None and float(np.std(tags.sp[win])) > 0
     rows = 1 + int(has_mv or has_model) + int(has_sp)
     fig, axes = plt.subplots(
         rows,
@@ -109,7 +112,6 @@ def plot_phase(
         gridspec_kw={"width_ratios": [2.3, 1]},
         squeeze=False,
     )
-    win = trend_window(tags.n, float(tags.ts), period_s)
     t = np.asarray(tags.time)[win]
     pv, op = _scaled(tags.pv), _scaled(tags.op)
     cycles = f", last {WINDOW_CYCLES} cycles" if period_s else ""
@@ -171,5 +173,21 @@ def plot_phase(
         ax.grid(alpha=0.3)
     axes[-1][0].set_xlabel("time [s]")
     fig.suptitle(title or str(getattr(tags, "source", "")), fontsize=10)
-    fig.tight_layout()
+    _fixed_layout(fig, rows)
     return fig
+
+
+def _fixed_layout(fig: Figure, rows: int) -> None:
+    """Margins in inches for this fixed grid (``tight_layout`` measures every tick
+    label and costs more than drawing the figure)."""
+    height = fig.get_figheight()
+    top, bottom, gap = 0.6, 0.5, 0.85  # [in]: suptitle, time label, titles + labels
+    axes_height = (height - top - bottom - (rows - 1) * gap) / rows
+    fig.subplots_adjust(
+        left=0.065,
+        right=0.985,
+        top=1 - top / height,
+        bottom=bottom / height,
+        hspace=gap / axes_height,
+        wspace=0.22,
+    )
