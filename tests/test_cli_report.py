@@ -79,15 +79,20 @@ def index_loops(out: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def sticky_confidence(tmp_path_factory) -> float:
-    """Verdict confidence of the sticky sample loop, from a report run."""
+def sticky_run(tmp_path_factory):
+    """A report over the sticky sample loop with a bare ``--fail-on-stiction``."""
     out = tmp_path_factory.mktemp("sticky")
-    result = report(STICKY, "--out", out, "--no-gap")
+    result = report(STICKY, "--out", out, "--no-gap", "--fail-on-stiction")
     d = loop_json(out, STICKY.stem)
-    assert result.exit_code == EXIT_OK, result.stderr
     # Precondition of the exit-1 tests: the sample was made with S = J (pure stick-slip).
     assert d["stiction"]["status"] == "stiction", d["stiction"].get("reasons")
-    return float(d["stiction"]["confidence"])
+    return result, out, float(d["stiction"]["confidence"])
+
+
+@pytest.fixture(scope="module")
+def sticky_confidence(sticky_run) -> float:
+    """Verdict confidence of the sticky sample loop."""
+    return sticky_run[2]
 
 
 @pytest.fixture
@@ -102,10 +107,14 @@ def corrupt_csv(tmp_path) -> Path:
 
 def test_clean_run_exits_0_and_writes_the_report(tmp_path):
     out = tmp_path / "report"
-    result = report(HEALTHY, "--out", out, "--no-gap")
+    md = tmp_path / "job" / "summary.md"
+    result = report(HEALTHY, "--out", out, "--no-gap", "--markdown", md)
     assert result.exit_code == EXIT_OK, result.stderr
-    # stdout carries only requested data: nothing was requested.
+    # stdout carries only requested data: the Markdown went to a file.
     assert result.stdout == ""
+    assert md.read_text() == (out / "summary.md").read_text()
+    assert md.read_text().startswith("## Stiction report")
+    assert temp_files(md.parent) == []
     assert f"[1/1] {HEALTHY.stem}" in result.stderr
     loop = HEALTHY.stem
     for name in (f"{loop}.html", f"{loop}.json", "index.html", "summary.md", "rows.json"):
@@ -123,20 +132,37 @@ def test_clean_run_exits_0_and_writes_the_report(tmp_path):
 # -- exit 1 -------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("where", ["last", "before another option"])
-def test_bare_fail_on_stiction_exits_1_on_a_sticky_loop(tmp_path, sticky_confidence, where):
-    assert sticky_confidence >= DEFAULT_FAIL_THRESHOLD  # the bare flag's threshold
-    args = [STICKY, "--out", tmp_path, "--no-gap"]
-    args = (
-        [*args, "--fail-on-stiction"]
-        if where == "last"
-        else [*args[:1], "--fail-on-stiction", *args[1:]]
-    )
-    result = report(*args)
+def test_bare_fail_on_stiction_exits_1_on_a_sticky_loop(sticky_run):
+    result, out, confidence = sticky_run
+    assert confidence >= DEFAULT_FAIL_THRESHOLD  # the bare flag's threshold
     assert result.exit_code == EXIT_FINDING, result.stderr
     assert "stiction found" in result.stderr and result.stdout == ""
     # The report is complete although the job fails.
-    assert (tmp_path / "index.html").is_file() and (tmp_path / f"{STICKY.stem}.html").is_file()
+    assert (out / "index.html").is_file() and (out / f"{STICKY.stem}.html").is_file()
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (
+            ["report", "a.csv", "--fail-on-stiction"],
+            ["report", "a.csv", "--fail-on-stiction", "0.5"],
+        ),
+        (
+            ["report", "--fail-on-stiction", "--no-gap"],
+            ["report", "--fail-on-stiction", "0.5", "--no-gap"],
+        ),
+        (
+            ["report", "--fail-on-stiction", "a.csv"],
+            ["report", "--fail-on-stiction", "0.5", "a.csv"],
+        ),
+        (["report", "--fail-on-stiction", "0.7"], ["report", "--fail-on-stiction", "0.7"]),
+        (["report", "--fail-on-stiction", "1.5"], ["report", "--fail-on-stiction", "1.5"]),
+    ],
+)
+def test_bare_flag_gets_the_default_threshold(argv, expected):
+    assert DEFAULT_FAIL_THRESHOLD == 0.5
+    assert normalise_argv(argv) == expected
 
 
 def test_fail_on_stiction_threshold_is_compared_with_the_confidence(tmp_path, sticky_confidence):
@@ -235,14 +261,6 @@ def test_markdown_dash_is_the_only_stdout(tmp_path, sticky_confidence):
     # Header plus one row per loop, the sticky loop first (maintenance order).
     assert len(table) == 3 and table[1].startswith(f"| {STICKY.stem.replace('_', chr(92) + '_')} |")
     assert "[1/2]" in result.stderr and "[2/2]" in result.stderr
-
-
-def test_markdown_to_a_file(tmp_path):
-    md = tmp_path / "job" / "summary.md"
-    result = report(HEALTHY, "--out", tmp_path / "r", "--no-gap", "--markdown", md)
-    assert result.exit_code == EXIT_OK, result.stderr
-    assert result.stdout == "" and md.read_text().startswith("## Stiction report")
-    assert temp_files(md.parent) == []
 
 
 # -- updating, cleaning, atomic writes --------------------------------------------------
