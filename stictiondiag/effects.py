@@ -360,6 +360,171 @@ def _valve_sse_batch(
     return costs
 
 
+@jit
+def _rest_levels(mv, moved):  # pragma: no cover - compiled
+    """Running mean of mv over the current run of samples without movement."""
+    n = mv.shape[0]
+    level = np.empty(n)
+    acc = 0.0
+    cnt = 0.0
+    for k in range(n):
+        if moved[k]:
+            acc = 0.0
+            cnt = 0.0
+        acc += mv[k]
+        cnt += 1.0
+        level[k] = acc / cnt
+    return level
+
+
+@jit
+def _teacher_forced_sse_batch(op, mv, w, moved, level, P, h, kano, bound):  # pragma: no cover
+    """Squared mv error of one-step predictions from the valve state the data show.
+
+    At every sample the valve's state is read from the data (moving or at rest, the
+    direction of its last movement, the demand where it stopped) and the model
+    (Fig. 10 with direction- and time-dependent S and J) predicts only the next
+    sample.  A wrong threshold then costs the slips it mistimes, one by one, instead
+    of throwing the whole replay out of step as a free replay does; the error is a
+    sum of step functions of S and J whose minimum is where the free replay is in
+    step with the data.  ``moved`` flags samples where mv moved beyond its noise;
+    ``level`` is the running mean of mv while at rest.
+    """
+    m = P.shape[0]
+    n = op.shape[0]
+    costs = np.empty(m)
+    tv = h.shape[0] > 1
+    limit = bound
+    for r in range(m):
+        su0, su1, sd0, sd1 = P[r, 0], P[r, 1], P[r, 2], P[r, 3]
+        ju0, ju1, jd0, jd1 = P[r, 4], P[r, 5], P[r, 6], P[r, 7]
+        su = max(su0 + (su1 - su0) * h[0], 0.0)
+        sd = max(sd0 + (sd1 - sd0) * h[0], 0.0)
+        ju = max(ju0 + (ju1 - ju0) * h[0], 0.0)
+        jd = max(jd0 + (jd1 - jd0) * h[0], 0.0)
+        sse = 0.0
+        last_dir = 0.0
+        xss = op[0]
+        vold = 0.0
+        for k in range(2, n):
+            if tv:
+                hk = h[k]
+                su = max(su0 + (su1 - su0) * hk, 0.0)
+                sd = max(sd0 + (sd1 - sd0) * hk, 0.0)
+                ju = max(ju0 + (ju1 - ju0) * hk, 0.0)
+                jd = max(jd0 + (jd1 - jd0) * hk, 0.0)
+            x = op[k]
+            vnew = _sgn(x - op[k - 1])
+            moving = moved[k - 1]
+            if moving:
+                d_prev = _sgn(mv[k - 1] - mv[k - 2])
+                if d_prev != 0.0:
+                    last_dir = d_prev
+            elif moved[k - 2]:
+                xss = op[k - 2]
+            pred = level[k - 1]
+            check = True
+            ref = xss
+            if moving and last_dir != 0.0:
+                stops = (
+                    (vnew == 0.0 or vnew != last_dir)
+                    if kano
+                    else (vnew != 0.0 and vnew != last_dir)
+                )
+                if stops:
+                    pred = mv[k - 1]
+                    ref = op[k - 1]
+                else:
+                    check = False
+                    if last_dir > 0.0:
+                        pred = x - (su - ju) / 2.0
+                    else:
+                        pred = x + (sd - jd) / 2.0
+            elif not kano and vnew != vold and vnew != 0.0 and vold != 0.0:
+                xss = op[k - 1]
+                ref = xss
+            if check:
+                dx = x - ref
+                d = _sgn(dx)
+                if d != 0.0:
+                    if d > 0.0:
+                        s_dd = su
+                        j_dd = ju
+                    else:
+                        s_dd = sd
+                        j_dd = jd
+                    thr = s_dd if (last_dir == 0.0 or d != last_dir) else j_dd
+                    if abs(dx) > thr:
+                        pred = x - d * (s_dd - j_dd) / 2.0
+            vold = vnew
+            e = pred - mv[k]
+            sse += w[k] * e * e
+            if sse > limit:
+                break
+        costs[r] = sse
+        if sse < limit:
+            limit = sse
+    return costs
+
+
+@jit
+def _synced_sse_batch(
+    op, mv, w, stop, stop_x, stop_dir, stop_y, P, h, kano, bound
+):  # pragma: no cover
+    """Squared mv error of a replay put back in step with the data at every stop.
+
+    The replay runs freely from one stop of the recorded valve to the next; at each
+    stop (``stop[k]``: mv came to rest at sample k) its state is set to what the
+    data show: at rest at ``stop_y[k]``, stopped at demand ``stop_x[k]`` after moving
+    in direction ``stop_dir[k]``.  A slip the replay makes too early or too late then
+    costs the samples until the data's next stop, in proportion to the timing error,
+    instead of throwing the rest of the record out of step: the error is a sum of
+    V-shaped functions of S and J, searchable on coarse grids, whose minimum is where
+    the free replay (:func:`_valve_sse_batch`) is in step with the data.
+    """
+    m = P.shape[0]
+    n = op.shape[0]
+    costs = np.empty(m)
+    tv = h.shape[0] > 1
+    limit = bound
+    for r in range(m):
+        su0, su1, sd0, sd1 = P[r, 0], P[r, 1], P[r, 2], P[r, 3]
+        ju0, ju1, jd0, jd1 = P[r, 4], P[r, 5], P[r, 6], P[r, 7]
+        su = max(su0 + (su1 - su0) * h[0], 0.0)
+        sd = max(sd0 + (sd1 - sd0) * h[0], 0.0)
+        ju = max(ju0 + (ju1 - ju0) * h[0], 0.0)
+        jd = max(jd0 + (jd1 - jd0) * h[0], 0.0)
+        st = _valve_init(op[0], mv[0], 0.0, su, sd, ju, jd)
+        sse = 0.0
+        for k in range(1, n):
+            if tv:
+                hk = h[k]
+                su = max(su0 + (su1 - su0) * hk, 0.0)
+                sd = max(sd0 + (sd1 - sd0) * hk, 0.0)
+                ju = max(ju0 + (ju1 - ju0) * hk, 0.0)
+                jd = max(jd0 + (jd1 - jd0) * hk, 0.0)
+            x = min(max(op[k], 0.0), 100.0)
+            if stop[k]:
+                st[_Y] = stop_y[k]
+                st[_XSS] = stop_x[k]
+                st[_DIR] = stop_dir[k]
+                st[_STUCK] = 1.0
+                st[_XPREV] = x
+                st[_VOLD] = 0.0
+                y = stop_y[k]
+            else:
+                y, ph = _valve_step(x, st, su, sd, ju, jd, kano)
+                y = min(max(y, 0.0), 100.0)
+            e = y - mv[k]
+            sse += w[k] * e * e
+            if sse > limit:
+                break
+        costs[r] = sse
+        if sse < limit:
+            limit = sse
+    return costs
+
+
 def valve_replay(
     op: np.ndarray,
     S: float | np.ndarray,
@@ -821,6 +986,15 @@ class SlowLoad:
 # --------------------------------------------------------------------------------------
 
 
+def _diff_noise_var(x: np.ndarray) -> float:
+    """White-noise variance from sample-to-sample changes: ``(1.4826 MAD(diff x))^2 / 2``."""
+    d = np.diff(np.asarray(x, dtype=float))
+    if d.size == 0:
+        return 0.0
+    mad = float(np.median(np.abs(d - np.median(d))))
+    return (1.4826 * mad) ** 2 / 2.0
+
+
 @dataclass(frozen=True)
 class LoopSignals:
     """Recorded signals of one loop, uniformly sampled.
@@ -1032,6 +1206,11 @@ class EffectFit:
         Replayed signals this effect changes (``mv``, ``pv`` or ``op``) [their units].
     x : tuple
         The searched parameter vector (starts the search on a part of the record).
+    process : ProcessFit or None
+        For effects on the process side, the process replay with the effect in it.
+    pv_floor : float or None
+        For effects on the process side, the pv noise floor of that replay
+        (:func:`process_noise_floor`) [pv units^2].
     """
 
     effect: str
@@ -1040,6 +1219,8 @@ class EffectFit:
     params: dict
     predictions: dict
     x: tuple = ()
+    process: ProcessFit | None = None
+    pv_floor: float | None = None
 
 
 @dataclass(frozen=True)
@@ -1104,6 +1285,32 @@ class _ValveProblem:
         self.kano = bool(kano)
         self.d0 = float(d0)
         self.y0 = min(max(float(y0), 0.0), 100.0)
+        # Samples where mv moved beyond its noise (or its resolution), for the
+        # teacher-forced search.
+        d = np.abs(np.diff(self.mv, prepend=self.mv[0]))
+        q = detect_quantization(self.mv)
+        noise = math.sqrt(max(_diff_noise_var(self.mv), 0.0))
+        band = max(4.0 * noise, 0.5 * q[0] if q is not None else 0.0, 1e-9)
+        self.moved = d > band
+        self.level = _rest_levels(self.mv, self.moved)
+        # Stops of the recorded valve: moved into k-1, at rest at k.
+        n = self.mv.size
+        stop = np.zeros(n, dtype=np.bool_)
+        stop[2:] = self.moved[1:-1] & ~self.moved[2:]
+        self.stop = stop
+        self.stop_x = np.zeros(n)
+        self.stop_dir = np.zeros(n)
+        self.stop_y = np.zeros(n)
+        idx = np.where(stop)[0]
+        if idx.size:
+            self.stop_x[idx] = self.op[idx - 1]
+            self.stop_dir[idx] = np.sign(self.mv[idx - 1] - self.mv[idx - 2])
+            # Level of the rest that follows: mean of mv until it next moves.
+            nxt = np.searchsorted(np.where(self.moved)[0], idx)
+            moves = np.where(self.moved)[0]
+            for i, k in enumerate(idx):
+                end = moves[nxt[i]] if nxt[i] < moves.size else n
+                self.stop_y[k] = float(np.mean(self.mv[k:end]))
 
     @classmethod
     def of(cls, ctx: ReplayContext, w: np.ndarray, kano: bool, d0: float) -> _ValveProblem:
@@ -1129,6 +1336,40 @@ class _ValveProblem:
             bool(affine),
             float(curvature),
             _FAMILY_CODES[family],
+            float(bound) * self.var,
+        )
+        return c / self.var
+
+    def tf_costs(self, P, h=_CONSTANT, *, bound=np.inf):
+        """Normalised squared error of the one-step (teacher-forced) valve predictions
+        (:func:`_teacher_forced_sse_batch`) for every row of P."""
+        c = _teacher_forced_sse_batch(
+            self.op,
+            self.mv,
+            self.w,
+            self.moved,
+            self.level,
+            np.ascontiguousarray(P, dtype=float),
+            np.ascontiguousarray(h, dtype=float),
+            self.kano,
+            float(bound) * self.var,
+        )
+        return c / self.var
+
+    def synced_costs(self, P, h=_CONSTANT, *, bound=np.inf):
+        """Normalised squared error of the replay put back in step at every stop of the
+        recorded valve (:func:`_synced_sse_batch`) for every row of P."""
+        c = _synced_sse_batch(
+            self.op,
+            self.mv,
+            self.w,
+            self.stop,
+            self.stop_x,
+            self.stop_dir,
+            self.stop_y,
+            np.ascontiguousarray(P, dtype=float),
+            np.ascontiguousarray(h, dtype=float),
+            self.kano,
             float(bound) * self.var,
         )
         return c / self.var
@@ -1432,6 +1673,7 @@ def fit_process(
     *,
     extra: np.ndarray | None = None,
     model: ProcessModel | None = None,
+    retune: bool = False,
 ) -> ProcessFit:
     """One-step-ahead process replay with the unmeasured load tracked (Section 4.2.2, Eq. 3).
 
@@ -1460,6 +1702,9 @@ def fit_process(
         process.
     model : ProcessModel, optional
         Keep this structure and fit only the linear coefficients.
+    retune : bool
+        With ``model``: search the load-to-noise ratio again (an effect in the model
+        leaves less for the load tracking to follow).
     """
     pv, dt = ctx.sig.pv, ctx.sig.dt
     n = u.size
@@ -1564,6 +1809,15 @@ def fit_process(
         if solve(cand)[0] < solve(m)[0]:
             m = cand
         model = m
+    elif retune:
+        m0 = model
+        lo, hi = math.log10(m0.load_ratio) - 2.0, math.log10(m0.load_ratio) + 1.0
+        ll = _golden(
+            lambda v: solve(ProcessModel(m0.pole, m0.delay, 10.0**v, m0.horizon))[0], lo, hi, 12
+        )
+        cand = ProcessModel(m0.pole, m0.delay, 10.0**ll, m0.horizon)
+        if solve(cand)[0] < solve(m0)[0]:
+            model = cand
     _, coef, r = solve(model)
     params = _process_params(model, coef, dt)
     return ProcessFit(pv=pv - r, model=model, coef=coef, params=params)
@@ -1589,7 +1843,9 @@ def _process_params(model: ProcessModel, coef: np.ndarray, dt: float) -> dict:
     }
 
 
-def process_noise_floor(u: np.ndarray, ctx: ReplayContext, fit: ProcessFit) -> float:
+def process_noise_floor(
+    u: np.ndarray, ctx: ReplayContext, fit: ProcessFit, extra: np.ndarray | None = None
+) -> float:
     """Variance of the pv prediction error that a correct process replay still makes [pv^2].
 
     The measurement-noise variance is read from the one-step innovations of the fitted
@@ -1605,7 +1861,15 @@ def process_noise_floor(u: np.ndarray, ctx: ReplayContext, fit: ProcessFit) -> f
     one = ProcessModel(m.pole, m.delay, m.load_ratio, 1)
     e0 = _prediction_errors(pv, zeros, m.pole, k1, k2, float(pv[0]), 1)
     X = _process_regressors(np.ascontiguousarray(u, dtype=float), one, k1, k2)
-    e1 = e0 + X @ fit.coef[:2]
+    if extra is not None and fit.coef.size > 2:
+        E = np.column_stack(
+            [
+                -_prediction_errors(np.ascontiguousarray(c), zeros, m.pole, k1, k2, 0.0, 1)
+                for c in np.atleast_2d(extra.T)
+            ]
+        )
+        X = np.column_stack([X, E])
+    e1 = e0 + X @ fit.coef[: X.shape[1]]
     w = ctx.w_eval
     s1 = float(np.dot(w, e1 * e1)) / max(float(w.sum()), 1.0)
     r1, rm = prediction_variance_ratio(m.pole, m.load_ratio, m.horizon)
@@ -2165,9 +2429,14 @@ def fit_valve_characteristic(
                 cc = cost_pv(c)
             else:
                 c, cc = _search_curvature(cost_pv, family)
-            f = fit_process(characteristic_curve(u, c, family), ctx, w, model=model)
+            ue = characteristic_curve(u, c, family)
+            if init is None:
+                f = fit_process(ue, ctx, w, model=model, retune=True)
+            else:
+                f = fit_process(ue, ctx, w, model=init.process.model if init.process else model)
+            cc = float(np.dot(w, (f.pv - pv) ** 2)) / var_pv
             results.append(
-                (cc, form, 1, {"curvature": c, "family": family, "side": side}, {"pv": f.pv})
+                (cc, form, 1, {"curvature": c, "family": family, "side": side}, {"pv": f.pv}, f, ue)
             )
         else:
 
@@ -2189,9 +2458,11 @@ def fit_valve_characteristic(
                     3,
                     {"curvature": c, "family": family, "side": side},
                     {"mv": b + k * g},
+                    None,
+                    None,
                 )
             )
-    _, variant, n_params, params, preds = min(results, key=lambda r: r[0])
+    _, variant, n_params, params, preds, proc, ue = min(results, key=lambda r: r[0])
     return EffectFit(
         effect="valve_characteristic",
         variant=variant,
@@ -2199,6 +2470,8 @@ def fit_valve_characteristic(
         params=params,
         predictions=preds,
         x=(params["curvature"],),
+        process=proc,
+        pv_floor=None if proc is None or init is not None else process_noise_floor(ue, ctx, proc),
     )
 
 
@@ -2294,14 +2567,14 @@ def fit_external_disturbance(
     var_pv = ctx.norm["pv"]
     model = base.process.model
 
-    def cost(om, harmonics, model=model):
-        f = fit_process(u, ctx, w, extra=_sinusoids(n, om, harmonics), model=model)
+    def cost(om, harmonics, model=model, retune=False):
+        f = fit_process(u, ctx, w, extra=_sinusoids(n, om, harmonics), model=model, retune=retune)
         return float(np.dot(w, (f.pv - pv) ** 2)) / var_pv, f
 
     if init is not None:
         om = 2.0 * math.pi * sig.dt / init.params["period_s"]
         harmonics = 1 if init.variant == "fundamental" else 2
-        c, f = cost(om, harmonics)
+        c, f = cost(om, harmonics, model=init.process.model if init.process else model)
     else:
         r = (pv - base.process.pv) * w
         nfft = 1 << int(math.ceil(math.log2(4 * n)))
@@ -2325,10 +2598,14 @@ def fit_external_disturbance(
                 if best is None or c < best[0]:
                     best = (c, om, harmonics, f)
         c, om, harmonics, f = best
-        # The process dynamics refitted with the disturbance in the model.
+        # The process dynamics refitted with the disturbance in the model, and the
+        # load tracking retuned: the disturbance is no longer load to follow.
         c2, f2 = cost(om, harmonics, model=None)
         if c2 < c:
-            f = f2
+            c, f = c2, f2
+        c3, f3 = cost(om, harmonics, model=f.model, retune=True)
+        if c3 < c:
+            f = f3
     amp = f.coef[-2 * harmonics :]
     amplitudes = [float(math.hypot(amp[2 * h], amp[2 * h + 1])) for h in range(harmonics)]
     return EffectFit(
@@ -2342,6 +2619,10 @@ def fit_external_disturbance(
         },
         predictions={"pv": f.pv},
         x=(float(om),),
+        process=f,
+        pv_floor=None
+        if init is not None
+        else process_noise_floor(u, ctx, f, _sinusoids(n, om, harmonics)),
     )
 
 

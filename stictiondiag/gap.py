@@ -425,50 +425,34 @@ def diagnose_gap(
 
     # Whole-record fits.
     base = fx.fit_base(ctx, ctx.w_eval)
-    # Noise floors: white noise of mv; measurement noise and unforeseeable load of
-    # the pv prediction; none for op, which the controller replays exactly.
-    floors = {
-        "op": 0.0,
-        "pv": fx.process_noise_floor(fx._process_input(ctx, base), ctx, base.process),
-    }
-    if sig.mv is not None:
-        floors["mv"] = noise_variance(sig.mv)
-    meas = _Measure(norm=ctx.norm, floor=floors, w=ctx.w_eval)
     fits = {}
     for name in assessable:
         ef = fx.EFFECT_MODELS[name](ctx, ctx.w_eval, base)
         if ef is not None:
             fits[name] = ef
+    norm_only = _Measure(norm=ctx.norm, floor=dict.fromkeys(ctx.norm, 0.0), w=ctx.w_eval)
 
     # Held-out errors: fit on even blocks, judge on odd ones, and the other way round.
     blocks = _blocks(n, n_blocks)
-    held: dict = {name: None for name in ["none", *fits]}
+    held: dict = dict.fromkeys(["none", *fits])
     for parity in (0, 1):
         train = (blocks % 2 == parity).astype(float)
         test = 1.0 - train
         w_train = ctx.w_eval * train
         base_f = fx.fit_base(ctx, w_train, like=base)
-        held["none"] = _add(
-            held["none"], _block_errors(base_f.predictions(), sig, meas, blocks, test, n_blocks)
-        )
+        errs = _block_errors(base_f.predictions(), sig, norm_only, blocks, test, n_blocks)
+        held["none"] = _add(held["none"], errs)
         for name, ef_full in fits.items():
             ef = fx.EFFECT_MODELS[name](ctx, w_train, base_f, init=ef_full)
             if ef is None:
                 ef = ef_full
-            errs = _block_errors(_predictions(base_f, ef), sig, meas, blocks, test, n_blocks)
+            errs = _block_errors(_predictions(base_f, ef), sig, norm_only, blocks, test, n_blocks)
             held[name] = _add(held[name], errs)
 
-    # Scores in gap units: held-out error per judged sample of each signal, less its
-    # noise floor.
-    n_judged = max(float(ctx.w_eval.sum()), 1.0)
-
-    def as_gap(per_signal: dict, extra: float = 0.0) -> float:
-        tot = sum(meas.excess(s, float(v.sum()) / n_judged) for s, v in per_signal.items())
-        return 100.0 * math.sqrt(max(tot + extra / n_judged, 0.0))
-
+    # Penalised scores (normalised held-out squared error summed over signals).
     totals = {name: sum(v for v in h.values()) for name, h in held.items()}
     base_total = float(totals["none"].sum())
-    scores = {"none": (base_total, as_gap(held["none"]), True)}
+    scores = {"none": (base_total, True, 0.0)}
     for name, ef in fits.items():
         d = totals["none"] - totals[name]
         # The improvement without its best and its worst block (scaled back to the
@@ -492,7 +476,32 @@ def diagnose_gap(
                 round(penalty, 1),
             )
         score = base_total - trimmed + penalty if consistent else base_total + penalty
-        scores[name] = (score, as_gap(held[name]), accepted, score - float(totals[name].sum()))
+        scores[name] = (score, accepted, score - float(totals[name].sum()))
+    order = sorted(["none", *fits], key=lambda e: scores[e][0])
+    winner = order[0]
+    runner = order[1] if len(order) > 1 else None
+    margin = 0.0
+    if runner is not None:
+        margin = 100.0 * (scores[runner][0] - scores[winner][0]) / max(scores[runner][0], 1e-300)
+    win_fit = None if winner == "none" else fits[winner]
+
+    # Noise floors: white noise of mv; measurement noise and unforeseeable load of
+    # the pv prediction (from the winner's process replay when the effect is on the
+    # process side: an unmodelled disturbance would otherwise pass for load); none
+    # for op, which the controller replays exactly.
+    if win_fit is not None and win_fit.pv_floor is not None:
+        pv_floor = win_fit.pv_floor
+    else:
+        pv_floor = fx.process_noise_floor(fx._process_input(ctx, base), ctx, base.process)
+    floors = {"op": 0.0, "pv": pv_floor}
+    if sig.mv is not None:
+        floors["mv"] = noise_variance(sig.mv)
+    meas = _Measure(norm=ctx.norm, floor=floors, w=ctx.w_eval)
+    n_judged = max(float(ctx.w_eval.sum()), 1.0)
+
+    def as_gap(per_signal: dict, extra: float = 0.0) -> float:
+        tot = sum(meas.excess(s, float(v.sum()) / n_judged) for s, v in per_signal.items())
+        return 100.0 * math.sqrt(max(tot + extra / n_judged, 0.0))
 
     # In-sample gaps before and after.
     per_base = {s: meas.nmse(s, p, getattr(sig, s)) for s, p in base.predictions().items()}
@@ -502,36 +511,28 @@ def diagnose_gap(
         per = dict(per_base)
         for s, p in ef.predictions.items():
             per[s] = meas.nmse(s, p, getattr(sig, s))
-        after = meas.gap(per)
-        shrink = 100.0 * (before - after) / before if before > 0 else 0.0
-        _, heldout, accepted, penalty = scores[name]
+        after_c = meas.gap(per)
+        shrink_c = 100.0 * (before - after_c) / before if before > 0 else 0.0
+        _, accepted, penalty = scores[name]
         cands.append(
             Candidate(
                 effect=name,
                 variant=ef.variant,
-                after=after,
-                shrink_pct=shrink,
-                params=_plain({k: v for k, v in ef.params.items()}),
+                after=after_c,
+                shrink_pct=shrink_c,
+                params=_plain(dict(ef.params)),
                 n_params=ef.n_params,
-                heldout=heldout,
+                heldout=as_gap(held[name]),
                 penalised_score=as_gap(held[name], penalty),
                 accepted=accepted,
             )
         )
-    order = sorted(["none", *fits], key=lambda e: scores[e][0])
-    winner = order[0]
-    runner = order[1] if len(order) > 1 else None
-    margin = 0.0
-    if runner is not None:
-        margin = 100.0 * (scores[runner][0] - scores[winner][0]) / max(scores[runner][0], 1e-300)
     cands.sort(key=lambda c: scores[c.effect][0])
     if winner == "none":
         after, shrink = before, 0.0
-        win_fit = None
     else:
         win = next(c for c in cands if c.effect == winner)
         after, shrink = win.after, win.shrink_pct
-        win_fit = fits[winner]
 
     preds_before = base.predictions()
     preds_after = _predictions(base, win_fit)
@@ -567,7 +568,7 @@ def diagnose_gap(
         candidates=tuple(cands),
         breakdown=_plain(breakdown),
         not_assessed=tuple(not_assessed),
-        heldout_before=scores["none"][1],
+        heldout_before=as_gap(held["none"]),
         base=_plain(base_info),
         series=series,
     )
