@@ -1,0 +1,211 @@
+"""Tests of the effect catalogue and the driven replays (stictiondiag.effects)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stictiondiag import effects as fx
+from stictiondiag.valve import choudhury_model, kano_model
+
+
+def _noisy_ramp_op(n=3000, seed=0):
+    """A triangular demand with noise: the kind of op a sticky loop produces."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)
+    tri = 50.0 + 6.0 * (2.0 * np.abs((t / 150.0) % 2.0 - 1.0) - 1.0)
+    return tri + 0.05 * rng.standard_normal(n)
+
+
+@pytest.mark.parametrize("S, J", [(5.0, 0.0), (5.0, 2.0), (5.0, 5.0), (5.0, 7.0)])
+def test_valve_replay_reproduces_the_paper_models(S, J):
+    # Same state machine with equal up/down values: the outputs must agree to the
+    # last bit (tolerance only for floating-point summation order, none here).
+    op = _noisy_ramp_op()
+    for kano, ref in ((False, choudhury_model), (True, kano_model)):
+        mv, _ = fx.valve_replay(op, S, J, kano=kano)
+        np.testing.assert_allclose(mv, ref(op, S, J), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "S, J, hi, lo", [(5, 0, 57.5, 42.5), (5, 2, 58.5, 41.5), (5, 7, 61.0, 39.0)]
+)
+def test_fig11_extremes(S, J, hi, lo):
+    # REFERENCE.md, Fig. 11: op = 50 + 10 sin(2 pi t / 50) at 0.1 s.  The moving
+    # phase is exactly op - sign(slope)(S - J)/2 (Eq. 4), so the extremes match to
+    # the sampling of the sine (0.01 % of span).
+    t = np.arange(0, 200, 0.1)
+    op = 50 + 10 * np.sin(2 * np.pi * t / 50)
+    mv, phase = fx.valve_replay(op, S, J)
+    assert mv.max() == pytest.approx(hi, abs=0.01)
+    assert mv.min() == pytest.approx(lo, abs=0.01)
+    assert set(np.unique(phase)) <= {
+        fx.PHASE_MOVING,
+        fx.PHASE_STUCK,
+        fx.PHASE_SLIP,
+        fx.PHASE_REVERSAL,
+    }
+
+
+def test_asymmetric_thresholds_act_by_direction():
+    # A slow ramp up, then down: the valve must break away after S_open of rise and
+    # after S_close of fall (whole samples of 0.01 % each, so exact to one sample).
+    up = np.linspace(50, 60, 1001)
+    down = np.linspace(60, 40, 2001)[1:]
+    op = np.concatenate([up, down])
+    mv, phase = fx.valve_replay(op, 2.0, 1.0, S_down=6.0, J_down=1.0)
+    slips = np.where(phase == fx.PHASE_SLIP)[0]
+    assert slips.size == 2
+    assert op[slips[0]] - op[0] == pytest.approx(2.0, abs=0.011)
+    assert 60.0 - op[slips[1]] == pytest.approx(6.0, abs=0.011)
+
+
+def test_time_varying_arrays_equal_scalars_when_constant():
+    op = _noisy_ramp_op(seed=1)
+    n = op.size
+    a, _ = fx.valve_replay(op, 3.0, 1.5)
+    b, _ = fx.valve_replay(op, np.full(n, 3.0), np.full(n, 1.5))
+    np.testing.assert_array_equal(a, b)
+
+
+def test_lag_is_exact_first_order():
+    # Zero-order-hold discretisation: after one time constant the step response is
+    # 1 - 1/e exactly (floating point only).
+    x = np.ones(101)
+    x[0] = 0.0
+    y = fx.first_order_lag(x, 10.0, 1.0)
+    assert y[10] == pytest.approx(1.0 - math.exp(-1.0), rel=1e-12)
+
+
+def test_detect_quantization():
+    rng = np.random.default_rng(2)
+    x = 50 + np.cumsum(rng.standard_normal(5000)) * 0.1
+    assert fx.detect_quantization(x) is None
+    # The decimals of a CSV file (6 significant digits) are not a resolution effect.
+    assert fx.detect_quantization(np.round(x, 4)) is None
+    step, offset = fx.detect_quantization(np.round(x / 0.5) * 0.5)
+    assert step == pytest.approx(0.5, rel=1e-9)
+    assert abs(offset) < 1e-9
+
+
+def test_expected_quantized_limits():
+    x = np.linspace(0, 5, 501)
+    # No noise: plain rounding; a lot of noise: the rounding averages out (within
+    # 1 % of the step for a noise of two steps, as the Gaussian smooths the staircase).
+    np.testing.assert_allclose(fx.expected_quantized(x, 1.0, 0.0, 0.0), np.round(x))
+    np.testing.assert_allclose(
+        fx.expected_quantized(x[100:400], 1.0, 0.0, 2.0), x[100:400], atol=0.01
+    )
+
+
+def test_characteristic_curves():
+    x = np.array([0.0, 25.0, 50.0, 100.0])
+    for family in ("exponential", "power"):
+        np.testing.assert_allclose(fx.characteristic_curve(x, 0.0, family), x, atol=1e-12)
+        y = fx.characteristic_curve(x, 1.0, family)
+        assert y[0] == pytest.approx(0.0, abs=1e-12) and y[-1] == pytest.approx(100.0)
+        assert y[1] < x[1]  # positive curvature: equal-percentage-like, below the diagonal
+    # ln(R) curvature: the equal-percentage flow ratio over the travel is R (to the
+    # normalisation 1/(R-1), exact).
+    R = 50.0
+    y = fx.characteristic_curve(np.array([50.0, 100.0]), math.log(R), "exponential")
+    assert (y[1] + 100 / (R - 1)) / (y[0] + 100 / (R - 1)) == pytest.approx(math.sqrt(R))
+
+
+def test_prediction_variance_grows_with_horizon():
+    s1, m1 = fx.prediction_variance_ratio(0.9, 0.01, 1)
+    assert m1 == pytest.approx(s1, rel=1e-12)
+    _, m5 = fx.prediction_variance_ratio(0.9, 0.01, 5)
+    _, m20 = fx.prediction_variance_ratio(0.9, 0.01, 20)
+    assert s1 < m5 < m20
+
+
+def test_slow_load_removes_piecewise_linear_drift():
+    n = 2000
+    load = fx.SlowLoad(n, 125)
+    knots = np.linspace(0, n - 1, load.m)
+    drift = np.interp(np.arange(n), knots, np.sin(knots / 300.0) * 5.0)
+    r = load.residualize(drift, np.ones(n))
+    # A curve on the knots is in the basis: removed up to the tiny ridge (1e-6).
+    assert np.max(np.abs(r)) < 1e-4
+
+
+def _foptd_data(n=4000, K=2.0, tau=12.0, delay=5, noise=0.05, seed=3):
+    """Open-loop FOPTD response to a random sequence of valve steps, with noise."""
+    rng = np.random.default_rng(seed)
+    steps = np.repeat(rng.uniform(40, 60, n // 80 + 1), 80)[:n]
+    a = math.exp(-1.0 / tau)
+    y = np.zeros(n)
+    for k in range(1, n):
+        u = steps[k - 1 - delay] if k - 1 - delay >= 0 else steps[0]
+        y[k] = a * y[k - 1] + K * (1 - a) * (u - 50.0)
+    return steps, 20.0 + y + noise * rng.standard_normal(n)
+
+
+def test_fit_process_recovers_foptd():
+    u, pv = _foptd_data()
+    sig = fx.LoopSignals(op=u, pv=pv, dt=1.0, mv=u)
+    ctx = fx.build_context(sig)
+    fit = fx.fit_process(u, ctx, ctx.w_eval)
+    # Gain and time constant within 10 %: the fit tracks a random-walk load too, and
+    # the grid of poles is refined by a short golden search; dead time within one
+    # sample (a fractional dead time shares the two input taps).
+    assert fit.params["gain"] == pytest.approx(2.0, rel=0.1)
+    assert fit.params["time_constant_s"] == pytest.approx(12.0, rel=0.1)
+    assert abs(fit.params["dead_time_s"] - 5.0) <= 1.0
+
+
+def test_fit_controller_recovers_pi():
+    rng = np.random.default_rng(4)
+    n = 2000
+    pv = np.cumsum(rng.standard_normal(n)) * 0.1
+    sp = np.zeros(n)
+    e = sp - pv
+    Kc, Ti = 0.8, 25.0
+    op = 50 + Kc * (e + np.cumsum(e) / Ti)
+    sig = fx.LoopSignals(op=op, pv=pv, dt=1.0, sp=sp)
+    pred, params = fx.fit_controller(sig, np.ones(n))
+    # Noise-free PI data in the fitted form: exact to rounding.
+    assert params["gain"] == pytest.approx(Kc, rel=1e-6)
+    assert params["integral_time_s"] == pytest.approx(Ti, rel=1e-6)
+    np.testing.assert_allclose(pred, np.clip(op, 0, 100), atol=1e-6)
+
+
+def test_needle_search_finds_a_narrow_minimum():
+    # A cost that is flat except within 0.5 % of the minimum, like a stiction replay
+    # that is only in step with the data near the true J.
+    target = np.array([3.0, 1.7])
+
+    def cost(X, bound):
+        d = np.abs(X - target) / target
+        return np.where(
+            np.all(d < 0.005, axis=1), np.sum(d, axis=1), 1.0 + 0.01 * np.sum(d, axis=1)
+        )
+
+    x, c = fx.needle_search(
+        cost, np.array([3.3, 1.5]), (0, 1), np.zeros(2), np.full(2, 10.0), rel=0.15
+    )
+    np.testing.assert_allclose(x, target, rtol=0.005)
+    assert c < 0.01
+
+
+def test_fit_valve_recovers_S_and_J():
+    op = _noisy_ramp_op(n=3000, seed=5)
+    mv, _ = fx.valve_replay(op, 3.0, 2.0, kano=True, initial_direction=1.0)
+    rng = np.random.default_rng(6)
+    mv = mv + 0.02 * rng.standard_normal(mv.size)
+    sig = fx.LoopSignals(op=op, pv=mv.copy(), dt=1.0, mv=mv)
+    ctx = fx.build_context(sig)
+    fit = fx.fit_valve(ctx, ctx.w_eval)
+    # The replay is in step with the data only near the true values: S and J within
+    # 2 % (the noisy demand moves by about 0.05 % of span per sample).
+    assert fit.params["S"] == pytest.approx(3.0, rel=0.02)
+    assert fit.params["J"] == pytest.approx(2.0, rel=0.02)
+
+
+def test_assessable_effects_without_mv():
+    ok, missing = fx.assessable_effects(False)
+    assert "actuator_lag" in missing and "external_disturbance" in ok
+    assert set(ok) | set(missing) == set(fx.EFFECTS) - {"none"}

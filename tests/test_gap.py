@@ -1,0 +1,167 @@
+"""Tests of the sim-to-real gap diagnosis (stictiondiag.gap) and its scorer."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import matplotlib
+import numpy as np
+import pytest
+
+from stictiondiag.benchmark import BenchmarkResult, CaseResult
+from stictiondiag.errors import DataError
+from stictiondiag.gap import GapDiagnosis, diagnose_gap, noise_variance
+from stictiondiag.synthetic import generate_case
+from stictiondiag.tags import Tags
+
+matplotlib.use("Agg")
+
+N = 2000  # short records keep the file fast; the effects are strong enough to show
+
+
+def _tags(case, with_mv=True, pv_scale=1.0):
+    d = case.data
+    return Tags.from_arrays(
+        d.pv.values * pv_scale,
+        d.op.values,
+        mv=d.mv.values if with_mv else None,
+        sp=d.sp.values * pv_scale,
+        ts=case.truth["ts"],
+    )
+
+
+@pytest.fixture(scope="module")
+def miscal():
+    case = generate_case("miscalibration", 3, n_samples=N)
+    return case, diagnose_gap(_tags(case))
+
+
+def test_names_a_withheld_miscalibration(miscal):
+    case, g = miscal
+    assert g.effect == "miscalibration"
+    # The slope is fitted from mv against op: within 10 % of the hidden calibration
+    # gain (noise on mv and a Karnopp valve under the data-driven model).
+    params = next(c.params for c in g.candidates if c.effect == "miscalibration")
+    assert params["slope"] == pytest.approx(
+        case.truth["effect_parameters"]["calibration_gain"], rel=0.1
+    )
+    # Adding the effect must remove most of the gap, and it must win on held-out data.
+    assert g.shrink_pct > 50.0
+    assert g.after < g.before
+    assert g.candidates[0].effect == "miscalibration" and g.candidates[0].accepted
+
+
+def test_gap_json_keys(miscal):
+    _, g = miscal
+    d = json.loads(json.dumps(g.to_dict()))
+    for key in (
+        "metric",
+        "before",
+        "after",
+        "shrink_pct",
+        "effect",
+        "runner_up",
+        "margin",
+        "candidates",
+        "breakdown",
+    ):
+        assert key in d
+    for c in d["candidates"]:
+        for key in ("effect", "after", "shrink_pct", "params", "penalised_score"):
+            assert key in c
+    assert set(d["breakdown"]) >= {"signal", "phase", "frequency", "time", "feature"}
+    assert set(d["breakdown"]["phase"]) == {"stuck", "slip", "moving", "reversal"}
+    # The shares of the mv error over the valve phases add up to the whole (to rounding).
+    total = sum(v["mv_share_pct_before"] for v in d["breakdown"]["phase"].values())
+    assert total == pytest.approx(100.0, abs=1e-6)
+
+
+def test_gap_plots(miscal):
+    _, g = miscal
+    figs = g.figures()
+    assert set(figs) == {"gap_breakdown", "gap_replay"}
+    for fig in figs.values():
+        assert fig.axes
+    assert len(g.to_pandas()) == N
+
+
+def test_none_when_the_model_explains_the_data():
+    case = generate_case("none", 3, n_samples=N)
+    g = diagnose_gap(_tags(case), effects=("actuator_lag", "miscalibration", "asymmetry"))
+    assert g.effect == "none"
+    assert g.after == g.before and g.shrink_pct == 0.0
+
+
+def test_pv_scale_does_not_change_the_diagnosis():
+    # The gap is normalised per signal: pv in other units (x 7.5) must give the same
+    # gap (to the conditioning of the least-squares fits, 1e-6 relative) and effect.
+    case = generate_case("external_disturbance", 4, n_samples=N)
+    effects = ("external_disturbance", "valve_characteristic")
+    g1 = diagnose_gap(_tags(case), effects=effects)
+    g2 = diagnose_gap(_tags(case, pv_scale=7.5), effects=effects)
+    assert g1.effect == g2.effect == "external_disturbance"
+    assert g2.before == pytest.approx(g1.before, rel=1e-6)
+
+
+def test_without_mv_valve_effects_are_not_assessed():
+    case = generate_case("external_disturbance", 4, n_samples=N)
+    g = diagnose_gap(_tags(case, with_mv=False), effects=("external_disturbance", "actuator_lag"))
+    assert "actuator_lag" in g.not_assessed
+    assert {c.effect for c in g.candidates} <= {
+        "external_disturbance",
+        "valve_characteristic",
+        "quantization",
+    }
+    assert "mv" not in g.breakdown["signal"]
+
+
+def test_bad_input_raises_data_error():
+    case = generate_case("none", 3, n_samples=N)
+    d = case.data
+    short = Tags.from_arrays(d.pv.values[:100], d.op.values[:100], ts=1.0)
+    with pytest.raises(DataError, match="too few"):
+        diagnose_gap(short)
+
+    class Flat:
+        op = np.full(N, 50.0)
+        pv = d.pv.values
+        mv = None
+        sp = None
+        ts = 1.0
+
+    with pytest.raises(DataError, match="constant"):
+        diagnose_gap(Flat())
+
+
+def test_noise_variance_of_white_noise():
+    rng = np.random.default_rng(0)
+    x = 3.0 * rng.standard_normal(20000) + np.repeat(rng.uniform(0, 50, 20), 1000)
+    # Robust estimate from differences: within 5 % for 20 000 samples with 19 steps.
+    assert math.sqrt(noise_variance(x)) == pytest.approx(3.0, rel=0.05)
+
+
+def test_benchmark_scores():
+    cases = [
+        CaseResult("a", "none", "none", None, 1.0, 1.0, 0.0, 1.0),
+        CaseResult("b", "none", "asymmetry", None, 1.0, 0.5, 50.0, 1.0),
+        CaseResult("c", "actuator_lag", "actuator_lag", None, 10.0, 2.0, 80.0, 1.0),
+        CaseResult("d", "quantization", "quantization", None, 10.0, 6.0, 40.0, 1.0),
+        CaseResult("e", "miscalibration", None, None, None, None, None, 1.0, "failed"),
+    ]
+    r = BenchmarkResult(seed=1, cases=tuple(cases))
+    assert r.accuracy == pytest.approx(3 / 5)
+    assert r.none_specificity == pytest.approx(0.5)
+    assert r.median_shrink == pytest.approx(60.0)
+    assert r.failures == 1
+    m = np.array(r.confusion)
+    assert m.sum() == 4 and m[0, 0] == 1 and m[0, 3] == 1
+    assert "| 5 | 1 | 0.600 |" in r.table()
+    assert r.to_csv().count("\n") == 6
+
+
+def test_diagnosis_is_a_frozen_dataclass(miscal):
+    _, g = miscal
+    assert isinstance(g, GapDiagnosis)
+    with pytest.raises(AttributeError):
+        g.effect = "none"  # type: ignore[misc]
