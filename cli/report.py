@@ -41,6 +41,10 @@ def report(
         str | None, typer.Option(help="Also write the Markdown summary to PATH ('-' = stdout).")
     ] = None,
     gap: Annotated[bool, typer.Option(help="Include the sim-to-real gap diagnosis.")] = True,
+    workers: Annotated[
+        int | None,
+        typer.Option(min=1, help="Loops analysed side by side (default: one per core)."),
+    ] = None,
     pv: Annotated[str | None, typer.Option(help="Column holding pv (every file).")] = None,
     op: Annotated[str | None, typer.Option(help="Column holding op (every file).")] = None,
     mv: Annotated[str | None, typer.Option(help="Column holding mv (every file).")] = None,
@@ -78,16 +82,17 @@ def report(
     with friendly_errors():
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
 
-        def progress(i: int, n: int, name: str) -> None:
-            if name:
-                info(f"[{i + 1}/{n}] {name}")
+        def progress(done: int, n: int, name: str) -> None:
+            info(f"[{done}/{n}] {name}")
 
+        info(f"reporting {len(files)} file(s) into {out}")
         result = build_report(
             [str(f) for f in files],
             out,
             read_options=options,
             gap=gap,
             clean=clean,
+            workers=workers,
             progress=progress,
         )
         md = render_markdown(result.rows)

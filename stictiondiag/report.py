@@ -662,6 +662,56 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
+def analyse_for_report(path: str, read_options: dict, gap: bool) -> dict:
+    """Analyse one loop file and render its page; never raises for a bad loop.
+
+    Module-level so that it runs in worker processes. Returns ``{"file", "loop",
+    "base", "page", "json", "row"}`` on success, ``{"file", "loop", "error"}`` when the
+    loop could not be analysed (one line: the data error, or the internal error and
+    where it arose).
+    """
+    from .analysis import AnalysisConfig, analyze_file
+
+    name = Path(path).stem
+    try:
+        result = analyze_file(path, config=AnalysisConfig(gap=gap), **read_options)
+        d = result.to_dict()
+        from .plotting import figure_png
+
+        images = {k: figure_png(fig) for k, fig in result.figures().items()}
+        base = safe_name(result.loop)
+        row = result.summary_row()
+        row["page"] = f"{base}.html"
+        return {
+            "file": str(path),
+            "loop": str(result.loop),
+            "base": base,
+            "page": render_loop_html(d, images, json_name=f"{base}.json"),
+            "json": json.dumps(d, indent=2) + "\n",
+            "row": row,
+        }
+    except StictionError as exc:
+        message = _first_line(exc)
+    except Exception as exc:  # one broken loop must not stop the report of the others
+        last = traceback.extract_tb(exc.__traceback__)[-1:]
+        where = f" at {last[0].name}" if last else ""
+        message = f"internal error{where}: {type(exc).__name__}: {_first_line(exc)}"
+    return {"file": str(path), "loop": name, "error": message}
+
+
+def _worker_died(path, exc: BaseException) -> dict:
+    return {
+        "file": str(path),
+        "loop": Path(path).stem,
+        "error": f"internal error: the analysis process failed ({type(exc).__name__})",
+    }
+
+
+def default_workers(n_files: int) -> int:
+    """Worker processes for ``n_files`` loops: one per core, one for a single loop."""
+    return max(1, min(n_files, os.cpu_count() or 1))
+
+
 def build_report(
     files: Sequence[str | os.PathLike],
     out: str | os.PathLike,
@@ -669,6 +719,7 @@ def build_report(
     read_options: dict | None = None,
     gap: bool = True,
     clean: bool = False,
+    workers: int | None = None,
     progress: Callable[[int, int, str], None] | None = None,
 ) -> ReportResult:
     """Analyse ``files`` and write (or update) the report folder ``out``.
@@ -686,8 +737,12 @@ def build_report(
         Run the sim-to-real gap diagnosis (the slowest step).
     clean : bool
         Empty ``out`` first (only a report folder or an empty folder).
+    workers : int, optional
+        Processes analysing loops side by side (default :func:`default_workers`);
+        1 analyses them one after the other in this process.
     progress : callable, optional
-        ``progress(i, n, loop)`` before each file and ``progress(n, n, "")`` at the end.
+        ``progress(done, n, loop)`` after each loop is finished (in completion order
+        when ``workers`` > 1).
 
     Returns
     -------
@@ -696,52 +751,49 @@ def build_report(
     Raises
     ------
     UsageError
-        ``out`` is a file, cannot be created, is not a report folder to clean, or two
-        inputs would share one page.
+        ``out`` is a file, cannot be created, is not a report folder to clean, two
+        inputs would share one page, or ``workers`` < 1.
     DataError
         No input could be analysed (the index is written all the same).
     """
-    from .analysis import AnalysisConfig, analyze_file
     from .atomic import write_atomic
+    from .scan import run_local
 
     out = Path(out)
+    files = [str(f) for f in files]
+    workers = default_workers(len(files)) if workers is None else int(workers)
+    if workers < 1:
+        raise UsageError(f"workers must be at least 1, got {workers}")
     _check_names(files)
     _prepare_folder(out, clean)
     rows = _read_rows(out)
     failed: list[tuple[str, str]] = []
-    config = AnalysisConfig(gap=gap)
-    for i, f in enumerate(files):
-        name = Path(f).stem
-        if progress:
-            progress(i, len(files), name)
-        try:
-            result = analyze_file(f, config=config, **(read_options or {}))
-            d = result.to_dict()
-            from .plotting import figure_png
-
-            images = {k: figure_png(fig) for k, fig in result.figures().items()}
-            base = safe_name(result.loop)
-            page = render_loop_html(d, images, json_name=f"{base}.json")
-            data = json.dumps(d, indent=2) + "\n"
-        except StictionError as exc:
-            message = _first_line(exc)
-        except Exception as exc:  # one broken loop must not stop the report of the others
-            last = traceback.extract_tb(exc.__traceback__)[-1:]
-            where = f" at {last[0].name}" if last else ""
-            message = f"internal error{where}: {type(exc).__name__}: {_first_line(exc)}"
+    outcomes = run_local(
+        files,
+        analyse_for_report,
+        (dict(read_options or {}), bool(gap)),
+        min(workers, max(1, len(files))),
+        on_error=_worker_died,
+    )
+    for done, res in enumerate(outcomes, start=1):
+        if "error" in res:
+            failed.append((res["file"], res["error"]))
+            rows[res["loop"]] = {
+                "loop": res["loop"],
+                "source": res["file"],
+                "verdict": "error",
+                "error": res["error"],
+            }
         else:
-            # Writing is outside the try: an output that cannot be written stops the
-            # report (a usage error) instead of being blamed on the loop.
-            write_atomic(out / f"{base}.json", data)
-            write_atomic(out / f"{base}.html", page)
-            row = result.summary_row()
-            row["page"] = f"{base}.html"
-            rows[str(result.loop)] = row
-            continue
-        failed.append((str(f), message))
-        rows[name] = {"loop": name, "source": str(f), "verdict": "error", "error": message}
-    if progress:
-        progress(len(files), len(files), "")
+            # Written here, not in the worker: an output that cannot be written stops
+            # the report (a usage error) instead of being blamed on the loop.
+            write_atomic(out / f"{res['base']}.json", res["json"])
+            write_atomic(out / f"{res['base']}.html", res["page"])
+            rows[res["loop"]] = res["row"]
+        if progress:
+            progress(done, len(files), res["loop"])
+    # Failures in file order, so the message of an all-failed run names the first file.
+    failed.sort(key=lambda fm: files.index(fm[0]))
     ordered = sorted(rows.values(), key=_sort_key)
     write_atomic(out / ROWS_FILE, json.dumps(ordered, indent=1, default=str) + "\n")
     write_atomic(out / "index.html", render_index_html(ordered))

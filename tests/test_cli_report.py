@@ -191,6 +191,7 @@ def test_healthy_loop_with_the_flag_exits_0(tmp_path):
         (["--fail-on-stiction", "-0.1"], "[0, 1]"),
         (["--no-such-option"], "No such option"),
         (["--op-units", "volts"], "volts"),
+        (["--workers", "0"], "--workers"),
     ],
 )
 def test_usage_errors_exit_2(tmp_path, args, message):
@@ -212,7 +213,8 @@ def test_out_is_a_file_exits_2(tmp_path):
     target.write_text("not a folder")
     result = report(HEALTHY, "--out", target, "--no-gap")
     assert result.exit_code == EXIT_USAGE, result.stderr
-    assert result.stderr.startswith("stiction: error:") and "is a file" in result.stderr
+    errors = [ln for ln in result.stderr.splitlines() if ln.startswith("stiction: error:")]
+    assert len(errors) == 1 and "is a file" in errors[0]
     assert target.read_text() == "not a folder"
 
 
@@ -221,7 +223,8 @@ def test_out_is_a_file_exits_2(tmp_path):
 
 def test_unreadable_inputs_exit_3(tmp_path, corrupt_csv):
     out = tmp_path / "r"
-    result = report(tmp_path / "missing.csv", corrupt_csv, "--out", out)
+    # Two worker processes: the pool path reports failures like the in-process one.
+    result = report(tmp_path / "missing.csv", corrupt_csv, "--out", out, "--workers", "2")
     assert result.exit_code == EXIT_DATA, result.stderr
     assert result.stdout == ""
     # One line saying what is wrong, no traceback (checked in report()).
@@ -237,7 +240,9 @@ def test_unreadable_inputs_exit_3(tmp_path, corrupt_csv):
 
 def test_one_good_one_corrupt_file_exits_4(tmp_path, corrupt_csv):
     out = tmp_path / "r"
-    result = report(HEALTHY, corrupt_csv, "--out", out, "--no-gap", "--fail-on-stiction")
+    result = report(
+        HEALTHY, corrupt_csv, "--out", out, "--no-gap", "--fail-on-stiction", "--workers", "1"
+    )
     assert result.exit_code == EXIT_PARTIAL, result.stderr
     assert "[1/2]" in result.stderr and "[2/2]" in result.stderr
     assert f"failed: {corrupt_csv}" in result.stderr
@@ -252,7 +257,7 @@ def test_one_good_one_corrupt_file_exits_4(tmp_path, corrupt_csv):
 
 def test_markdown_dash_is_the_only_stdout(tmp_path, sticky_confidence):
     out = tmp_path / "r"
-    result = report(STICKY, HEALTHY, "--out", out, "--no-gap", "--markdown", "-")
+    result = report(STICKY, HEALTHY, "--out", out, "--no-gap", "--markdown", "-", "--workers", "1")
     assert result.exit_code == EXIT_OK, result.stderr
     assert result.stdout == (out / "summary.md").read_text()
     lines = result.stdout.splitlines()
