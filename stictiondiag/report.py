@@ -50,7 +50,7 @@ color:#222;padding:0 1em;line-height:1.4}
 h1{font-size:1.5em;margin:.2em 0} h2{font-size:1.15em;margin-top:1.6em;border-bottom:1px solid #ddd}
 a{color:#0b57a4} .muted{color:#666;font-size:.9em}
 table{border-collapse:collapse;font-size:13px;margin:.5em 0}
-th,td{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:top}
+th,td{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:middle}
 th{background:#f2f2f2} td.num{text-align:right;font-variant-numeric:tabular-nums}
 .verdict{display:inline-block;padding:.15em .6em;border-radius:4px;font-weight:600}
 .stiction{background:#fde2e1} .inconclusive{background:#fff5d6} .no_stiction{background:#e3f5e1}
@@ -102,6 +102,15 @@ _CAPTIONS = {
     "reconstruction": (
         "Closed-loop reconstruction: the fitted valve replayed with the identified "
         "controller and process (Sections 4.2.2 and 5.3), against the recorded data."
+    ),
+    "gap_breakdown": (
+        "Sim-to-real gap: where the replay departs from the data, by signal, valve "
+        "phase, frequency and time, and how each candidate effect changes the gap on "
+        "held-out data."
+    ),
+    "gap_replay": (
+        "Sim-to-real gap: the replay against the data before and after adding the most "
+        "likely effect."
     ),
 }
 
@@ -250,6 +259,29 @@ def _controller_text(c: dict | None) -> str:
     return text
 
 
+def _param_text(params) -> str:
+    """Readable ``name = value`` list of effect parameters (numbers to 3 digits)."""
+    if not isinstance(params, dict):
+        return _text(json.dumps(params, default=str)) if params is not None else ""
+    parts = []
+    for k, v in params.items():
+        if isinstance(v, bool) or v is None:
+            parts.append(f"{k} = {v}")
+        elif isinstance(v, int | float):
+            parts.append(f"{k} = {_num(v)}")
+        elif isinstance(v, str):
+            parts.append(f"{k} = {v}")
+        elif isinstance(v, list | tuple | dict):
+            parts.append(f"{k}: {len(v)} entries")
+        else:
+            parts.append(f"{k} = {v}")
+    return _text(", ".join(parts))
+
+
+def _period(v) -> str:
+    return "no cycle" if v is None else f"{_num(v)} s"
+
+
 def _json_details(summary: str, obj) -> str:
     if not obj:
         return ""
@@ -325,8 +357,8 @@ def render_loop_html(d: dict, images: dict[str, bytes], *, json_name: str | None
         _card("J (slip jump)", f"{_num(J)} %", f"interval {_interval_text(ji)}"),
         _card(
             "oscillation",
-            f"{_num(osc.get('period_s'), '.3g')} s" if osc.get("present") else "none",
-            f"regularity {_num(osc.get('regularity'), '.2f')}" if osc.get("present") else "",
+            f"{_num(osc.get('period_s'), '.4g')} s" if osc.get("present") else "none",
+            f"regularity {_num(osc.get('regularity'), '.3g')}" if osc.get("present") else "",
         ),
     ]
     if rep:
@@ -336,7 +368,7 @@ def render_loop_html(d: dict, images: dict[str, bytes], *, json_name: str | None
             _card(
                 "reconstruction",
                 f"pv fit {_num(fit_pv, '.0f')} %" if fit_pv is not None else "n/a",
-                f"period {_num(per.get('data'))} s data / {_num(per.get('replay'))} s replay",
+                f"period {_period(per.get('data'))} data / {_period(per.get('replay'))} replay",
             )
         )
     if gap:
@@ -472,7 +504,7 @@ def render_loop_html(d: dict, images: dict[str, bytes], *, json_name: str | None
                 + "".join(
                     f"<tr><td>{_text(c.get('effect'))}</td><td class='num'>{_num(c.get('after'))}</td>"
                     f"<td class='num'>{_num(c.get('shrink_pct'), '.0f')}</td>"
-                    f"<td>{escape(json.dumps(c.get('params'), default=str))}</td></tr>"
+                    f"<td>{_param_text(c.get('params'))}</td></tr>"
                     for c in cands
                 )
                 + "</table>"
@@ -539,7 +571,7 @@ def render_index_html(rows: Sequence[dict]) -> str:
             f"<td class='num'>{_num(r.get('confidence'), '.2f')}</td>"
             f"<td class='num'>{_value_interval(r.get('S'), r.get('S_lo'), r.get('S_hi'))}</td>"
             f"<td class='num'>{_value_interval(r.get('J'), r.get('J_lo'), r.get('J_hi'))}</td>"
-            f"<td class='num'>{_num(r.get('period_s'))}</td>"
+            f"<td class='num'>{_num(r.get('period_s'), '.4g')}</td>"
             f"<td>{_text(r.get('gap_effect') or '')}</td>"
             f'<td title="{_text(r.get("flags") or "")}">{n_warn}</td></tr>'
         )
@@ -547,7 +579,7 @@ def render_index_html(rows: Sequence[dict]) -> str:
         f"<h1>Stiction report</h1><p>{_counts(rows)}.</p>"
         f"<table>{head}{''.join(body)}</table>"
         '<p class="muted">S: deadband + stickband, J: slip jump, both in % of the valve '
-        "span (Choudhury, Thornhill &amp; Shah 2005); in brackets the interval of values "
+        "span (Choudhury, Thornhill &amp; Shah 2005); in parentheses the interval of values "
         "the data cannot tell apart from the estimate.</p>"
     )
     return _page("stiction report", body_html)

@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
-import numpy as np
 import pytest
 
-from stictiondiag.report import md_escape, render_index_html, render_loop_html, render_markdown
+from stictiondiag.report import (
+    build_report,
+    md_escape,
+    render_index_html,
+    render_loop_html,
+    render_markdown,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
 
 EVIL = "<script>alert('x')</script>"
 
@@ -112,40 +121,29 @@ def _chromium():
     return None
 
 
-@pytest.mark.browser
-def test_report_renders_in_headless_browser(tmp_path):
-    chromium = _chromium()
-    if chromium is None:
-        pytest.skip("no chromium on this machine (.ci/run installs it)")
-    import matplotlib
+_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--hide-scrollbars",
+]
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from stictiondiag.plotting import figure_png
-
-    fig, ax = plt.subplots()
-    ax.plot(np.sin(np.linspace(0, 10, 200)))
-    page = tmp_path / "loop.html"
-    page.write_text(render_loop_html(_analysis_dict("FIC101"), {"phase": figure_png(fig)}))
-    flags = [
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-quic",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        f"--user-data-dir={tmp_path / 'profile'}",
-    ]
-    dom = subprocess.run(
+def _browser_load(chromium: str, page: Path, profile: Path) -> tuple[str, str]:
+    """DOM after load and chromium's log (console messages appear as ``CONSOLE``)."""
+    run = subprocess.run(
         [
             chromium,
-            *flags,
+            *_FLAGS,
+            f"--user-data-dir={profile}",
             "--enable-logging=stderr",
             "--v=0",
-            "--virtual-time-budget=3000",
+            "--virtual-time-budget=5000",
             "--dump-dom",
             page.as_uri(),
         ],
@@ -153,19 +151,56 @@ def test_report_renders_in_headless_browser(tmp_path):
         text=True,
         timeout=120,
     )
-    assert dom.returncode == 0, dom.stderr[-2000:]
-    # The page's load handler counts decoded images: all of them must have loaded.
-    m = re.search(r'data-images-loaded="(\d+)/(\d+)"', dom.stdout)
-    assert m is not None, "load handler did not run"
-    assert m.group(1) == m.group(2) and int(m.group(2)) >= 1
-    assert "CONSOLE" not in dom.stderr, "console messages: " + dom.stderr[-1000:]
+    assert run.returncode == 0, run.stderr[-2000:]
+    return run.stdout, run.stderr
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+def test_real_report_renders_in_headless_browser(tmp_path):
+    """End to end: a report over a sample loop, gap diagnosis included, in chromium."""
+    chromium = _chromium()
+    if chromium is None:
+        pytest.skip("no chromium on this machine (.ci/run installs it)")
+    sample = ROOT / "sample_data" / "slave_flow_stickslip.csv"
+    out = tmp_path / "report"
+    result = build_report([sample], out, gap=True)
+    assert result.failed == []
+    d = json.loads((out / f"{sample.stem}.json").read_text())
+    # Figures expected on the page: phase plots, reconstruction, and the gap's own.
+    n_figures = 1 + (d["replay"] is not None) * (1 + (d["gap"] is not None))
+    loop_page = out / f"{sample.stem}.html"
+    for page, min_images in ((loop_page, n_figures), (out / "index.html", 0)):
+        dom, log = _browser_load(chromium, page, tmp_path / "profile")
+        # The page's load handler counts decoded images: all of them must have loaded.
+        m = re.search(r'data-images-loaded="(\d+)/(\d+)"', dom)
+        assert m is not None, f"{page.name}: load handler did not run"
+        assert m.group(1) == m.group(2) and int(m.group(2)) >= min_images, page.name
+        # Console output would be a script error, a blocked (external) asset or a
+        # Content-Security-Policy violation: a clean page logs nothing.
+        assert "CONSOLE" not in log, f"{page.name}: " + log[-1500:]
     shot = tmp_path / "shot.png"
     subprocess.run(
-        [chromium, *flags, "--window-size=1200,1600", f"--screenshot={shot}", page.as_uri()],
+        [
+            chromium,
+            *_FLAGS,
+            f"--user-data-dir={tmp_path / 'profile'}",
+            "--window-size=1200,2400",
+            f"--screenshot={shot}",
+            loop_page.as_uri(),
+        ],
         capture_output=True,
         text=True,
         timeout=120,
         check=True,
     )
-    # A blank page compresses to a few KB; a rendered page with a plot is far larger.
-    assert shot.stat().st_size > 20_000
+    # A blank 1200 x 2400 page compresses to about 10 KB; with the summary, tables and
+    # plots the screenshot is far larger.
+    assert shot.stat().st_size > 100_000
+    assert _png_size(shot.read_bytes()) == (1200, 2400)
+
+
+def _png_size(png: bytes) -> tuple[int, int]:
+    """Width and height from a PNG's IHDR chunk."""
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    return int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
