@@ -20,7 +20,9 @@ from .describing import (
 )
 from .effects import EFFECT_MODELS, EFFECTS, valve_replay
 from .errors import DataError, StictionError, UsageError
+from .estimate import StictionFit, Verdict, stiction_verdict
 from .gap import GapDiagnosis, diagnose_gap
+from .hammerstein import fit_hammerstein
 from .identify import (
     ControllerFit,
     ProcessFit,
@@ -33,6 +35,7 @@ from .loops import LimitCycle, Simulation, simulate_loop, simulate_paper_loop
 from .oscillation import Oscillation, detect_oscillation, dominant_period
 from .physical import VALVE_PARAMETERS, PhysicalValve, karnopp
 from .replay import Replay
+from .segments import Segments, estimate_from_mv, segment_valve
 from .tags import Tags, read_frame, read_tags, scale
 from .valve import (
     STICTION_MODEL_PARAMETERS,
@@ -94,4 +97,11 @@ __all__ = [
     "valve_replay",
     "GapDiagnosis",
     "diagnose_gap",
+    "StictionFit",
+    "Verdict",
+    "stiction_verdict",
+    "Segments",
+    "segment_valve",
+    "estimate_from_mv",
+    "fit_hammerstein",
 ]

@@ -238,11 +238,34 @@ class ValveVariant:
         return np.maximum(np.asarray(S, dtype=float) - self.play_width, 0.0)
 
 
+def white_noise_std(x: np.ndarray) -> float:
+    """Standard deviation of white noise on ``x`` [units of x]; 0 for a smooth signal.
+
+    Second differences of white noise alternate in sign (lag-1 autocorrelation
+    -2/3); those of a smooth signal with curvature do not (close to +1).  The noise
+    is taken as present when the lag-1 autocorrelation of the second difference
+    (winsorised at 5 robust deviations, so that slips do not dominate) is below
+    -0.25, and its level is then :func:`noise_std`.
+    """
+    d2 = np.diff(np.asarray(x, dtype=float), 2)
+    if d2.size < 10:
+        return 0.0
+    med = float(np.median(d2))
+    mad = float(np.median(np.abs(d2 - med)))
+    if mad <= 0:
+        return 0.0
+    d = np.clip(d2 - med, -5 * 1.4826 * mad, 5 * 1.4826 * mad)
+    d = d - d.mean()
+    den = float(np.dot(d, d))
+    rho1 = float(np.dot(d[1:], d[:-1])) / den if den > 0 else 1.0
+    return noise_std(x) if rho1 < -0.25 else 0.0
+
+
 def valve_variants(op: np.ndarray) -> list[ValveVariant]:
     """The valve variants a fit tries on ``op``: both flowcharts, raw and, when op
-    carries noise, behind the play operator."""
+    carries white noise, behind the play operator."""
     out = [ValveVariant("choudhury", False), ValveVariant("kano", True)]
-    w = PLAY_WIDTH_SIGMAS * noise_std(op)
+    w = PLAY_WIDTH_SIGMAS * white_noise_std(op)
     if w > 1e-9 * max(float(np.ptp(op)), 1e-300):
         out += [ValveVariant("choudhury+play", False, w), ValveVariant("kano+play", True, w)]
     return out
@@ -431,14 +454,26 @@ def effective_samples(residual: np.ndarray) -> float:
     return float(max(2.0, n / tau))
 
 
-def cost_threshold(cost_min: float, n_eff: float, n_params: int) -> float:
+def cost_threshold(
+    cost_min: float, n_eff: float, n_params: int, noise_cost: float | None = None
+) -> float:
     """Cost below which a parameter value cannot be told apart from the optimum.
 
     Profile-likelihood F test for one parameter (Seber & Wild 1989, Section 5.9):
     ``C <= C_min (1 + F_{0.95}(1, nu) / nu)`` with ``nu = N_eff - p``.
+
+    The F test assumes the model is right and only noise is left.  When the best fit
+    leaves more than the measurement noise (``noise_cost``, the cost white noise of
+    the measured level alone would give), the excess ``C_min - noise_cost`` is
+    misfit of the model itself, and a parameter value whose cost is within that
+    excess of the optimum cannot be excluded either: the threshold is then at least
+    ``2 C_min - noise_cost``.
     """
     nu = max(1.0, n_eff - n_params)
-    return float(cost_min * (1.0 + stats.f.ppf(INTERVAL_LEVEL, 1, nu) / nu))
+    thr = cost_min * (1.0 + stats.f.ppf(INTERVAL_LEVEL, 1, nu) / nu)
+    if noise_cost is not None and math.isfinite(noise_cost) and cost_min > noise_cost:
+        thr = max(thr, 2.0 * cost_min - max(noise_cost, 0.0))
+    return float(thr)
 
 
 def profile_interval(
@@ -482,3 +517,271 @@ def block_sse(residual: np.ndarray, block: int, start: int = 0) -> np.ndarray:
     if nb == 0:
         return np.array([float(np.sum(r * r))])
     return (r[: nb * block] ** 2).reshape(nb, block).sum(axis=1)
+
+
+# --------------------------------------------------------------------------------------
+# The verdict
+# --------------------------------------------------------------------------------------
+
+#: Smallest share of the linear valve's residual the stiction model must remove for
+#: the improvement to count as material [-].
+MIN_IMPROVEMENT = 0.1
+
+#: Bootstrap support needed to call stiction (and 1 minus it to call no stiction).
+DECISION_LEVEL = 0.95
+
+#: Bootstrap resamples of the per-cycle costs.
+N_BOOTSTRAP = 2000
+
+
+def improvement_support(
+    block_stiction: np.ndarray,
+    block_linear: np.ndarray,
+    min_improvement: float = MIN_IMPROVEMENT,
+    n_boot: int = N_BOOTSTRAP,
+    seed: int = 0,
+) -> tuple[float, float, tuple[float, float]]:
+    """Bootstrap support that the stiction model beats the linear valve materially.
+
+    The residual sums of squares of both models are cut into blocks about one cycle
+    long; blocks are resampled with replacement (a block bootstrap, so the
+    correlation within a cycle is kept) and for each resample the improvement
+    ``1 - sum(SSE_stiction) / sum(SSE_linear)`` is recomputed.
+
+    Returns
+    -------
+    support : float
+        Share of resamples with an improvement above ``min_improvement`` [-].
+    improvement : float
+        Improvement on the whole record [-].
+    interval : (float, float)
+        2.5 and 97.5 percentiles of the resampled improvement [-].
+    """
+    bs = np.asarray(block_stiction, dtype=float)
+    bl = np.asarray(block_linear, dtype=float)
+    tot = float(bl.sum())
+    if bs.size == 0 or bs.size != bl.size or not tot > 0:
+        return 0.0, 0.0, (0.0, 0.0)
+    f = 1.0 - float(bs.sum()) / tot
+    if bs.size < 2:
+        return float(f > min_improvement), f, (f, f)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, bs.size, size=(n_boot, bs.size))
+    num = bs[idx].sum(axis=1)
+    den = bl[idx].sum(axis=1)
+    fb = 1.0 - num / np.where(den > 0, den, np.inf)
+    lo, hi = np.percentile(fb, [2.5, 97.5])
+    return float(np.mean(fb > min_improvement)), f, (float(lo), float(hi))
+
+
+def _osc_text(name: str, osc) -> str:
+    if osc is None:
+        return f"{name}: not analysed"
+    if getattr(osc, "present", False):
+        per = getattr(osc, "period_s", None)
+        reg = getattr(osc, "regularity", None)
+        per_s = f"period {per:.4g} s" if per is not None else "period unknown"
+        reg_s = f", regularity {reg:.2g}" if reg is not None else ""
+        return f"{name} oscillates ({per_s}{reg_s})"
+    why = getattr(osc, "reason", None)
+    return f"no oscillation in {name}" + (f" ({why})" if why else "")
+
+
+def stiction_verdict(
+    fit: StictionFit,
+    oscillation,
+    *,
+    oscillation_op=None,
+    has_mv: bool | None = None,
+    min_improvement: float = MIN_IMPROVEMENT,
+    decision_level: float = DECISION_LEVEL,
+    seed: int = 0,
+) -> Verdict:
+    """Does valve stiction explain the loop's oscillation?
+
+    The question of Section 5.3 of Choudhury, Thornhill & Shah (2005), asked of
+    the data: is there an oscillation at all (Sections 4.2.2 and 5.3: stiction shows
+    as a limit cycle), does the stiction model explain the data better than a linear
+    valve, by how much, consistently over the cycles, and are S and J determined.
+
+    Parameters
+    ----------
+    fit : StictionFit
+        From :func:`stictiondiag.segments.estimate_from_mv` or
+        :func:`stictiondiag.hammerstein.fit_hammerstein`.
+    oscillation : Oscillation
+        :func:`stictiondiag.oscillation.detect_oscillation` of pv.
+    oscillation_op : Oscillation, optional
+        The same for op; an oscillation in either counts.
+    has_mv : bool, optional
+        Whether the valve position was recorded; default from ``fit.method``.
+    min_improvement : float
+        Share of the linear valve's residual the stiction model must remove to count
+        as a material improvement [-].
+    decision_level : float
+        Support needed for a decision [-].
+    seed : int
+        Seed of the bootstrap.
+
+    Returns
+    -------
+    Verdict
+
+    Notes
+    -----
+    The evidence is the bootstrap support ``P`` of :func:`improvement_support`: the
+    share of block resamples (blocks about one cycle long) in which the stiction
+    model removes more than ``min_improvement`` of the residual the linear valve
+    leaves.  It measures at once *how much* (the threshold) and *how consistently*
+    (the resampling over cycles) the stiction model does better.
+
+    * An oscillation, ``P >= decision_level`` and S determined (its interval excludes
+      0 and stays inside the search range): **stiction**, confidence ``P``.
+    * An oscillation and ``P <= 1 - decision_level``: **no stiction**, confidence
+      ``1 - P``.
+    * No oscillation in pv or op: **no stiction**, confidence ``1 - P``, unless the
+      recorded mv shows the stick-slip itself (``P >= decision_level``, at least
+      three slips, S determined): then **stiction**, confidence ``P``.
+    * Otherwise **inconclusive** (weak or inconsistent improvement, or S poorly
+      determined), confidence ``P`` (the support for stiction).
+
+    The confidence is therefore never set by hand: it is a bootstrap share computed
+    from the fit's residuals.
+    """
+    if has_mv is None:
+        has_mv = fit.method == "mv_segments"
+    d = fit.details or {}
+    blocks = d.get("block_sse") or {}
+    bs = np.asarray(blocks.get("stiction", []), dtype=float)
+    bl = np.asarray(blocks.get("linear", []), dtype=float)
+    if bs.size == 0:
+        bs, bl = np.array([fit.cost]), np.array([fit.linear_cost])
+    P, f, f_iv = improvement_support(bs, bl, min_improvement, seed=seed)
+
+    osc_pv = bool(getattr(oscillation, "present", False))
+    osc_op = bool(getattr(oscillation_op, "present", False)) if oscillation_op else False
+    oscillating = osc_pv or osc_op
+
+    S_iv = fit.S_interval
+    S_open = "reaches the search limit" in str((d.get("determinacy") or {}).get("S", ""))
+    S_excludes_zero = S_iv is not None and S_iv[0] > 0.0
+    S_determined = S_excludes_zero and not S_open
+    n_slips = int((d.get("segments") or {}).get("n_slips", fit.n_slips))
+
+    fit_text = (
+        f"S = {fit.S:.3g} %"
+        + (f" [{S_iv[0]:.3g}, {S_iv[1]:.3g}]" if S_iv else "")
+        + f", J = {fit.J:.3g} %"
+        + (f" [{fit.J_interval[0]:.3g}, {fit.J_interval[1]:.3g}]" if fit.J_interval else "")
+        + f" of span ({'valve position' if has_mv else 'op and pv'})"
+    )
+    improve_text = (
+        f"the stiction model removes {100 * f:.0f} % of the linear valve's residual "
+        f"(95 % interval over cycles {100 * f_iv[0]:.0f} to {100 * f_iv[1]:.0f} %; "
+        f"support {P:.2f} for more than {100 * min_improvement:.0f} %)"
+    )
+    osc_texts = [_osc_text("pv", oscillation)]
+    if oscillation_op is not None:
+        osc_texts.append(_osc_text("op", oscillation_op))
+    det_texts = []
+    if not S_excludes_zero:
+        det_texts.append("S cannot be told apart from 0 (a linear valve)")
+    elif S_open:
+        det_texts.append("S poorly determined: its interval reaches the search limit")
+    if d.get("J_confounded_with_gain"):
+        det_texts.append(
+            "J not determined without mv: the fitted valve never moves smoothly, so its "
+            "jump trades off against the process gain"
+        )
+
+    evidence = {
+        "oscillation_pv": osc_pv,
+        "oscillation_op": osc_op,
+        "improvement": f,
+        "improvement_interval": list(f_iv),
+        "support": P,
+        "min_improvement": min_improvement,
+        "decision_level": decision_level,
+        "n_blocks": int(bs.size),
+        "S_determined": bool(S_determined),
+        "n_slips": n_slips,
+        "has_mv": bool(has_mv),
+        "confidence_formula": (
+            "support = share of block-bootstrap resamples (one-cycle blocks) in which the "
+            "stiction model removes more than min_improvement of the linear valve's "
+            "residual; confidence = support (stiction, inconclusive) or 1 - support "
+            "(no stiction)"
+        ),
+    }
+
+    if not oscillating:
+        if has_mv and P >= decision_level and n_slips >= 3 and S_determined:
+            return Verdict(
+                "stiction",
+                True,
+                P,
+                (
+                    f"the recorded valve position sticks and slips ({n_slips} slips) "
+                    "although there is no regular oscillation",
+                    *osc_texts,
+                    improve_text,
+                    fit_text,
+                ),
+                evidence,
+            )
+        reasons = [*osc_texts, "nothing for stiction to explain"]
+        if P >= decision_level:
+            reasons.append("the valve model still fits better than a linear valve: " + improve_text)
+        return Verdict("no_stiction", False, 1.0 - P, tuple(reasons), evidence)
+
+    if P >= decision_level and S_determined:
+        return Verdict(
+            "stiction", True, P, (improve_text, fit_text, *osc_texts, *det_texts), evidence
+        )
+    if P <= 1.0 - decision_level:
+        return Verdict(
+            "no_stiction",
+            False,
+            1.0 - P,
+            (
+                "a linear valve explains the oscillation as well: " + improve_text,
+                *osc_texts,
+                fit_text,
+            ),
+            evidence,
+        )
+    why = (
+        "the improvement over a linear valve is weak or not consistent over the cycles"
+        if P < decision_level
+        else "the stiction parameters are poorly determined"
+    )
+    return Verdict(
+        "inconclusive", None, P, (why, improve_text, *det_texts, fit_text, *osc_texts), evidence
+    )
+
+
+# --------------------------------------------------------------------------------------
+# The two estimators (implemented in their own modules)
+# --------------------------------------------------------------------------------------
+
+
+def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
+    """S and J from the recorded valve position: see :func:`stictiondiag.segments.estimate_from_mv`."""
+    from .segments import estimate_from_mv as _impl
+
+    return _impl(op, mv, dt)
+
+
+def fit_hammerstein(
+    op: np.ndarray,
+    pv: np.ndarray,
+    dt: float,
+    *,
+    integrating: bool,
+    flow_loop: bool,
+    period_s: float | None = None,
+) -> StictionFit:
+    """S and J from op and pv: see :func:`stictiondiag.hammerstein.fit_hammerstein`."""
+    from .hammerstein import fit_hammerstein as _impl
+
+    return _impl(op, pv, dt, integrating=integrating, flow_loop=flow_loop, period_s=period_s)

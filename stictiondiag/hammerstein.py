@@ -64,13 +64,14 @@ from .estimate import (
     profile_interval,
     valve_run,
     valve_variants,
+    white_noise_std,
 )
 from .segments import _determinacy
 
 #: Range of the process time constant searched, in oscillation periods, and the
 #: number of (log-spaced) values on the coarse grid.
 TAU_PERIODS = (0.01, 2.0)
-N_TAUS = 10
+N_TAUS = 8
 
 #: Lags of the flow-loop structure [samples] (measurement and flow dynamics).
 FLOW_LAGS = (0.3, 1.0, 3.0)
@@ -90,10 +91,17 @@ MAX_DELAY_PERIODS = 0.5
 #: :func:`first_extreme`).  With a noisy op a sticky valve sticks again right after
 #: every slip, so the point it stopped at is not the extreme of op, and a model
 #: started from the wrong point stays out of step with the valve.
-START_OFFSETS = (0.0, 0.01, 0.03, 0.1, 0.2, 0.35, 0.5)
+START_OFFSETS = (0.0, 0.01, 0.03, 0.1, 0.2, 0.4)
 
 #: Most regression rows used (the row stride grows for longer records).
-MAX_ROWS = 2500
+MAX_ROWS = 1200
+
+#: Cost evaluations of the final Nelder-Mead polish.
+POLISH_EVALUATIONS = 150
+
+#: Share of samples the fitted valve must spend moving smoothly with op (Eq. 4) for
+#: J to be told apart from the process gain.
+MIN_MOVING_FRACTION = 0.02
 
 #: Dead times searched for flow loops [samples].
 FLOW_DELAYS = (1, 2, 3)
@@ -143,97 +151,111 @@ def _leaky_integral(x, a, k0):
     return y
 
 
+#: Columns of the linear part (see :func:`_regressors`).
+NCOL = 5
+
+
 @jit
 def _regressors(u, tau, integrating, a_hp, k0):
     """Columns of the linear part for one process time constant ``tau`` [samples].
 
-    ``[F u, F lag(u, tau), 1, a^(k - k0)]`` with ``F`` the high-pass (self-regulating)
-    or the integrator seen through the high-pass (integrating).  The first two are the
-    process (a direct part and a first-order lag, gains of one sign); the last two are
-    free: a constant and the high-pass response to a step at the start, which
-    together carry what the start and an integrating process's unknown inflow
-    imbalance leave behind.  Everything starts at sample ``k0``, so no history from
-    before the start (where the valve state is unknown) enters.
+    ``[F u, F lag(u, tau), 1, a^(k - k0), b^(k - k0)]`` with ``F`` the high-pass
+    (self-regulating) or the integrator seen through the high-pass (integrating),
+    ``a`` the high-pass pole and ``b = exp(-1/tau)`` the process pole.  The first two
+    are the process (a direct part and a first-order lag, gains of one sign); the
+    last three are free: a constant, the high-pass response to a step at the start,
+    and the process's own response to its unknown state at the start (together they
+    also carry an integrating process's unknown inflow imbalance).  Everything starts
+    at sample ``k0``, so no history from before the start (where the valve state is
+    unknown) enters.
     """
     n = u.shape[0]
-    phi = np.zeros((n, 4))
+    phi = np.zeros((n, NCOL))
     if integrating:
         g0 = _leaky_integral(u, a_hp, k0)
         g1 = _leaky_integral(_lag(u, tau, k0), a_hp, k0)
     else:
         g0 = _highpass(u, a_hp, k0)
         g1 = _highpass(_lag(u, tau, k0), a_hp, k0)
+    b = math.exp(-1.0 / tau) if tau > 0.0 else 0.0
     e = 1.0
+    f = 1.0
     for k in range(k0, n):
         phi[k, 0] = g0[k]
         phi[k, 1] = g1[k]
         phi[k, 2] = 1.0
         phi[k, 3] = e
+        phi[k, 4] = f
         e *= a_hp
+        f *= b
     return phi
 
 
 @jit
-def _normal_equations(u, taus, integrating, a_hp, k0, yf, j0, j1, stride, delays):
+def _normal_equations(u, taus, integrating, a_hp, k0, j0, j1, stride, Y):
     """Normal equations of the linear part for every time constant and delay, in one pass.
 
-    The columns are those of :func:`_regressors`, computed on the fly (no arrays):
-    returns ``A[t]`` (4 x 4) and ``B[t][:, i]`` = sum over rows ``j`` of
-    ``phi_t[j] yf[j + delays[i]]``, rows ``j = j0, j0 + stride, ... < j1``.
+    The columns are those of :func:`_regressors`, computed on the fly and kept only at
+    the regression rows ``j = j0, j0 + stride, ... < j1``; ``Y[r, i]`` is the target
+    ``yf[j_r + delays[i]]``.  Returns ``A[t]`` (5 x 5) and ``B[t]`` (5 x delays).
     """
     nt = taus.shape[0]
-    nd = delays.shape[0]
     n = u.shape[0]
-    A = np.zeros((nt, 4, 4))
-    B = np.zeros((nt, 4, nd))
+    nr = Y.shape[0]
+    phi = np.empty((nt, nr, NCOL))
     bl = np.empty(nt)
     for t in range(nt):
         bl[t] = math.exp(-1.0 / taus[t]) if taus[t] > 0.0 else 0.0
     lag = np.full(nt, u[k0])
     g1 = np.zeros(nt)
+    free = np.ones(nt)
     g0 = 0.0
     e = 1.0
     u0 = u[k0]
-    phi = np.empty(4)
+    c = 1.0 - a_hp
+    r = 0
     next_row = j0
     for k in range(k0, n):
         if k > k0:
             uk = u[k]
             if integrating:
-                g0 = a_hp * g0 + (1.0 - a_hp) * (uk - u0)
+                g0 = a_hp * g0 + c * (uk - u0)
+                for t in range(nt):
+                    lag[t] = bl[t] * lag[t] + (1.0 - bl[t]) * uk
+                    g1[t] = a_hp * g1[t] + c * (lag[t] - u0)
+                    free[t] *= bl[t]
             else:
                 g0 = a_hp * g0 + uk - u[k - 1]
-            for t in range(nt):
-                prev = lag[t]
-                lag[t] = bl[t] * prev + (1.0 - bl[t]) * uk
-                if integrating:
-                    g1[t] = a_hp * g1[t] + (1.0 - a_hp) * (lag[t] - u0)
-                else:
+                for t in range(nt):
+                    prev = lag[t]
+                    lag[t] = bl[t] * prev + (1.0 - bl[t]) * uk
                     g1[t] = a_hp * g1[t] + lag[t] - prev
+                    free[t] *= bl[t]
             e *= a_hp
-        if k == next_row and k < j1:
+        if k == next_row:
+            if r >= nr or k >= j1:
+                break
             next_row += stride
-            phi[0] = g0
-            phi[2] = 1.0
-            phi[3] = e
             for t in range(nt):
-                phi[1] = g1[t]
-                for p in range(4):
-                    for q in range(p, 4):
-                        A[t, p, q] += phi[p] * phi[q]
-                for i in range(nd):
-                    yv = yf[k + delays[i]]
-                    for p in range(4):
-                        B[t, p, i] += phi[p] * yv
+                phi[t, r, 0] = g0
+                phi[t, r, 1] = g1[t]
+                phi[t, r, 2] = 1.0
+                phi[t, r, 3] = e
+                phi[t, r, 4] = free[t]
+            r += 1
+    A = np.empty((nt, NCOL, NCOL))
+    B = np.empty((nt, NCOL, Y.shape[1]))
     for t in range(nt):
+        P = phi[t]
+        At = P.T @ P
         tr = 0.0
-        for p in range(4):
-            for q in range(p):
-                A[t, p, q] = A[t, q, p]
-            tr += A[t, p, p]
-        ridge = 1e-10 * tr / 4.0 + 1e-300
-        for p in range(4):
-            A[t, p, p] += ridge
+        for p in range(NCOL):
+            tr += At[p, p]
+        ridge = 1e-10 * tr / NCOL + 1e-300
+        for p in range(NCOL):
+            At[p, p] += ridge
+        A[t] = At
+        B[t] = P.T @ Y
     return A, B
 
 
@@ -312,27 +334,13 @@ def _same_sign_fit(A, b, yy, nb):
 
 @jit
 def _batch_cost(
-    x,
-    yf,
-    S_arr,
-    J_arr,
-    offsets,
-    taus,
-    kano,
-    k_start,
-    d_start,
-    integrating,
-    a_hp,
-    j0,
-    j1,
-    stride,
-    delays,
-    yy,
+    x, S_arr, J_arr, offsets, taus, kano, k_start, d_start, integrating, a_hp, j0, j1, stride, Y, yy
 ):
     """Best cost over start offsets, process time constants and delays for every (S, J).
 
-    Returns the cost and, for each pair, the indices of the best delay, start offset
-    and time constant.
+    ``Y[r, i]`` is the high-passed pv at regression row ``r`` shifted by delay ``i``
+    and ``yy[i]`` its sum of squares.  Returns the cost and, for each pair, the
+    indices of the best delay, start offset and time constant.
     """
     m = S_arr.shape[0]
     cost = np.empty(m)
@@ -340,14 +348,12 @@ def _batch_cost(
     best_o = np.zeros(m, dtype=np.int64)
     best_t = np.zeros(m, dtype=np.int64)
     nt = taus.shape[0]
-    nd = delays.shape[0]
+    nd = Y.shape[1]
     for i in range(m):
         cost[i] = np.inf
         for io in range(offsets.shape[0]):
             u, _ = valve_run(x, S_arr[i], J_arr[i], kano, k_start, d_start, offsets[io])
-            A, B = _normal_equations(
-                u, taus, integrating, a_hp, k_start, yf, j0, j1, stride, delays
-            )
+            A, B = _normal_equations(u, taus, integrating, a_hp, k_start, j0, j1, stride, Y)
             for t in range(nt):
                 for k in range(nd):
                     sse = _same_sign_fit(A[t], B[t, :, k], yy[k], 2)
@@ -424,11 +430,13 @@ def first_extreme(op: np.ndarray, period: int) -> tuple[int, float]:
     return k, d
 
 
-def _delay_grid(d_max: int, n_coarse: int = 16) -> np.ndarray:
+def _delay_grid(d_max: int, n_coarse: int = 14) -> np.ndarray:
+    """Coarse dead times [samples], log-spaced from 1 to ``d_max``: the same relative
+    resolution for a short dead time as for a long one."""
     d_max = max(1, int(d_max))
     if d_max <= n_coarse:
         return np.arange(1, d_max + 1, dtype=np.int64)
-    return np.unique(np.round(np.linspace(1, d_max, n_coarse)).astype(np.int64))
+    return np.unique(np.round(np.geomspace(1, d_max, n_coarse)).astype(np.int64))
 
 
 def _same_sign_lstsq(X: np.ndarray, y: np.ndarray, nb: int) -> np.ndarray:
@@ -468,7 +476,8 @@ class _Problem:
 
     def set_delays(self, delays):
         self.delays = np.asarray(delays, dtype=np.int64)
-        self.yy = np.array([float(np.sum(self.yf[self.rows + d] ** 2)) for d in self.delays])
+        self.Y = np.ascontiguousarray(self.yf[self.rows[:, None] + self.delays[None, :]])
+        self.yy = np.sum(self.Y**2, axis=0)
 
     def cost(self, S, J, variant: ValveVariant, offsets):
         """Cost, best delay, start offset and time constant for every (S, J) pair."""
@@ -478,7 +487,6 @@ class _Problem:
         off = np.atleast_1d(np.asarray(offsets, dtype=float))
         c, bd, bo, bt = _batch_cost(
             x,
-            self.yf,
             variant.model_S(S),
             J,
             off,
@@ -491,7 +499,7 @@ class _Problem:
             self.j0,
             self.j1,
             self.stride,
-            self.delays,
+            self.Y,
             self.yy,
         )
         return c, self.delays[bd], off[bo], self.taus[bt]
@@ -549,6 +557,67 @@ def _delay_window(d_best: int, d_max: int, half: int, most: int) -> np.ndarray:
     return d
 
 
+def _setup(op, pv, dt, integrating, flow_loop, period_s) -> dict:
+    """Time scales, structure, start and the least-squares problem of a fit."""
+    n = op.size
+    op_mean = float(np.mean(op))
+    x = op - op_mean  # the valve model is shift-equivariant; centring helps the sums
+    y = (pv - np.mean(pv)) / np.std(pv)
+    if period_s is not None and period_s > 0 and math.isfinite(period_s):
+        period = int(max(4, min(round(period_s / dt), n // 3)))
+    else:
+        period = cycle_samples(op)
+    stride = max(1, period // ROWS_PER_PERIOD, -(-n // MAX_ROWS))
+    a_hp = math.exp(-1.0 / (HIGHPASS_PERIODS * period))
+
+    if integrating:
+        structure = "integrating"
+    elif flow_loop:
+        structure = "flow"
+    else:
+        structure = "self-regulating"
+    if structure == "flow":
+        taus = np.array(FLOW_LAGS, dtype=float)
+        d_max = max(FLOW_DELAYS)
+        coarse_delays = np.array(FLOW_DELAYS, dtype=np.int64)
+    else:
+        taus = np.geomspace(max(0.3, period * TAU_PERIODS[0]), period * TAU_PERIODS[1], N_TAUS)
+        d_max = max(1, min(int(MAX_DELAY_PERIODS * period), n // 4))
+        coarse_delays = _delay_grid(d_max)
+
+    k_start, d_start = first_extreme(x, period)
+    # Both sides of the model start at k_start; the process's own response to its
+    # unknown state there dies out within half a period or so.
+    yf = _highpass(y, a_hp, k_start)
+    j0 = k_start + max(1, period // 2)
+    j1 = n - d_max
+    if (j1 - j0) // stride < 30:
+        raise DataError(
+            f"record too short for a Hammerstein fit: {n} samples with a {period}-sample "
+            "cycle; record at least three cycles"
+        )
+    prob = _Problem(x, yf, taus, integrating, a_hp, k_start, d_start, j0, j1, stride, coarse_delays)
+
+    travel = cycle_travel(x, period)
+    S_max = float(min(1.25 * travel, np.ptp(x)))
+    S_max = max(S_max, 1e-9 * max(float(np.ptp(x)), 1e-300))
+
+    return {
+        "problem": prob,
+        "structure": structure,
+        "period": period,
+        "x": x,
+        "n": n,
+        "stride": stride,
+        "d_max": d_max,
+        "coarse_delays": coarse_delays,
+        "taus": taus,
+        "travel": travel,
+        "S_max": S_max,
+        "a_hp": a_hp,
+    }
+
+
 def fit_hammerstein(
     op: np.ndarray,
     pv: np.ndarray,
@@ -602,66 +671,53 @@ def fit_hammerstein(
     intervals use only the points of steps 2 and 3, whose dead times adapt to S.
     """
     op, pv, dt = _check(op, pv, dt)
-    n = op.size
+    setup = _setup(op, pv, dt, integrating, flow_loop, period_s)
+    prob, structure, period = setup["problem"], setup["structure"], setup["period"]
+    x, stride, d_max = setup["x"], setup["stride"], setup["d_max"]
+    coarse_delays, taus, travel = setup["coarse_delays"], setup["taus"], setup["travel"]
+    S_max = J_max = setup["S_max"]
     op_mean, op_std = float(np.mean(op)), float(np.std(op))
-    x = op - op_mean  # the valve model is shift-equivariant; centring helps the sums
-    y = (pv - np.mean(pv)) / np.std(pv)
-    if period_s is not None and period_s > 0 and math.isfinite(period_s):
-        period = int(max(4, min(round(period_s / dt), n // 3)))
-    else:
-        period = cycle_samples(op)
-    stride = max(1, period // ROWS_PER_PERIOD, -(-n // MAX_ROWS))
-    a_hp = math.exp(-1.0 / (HIGHPASS_PERIODS * period))
-
-    if integrating:
-        structure = "integrating"
-    elif flow_loop:
-        structure = "flow"
-    else:
-        structure = "self-regulating"
-    if structure == "flow":
-        taus = np.array(FLOW_LAGS, dtype=float)
-        d_max = max(FLOW_DELAYS)
-        coarse_delays = np.array(FLOW_DELAYS, dtype=np.int64)
-    else:
-        taus = np.geomspace(max(0.3, period * TAU_PERIODS[0]), period * TAU_PERIODS[1], N_TAUS)
-        d_max = max(1, min(int(MAX_DELAY_PERIODS * period), n // 4))
-        coarse_delays = _delay_grid(d_max, 10)
-
-    k_start, d_start = first_extreme(x, period)
-    # Both sides of the model start at k_start; the process's own response to its
-    # unknown state there dies out within half a period or so.
-    yf = _highpass(y, a_hp, k_start)
-    j0 = k_start + max(1, period // 2)
-    j1 = n - d_max
-    if (j1 - j0) // stride < 30:
-        raise DataError(
-            f"record too short for a Hammerstein fit: {n} samples with a {period}-sample "
-            "cycle; record at least three cycles"
-        )
-    prob = _Problem(x, yf, taus, integrating, a_hp, k_start, d_start, j0, j1, stride, coarse_delays)
-
-    travel = cycle_travel(x, period)
-    S_max = float(min(1.25 * travel, np.ptp(x)))
-    S_max = max(S_max, 1e-9 * max(float(np.ptp(x)), 1e-300))
-    J_max = S_max
     offsets_all = np.array(START_OFFSETS) * travel
 
     # 1. Valve variant, start offset, process time constant and dead time on a coarse
     #    grid.
-    SS, JJ, _, _ = _grid(0.0, S_max, 0.0, J_max, 7)
+    SS, JJ, _, _ = _grid(0.0, S_max, 0.0, J_max, 9)
     variants = {v.name: v for v in valve_variants(x)}
     if any(v.play_width > 0 for v in variants.values()):
         # On a noisy op the published flowchart re-arms at every noise reversal and
-        # never slips: not worth its evaluations.
+        # never slips, and behind the play operator it differs from Kano's variant
+        # only in rare partial reversals: not worth their evaluations.
         variants.pop("choudhury")
-    coarse = {name: prob.cost(SS, JJ, v, offsets_all) for name, v in variants.items()}
-    model = min(coarse, key=lambda k: float(coarse[k][0].min()))
-    variant = variants[model]
-    c0, d0, o0, t0 = coarse[model]
-    i0 = int(np.argmin(c0))
-    d_best, off_best, tau_best = int(d0[i0]), float(o0[i0]), float(t0[i0])
+        variants.pop("choudhury+play")
+    # 1a. Every variant and start offset on the coarse grid, with three process time
+    #     constants and every second regression row.
+    prob1 = _Problem(
+        prob.x,
+        prob.yf,
+        np.geomspace(prob.taus[0], prob.taus[-1], 3),
+        prob.integrating,
+        prob.a_hp,
+        prob.k_start,
+        prob.d_start,
+        prob.j0,
+        prob.j1,
+        2 * prob.stride,
+        prob.delays,
+    )
+    coarse = {name: prob1.cost(SS, JJ, v, offsets_all) for name, v in variants.items()}
     n_eval = len(coarse) * SS.size * offsets_all.size
+    # 1b. The five best cells of each variant with every time constant.
+    prob1.taus = prob.taus
+    best1 = (np.inf, None, 0, 0.0, 0.0)
+    for name, (c1, _, o1, _) in coarse.items():
+        top = np.argsort(c1)[:5]
+        for k in top:
+            c, d, o, t = prob1.cost(SS[k], JJ[k], variants[name], o1[k])
+            n_eval += 1
+            if c[0] < best1[0]:
+                best1 = (float(c[0]), name, int(d[0]), float(o[0]), float(t[0]))
+    _, model, d_best, off_best, tau_best = best1
+    variant = variants[model]
 
     # From here on: the best start offset and its neighbours.
     k_off = int(np.argmin(np.abs(offsets_all - off_best)))
@@ -695,11 +751,10 @@ def fit_hammerstein(
     if structure == "flow":
         delays = coarse_delays
     else:
-        step = int(np.max(np.diff(coarse_delays))) if coarse_delays.size > 1 else 1
-        delays = _delay_window(d_best, d_max, max(3, step, d_best // 2), 11)
+        delays = _delay_window(d_best, d_max, max(3, d_best // 2), 11)
         prob.taus = tau_best * np.array([0.8, 1.0, 1.25])
     prob.set_delays(delays)
-    SS, JJ, step_s, step_j = _grid(0.0, S_max, 0.0, J_max, 13)
+    SS, JJ, step_s, step_j = _grid(0.0, S_max, 0.0, J_max, 11)
     c = evaluate(SS, JJ)
     for k in np.argsort(c)[:3]:
         zoom(SS[k], JJ[k], 2 * step_s, 2 * step_j, 2)
@@ -712,6 +767,31 @@ def fit_hammerstein(
         prob.set_delays(_delay_window(int(d_best), d_max, max(2, spacing), 9))
         prob.taus = float(tau_best) * np.array([0.9, 1.0, 1.11])
         zoom(sb, jb, 2 * step_s / 3, 2 * step_j / 3, 3)
+
+    # 4. Local polish: Nelder-Mead over S, J and the time constant (continuous), the
+    #    dead time free within two samples of the best and the start offset fixed.
+    sb, jb, d_best, tau_best = best()
+    k = int(np.argmin(np.concatenate(pts["C"])))
+    offsets = np.array([np.concatenate(pts["O"])[k]])
+    if structure != "flow":
+        prob.set_delays(_delay_window(int(d_best), d_max, 2, 5))
+
+    def objective(v):
+        S_v, J_v = min(max(v[0], 0.0), S_max), min(max(v[1], 0.0), J_max)
+        prob.taus = np.array([float(tau_best) * math.exp(v[2])])
+        return float(evaluate(np.array([S_v]), np.array([J_v]))[0])
+
+    from scipy.optimize import minimize
+
+    zs = 2 * step_s / 27
+    zj = 2 * step_j / 27
+    simplex = np.array([[sb, jb, 0.0], [sb + zs, jb, 0.0], [sb, jb + zj, 0.0], [sb, jb, 0.05]])
+    minimize(
+        objective,
+        simplex[0],
+        method="Nelder-Mead",
+        options={"initial_simplex": simplex, "maxfev": POLISH_EVALUATIONS, "xatol": 1e-4 * S_max},
+    )
 
     S_all, J_all, C_all, D_all, O_all, T_all = (np.concatenate(pts[k]) for k in "SJCDOT")
     i = int(np.argmin(C_all))
@@ -728,12 +808,35 @@ def fit_hammerstein(
     lin_resid, *_ = prob.residual(0.0, 0.0, linear, int(lin_d[0]), 0.0, float(lin_t[0]))
     resid, theta, mv_model, n_slips = prob.residual(S_hat, J_hat, variant, delay, offset, tau)
 
-    n_eff = effective_samples(resid)
-    n_par = 4 + 5  # two gains, two free columns; S, J, dead time, time constant, offset
-    thr = cost_threshold(cost, n_eff, n_par)
+    # Independent evidence on S and J comes from the breakaways: each slip is one
+    # observation of the band.  Counting residual samples instead (even decorrelated
+    # ones) would make the interval as narrow as the noise allows, while what limits
+    # the fit is how well the slips are placed.
+    n_eff_resid = effective_samples(resid)
+    n_eff = float(min(n_eff_resid, max(n_slips, 1) + 3))
+    # White measurement noise on pv, in the units of the cost (pv scaled to unit
+    # variance; the slow high-pass leaves white noise as it is).
+    noise_var = (white_noise_std(pv) / float(np.std(pv))) ** 2
+    noise_cost = noise_var * resid.size
+    thr = cost_threshold(cost, n_eff, 3, noise_cost)
     S_iv, _, S_open = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, _, J_open = profile_interval(J_all, C_all, thr, 0.0, J_max)
     d_iv, _, _ = profile_interval(D_all.astype(float), C_all, thr, 1.0, float(d_max))
+    n_par = NCOL + 5  # linear columns; S, J, dead time, time constant, offset
+
+    # Without a smooth moving phase the valve output is a square wave whose height
+    # is J (Eq. 4): the process gain scales it, so J cannot be told apart from the
+    # gain.  Then only its bounds are known.
+    x_valve = variant.prepare(x)
+    k_s = prob.k_start
+    dmv, dx = np.diff(mv_model[k_s:]), np.diff(x_valve[k_s:])
+    scale = max(float(np.ptp(x)), 1e-300)
+    moving = np.abs(dmv - dx) <= 1e-9 * scale
+    moving &= np.abs(dmv) > 0
+    moving_fraction = float(moving.mean()) if moving.size else 0.0
+    J_confounded = moving_fraction < MIN_MOVING_FRACTION and S_hat > 0
+    if J_confounded:
+        J_iv, J_open = (0.0, J_max), True
 
     block = max(2, period // stride)
     details = {
@@ -749,15 +852,20 @@ def fit_hammerstein(
         "process_gains": {"direct": float(theta[0]), "lag": float(theta[1])},
         "highpass_corner_s": HIGHPASS_PERIODS * period * dt,
         "search_limit": S_max,
-        "start_sample": k_start,
+        "start_sample": prob.k_start,
         "start_offset": offset,
-        "cost_by_valve_model": {k: float(v[0].min()) for k, v in coarse.items()},
+        "cost_by_valve_model_coarse": {k: float(v[0].min()) for k, v in coarse.items()},
         "determinacy": _determinacy(S_hat, S_iv, S_open, J_hat, J_iv, J_open),
         "interval_method": (
-            "95 % profile-cost interval over the grid search (F test with the "
-            "residual's effective number of samples)"
+            "95 % profile-cost interval over the grid search (F test, as many independent "
+            "observations as slips); J unbounded when the valve never moves smoothly"
         ),
         "effective_samples": n_eff,
+        "effective_samples_residual": n_eff_resid,
+        "noise_cost": noise_cost,
+        "explained": 1.0 - cost / max(float(np.sum(prob.yf[prob.rows + delay] ** 2)), 1e-300),
+        "moving_fraction": moving_fraction,
+        "J_confounded_with_gain": bool(J_confounded),
         "n_samples": int(resid.size),
         "n_parameters": {"stiction": n_par, "linear": n_par - 2},
         "block_samples": block,

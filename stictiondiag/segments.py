@@ -450,7 +450,7 @@ def _median_ci(x: np.ndarray, seed: int = 0, n_boot: int = 2000) -> tuple[float,
     return float(lo), float(hi)
 
 
-def _grid_search(op, mv, sync, variant, S_max, J_max, seeds=(), n_grid=41, n_zoom=3, zoom=21):
+def _grid_search(op, mv, sync, variant, S_max, J_max, seeds=(), n_grid=31, n_zoom=3, zoom=11):
     """Coarse-to-fine grid search of the mv cost over (S, J) for one valve model.
 
     With a noisy op the cost is rough in S (a small change of S moves a breakaway
@@ -555,8 +555,14 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     J_seg = float(np.median(jump_ev)) if jump_ev.size else None
     seeds = [] if S_seg is None else [(S_seg, J_seg)]
 
+    variants = valve_variants(op)
+    if any(v.play_width > 0 for v in variants):
+        # On a noisy op the published flowchart re-arms at every noise reversal and
+        # never slips, and behind the play operator it differs from Kano's variant
+        # only in rare partial reversals: not worth their evaluations.
+        variants = [v for v in variants if v.kano]
     searches = {}
-    for variant in valve_variants(op):
+    for variant in variants:
         res = _grid_search(op, mv, (k0, k_start, d_start, -1.0), variant, S_max, J_max, seeds=seeds)
         searches[variant.name] = (variant, res)
     best = min(searches, key=lambda k: searches[k][1][5])
@@ -572,7 +578,8 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     linear_cost = float(np.sum(lin_resid[k0:] ** 2))
 
     n_eff = effective_samples(resid[k0:])
-    thr = cost_threshold(cost, n_eff, 3)
+    noise_cost = float(segs.noise_mv**2 * (n - k0))
+    thr = cost_threshold(cost, n_eff, 3, noise_cost)
     S_iv, S_lo_edge, S_hi_edge = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, J_lo_edge, J_hi_edge = profile_interval(J_all, C_all, thr, 0.0, J_max)
 
@@ -651,7 +658,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
             "stiction": block_sse(resid, period, k0).tolist(),
             "linear": block_sse(lin_resid, period, k0).tolist(),
         },
-        "noise_cost": float(segs.noise_mv**2 * (n - k0)),
+        "noise_cost": noise_cost,
         "n_parameters": {"stiction": 3, "linear": 1},
         "effective_samples": n_eff,
         "n_samples": n - k0,
