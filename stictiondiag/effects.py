@@ -47,6 +47,7 @@ vectorised linear least squares over a small grid of poles and dead times.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -1084,6 +1085,8 @@ def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float) -> dict | None:
         "direction": np.asarray(seg.direction, dtype=float),
         "S": np.asarray(seg.band, dtype=float),
         "J": np.asarray(seg.jump, dtype=float),
+        "travel": np.asarray(seg.travel, dtype=float),
+        "reversal": np.asarray(seg.reversal, dtype=bool),
     }
 
 
@@ -1285,6 +1288,7 @@ class _ValveProblem:
         self.kano = bool(kano)
         self.d0 = float(d0)
         self.y0 = min(max(float(y0), 0.0), 100.0)
+        self.y0_data = self.y0
         # Samples where mv moved beyond its noise (or its resolution), for the
         # teacher-forced search.
         d = np.abs(np.diff(self.mv, prepend=self.mv[0]))
@@ -1315,8 +1319,16 @@ class _ValveProblem:
     @classmethod
     def of(cls, ctx: ReplayContext, w: np.ndarray, kano: bool, d0: float) -> _ValveProblem:
         mv = ctx.sig.mv
-        y0 = float(np.median(mv[: max(min(3, mv.size // 100), 1)]))
+        y0 = _rest_level_before_first_slip(ctx)
         return cls(ctx.sig.op, mv, w, ctx.norm["mv"], kano, d0, y0)
+
+    def with_output_map(self, slope: float, offset: float) -> _ValveProblem:
+        """The same problem for a model ``mv = offset + slope * element``: the element
+        starts at the recorded rest level mapped back to its own units."""
+        other = copy.copy(self)
+        if abs(slope) > 1e-9:
+            other.y0 = min(max((self.y0_data - offset) / slope, 0.0), 100.0)
+        return other
 
     def costs(self, P, h=_CONSTANT, *, affine=False, curvature=0.0, family="linear", bound=np.inf):
         """Normalised weighted squared mv error for every row of P (see ``_P_COLUMNS``).
@@ -1395,6 +1407,21 @@ class _ValveProblem:
         )
 
 
+def _rest_level_before_first_slip(ctx: ReplayContext) -> float:
+    """Valve position at the start of the replay [% of span].
+
+    The recorded level while the valve rests before its first measured slip: there
+    the position has settled (after any actuator lag) and the valve is stuck, as the
+    replay starts.  Without measured slips, the first few samples.
+    """
+    mv = ctx.sig.mv
+    if ctx.slips is not None and ctx.slips["time"].size:
+        k = int(ctx.slips["time"][0])
+        if k >= 4:
+            return float(np.median(mv[max(k - 10, 0) : k - 1]))
+    return float(np.median(mv[: max(min(3, mv.size // 100), 1)]))
+
+
 def _rows(
     S_open,
     J_open,
@@ -1441,6 +1468,72 @@ def _slip_medians(slips: dict | None, mask=None) -> tuple[float, float] | None:
     if not (math.isfinite(S) and math.isfinite(J)):
         return None
     return max(S, 0.0), max(J, 0.0)
+
+
+def _travel_seeds(
+    slips: dict | None, direction: float = 0.0, mask=None
+) -> list[tuple[float, float]]:
+    """(S, J) starting points from the demand travel of the measured slips.
+
+    A valve breaks away once its demand has travelled S from where it stopped
+    after a reversal, J after a stop in the same direction (Fig. 2); the first
+    sample beyond the threshold overshoots it, so the lower quartile of the travels
+    is taken.  J is also read from the slip jumps (Eq. 4), which hold when S - J is
+    the same both ways.  ``direction`` selects opening (+1) or closing (-1) slips.
+    """
+    if slips is None or "travel" not in slips:
+        return []
+    sel = np.ones(slips["travel"].size, dtype=bool) if mask is None else mask.copy()
+    if direction != 0.0:
+        sel &= slips["direction"] == direction
+    rev = sel & slips["reversal"]
+    same = sel & ~slips["reversal"]
+    if rev.sum() < 2:
+        return []
+    S = float(np.percentile(slips["travel"][rev], 25))
+    Js = []
+    if same.sum() >= 3:
+        Js.append(float(np.percentile(slips["travel"][same], 25)))
+    Js.append(float(np.median(slips["J"][sel])))
+    return [(max(S, 0.0), max(J, 0.0)) for J in Js if math.isfinite(J)]
+
+
+def grid_search_nd(
+    batch_cost: Callable[[np.ndarray, float], np.ndarray],
+    x0: np.ndarray,
+    dims: tuple[int, ...],
+    *,
+    stages: tuple[tuple[float, int], ...] = ((0.12, 9), (0.03, 7), (0.008, 5)),
+) -> tuple[np.ndarray, float]:
+    """Coarse-to-fine product grid over several parameters at once, relative to x0.
+
+    Stiction parameters of an augmented valve are coupled: with the closing S a
+    little off, the replay misses the closing slips and the opening S and J cannot
+    be found either.  Each stage lays a grid of ``steps`` values per parameter over
+    ``+-span`` (relative) around the current point, all combinations at once (the
+    compiled cost abandons the bad ones early), and recentres on the best.
+    """
+    x = np.asarray(x0, dtype=float).copy()
+    best = float(batch_cost(x[None, :], np.inf)[0])
+    dims = tuple(dims)
+    for span, steps in stages:
+        g = np.linspace(1.0 - span, 1.0 + span, steps)
+        mesh = np.meshgrid(*([g] * len(dims)), indexing="ij")
+        F = np.column_stack([m.ravel() for m in mesh])
+        X = np.repeat(x[None, :], F.shape[0], axis=0)
+        # Offsets relative to each value, but at least to a third of the largest one
+        # (a J near zero still moves).
+        xd = np.abs(x[list(dims)])
+        scale = np.maximum(xd, max(0.3 * float(xd.max()), 1e-3))
+        X[:, list(dims)] = x[list(dims)] + (F - 1.0) * scale
+        X = np.maximum(X, 0.0)
+        # Nearest points first: a good early bound makes the rest cheap.
+        X = X[np.argsort(np.abs(F - 1.0).sum(axis=1))]
+        c = batch_cost(X, best)
+        k = int(np.argmin(c))
+        if c[k] < best:
+            best, x = float(c[k]), X[k].copy()
+    return x, best
 
 
 def _sj_bounds(travel: float) -> tuple[np.ndarray, np.ndarray]:
@@ -1511,6 +1604,7 @@ def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None
     med = _slip_medians(ctx.slips)
     if med is not None:
         extra.append(med)
+    extra += _travel_seeds(ctx.slips)
     # The stuck-phase logic from the coarse grid and the seeds (the two differ only
     # in how noise reversals re-arm a stuck valve), then the fine search.
     best = None
@@ -2001,6 +2095,7 @@ def fit_actuator_lag(
     med = _slip_medians(ctx.slips)
     if med is not None:
         seeds.append(med)
+    seeds += _travel_seeds(ctx.slips)
     prob = _pick_problem(
         ctx,
         w,
@@ -2084,13 +2179,27 @@ def fit_miscalibration(
         lambda pr: float(np.min(pr.costs(_rows(S0 / slopes, J0 / slopes), affine=True))),
     )
     if init is not None:
+        prob = prob.with_output_map(init.params["slope"], init.params["offset_pct"])
         x, _ = _needle_sj_affine(prob, [init.x], travel, rel=0.03, zooms=1, n_grid=11)
     else:
         c = prob.costs(_rows(S0 / slopes, J0 / slopes), affine=True)
+        i = int(np.argmin(c))
+        # The element starts at the recorded rest level in its own units: map it back
+        # with the slope and offset of the best scanned point before the search.
+        v, _ = prob.series(_rows(S0 / slopes[i], J0 / slopes[i])[0])
+        prob = prob.with_output_map(*_affine(v, ctx.sig.mv, w))
+        c = prob.costs(_rows(S0 / slopes, J0 / slopes), affine=True)
         seeds = [(S0 / slopes[i], J0 / slopes[i]) for i in np.argsort(c)[:2]]
+        # The demand travel of the slips is on the op axis already.
+        seeds += _travel_seeds(ctx.slips)
         x, _ = _needle_sj_affine(prob, seeds, travel * 3)
     v, _ = prob.series(_rows(x[0], x[1])[0])
     slope, offset = _affine(v, ctx.sig.mv, w)
+    for _ in range(2):
+        prob = prob.with_output_map(slope, offset)
+        x, _ = _needle_sj_affine(prob, [x], travel * 3, rel=0.03, zooms=1, n_grid=11)
+        v, _ = prob.series(_rows(x[0], x[1])[0])
+        slope, offset = _affine(v, ctx.sig.mv, w)
     return EffectFit(
         effect="miscalibration",
         variant="slope_offset",
@@ -2138,10 +2247,10 @@ def fit_asymmetry(
     lower, upper = np.zeros(4), np.array([travel, 1.5 * travel] * 2)
     S0, J0 = base.valve.params["S"], base.valve.params["J"]
     seeds = [np.array([S0, J0, S0, J0])]
-    if ctx.slips is not None:
-        up = _slip_medians(ctx.slips, ctx.slips["direction"] > 0)
-        dn = _slip_medians(ctx.slips, ctx.slips["direction"] < 0)
-        if up is not None and dn is not None:
+    ups = _travel_seeds(ctx.slips, 1.0) or [(S0, J0)]
+    dns = _travel_seeds(ctx.slips, -1.0) or [(S0, J0)]
+    for up in ups:
+        for dn in dns:
             seeds.append(np.array([up[0], up[1], dn[0], dn[1]]))
     S4 = np.array(seeds)
     prob = _pick_problem(ctx, w, base, init, lambda pr: float(np.min(pr.costs(_rows(*S4.T)))))
@@ -2150,16 +2259,15 @@ def fit_asymmetry(
         return prob.costs(_rows(X[:, 0], X[:, 1], X[:, 2], X[:, 3]), bound=bound)
 
     if init is not None:
-        x = np.array(init.x)
-        rel, zooms, rounds, n_grid = 0.03, 1, 1, 11
+        x, _ = grid_search_nd(cost, np.array(init.x), (0, 1, 2, 3), stages=((0.02, 5), (0.006, 5)))
     else:
         c = cost(S4, np.inf)
         x = seeds[int(np.argmin(c))]
-        rel, zooms, rounds, n_grid = 0.2, 2, 2, 31
-    for _ in range(rounds):
+        # All four together: the two directions' slips are coupled through where the
+        # valve stops.
+        x, _ = grid_search_nd(cost, x, (0, 1, 2, 3))
         for pair in ((0, 1), (2, 3)):
-            x, _ = needle_search(cost, x, pair, lower, upper, rel=rel, zooms=zooms, n_grid=n_grid)
-        rel = min(rel, 0.08)
+            x, _ = needle_search(cost, x, pair, lower, upper, rel=0.03, zooms=1, n_grid=11)
     mv_hat, _ = prob.series(_rows(x[0], x[1], x[2], x[3])[0])
     return EffectFit(
         effect="asymmetry",
@@ -2224,6 +2332,7 @@ def _window_fits(ctx: ReplayContext, w: np.ndarray, base: BaseFit, n_win: int) -
         med = _slip_medians(ctx.slips, inside)
         if med is not None:
             seeds.append(med)
+        seeds += _travel_seeds(ctx.slips, mask=inside)
         ratios = np.geomspace(1 / 3, 3.0, 13)
         RR, JJ = np.meshgrid(ratios, np.linspace(0.0, 1.5, 7), indexing="ij")
         sc = _scale(S0, J0)
@@ -2269,6 +2378,10 @@ def fit_time_varying_stiction(
 
     def search(t1, t2, x, rel, zooms):
         cost = cost_h(_profile(n, t1, t2))
+        # Start and end values together (coupled through where the valve stops),
+        # then each pair finely.
+        stages = ((0.12, 7), (0.03, 5)) if rel > 0.1 else ((0.02, 5),)
+        x, _ = grid_search_nd(cost, x, (0, 1, 2, 3), stages=stages)
         for pair in ((0, 1), (2, 3)):
             x, c = needle_search(
                 cost, x, pair, lower, upper, rel=rel, zooms=zooms, n_grid=11 if rel < 0.1 else 31
