@@ -43,7 +43,10 @@ def report(
     gap: Annotated[bool, typer.Option(help="Include the sim-to-real gap diagnosis.")] = True,
     workers: Annotated[
         int | None,
-        typer.Option(min=1, help="Loops analysed side by side (default: one per core)."),
+        typer.Option(
+            min=1,
+            help="Loops analysed side by side (default: one per core, less one, on 4+ cores; else 1).",
+        ),
     ] = None,
     pv: Annotated[str | None, typer.Option(help="Column holding pv (every file).")] = None,
     op: Annotated[str | None, typer.Option(help="Column holding op (every file).")] = None,
