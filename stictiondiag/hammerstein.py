@@ -596,11 +596,15 @@ def _setup(op, pv, dt, integrating, flow_loop, period_s) -> dict:
             f"record too short for a Hammerstein fit: {n} samples with a {period}-sample "
             "cycle; record at least three cycles"
         )
+    # The search runs on op in units of its typical cycle travel, so that a fit is
+    # exactly the same whatever the units of op (STYLE.md invariant); S and J are
+    # scaled back at the end.
+    scale = cycle_travel(x, period)
+    if not scale > 0:
+        scale = float(np.ptp(x))
+    x = x / scale
     prob = _Problem(x, yf, taus, integrating, a_hp, k_start, d_start, j0, j1, stride, coarse_delays)
-
-    travel = cycle_travel(x, period)
-    S_max = float(min(1.25 * travel, np.ptp(x)))
-    S_max = max(S_max, 1e-9 * max(float(np.ptp(x)), 1e-300))
+    S_max = float(min(1.25, np.ptp(x)))
 
     return {
         "problem": prob,
@@ -612,7 +616,7 @@ def _setup(op, pv, dt, integrating, flow_loop, period_s) -> dict:
         "d_max": d_max,
         "coarse_delays": coarse_delays,
         "taus": taus,
-        "travel": travel,
+        "scale": scale,
         "S_max": S_max,
         "a_hp": a_hp,
     }
@@ -674,10 +678,10 @@ def fit_hammerstein(
     setup = _setup(op, pv, dt, integrating, flow_loop, period_s)
     prob, structure, period = setup["problem"], setup["structure"], setup["period"]
     x, stride, d_max = setup["x"], setup["stride"], setup["d_max"]
-    coarse_delays, taus, travel = setup["coarse_delays"], setup["taus"], setup["travel"]
-    S_max = J_max = setup["S_max"]
+    coarse_delays, taus, scale = setup["coarse_delays"], setup["taus"], setup["scale"]
+    S_max = J_max = setup["S_max"]  # in cycle travels of op, like every S and J below
     op_mean, op_std = float(np.mean(op)), float(np.std(op))
-    offsets_all = np.array(START_OFFSETS) * travel
+    offsets_all = np.array(START_OFFSETS)
 
     # 1. Valve variant, start offset, process time constant and dead time on a coarse
     #    grid.
@@ -752,7 +756,7 @@ def fit_hammerstein(
         delays = coarse_delays
     else:
         delays = _delay_window(d_best, d_max, max(3, d_best // 2), 11)
-        prob.taus = tau_best * np.array([0.8, 1.0, 1.25])
+        prob.taus = np.union1d(taus, tau_best * np.array([0.8, 1.0, 1.25]))
     prob.set_delays(delays)
     SS, JJ, step_s, step_j = _grid(0.0, S_max, 0.0, J_max, 11)
     c = evaluate(SS, JJ)
@@ -790,7 +794,7 @@ def fit_hammerstein(
         objective,
         simplex[0],
         method="Nelder-Mead",
-        options={"initial_simplex": simplex, "maxfev": POLISH_EVALUATIONS, "xatol": 1e-4 * S_max},
+        options={"initial_simplex": simplex, "maxfev": POLISH_EVALUATIONS, "xatol": 1e-4},
     )
 
     S_all, J_all, C_all, D_all, O_all, T_all = (np.concatenate(pts[k]) for k in "SJCDOT")
@@ -830,18 +834,21 @@ def fit_hammerstein(
     x_valve = variant.prepare(x)
     k_s = prob.k_start
     dmv, dx = np.diff(mv_model[k_s:]), np.diff(x_valve[k_s:])
-    scale = max(float(np.ptp(x)), 1e-300)
-    moving = np.abs(dmv - dx) <= 1e-9 * scale
+    moving = np.abs(dmv - dx) <= 1e-9 * max(float(np.ptp(x)), 1e-300)
     moving &= np.abs(dmv) > 0
     moving_fraction = float(moving.mean()) if moving.size else 0.0
     J_confounded = moving_fraction < MIN_MOVING_FRACTION and S_hat > 0
     if J_confounded:
         J_iv, J_open = (0.0, J_max), True
 
+    # Back from cycle travels to the units of op.
+    S_hat, J_hat = S_hat * scale, J_hat * scale
+    S_iv = (S_iv[0] * scale, S_iv[1] * scale)
+    J_iv = (J_iv[0] * scale, J_iv[1] * scale)
     block = max(2, period // stride)
     details = {
         "valve_model": model,
-        "play_width": variant.play_width,
+        "play_width": variant.play_width * scale,
         "structure": structure,
         "period_samples": period,
         "row_stride": stride,
@@ -851,9 +858,9 @@ def fit_hammerstein(
         "time_constant_s": tau * dt,
         "process_gains": {"direct": float(theta[0]), "lag": float(theta[1])},
         "highpass_corner_s": HIGHPASS_PERIODS * period * dt,
-        "search_limit": S_max,
+        "search_limit": S_max * scale,
         "start_sample": prob.k_start,
-        "start_offset": offset,
+        "start_offset": offset * scale,
         "cost_by_valve_model_coarse": {k: float(v[0].min()) for k, v in coarse.items()},
         "determinacy": _determinacy(S_hat, S_iv, S_open, J_hat, J_iv, J_open),
         "interval_method": (
@@ -885,7 +892,7 @@ def fit_hammerstein(
         S_interval=S_iv,
         J_interval=J_iv,
         method="hammerstein",
-        mv_model=mv_model + op_mean,
+        mv_model=mv_model * scale + op_mean,
         n_slips=int(n_slips),
         cost=cost,
         linear_cost=linear_cost,

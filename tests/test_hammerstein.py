@@ -1,0 +1,141 @@
+"""S and J from op and pv alone: the Hammerstein fit (valve model + linear process)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from stictiondiag.errors import DataError
+from stictiondiag.hammerstein import fit_hammerstein
+from stictiondiag.loops import simulate_loop
+from stictiondiag.processes import FOPTD, LOOP_PARAMETERS, PI
+
+
+def loop(name, S, J, *, valve="choudhury", noise=0.0, duration=None, dt=None, load=None):
+    """One of the paper's loops (Eq. 3, Table 3), the start-up fifth dropped."""
+    if name == "flow":
+        process, controller = FOPTD(1.0, 0.5, 0.0), PI(0.3, 1.0)
+        dt, duration = dt or 0.5, duration or 600.0
+    else:
+        p = LOOP_PARAMETERS[name]
+        process, controller = p["process"], p["controller"]
+        dt = dt or (0.5 if name == "concentration" else 0.1)
+        duration = duration or (2500.0 if name == "concentration" else 300.0)
+    if load is not None:
+        load = load(np.arange(round(duration / dt)) * dt)
+    sim = simulate_loop(
+        process,
+        controller,
+        duration=duration,
+        dt=dt,
+        valve=valve,
+        S=S,
+        J=J,
+        noise_std=noise,
+        seed=11,
+        kick=2.0,
+        load=load,
+    )
+    w = sim.op.size // 5
+    return sim.op[w:], sim.pv[w:], dt
+
+
+def test_concentration_loop_recovers_S_and_J():
+    op, pv, dt = loop("concentration", 5.0, 2.0)
+    fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False)
+    # Without mv the breakaway point is seen only through the process: it trades off
+    # against the dead time (one sample of dead time is 0.5 s of op ramp, about
+    # 0.05 % of span here) and the grid refines to a few hundredths of a percent;
+    # 0.3 % of span is the accuracy aimed at without mv.
+    assert fit.S == pytest.approx(5.0, abs=0.3)
+    assert fit.J == pytest.approx(2.0, abs=0.3)
+    assert fit.method == "hammerstein"
+    assert fit.improvement > 0.9
+    # The process dead time of Eq. 3 is 10 s; a time constant of the first-order
+    # basis absorbs part of it, so it is found within a few samples.
+    assert fit.details["dead_time_s"] == pytest.approx(10.0, abs=3.0)
+
+
+def test_level_loop_with_noise():
+    # Level loop (integrator, Table 3) with measurement noise fed back: Kano valve,
+    # since the published flowchart never slips on a noisy op.
+    op, pv, dt = loop("level", 3.0, 1.0, valve="kano", noise=0.02)
+    fit = fit_hammerstein(op, pv, dt, integrating=True, flow_loop=False)
+    # Same reasoning as above; the integrator has no dead time to trade against.
+    assert fit.S == pytest.approx(3.0, abs=0.3)
+    assert fit.J == pytest.approx(1.0, abs=0.3)
+    assert fit.details["structure"] == "integrating"
+
+
+def test_flow_loop_shortcut():
+    # Section 5.3.1: in a flow loop pv is (nearly) proportional to mv.
+    op, pv, dt = loop("flow", 4.0, 2.0)
+    fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=True)
+    # The flow lag (0.5 s) is one sample; 0.3 % as above.
+    assert fit.S == pytest.approx(4.0, abs=0.3)
+    assert fit.J == pytest.approx(2.0, abs=0.3)
+    assert fit.details["structure"] == "flow"
+
+
+def test_linear_valve_gives_no_band():
+    # A linear valve in the concentration loop, cycling under a sinusoidal load.
+    op, pv, dt = loop(
+        "concentration",
+        0.0,
+        0.0,
+        valve="linear",
+        noise=0.02,
+        load=lambda t: 2.0 * np.sin(2 * np.pi * t / 150.0),
+    )
+    fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False)
+    # A band of more than a few hundredths of the 3 % op cycle would delay the
+    # valve at every reversal, which the linear pv response does not show.
+    assert fit.S < 0.2
+    assert fit.S_interval[0] == 0.0
+    assert fit.improvement < 0.1
+
+
+def test_units_rescale_S_and_J_and_nothing_else():
+    # STYLE.md invariant.  op twice as large (an exact binary factor): S and J twice
+    # as large, the rest the same; pv in other units: nothing changes.
+    op, pv, dt = loop("level", 3.0, 1.0, valve="kano", noise=0.02)
+    a = fit_hammerstein(op, pv, dt, integrating=True, flow_loop=False)
+    b = fit_hammerstein(2.0 * op, pv, dt, integrating=True, flow_loop=False)
+    c = fit_hammerstein(op, 4.0 * pv, dt, integrating=True, flow_loop=False)
+    assert b.S == pytest.approx(2.0 * a.S, rel=1e-9)
+    assert b.J == pytest.approx(2.0 * a.J, rel=1e-9)
+    assert b.S_scaled == pytest.approx(a.S_scaled, rel=1e-9)
+    assert b.cost == pytest.approx(a.cost, rel=1e-9)
+    assert b.details["dead_time_s"] == a.details["dead_time_s"]
+    assert c.S == pytest.approx(a.S, rel=1e-9)
+    assert c.J == pytest.approx(a.J, rel=1e-9)
+    assert c.cost == pytest.approx(a.cost, rel=1e-9)
+
+
+def test_result_is_json_and_reports_determinacy():
+    op, pv, dt = loop("concentration", 5.0, 2.0)
+    fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False)
+    d = fit.to_dict()
+    json.dumps(d, allow_nan=False)
+    assert set(d["details"]["determinacy"]) == {"S", "J"}
+    assert fit.S_interval[0] <= fit.S <= fit.S_interval[1]
+    assert fit.mv_model.shape == op.shape
+    # The block costs the verdict resamples: one per cycle, stiction below linear.
+    blocks = d["details"]["block_sse"]
+    assert len(blocks["stiction"]) == len(blocks["linear"]) >= 5
+    assert sum(blocks["stiction"]) < sum(blocks["linear"])
+
+
+@pytest.mark.parametrize(
+    "op, pv, match",
+    [
+        (np.sin(np.arange(500) / 10.0), np.ones(500), "constant"),
+        (np.sin(np.arange(30) / 3.0), np.cos(np.arange(30) / 3.0), "at least 50"),
+        (np.sin(np.arange(500) / 10.0), np.r_[np.ones(499), np.nan], "NaN"),
+    ],
+)
+def test_bad_input_is_a_data_error(op, pv, match):
+    with pytest.raises(DataError, match=match):
+        fit_hammerstein(op, pv, 1.0, integrating=False, flow_loop=False)
