@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import StictionError
-from .oscillation import Oscillation, detect_oscillation
+from .errors import DataError, StictionError
+from .oscillation import MIN_CYCLES, Oscillation, detect_oscillation, dominant_period
 from .tags import Tags, read_tags
 
 #: Loop types where pv is (nearly) proportional to the valve opening: the flow-loop
@@ -185,6 +185,36 @@ def _clean(obj):
     return obj
 
 
+def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) -> None:
+    """Refuse a record too short to tell whether its pattern is a limit cycle.
+
+    Stiction shows as a sustained limit cycle (Sections 4.2.2 and 5.3), and the
+    oscillation test needs :data:`~stictiondiag.oscillation.MIN_CYCLES` periods.
+    When neither pv nor op passes it but the slowest pattern the autocorrelation
+    shows (:func:`~stictiondiag.oscillation.dominant_period`) is longer than a
+    third of the record, "no oscillation" would only mean "not enough data": the
+    analysis stops and says how long a record it needs. A recorded mv is exempt: its
+    stick and slip phases show the stiction directly, cycle or not (Figs. 3 and 6).
+
+    Raises
+    ------
+    DataError
+        The record holds fewer than ``MIN_CYCLES`` periods of its dominant pattern.
+    """
+    if osc_pv.present or osc_op.present or tags.mv is not None:
+        return
+    for role in ("pv", "op"):
+        period = dominant_period(getattr(tags, role), float(tags.ts))
+        if period and tags.duration < MIN_CYCLES * period:
+            need = math.ceil(MIN_CYCLES * period / float(tags.ts))
+            raise DataError(
+                f"record too short: {tags.n} samples hold only {tags.duration / period:.1f} "
+                f"cycles of the {period:.0f} s pattern in {role}, and telling a limit cycle "
+                f"needs {MIN_CYCLES:g}; export at least {need} samples "
+                f"({MIN_CYCLES * period:.0f} s)"
+            )
+
+
 def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
     """Diagnose stiction in one loop.
 
@@ -198,6 +228,12 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
     Returns
     -------
     Analysis
+
+    Raises
+    ------
+    DataError
+        The record is too short to tell a limit cycle (:func:`check_record_length`),
+        or a step cannot use the data (its message says why).
     """
     from .estimate import stiction_verdict
     from .hammerstein import fit_hammerstein
@@ -210,6 +246,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
     # 2. Is there an oscillation at all?
     osc_pv = detect_oscillation(tags.pv, dt)
     osc_op = detect_oscillation(tags.op, dt)
+    check_record_length(tags, osc_pv, osc_op)
 
     # 3. S and J: from the valve's own signal when recorded, else the Hammerstein fit.
     if tags.mv is not None:
