@@ -637,7 +637,8 @@ def stiction_verdict(
 
     * An oscillation, ``P >= decision_level`` and S determined (its interval excludes
       0 and stays inside the search range): **stiction**, confidence ``P``.
-    * An oscillation and ``P <= 1 - decision_level``: **no stiction**, confidence
+    * An oscillation and ``P <= 1 - decision_level``, or ``P < decision_level`` with
+      a linear valve (S = 0) inside the S interval: **no stiction**, confidence
       ``1 - P``.
     * No oscillation in pv or op: **no stiction**, confidence ``1 - P``, unless the
       recorded mv shows the stick-slip itself (``P >= decision_level``, at least
@@ -738,7 +739,7 @@ def stiction_verdict(
         return Verdict(
             "stiction", True, P, (improve_text, fit_text, *osc_texts, *det_texts), evidence
         )
-    if P <= 1.0 - decision_level:
+    if P <= 1.0 - decision_level or (not S_excludes_zero and P < decision_level):
         return Verdict(
             "no_stiction",
             False,

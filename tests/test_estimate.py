@@ -1,0 +1,246 @@
+"""The stiction verdict and the statistics shared by the estimators."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from stictiondiag.estimate import (
+    StictionFit,
+    Verdict,
+    cost_threshold,
+    cycle_samples,
+    effective_samples,
+    improvement_support,
+    play,
+    profile_interval,
+    stiction_verdict,
+    valve_run,
+    white_noise_std,
+)
+from stictiondiag.hammerstein import fit_hammerstein
+from stictiondiag.loops import simulate_loop
+from stictiondiag.oscillation import detect_oscillation
+from stictiondiag.processes import LOOP_PARAMETERS
+from stictiondiag.segments import estimate_from_mv
+from stictiondiag.valve import choudhury_model
+
+
+def concentration(S, J, *, valve="choudhury", noise=0.0, load=None, duration=2500.0, dt=0.5):
+    p = LOOP_PARAMETERS["concentration"]
+    n = round(duration / dt)
+    sim = simulate_loop(
+        p["process"],
+        p["controller"],
+        duration=duration,
+        dt=dt,
+        valve=valve,
+        S=S,
+        J=J,
+        noise_std=noise,
+        seed=5,
+        kick=2.0,
+        load=None if load is None else load(np.arange(n) * dt),
+    )
+    w = n // 5
+    return sim.op[w:], sim.mv[w:], sim.pv[w:], dt
+
+
+def verdict_for(fit, op, pv, dt):
+    return stiction_verdict(
+        fit, detect_oscillation(pv, dt), oscillation_op=detect_oscillation(op, dt)
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Verdicts
+# --------------------------------------------------------------------------------------
+
+
+def test_sticky_valve_with_mv_is_stiction():
+    op, mv, pv, dt = concentration(5.0, 2.0)
+    v = verdict_for(estimate_from_mv(op, mv, dt), op, pv, dt)
+    assert v.status == "stiction"
+    assert v.detected is True
+    # Every cycle shows the same stick-slip, so every bootstrap resample improves
+    # on the linear valve by far more than 10 %.
+    assert v.confidence == 1.0
+    assert v.evidence["improvement"] > 0.9
+    json.dumps(v.to_dict(), allow_nan=False)
+
+
+def test_sticky_valve_without_mv_is_stiction():
+    op, _, pv, dt = concentration(5.0, 2.0, valve="kano", noise=0.05)
+    fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False)
+    v = verdict_for(fit, op, pv, dt)
+    assert v.status == "stiction"
+    # As above: the improvement is large in every cycle.
+    assert v.confidence > 0.95
+
+
+def test_linear_valve_cycling_under_a_load_is_no_stiction():
+    # A linear valve; the loop cycles because of a sinusoidal load.
+    op, mv, pv, dt = concentration(
+        0.0,
+        0.0,
+        valve="linear",
+        noise=0.02,
+        load=lambda t: 2.0 * np.sin(2 * np.pi * t / 150.0),
+    )
+    assert detect_oscillation(pv, dt).present
+    rng = np.random.default_rng(2)
+    mv = mv + 0.05 * rng.standard_normal(mv.size)
+    for fit in (
+        estimate_from_mv(op, mv, dt),
+        fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False),
+    ):
+        # S ~ 0: a band would hold the valve at every reversal of op.
+        assert fit.S < 0.2
+        v = verdict_for(fit, op, pv, dt)
+        assert v.status == "no_stiction"
+        assert v.detected is False
+        # The stiction model removes less than 10 % of the residual in most resamples
+        # (the Hammerstein fit's band, 0.04 %, still picks up some of the load).
+        assert v.confidence > 0.8
+
+
+def test_no_oscillation_is_not_stiction():
+    # A linear valve in a quiet loop: nothing oscillates.
+    op, mv, pv, dt = concentration(0.0, 0.0, valve="linear", noise=0.02)
+    assert not detect_oscillation(pv, dt).present
+    fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False)
+    v = verdict_for(fit, op, pv, dt)
+    assert v.status == "no_stiction"
+    assert any("no oscillation" in r for r in v.reasons)
+
+
+def test_no_oscillation_but_recorded_stick_slip_is_stiction():
+    # The valve itself sticks and slips (recorded mv, sine demand as from a slow
+    # set-point programme) while pv and op have no regular cycle.
+    rng = np.random.default_rng(4)
+    t = np.arange(4000) * 1.0
+    op = 50 + 8 * np.sin(2 * np.pi * t / 400) + 3 * np.sin(2 * np.pi * t / 157)
+    mv = choudhury_model(op, 3.0, 1.0) + 0.05 * rng.standard_normal(t.size)
+    fit = estimate_from_mv(op, mv, 1.0)
+
+    class NoCycle:
+        present = False
+        reason = "irregular"
+
+    v = stiction_verdict(fit, NoCycle(), oscillation_op=NoCycle(), has_mv=True)
+    assert v.status == "stiction"
+    assert "sticks and slips" in v.reasons[0]
+
+
+def test_weak_improvement_is_inconclusive():
+    # Per-cycle costs where the stiction model gains 10 % on average but loses in a
+    # third of the cycles: the support sits between the decision levels.
+    blocks_lin = np.ones(12)
+    blocks_st = np.where(np.arange(12) % 3 == 0, 1.1, 0.85)
+    fit = StictionFit(
+        S=1.0,
+        J=0.5,
+        S_scaled=0.5,
+        J_scaled=0.25,
+        S_interval=(0.5, 1.5),
+        J_interval=(0.0, 1.0),
+        method="hammerstein",
+        mv_model=np.zeros(10),
+        n_slips=12,
+        cost=float(blocks_st.sum()),
+        linear_cost=float(blocks_lin.sum()),
+        details={"block_sse": {"stiction": blocks_st.tolist(), "linear": blocks_lin.tolist()}},
+    )
+
+    class Cycle:
+        present = True
+        period_s = 100.0
+        regularity = 3.0
+
+    v = stiction_verdict(fit, Cycle())
+    assert v.status == "inconclusive"
+    assert v.detected is None
+    assert 0.05 < v.confidence < 0.95
+    assert isinstance(v, Verdict)
+
+
+def test_verdict_is_unit_invariant():
+    op, mv, pv, dt = concentration(5.0, 2.0)
+    a = verdict_for(estimate_from_mv(op, mv, dt), op, pv, dt)
+    b = verdict_for(estimate_from_mv(2 * op, 2 * mv, dt), 2 * op, pv, dt)
+    assert (a.status, a.confidence) == (b.status, b.confidence)
+
+
+# --------------------------------------------------------------------------------------
+# Shared statistics
+# --------------------------------------------------------------------------------------
+
+
+def test_improvement_support():
+    lin = np.ones(10)
+    # Half of every cycle's residual removed: every resample is above 10 %.
+    support, f, (lo, hi) = improvement_support(0.5 * lin, lin)
+    assert support == 1.0
+    assert f == pytest.approx(0.5)
+    assert lo == pytest.approx(0.5) and hi == pytest.approx(0.5)
+    # Nothing removed: no resample is above 10 %.
+    assert improvement_support(lin, lin)[0] == 0.0
+
+
+def test_effective_samples():
+    rng = np.random.default_rng(0)
+    white = rng.standard_normal(20000)
+    # White noise: every sample independent (estimator spread about 3 %).
+    assert effective_samples(white) == pytest.approx(20000, rel=0.1)
+    ar = np.empty_like(white)
+    ar[0] = white[0]
+    for k in range(1, ar.size):
+        ar[k] = 0.9 * ar[k - 1] + white[k]
+    # AR(1) with pole 0.9: N (1 - 0.9) / (1 + 0.9) = 1053; the truncated ACF sum has
+    # a spread of about 20 % at this length.
+    assert effective_samples(ar) == pytest.approx(20000 * 0.1 / 1.9, rel=0.3)
+
+
+def test_cost_threshold_and_profile_interval():
+    # Quadratic profile C = 100 + (s - 3)^2 sampled every 0.1; 100 effective samples,
+    # 3 parameters: threshold 100 (1 + F_0.95(1, 97) / 97) = 104.06, |s - 3| < 2.015.
+    s = np.linspace(0, 6, 61)
+    c = 100 + (s - 3) ** 2
+    thr = cost_threshold(100.0, 100.0, 3)
+    assert thr == pytest.approx(104.06, abs=0.01)
+    (lo, hi), at_lo, at_hi = profile_interval(s, c, thr, 0.0, 6.0)
+    # Grid values 1.0 ... 5.0 are inside; the interval reaches the next ones out.
+    assert lo == pytest.approx(0.9, abs=1e-9) and hi == pytest.approx(5.1, abs=1e-9)
+    assert not at_lo and not at_hi
+    # Misfit beyond the measurement noise widens the threshold to 2 C_min - noise.
+    assert cost_threshold(100.0, 100.0, 3, noise_cost=20.0) == pytest.approx(180.0)
+
+
+def test_noise_and_cycle_helpers():
+    rng = np.random.default_rng(1)
+    t = np.arange(5000)
+    smooth = 10 * np.sin(2 * np.pi * t / 250)
+    # A smooth signal has no white noise, whatever its curvature.
+    assert white_noise_std(smooth) == 0.0
+    # Robust estimate of 0.2 white noise on top (MAD spread about 2 %).
+    assert white_noise_std(smooth + 0.2 * rng.standard_normal(t.size)) == pytest.approx(
+        0.2, rel=0.1
+    )
+    # Period of a cycle riding on a step and a ramp (a load move), within 5 %.
+    x = smooth + np.where(t > 2500, 30.0, 0.0) + 0.002 * t
+    assert cycle_samples(x) == pytest.approx(250, rel=0.05)
+    # The play operator follows at half its width and holds on small reversals.
+    y = play(np.array([0.0, 1.0, 2.0, 1.8, 1.5, 3.0]), 1.0)
+    assert np.allclose(y, [0.0, 0.5, 1.5, 1.5, 1.5, 2.5])
+
+
+def test_valve_run_matches_the_published_model():
+    # Started moving up at sample 0, the compiled run is the Fig. 10 flowchart.
+    op = 50 + 10 * np.sin(2 * np.pi * np.arange(2000) / 500)
+    y, n_slips = valve_run(op, 5.0, 2.0, False, 0, 1.0, -1.0)
+    ref = choudhury_model(op, 5.0, 2.0, start_stuck=False, initial_position=op[0] - 1.5)
+    assert np.allclose(y[1:], ref[1:])
+    # Four cycles: one slip after each of the eight turns of op.
+    assert n_slips == 8
