@@ -1214,6 +1214,9 @@ class EffectFit:
     pv_floor : float or None
         For effects on the process side, the pv noise floor of that replay
         (:func:`process_noise_floor`) [pv units^2].
+    supported : bool
+        False when a check of the effect's own signature fails (an external
+        oscillation without a steady phase): it then cannot be named.
     """
 
     effect: str
@@ -1224,6 +1227,7 @@ class EffectFit:
     x: tuple = ()
     process: ProcessFit | None = None
     pv_floor: float | None = None
+    supported: bool = True
 
 
 @dataclass(frozen=True)
@@ -1586,14 +1590,10 @@ def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None
     """
     travel = _travel(ctx.sig.op)
     if like is not None:
-        prob = _ValveProblem.of(ctx, w, like.kano, like.initial_direction)
-        x, _ = _needle_sj(
-            prob, [(like.params["S"], like.params["J"])], travel, rel=0.03, zooms=1, n_grid=11
-        )
-        v, ph = prob.series(_rows(x[0], x[1])[0])
-        return ValveFit(
-            v, ph, {"S": float(x[0]), "J": float(x[1])}, like.kano, like.initial_direction
-        )
+        # Thresholds are not refitted on part of the record: a replay is in step with
+        # the data only at the exact thresholds, and a refit on half the record finds
+        # a slightly different one that throws the other half out of step.
+        return like
 
     S_grid = travel * np.geomspace(0.003, 0.6, 36)
     SS, RR = np.meshgrid(S_grid, np.linspace(0.0, 1.6, 9), indexing="ij")
@@ -2111,10 +2111,8 @@ def fit_actuator_lag(
         return lambda t: float(prob.costs(_rows(S, J, lag=_lag_weight(t)))[0])
 
     if init is not None:
+        # Thresholds from the whole record; the lag is refitted here.
         S, J, tau = init.x
-        (S, J), _ = _needle_sj(
-            prob, [(S, J)], travel, rel=0.03, zooms=1, n_grid=11, lag=_lag_weight(tau)
-        )
     else:
         # The breakaways do not depend on the lag: S and J with a provisional lag.
         tau = 2.0
@@ -2179,8 +2177,10 @@ def fit_miscalibration(
         lambda pr: float(np.min(pr.costs(_rows(S0 / slopes, J0 / slopes), affine=True))),
     )
     if init is not None:
+        # Thresholds from the whole record; slope and offset are solved on the samples
+        # of ``w`` below.
         prob = prob.with_output_map(init.params["slope"], init.params["offset_pct"])
-        x, _ = _needle_sj_affine(prob, [init.x], travel, rel=0.03, zooms=1, n_grid=11)
+        x = np.array(init.x)
     else:
         c = prob.costs(_rows(S0 / slopes, J0 / slopes), affine=True)
         i = int(np.argmin(c))
@@ -2195,7 +2195,7 @@ def fit_miscalibration(
         x, _ = _needle_sj_affine(prob, seeds, travel * 3)
     v, _ = prob.series(_rows(x[0], x[1])[0])
     slope, offset = _affine(v, ctx.sig.mv, w)
-    for _ in range(2):
+    for _ in range(2 if init is None else 0):
         prob = prob.with_output_map(slope, offset)
         x, _ = _needle_sj_affine(prob, [x], travel * 3, rel=0.03, zooms=1, n_grid=11)
         v, _ = prob.series(_rows(x[0], x[1])[0])
@@ -2259,7 +2259,9 @@ def fit_asymmetry(
         return prob.costs(_rows(X[:, 0], X[:, 1], X[:, 2], X[:, 3]), bound=bound)
 
     if init is not None:
-        x, _ = grid_search_nd(cost, np.array(init.x), (0, 1, 2, 3), stages=((0.02, 5), (0.006, 5)))
+        # Thresholds only: kept from the whole record (judged there with a penalty per
+        # parameter and the block consistency of :mod:`stictiondiag.gap`).
+        x = np.array(init.x)
     else:
         c = cost(S4, np.inf)
         x = seeds[int(np.argmin(c))]
@@ -2395,8 +2397,9 @@ def fit_time_varying_stiction(
             init.params["change_start_s"] / ctx.sig.dt,
             init.params["change_end_s"] / ctx.sig.dt,
         )
-        x, c = search(t1, t2, np.array(init.x), 0.03, 1)
-        results = [(c, x, t1, t2, prob)]
+        # Thresholds and instants only: kept from the whole record.
+        x = np.array(init.x)
+        results = [(0.0, x, t1, t2, prob)]
     else:
         win = _window_fits(ctx, w, base, 6)
         pts = [v for v in win if v is not None]
@@ -2663,6 +2666,39 @@ def _sinusoids(n: int, omega: float, harmonics: int) -> np.ndarray:
     return np.column_stack(cols)
 
 
+#: Significance of the phase coherence an external oscillation must show (Rayleigh test).
+COHERENCE_P = 0.01
+
+
+def phase_coherence(r: np.ndarray, omega: float, w: np.ndarray) -> tuple[float, float]:
+    """Phase coherence of a sinusoid of ``omega`` [rad/sample] in ``r`` along the record.
+
+    An oscillation from outside the loop keeps its own clock: its phase, measured
+    in consecutive blocks of four periods, stays put.  A loop's own stick-slip cycle
+    drifts in phase from cycle to cycle (noise and load change each cycle's
+    length), and a sinusoid fitted to broadband residual has random phases.  Returns
+    the mean resultant length R of the block phases (1: one phase) and the Rayleigh
+    test's p-value ``exp(-B R^2)`` for B blocks.
+    """
+    n = r.size
+    period = 2.0 * math.pi / max(omega, 1e-9)
+    L = int(max(4.0 * period, 16))
+    B = n // L
+    if B < 3:
+        return 0.0, 1.0
+    k = np.arange(n)
+    z = (r * w) * np.exp(-1j * omega * k)
+    ph = []
+    for b in range(B):
+        c = z[b * L : (b + 1) * L].sum()
+        if abs(c) > 0:
+            ph.append(c / abs(c))
+    if len(ph) < 3:
+        return 0.0, 1.0
+    R = float(abs(np.mean(ph)))
+    return R, float(math.exp(-len(ph) * R * R))
+
+
 def fit_external_disturbance(
     ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
 ) -> EffectFit:
@@ -2721,6 +2757,9 @@ def fit_external_disturbance(
             f = f3
     amp = f.coef[-2 * harmonics :]
     amplitudes = [float(math.hypot(amp[2 * h], amp[2 * h + 1])) for h in range(harmonics)]
+    coherence, p_value = (
+        phase_coherence(pv - base.process.pv, om, ctx.w_eval) if init is None else (None, 0.0)
+    )
     return EffectFit(
         effect="external_disturbance",
         variant="fundamental" if harmonics == 1 else "fundamental_and_second_harmonic",
@@ -2729,8 +2768,11 @@ def fit_external_disturbance(
             "period_s": float(2.0 * math.pi / om * sig.dt),
             "amplitude": amplitudes[0],
             "amplitude_second_harmonic": amplitudes[1] if harmonics > 1 else 0.0,
+            "phase_coherence": coherence,
+            "phase_coherence_p": p_value,
         },
         predictions={"pv": f.pv},
+        supported=p_value < COHERENCE_P,
         x=(float(om),),
         process=f,
         pv_floor=None

@@ -463,7 +463,7 @@ def diagnose_gap(
         # effect matters most (a characteristic away from the operating point).
         se = 1.4826 * float(np.median(np.abs(d - np.median(d)))) * math.sqrt(n_blocks)
         penalty = max(SIGNIFICANCE * se, PENALTY_PER_PARAMETER * ef.n_params * base_total)
-        consistent = int(np.sum(d > 0)) >= n_blocks // 2
+        consistent = int(np.sum(d > 0)) >= n_blocks // 2 and ef.supported
         accepted = trimmed > penalty and consistent
         if _DEBUG:
             print(
