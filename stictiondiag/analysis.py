@@ -65,7 +65,9 @@ class Analysis:
     tags : Tags
         The data as analysed (uniformly sampled, op and mv in % of span).
     oscillation : Oscillation
-        Oscillation of pv (period [s], amplitude [pv units], regularity).
+        Oscillation of pv (period [s], amplitude [pv units], regularity); of the
+        control error ``sp - pv`` when only that shows it (a set-point change hides
+        the cycle of pv; noted in ``warnings``).
     oscillation_op : Oscillation
         Oscillation of op (amplitude in % of span).
     fit : StictionFit
@@ -245,6 +247,16 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
 
     # 2. Is there an oscillation at all?
     osc_pv = detect_oscillation(tags.pv, dt)
+    if not osc_pv.present and tags.sp is not None and float(np.ptp(tags.sp)) > 0:
+        # A set-point change puts a step into pv that can hide the cycle from the
+        # autocorrelation; the control error sp - pv, on which Thornhill et al.
+        # (2003) detect oscillations, has the cycle without the step.
+        osc_error = detect_oscillation(tags.sp - tags.pv, dt)
+        if osc_error.present:
+            osc_pv = osc_error
+            warnings.append(
+                "the set point moves: the oscillation was found in the control error sp - pv"
+            )
     osc_op = detect_oscillation(tags.op, dt)
     check_record_length(tags, osc_pv, osc_op)
 
