@@ -637,12 +637,17 @@ def stiction_verdict(
 
     * An oscillation, ``P >= decision_level`` and S determined (its interval excludes
       0 and stays inside the search range): **stiction**, confidence ``P``.
-    * An oscillation and ``P <= 1 - decision_level``, or ``P < decision_level`` with
-      a linear valve (S = 0) inside the S interval: **no stiction**, confidence
-      ``1 - P``.
-    * No oscillation in pv or op: **no stiction**, confidence ``1 - P``, unless the
-      recorded mv shows the stick-slip itself (``P >= decision_level``, at least
-      three slips, S determined): then **stiction**, confidence ``P``.
+    * An oscillation and ``P <= 1 - decision_level``, or ``P < 0.5`` with a linear
+      valve (S = 0) inside the S interval: **no stiction**, confidence ``1 - P``.
+    * No regular oscillation in pv or op: **no stiction**, confidence ``1 - P``,
+      unless the valve evidence itself shows repeated stick-slip
+      (``P >= decision_level``, at least three slips, S determined): then
+      **stiction**, confidence ``P``.  With mv recorded that is the valve seen
+      sticking; without, a valve model that explains pv by its slips.  Plant
+      stiction cycles are often too irregular for the regularity test of
+      :func:`stictiondiag.oscillation.detect_oscillation` (its r > 1), and a fit
+      whose band excludes zero and beats a linear valve in 95 % of the cycle
+      resamples is evidence of its own.
     * Otherwise **inconclusive** (weak or inconsistent improvement, or S poorly
       determined), confidence ``P`` (the support for stiction).
 
@@ -716,14 +721,18 @@ def stiction_verdict(
     }
 
     if not oscillating:
-        if has_mv and P >= decision_level and n_slips >= 3 and S_determined:
+        if P >= decision_level and n_slips >= 3 and S_determined:
+            source = (
+                "the recorded valve position sticks and slips"
+                if has_mv
+                else "the valve model explains pv by repeated slips"
+            )
             return Verdict(
                 "stiction",
                 True,
                 P,
                 (
-                    f"the recorded valve position sticks and slips ({n_slips} slips) "
-                    "although there is no regular oscillation",
+                    f"{source} ({n_slips} slips) although the cycle is not regular",
                     *osc_texts,
                     improve_text,
                     fit_text,
@@ -739,7 +748,7 @@ def stiction_verdict(
         return Verdict(
             "stiction", True, P, (improve_text, fit_text, *osc_texts, *det_texts), evidence
         )
-    if P <= 1.0 - decision_level or (not S_excludes_zero and P < decision_level):
+    if P <= 1.0 - decision_level or (not S_excludes_zero and P < 0.5):
         return Verdict(
             "no_stiction",
             False,

@@ -93,6 +93,9 @@ MAX_DELAY_PERIODS = 0.5
 #: started from the wrong point stays out of step with the valve.
 START_OFFSETS = (0.0, 0.01, 0.03, 0.1, 0.2, 0.4)
 
+#: Longest record fitted [samples]; longer records are fitted on their central part.
+MAX_SAMPLES = 20_000
+
 #: Most regression rows used (the row stride grows for longer records).
 MAX_ROWS = 1200
 
@@ -675,12 +678,17 @@ def fit_hammerstein(
     intervals use only the points of steps 2 and 3, whose dead times adapt to S.
     """
     op, pv, dt = _check(op, pv, dt)
-    setup = _setup(op, pv, dt, integrating, flow_loop, period_s)
+    n_in = op.size
+    # Very long records: the central MAX_SAMPLES samples (the fit's cost grows with
+    # the record; tens of cycles are plenty).
+    first = max(0, (n_in - MAX_SAMPLES) // 2)
+    op_fit, pv_fit = op[first : first + MAX_SAMPLES], pv[first : first + MAX_SAMPLES]
+    setup = _setup(op_fit, pv_fit, dt, integrating, flow_loop, period_s)
     prob, structure, period = setup["problem"], setup["structure"], setup["period"]
     x, stride, d_max = setup["x"], setup["stride"], setup["d_max"]
     coarse_delays, taus, scale = setup["coarse_delays"], setup["taus"], setup["scale"]
     S_max = J_max = setup["S_max"]  # in cycle travels of op, like every S and J below
-    op_mean, op_std = float(np.mean(op)), float(np.std(op))
+    op_mean, op_std = float(np.mean(op_fit)), float(np.std(op))
     offsets_all = np.array(START_OFFSETS)
 
     # 1. Valve variant, start offset, process time constant and dead time on a coarse
@@ -820,7 +828,7 @@ def fit_hammerstein(
     n_eff = float(min(n_eff_resid, max(n_slips, 1) + 3))
     # White measurement noise on pv, in the units of the cost (pv scaled to unit
     # variance; the slow high-pass leaves white noise as it is).
-    noise_var = (white_noise_std(pv) / float(np.std(pv))) ** 2
+    noise_var = (white_noise_std(pv_fit) / float(np.std(pv_fit))) ** 2
     noise_cost = noise_var * resid.size
     thr = cost_threshold(cost, n_eff, 3, noise_cost)
     S_iv, _, S_open = profile_interval(S_all, C_all, thr, 0.0, S_max)
@@ -841,6 +849,19 @@ def fit_hammerstein(
     if J_confounded:
         J_iv, J_open = (0.0, J_max), True
 
+    # Valve output over the whole record, from the same starting state.
+    if first > 0 or op_fit.size < n_in:
+        S_model = float(variant.model_S(S_hat))
+        mv_model, _ = valve_run(
+            variant.prepare((op - op_mean) / scale),
+            S_model,
+            J_hat,
+            variant.kano,
+            first + prob.k_start,
+            prob.d_start,
+            offset,
+        )
+
     # Back from cycle travels to the units of op.
     S_hat, J_hat = S_hat * scale, J_hat * scale
     S_iv = (S_iv[0] * scale, S_iv[1] * scale)
@@ -859,7 +880,8 @@ def fit_hammerstein(
         "process_gains": {"direct": float(theta[0]), "lag": float(theta[1])},
         "highpass_corner_s": HIGHPASS_PERIODS * period * dt,
         "search_limit": S_max * scale,
-        "start_sample": prob.k_start,
+        "start_sample": first + prob.k_start,
+        "fitted_samples": [first, first + op_fit.size],
         "start_offset": offset * scale,
         "cost_by_valve_model_coarse": {k: float(v[0].min()) for k, v in coarse.items()},
         "determinacy": _determinacy(S_hat, S_iv, S_open, J_hat, J_iv, J_open),
