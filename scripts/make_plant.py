@@ -1,12 +1,24 @@
 """Write a generated plant: N closed control loops, one file per loop, for ``stiction scan``.
 
-About ``sticky_share`` of the loops have a sticky valve: cases of
-:func:`stictiondiag.synthetic.generate_case` with no further effect (self-regulating
-or integrating process, data-driven or Karnopp valve with S 0.8-6 % of span, load
-and set-point changes, noise; Choudhury et al. 2005, Sections 4 and 5). The others
-have a healthy valve (S = J = 0): a PI-controlled first-order-plus-dead-time process
-(:func:`stictiondiag.loops.simulate_loop`) moved by a random-walk load, with white
-measurement noise on pv. Process, tuning and noise differ per loop.
+About ``sticky_share`` of the loops have a sticky valve, the others a healthy one.
+
+Sticky loops (``--sticky-model``):
+
+``synthetic`` (default)
+    Cases of :func:`stictiondiag.synthetic.generate_case` with no further effect:
+    self-regulating or integrating process, data-driven or Karnopp valve with S
+    0.8-6 % of span, load and set-point changes, noise (Choudhury et al. 2005,
+    Sections 4 and 5). Their cycles last up to about 1 500 samples, so records need
+    5 000 samples or more for three cycles.
+``simple``
+    The PI loop below with the Kano et al. (2004) data-driven valve, S 2-6 % of span
+    and J 0.2-1 x S; cycles of a few hundred samples, for short test records. (The
+    Choudhury model of Section 5.1 re-sticks at every reversal of op, so with noise
+    on pv the simulated valve would never slip.)
+
+Healthy loops: a PI-controlled first-order-plus-dead-time process
+(:func:`stictiondiag.loops.simulate_loop`, S = J = 0) moved by a coloured-noise
+load, with white measurement noise on pv. Process, tuning and noise differ per loop.
 
 The truth (S, J, process, controller) goes to ``truth.json``, which ``stiction scan``
 does not read.
@@ -15,6 +27,7 @@ Usage::
 
     python scripts/make_plant.py OUT_DIR [--loops 100] [--samples 10000] [--seed 0]
         [--format csv|parquet|mixed|dataset] [--sticky-share 0.5] [--mv-share 0.0]
+        [--sticky-model synthetic|simple]
 
 ``--format dataset`` writes one Parquet file ``plant.parquet`` with a ``loop_id``
 column instead of one file per loop. ``--mv-share`` is the share of loops whose valve
@@ -29,17 +42,26 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.signal import lfilter
 
 from stictiondiag.loops import simulate_loop
 from stictiondiag.processes import FOPTD, PI
 from stictiondiag.synthetic import generate_case
 
-#: Sample time of the healthy loops [s] (the sticky cases draw theirs).
+#: Sample time of the PI loops of :func:`pi_loop` [s] (the synthetic cases draw theirs).
 SAMPLE_TIME_S = 1.0
+
+#: Generators of sticky loops (see the module docstring).
+STICKY_MODELS = ("synthetic", "simple")
 
 
 def make_loop(
-    seed: int, *, n_samples: int, sticky: bool, record_mv: bool
+    seed: int,
+    *,
+    n_samples: int,
+    sticky: bool,
+    record_mv: bool,
+    sticky_model: str = "synthetic",
 ) -> tuple[pd.DataFrame, dict]:
     """Simulate one loop.
 
@@ -50,10 +72,11 @@ def make_loop(
     n_samples : int
         Samples in the record.
     sticky : bool
-        Sticky valve (a :func:`~stictiondiag.synthetic.generate_case` case) or healthy
-        valve (S = J = 0, sample time :data:`SAMPLE_TIME_S`).
+        Sticky or healthy valve.
     record_mv : bool
         Whether the valve position column ``mv`` is written.
+    sticky_model : {"synthetic", "simple"}
+        Generator of the sticky loops (module docstring).
 
     Returns
     -------
@@ -61,19 +84,20 @@ def make_loop(
         Columns ``time`` [s], ``sp``, ``pv`` [pv units], ``op`` (and ``mv``) [% of
         span]; the truth as a JSON-able dict.
     """
-    if sticky:
+    if sticky and sticky_model == "synthetic":
         case = generate_case("none", seed, n_samples=n_samples)
         frame = case.data[["time", "sp", "pv", "op", "mv"]].copy()
         truth = {"sticky": True, **case.truth}
     else:
-        frame, truth = _healthy_loop(seed, n_samples)
+        frame, truth = pi_loop(seed, n_samples, sticky=sticky)
     if not record_mv:
         frame = frame.drop(columns="mv")
     truth["has_mv"] = record_mv
     return frame, truth
 
 
-def _healthy_loop(seed: int, n_samples: int) -> tuple[pd.DataFrame, dict]:
+def pi_loop(seed: int, n_samples: int, *, sticky: bool) -> tuple[pd.DataFrame, dict]:
+    """PI loop on a FOPTD process, healthy (S = J = 0) or with a Kano sticky valve."""
     rng = np.random.default_rng(seed)
     gain = float(rng.uniform(0.5, 3.0))  # pv units per % of span
     time_constant = float(rng.uniform(10.0, 60.0))  # [s]
@@ -83,18 +107,24 @@ def _healthy_loop(seed: int, n_samples: int) -> tuple[pd.DataFrame, dict]:
     Ti = min(time_constant, 8.0 * dead_time)
     process = FOPTD(gain=gain, time_constant=time_constant, dead_time=dead_time)
     controller = PI(gain=Kc, integral_time=Ti)
+    S = float(rng.uniform(2.0, 6.0)) if sticky else 0.0
+    J = float(S * rng.uniform(0.2, 1.0)) if sticky else 0.0
     pv_bias = float(np.round(rng.uniform(20.0, 80.0), 1))
     noise_std = float(rng.uniform(0.01, 0.05) * gain)
-    # A slow random-walk load keeps a healthy loop moving (real loops are never still).
-    walk = np.cumsum(rng.standard_normal(n_samples)) * gain * 0.05
+    # Coloured noise (first-order filtered, time constant 5-30 s) keeps a healthy loop
+    # moving, as real loops never are still, without a slow pattern of its own.
+    pole = float(np.exp(-SAMPLE_TIME_S / rng.uniform(5.0, 30.0)))
+    load = lfilter([1.0 - pole], [1.0, -pole], rng.standard_normal(n_samples)) * gain
     sim = simulate_loop(
         process,
         controller,
         duration=n_samples * SAMPLE_TIME_S,
         dt=SAMPLE_TIME_S,
-        valve="linear",
+        valve="kano" if sticky else "linear",
+        S=S,
+        J=J,
         sp=pv_bias,
-        load=walk,
+        load=load,
         noise_std=noise_std,
         seed=seed,
         op_bias=float(rng.uniform(35.0, 65.0)),
@@ -102,9 +132,9 @@ def _healthy_loop(seed: int, n_samples: int) -> tuple[pd.DataFrame, dict]:
     )
     frame = pd.DataFrame({"time": sim.time, "sp": sim.sp, "pv": sim.pv, "op": sim.op, "mv": sim.mv})
     truth = {
-        "sticky": False,
-        "S": 0.0,
-        "J": 0.0,
+        "sticky": sticky,
+        "S": S,
+        "J": J,
         "process": {"gain": gain, "time_constant_s": time_constant, "dead_time_s": dead_time},
         "controller": {"gain": Kc, "integral_time_s": Ti},
         "noise_std": noise_std,
@@ -121,6 +151,7 @@ def make_plant(
     fmt: str = "csv",
     sticky_share: float = 0.5,
     mv_share: float = 0.0,
+    sticky_model: str = "synthetic",
 ) -> list[Path]:
     """Write ``n_loops`` generated loops to ``out_dir``; return the files written.
 
@@ -139,9 +170,13 @@ def make_plant(
         file ``plant.parquet`` with a ``loop_id`` column.
     sticky_share, mv_share : float
         Share of loops with a sticky valve, and with a recorded valve position.
+    sticky_model : {"synthetic", "simple"}
+        Generator of the sticky loops (module docstring).
     """
     if fmt not in ("csv", "parquet", "mixed", "dataset"):
         raise ValueError(f"unknown format {fmt!r}: use csv, parquet, mixed or dataset")
+    if sticky_model not in STICKY_MODELS:
+        raise ValueError(f"unknown sticky model {sticky_model!r}: use synthetic or simple")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     picker = np.random.default_rng(seed)
@@ -157,6 +192,7 @@ def make_plant(
             n_samples=n_samples,
             sticky=bool(sticky[i]),
             record_mv=bool(record_mv[i]),
+            sticky_model=sticky_model,
         )
         truths[name] = truth
         if fmt == "dataset":
@@ -188,6 +224,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--sticky-share", type=float, default=0.5)
     parser.add_argument("--mv-share", type=float, default=0.0)
+    parser.add_argument("--sticky-model", default="synthetic", choices=STICKY_MODELS)
     a = parser.parse_args(argv)
     files = make_plant(
         a.out_dir,
@@ -197,6 +234,7 @@ def main(argv: list[str] | None = None) -> None:
         fmt=a.fmt,
         sticky_share=a.sticky_share,
         mv_share=a.mv_share,
+        sticky_model=a.sticky_model,
     )
     print(f"wrote {a.loops} loops in {len(files)} file(s) to {a.out_dir}")
 
