@@ -183,7 +183,7 @@ def _child(argv: list[str]) -> None:
     import stictiondiag.analysis  # noqa: F401
 
     t_import = time.perf_counter() - t0
-    res = run_once(csv, out, gap)
+    res = run_once(csv, out, gap, StepTimer())
     res["import"] = t_import
     res["total"] = time.perf_counter() - t0
     print(json.dumps(res))
@@ -235,19 +235,19 @@ def main() -> None:
         f"warm = best of {args.repeat}"
     )
     print()
-    header = f"| {'step [s]':<14} | " + " | ".join(f"{v:>10}" for v in rows) + " |"
+    cols = [(v, kind) for v in rows for kind in ("warm", "cold")]
+    header = f"| {'step [s]':<14} | " + " | ".join(f"{v + ' ' + k:>16}" for v, k in cols) + " |"
     print(header)
-    print("|" + "-" * 16 + "|" + "|".join("-" * 12 for _ in rows) + "|")
+    print("|" + "-" * 16 + "|" + "|".join("-" * 18 + ":" for _ in cols) + "|")
 
     def line(label, values):
-        cells = " | ".join(f"{'-' if v is None else f'{v:.3f}':>10}" for v in values)
+        cells = " | ".join(f"{'-' if v is None else f'{v:.3f}':>16}" for v in values)
         print(f"| {label:<14} | {cells} |")
 
+    line("import", [None if k == "warm" else rows[v][k]["import"] for v, k in cols])
     for step in STEPS:
-        line(step, [rows[v]["warm"]["steps"].get(step) for v in rows])
-    line("warm total", [rows[v]["warm"]["total"] for v in rows])
-    line("cold import", [rows[v]["cold"]["import"] for v in rows])
-    line("cold total", [rows[v]["cold"]["total"] for v in rows])
+        line(step, [rows[v][k]["steps"].get(step) for v, k in cols])
+    line("total", [rows[v][k]["total"] for v, k in cols])
     print()
     for variant, row in rows.items():
         target = TARGET_S[variant]
