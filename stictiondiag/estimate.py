@@ -642,7 +642,8 @@ def stiction_verdict(
     * No regular oscillation in pv or op: **no stiction**, confidence ``1 - P``,
       unless the valve evidence itself shows repeated stick-slip
       (``P >= decision_level``, at least three slips, S determined): then
-      **stiction**, confidence ``P``.  With mv recorded that is the valve seen
+      **stiction**, confidence ``P`` (or **inconclusive** when ``P`` is that high
+      but S is not determined).  With mv recorded that is the valve seen
       sticking; without, a valve model that explains pv by its slips.  Plant
       stiction cycles are often too irregular for the regularity test of
       :func:`stictiondiag.oscillation.detect_oscillation` (its r > 1), and a fit
@@ -739,10 +740,22 @@ def stiction_verdict(
                 ),
                 evidence,
             )
-        reasons = [*osc_texts, "nothing for stiction to explain"]
         if P >= decision_level:
-            reasons.append("the valve model still fits better than a linear valve: " + improve_text)
-        return Verdict("no_stiction", False, 1.0 - P, tuple(reasons), evidence)
+            return Verdict(
+                "inconclusive",
+                None,
+                P,
+                (
+                    "no regular oscillation, but the valve model fits better than a linear "
+                    "valve: " + improve_text,
+                    *det_texts,
+                    *osc_texts,
+                    fit_text,
+                ),
+                evidence,
+            )
+        reasons = (*osc_texts, "nothing for stiction to explain", improve_text)
+        return Verdict("no_stiction", False, 1.0 - P, reasons, evidence)
 
     if P >= decision_level and S_determined:
         return Verdict(

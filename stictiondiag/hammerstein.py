@@ -94,7 +94,7 @@ MAX_DELAY_PERIODS = 0.5
 START_OFFSETS = (0.0, 0.01, 0.03, 0.1, 0.2, 0.4)
 
 #: Longest record fitted [samples]; longer records are fitted on their central part.
-MAX_SAMPLES = 20_000
+MAX_SAMPLES = 12_000
 
 #: Most regression rows used (the row stride grows for longer records).
 MAX_ROWS = 1200
@@ -763,8 +763,8 @@ def fit_hammerstein(
     if structure == "flow":
         delays = coarse_delays
     else:
-        delays = _delay_window(d_best, d_max, max(3, d_best // 2), 11)
-        prob.taus = np.union1d(taus, tau_best * np.array([0.8, 1.0, 1.25]))
+        delays = _delay_window(d_best, d_max, max(3, d_best // 2), 9)
+        prob.taus = tau_best * np.array([0.5, 0.75, 1.0, 1.33, 2.0])
     prob.set_delays(delays)
     SS, JJ, step_s, step_j = _grid(0.0, S_max, 0.0, J_max, 11)
     c = evaluate(SS, JJ)
@@ -778,7 +778,7 @@ def fit_hammerstein(
         spacing = int(np.max(np.diff(delays))) if delays.size > 1 else 1
         prob.set_delays(_delay_window(int(d_best), d_max, max(2, spacing), 9))
         prob.taus = float(tau_best) * np.array([0.9, 1.0, 1.11])
-        zoom(sb, jb, 2 * step_s / 3, 2 * step_j / 3, 3)
+        zoom(sb, jb, 2 * step_s / 3, 2 * step_j / 3, 2)
 
     # 4. Local polish: Nelder-Mead over S, J and the time constant (continuous), the
     #    dead time free within two samples of the best and the start offset fixed.
