@@ -31,7 +31,13 @@ from typing import Any
 import numpy as np
 
 from .errors import DataError, StictionError
-from .oscillation import MIN_CYCLES, Oscillation, detect_oscillation, dominant_period
+from .oscillation import (
+    MIN_CYCLES,
+    REGULARITY_THRESHOLD,
+    Oscillation,
+    detect_oscillation,
+    dominant_period,
+)
 from .tags import Tags, read_tags
 
 #: Loop types where pv is (nearly) proportional to the valve opening: the flow-loop
@@ -188,31 +194,35 @@ def _clean(obj):
 
 
 def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) -> None:
-    """Refuse a record too short to tell whether its pattern is a limit cycle.
+    """Refuse a record that shows a regular cycle but too few periods of it.
 
     Stiction shows as a sustained limit cycle (Sections 4.2.2 and 5.3), and the
     oscillation test needs :data:`~stictiondiag.oscillation.MIN_CYCLES` periods.
-    When neither pv nor op passes it but the slowest pattern the autocorrelation
-    shows (:func:`~stictiondiag.oscillation.dominant_period`) is longer than a
-    third of the record, "no oscillation" would only mean "not enough data": the
-    analysis stops and says how long a record it needs. A recorded mv is exempt: its
-    stick and slip phases show the stiction directly, cycle or not (Figs. 3 and 6).
+    When pv or op has a regular autocorrelation (regularity above
+    :data:`~stictiondiag.oscillation.REGULARITY_THRESHOLD`) whose period
+    (:func:`~stictiondiag.oscillation.dominant_period`) the record holds fewer than
+    ``MIN_CYCLES`` times, "no oscillation" would only mean "not enough data": the
+    analysis stops and says how long a record it needs. A slow irregular wander is
+    not a cycle and passes. A recorded mv is exempt: its stick and slip phases show
+    the stiction directly, cycle or not (Figs. 3 and 6).
 
     Raises
     ------
     DataError
-        The record holds fewer than ``MIN_CYCLES`` periods of its dominant pattern.
+        The record holds fewer than ``MIN_CYCLES`` periods of a regular cycle.
     """
     if osc_pv.present or osc_op.present or tags.mv is not None:
         return
-    for role in ("pv", "op"):
+    for role, osc in (("pv", osc_pv), ("op", osc_op)):
+        if osc.regularity is None or not osc.regularity > REGULARITY_THRESHOLD:
+            continue
         period = dominant_period(getattr(tags, role), float(tags.ts))
         if period and tags.duration < MIN_CYCLES * period:
             need = math.ceil(MIN_CYCLES * period / float(tags.ts))
             raise DataError(
                 f"record too short: {tags.n} samples hold only {tags.duration / period:.1f} "
-                f"cycles of the {period:.0f} s pattern in {role}, and telling a limit cycle "
-                f"needs {MIN_CYCLES:g}; export at least {need} samples "
+                f"cycles of the {period:.0f} s oscillation in {role}, and telling a limit "
+                f"cycle needs {MIN_CYCLES:g}; export at least {need} samples "
                 f"({MIN_CYCLES * period:.0f} s)"
             )
 

@@ -358,9 +358,9 @@ def test_noise_free_constant_loop_is_not_stiction():
 
 
 def test_record_too_short_for_a_cycle(conc):
-    # 300 samples of a 140 s cycle (about 2 cycles) without mv: the oscillation test
-    # needs 3 cycles, so "no oscillation" would mean "not enough data".
-    short = {k: v[:300] for k, v in conc.items()}
+    # 400 samples of a regular 140 s cycle (2.9 cycles) without mv: the oscillation
+    # test needs 3 cycles, so "no oscillation" would mean "not enough data".
+    short = {k: v[:400] for k, v in conc.items()}
     tags = Tags.from_arrays(short["pv"], short["op"], sp=short["sp"], ts=1.0)
     with pytest.raises(DataError, match="record too short.*export at least"):
         analyze(tags, config=NO_GAP)

@@ -227,9 +227,9 @@ def _bad_files(tmp_path: Path, frame: pd.DataFrame) -> dict[str, tuple[Path, str
         "constant",
     )
     files["too short"] = (_write(tmp_path, "short.csv", frame.iloc[:60]), "samples")
-    # About two 140 s cycles and no mv: too short to tell a limit cycle.
+    # 2.9 cycles of a regular 140 s cycle and no mv: too short to tell a limit cycle.
     files["too few cycles"] = (
-        _write(tmp_path, "two_cycles.csv", frame.iloc[:300].drop(columns="mv")),
+        _write(tmp_path, "few_cycles.csv", frame.iloc[:400].drop(columns="mv")),
         "record too short",
     )
     return files
