@@ -122,11 +122,16 @@ def render_summary(d: dict) -> str:
     if rep:
         fit = rep.get("fit") or {}
         per = rep.get("period_s") or {}
+        wave = rep.get("waveform") or {}
         lines.append(
             f"replay      process {rep.get('process', {}).get('type')}, "
-            f"period data {_fmt(per.get('data'), '.1f')} s / replay {_fmt(per.get('replay'), '.1f')} s, "
-            "fit "
-            + ", ".join(f"{k} {_fmt(v, '.2f')}" for k, v in fit.items() if not isinstance(v, dict))
+            f"period data {_fmt(per.get('data'), '.1f')} s / replay {_fmt(per.get('replay'), '.1f')} s"
+        )
+        lines.append(
+            "            fit [%, 100 = exact] "
+            + ", ".join(f"{k} {_fmt(v, '.0f')}" for k, v in fit.items() if not isinstance(v, dict))
+            + "; cycle shape [1 = same] "
+            + ", ".join(f"{k} {_fmt(v, '.2f')}" for k, v in wave.items() if not isinstance(v, dict))
         )
     gap = d.get("gap")
     if gap:
