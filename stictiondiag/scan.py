@@ -450,8 +450,10 @@ def run_dask(
         if scheduler:
             client = Client(scheduler, timeout="10s")
         else:
+            # The scheduler's HTTP server (health, dashboard) takes a free port: another
+            # cluster on the default 8787 must not make the scan fail or warn.
             cluster = LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
             )
             client = Client(cluster)
     except OSError as exc:
