@@ -13,7 +13,9 @@ For every loop the script runs :func:`stictiondiag.segments.estimate_from_mv`
 (valve position recorded) and :func:`stictiondiag.hammerstein.fit_hammerstein`
 (op and pv only) and prints one row per loop, then the median absolute errors of S
 and J [% of span] by estimator, process and noise level, the share of loops whose
-reported interval holds the truth, and the wall time per fit.
+reported interval holds the truth, the share called stiction / no stiction by
+:func:`stictiondiag.estimate.stiction_verdict` (every loop has a sticky valve), and the
+wall time per fit (the first fit of a fresh install includes numba compilation).
 
 Usage::
 
@@ -27,8 +29,10 @@ import time
 
 import numpy as np
 
+from stictiondiag.estimate import stiction_verdict
 from stictiondiag.hammerstein import fit_hammerstein
 from stictiondiag.loops import simulate_loop
+from stictiondiag.oscillation import detect_oscillation
 from stictiondiag.processes import FOPTD, PI, Integrating
 from stictiondiag.segments import estimate_from_mv
 
@@ -107,8 +111,11 @@ def run(n_cases: int, seed: int, n_samples: int) -> list[dict]:
             case["op"], case["pv"], case["dt"], integrating=integrating, flow_loop=False
         )
         t2 = time.perf_counter()
+        osc_pv = detect_oscillation(case["pv"], case["dt"])
+        osc_op = detect_oscillation(case["op"], case["dt"])
         for name, fit, secs in (("mv", fm, t1 - t0), ("hammerstein", fh, t2 - t1)):
             S_iv, J_iv = fit.S_interval, fit.J_interval
+            verdict = stiction_verdict(fit, osc_pv, oscillation_op=osc_op)
             rows.append(
                 {
                     "case": i,
@@ -126,6 +133,7 @@ def run(n_cases: int, seed: int, n_samples: int) -> list[dict]:
                     "seconds": secs,
                     "n": case["op"].size,
                     "model": fit.details.get("valve_model"),
+                    "verdict": verdict.status,
                 }
             )
         r = rows[-2:]
@@ -133,7 +141,7 @@ def run(n_cases: int, seed: int, n_samples: int) -> list[dict]:
             f"{i:3d} {r[0]['process']:11s} noise {noise:4.2f}  S {case['S']:5.2f} J {case['J']:5.2f}"
             f" | mv {r[0]['S_hat']:5.2f} {r[0]['J_hat']:5.2f} ({r[0]['seconds']:.2f} s)"
             f" | ham {r[1]['S_hat']:5.2f} {r[1]['J_hat']:5.2f} ({r[1]['seconds']:.2f} s)"
-            f" {r[1]['model']}",
+            f" {r[1]['model']} | {r[0]['verdict']} / {r[1]['verdict']}",
             flush=True,
         )
     return rows
@@ -145,6 +153,8 @@ def summarise(rows: list[dict]) -> None:
     df = pd.DataFrame(rows)
     df["abs_S"] = df.S_err.abs()
     df["abs_J"] = df.J_err.abs()
+    df["stiction"] = df.verdict == "stiction"
+    df["no_stiction"] = df.verdict == "no_stiction"
     print()
     print("Median absolute error [% of span], interval coverage, wall time per fit")
     g = df.groupby(["estimator", "process", "noise"])
@@ -154,6 +164,8 @@ def summarise(rows: list[dict]) -> None:
         J_med_abs_err=("abs_J", "median"),
         S_covered=("S_in", "mean"),
         J_covered=("J_in", "mean"),
+        called_stiction=("stiction", "mean"),
+        called_no_stiction=("no_stiction", "mean"),
         seconds_median=("seconds", "median"),
         seconds_max=("seconds", "max"),
     )
@@ -165,6 +177,8 @@ def summarise(rows: list[dict]) -> None:
         J_med_abs_err=("abs_J", "median"),
         S_covered=("S_in", "mean"),
         J_covered=("J_in", "mean"),
+        called_stiction=("stiction", "mean"),
+        called_no_stiction=("no_stiction", "mean"),
         seconds_median=("seconds", "median"),
         seconds_max=("seconds", "max"),
     )

@@ -12,38 +12,64 @@ output feeding the process (a Hammerstein model, op -> valve(S, J) -> G(q) -> pv
 
 The linear part
 ---------------
-``pv`` is modelled as a sum of first-order responses to the delayed valve output,
-``H pv[k] = c + sum_i b_i (H F_i u)[k - d]``, with ``F_i`` first-order lags whose time
-constants span 1/64 to 1 oscillation period (a fixed basis, so any stable, smooth
-process response is within reach without a pole search), ``d >= 1`` samples of dead
-time (searched) and ``H`` a slow high-pass (corner at four periods) applied to both
-sides, which removes drifts and setpoint moves the valve does not explain without
-changing the valve-to-pv relation.  It is an output-error fit: the residual is what
-the model cannot reproduce from op alone, not a one-step-ahead prediction error
-(which the last pv sample would dominate, hiding the valve).
+A first-order process with dead time and a direct part, the first-order-plus-dead-time
+form of Eq. 3 and Table 3 of the paper, with the high-pass ``H`` (corner at four
+cycle periods) applied to both sides::
 
-* Integrating processes (``integrating=True``, a level loop, Table 3): the basis is
-  integrated, ``H pv = sum_i b_i (L F_i u)[k - d]`` with ``L = H / (1 - q^-1)`` a leaky
-  integrator (the high-pass keeps an unknown inflow from accumulating).
+    H pv[k] = b0 (H u)[k - d] + b1 (H lag_tau u)[k - d] + c0 + c1 a^k + c2 e^(-k/tau)
+
+``b0`` and ``b1`` have one sign (a monotone step response: a process, not the inverse
+of the PI controller, which an unconstrained fit to closed-loop data would find: with
+Eq. 3's controller pv is a high-pass of op); ``d >= 1`` samples (op at sample k is
+computed from pv at sample k, so the valve acts from the next one); ``tau`` and ``d``
+are searched; the last three terms are free and carry what the start of the record
+leaves (the high-pass and the process responding to their unknown state there).  The
+high-pass removes drifts and set-point moves without changing the valve-to-pv
+relation.  It is an output-error fit: the residual is what the model cannot reproduce
+from op alone, not a one-step-ahead prediction error (which the last pv sample would
+dominate, hiding the valve).
+
+* Integrating processes (``integrating=True``, a level loop, Table 3): ``H u`` and
+  ``H lag u`` are replaced by the integrals seen through the high-pass,
+  ``L = H / (1 - q^-1)``, a leaky integrator (an unknown inflow imbalance then decays
+  instead of accumulating).
 * Flow loops (``flow_loop=True``, Section 5.3.1: "in liquid flow loops ... pv can be
-  taken to be proportional to valve opening"): ``pv = a mv + b`` with a small lag, one
-  to three samples of delay.
+  taken to be proportional to valve opening"): the lag is at most a few samples and
+  the dead time one to three samples.
+
+The valve model
+---------------
+Each fit tries the published flowchart and Kano's variant, on op itself and, when op
+carries white noise, behind a play operator of four noise deviations
+(:class:`stictiondiag.estimate.ValveVariant`).  A record starts at an arbitrary point
+of the valve's history, so the model is started stuck at the first clear extreme of
+op with its stop point a searched offset back from it (:data:`START_OFFSETS`).
 
 How well S and J are determined
 -------------------------------
 From the cost profile: the 95 % interval holds the values whose best cost (other
-parameters free) is within an F-test threshold of the minimum, with the number of
-independent samples taken from the residual's autocorrelation.  Without mv the
-breakaway point S trades off against the process dead time in a perfectly periodic
-limit cycle, and J against the process gain when the valve hardly moves smoothly;
-intervals then come out wide and ``details["determinacy"]`` says "poorly determined".
+parameters free) is within an F-test threshold of the minimum, counting as many
+independent observations as the fitted valve has slips, and widened by the misfit
+the fit leaves beyond pv's white noise (:func:`stictiondiag.estimate.cost_threshold`).
+Without mv the breakaway point S trades off against the process dead time, and J
+against the process gain when the valve never moves smoothly (then J is reported
+unbounded); ``details["determinacy"]`` says "poorly determined" when the interval is
+wide or reaches the search limit.
+
+Known limit: a noisy op fed to a valve that sticks at every noise reversal (Kano's
+flowchart on raw noisy op, as in :func:`stictiondiag.loops.simulate_loop` with noise)
+makes the valve's sequence of stop points depend on every noise sample; a model
+started from a slightly different point never falls back in step, the cost has a
+needle at the true (S, J), and the grid search can miss it.  Such fits show as weak
+or poorly determined, not as wrong with confidence.
 
 Speed
 -----
-Slowly sampled loops (many samples per cycle) are evaluated on every ``r``-th
-regression row, ``r = floor(period / 60)``: at least 60 rows per cycle.  The valve and
-the filters still run at the full rate, so the breakaway timing keeps the full
-resolution of op; only the least-squares sums are thinned.
+The search runs on op in units of its cycle travel (so that a fit does not depend on
+the units of op).  Least-squares sums use every ``r``-th row, at least 60 rows per
+cycle and at most :data:`MAX_ROWS` rows; the valve and the filters still run at the
+full rate, so the breakaway timing keeps the full resolution of op.  Records longer
+than :data:`MAX_SAMPLES` are fitted on their central part.
 """
 
 from __future__ import annotations
@@ -411,9 +437,10 @@ def _moving_average(x: np.ndarray, width: int) -> np.ndarray:
 def first_extreme(op: np.ndarray, period: int) -> tuple[int, float]:
     """Sample of the first clear extreme of op, and the direction of travel into it.
 
-    A sticky valve in a limit cycle is moving with op when op turns (Figs. 12 and
-    14: it slipped on the way), so the model is started moving there.  The extreme is
-    taken on op smoothed over an eighth of a period; (0, 0.0) when op has none.
+    A sticky valve in a limit cycle has slipped on the way to an extreme of op
+    (Figs. 12 and 14) and is stuck when op turns, so the model is started there,
+    stuck, its last movement in the direction of travel.  The extreme is taken on op
+    smoothed over an eighth of a period; (0, 0.0) when op has none.
     """
     n = op.size
     win = min(n, max(3, int(1.5 * period)))
@@ -663,16 +690,18 @@ def fit_hammerstein(
 
     Notes
     -----
-    Search, every cost minimised over the dead times of the current set and over the
-    starting phases :data:`START_PHASES`:
+    Search, every cost minimised over the dead times, process time constants and
+    start offsets of the current sets:
 
-    1. every valve variant on a 9 x 9 (S, J) grid with a coarse set of dead times
-       (up to half a cycle) picks the variant and the dead time;
-    2. a 15 x 15 grid with the dead times near the best one (within half of it, at
-       least 3 samples), then three zooms of 7 x 7 around each of the three best
-       cells;
-    3. every dead time near the best one at one-sample resolution, and three more
-       zooms around the best pair.
+    1. every valve variant and start offset on a 9 x 9 (S, J) grid with three time
+       constants and log-spaced dead times up to half a cycle; the five best cells of
+       each variant then with every time constant: this picks the variant, the start
+       offset (kept from here on), the time constant and the dead
+       time;
+    2. an 11 x 11 grid with time constants and dead times around those, then two
+       zooms of 7 x 7 around each of the three best cells;
+    3. dead times at one-sample resolution and a finer time constant around the best,
+       two more zooms; finally a Nelder-Mead polish of S, J and the time constant.
 
     S and J are searched up to 1.25 times the typical cycle travel of op.  The profile
     intervals use only the points of steps 2 and 3, whose dead times adapt to S.
@@ -731,9 +760,9 @@ def fit_hammerstein(
     _, model, d_best, off_best, tau_best = best1
     variant = variants[model]
 
-    # From here on: the best start offset and its neighbours.
+    # From here on: the best start offset only.
     k_off = int(np.argmin(np.abs(offsets_all - off_best)))
-    offsets = offsets_all[max(0, k_off - 1) : k_off + 2]
+    offsets = offsets_all[k_off : k_off + 1]
 
     pts: dict[str, list] = {k: [] for k in "SJCDOT"}
 

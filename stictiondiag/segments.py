@@ -502,9 +502,16 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
        :func:`segment_valve` (module docstring), with a 95 % bootstrap interval of
        the median over slips;
     2. *least squares*: the model of Fig. 10 fitted to mv (``mv = valve(op; S, J) +
-       bias``) by a compiled coarse-to-fine grid search over (S, J), for both the
-       published flowchart and Kano's variant (the better one is kept), with a 95 %
-       profile-cost interval (F test with the residual's effective sample size).
+       bias``) by a compiled coarse-to-fine grid search over (S, J) seeded with the
+       segment estimate, for the valve variants of
+       :func:`stictiondiag.estimate.valve_variants` (the published flowchart and
+       Kano's on a clean op; Kano's, raw and behind a play operator, on a noisy one;
+       the best is kept), with a 95 % profile-cost interval (F test with the
+       residual's effective sample size, widened by any misfit beyond mv's noise).
+
+    The model is started moving right after the first recorded slip, in its
+    direction, so it is in step with the valve from there (the samples before are
+    left out of the cost).
 
     The reported ``S`` and ``J`` are the least-squares ones (they use every sample,
     not only the breakaway samples); the reported intervals span both the
