@@ -696,7 +696,7 @@ def fit_hammerstein(
     1. every valve variant and start offset on a 9 x 9 (S, J) grid with three time
        constants and log-spaced dead times up to half a cycle; the five best cells of
        each variant then with every time constant: this picks the variant, the start
-       offset (kept from here on), the time constant and the dead
+       offset (kept from here on, with offset 0), the time constant and the dead
        time;
     2. an 11 x 11 grid with time constants and dead times around those, then two
        zooms of 7 x 7 around each of the three best cells;
@@ -760,9 +760,9 @@ def fit_hammerstein(
     _, model, d_best, off_best, tau_best = best1
     variant = variants[model]
 
-    # From here on: the best start offset only.
+    # From here on: the best start offset and the plain one (stuck at the extreme).
     k_off = int(np.argmin(np.abs(offsets_all - off_best)))
-    offsets = offsets_all[k_off : k_off + 1]
+    offsets = np.unique(offsets_all[[0, k_off]])
 
     pts: dict[str, list] = {k: [] for k in "SJCDOT"}
 
