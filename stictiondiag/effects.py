@@ -1217,6 +1217,9 @@ class EffectFit:
     supported : bool
         False when a check of the effect's own signature fails (an external
         oscillation without a steady phase): it then cannot be named.
+    explained : dict
+        Variance per sample the effect accounts for as a known measurement error
+        (the rounding of a quantised signal), by signal [units^2].
     """
 
     effect: str
@@ -1228,6 +1231,7 @@ class EffectFit:
     process: ProcessFit | None = None
     pv_floor: float | None = None
     supported: bool = True
+    explained: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -1500,6 +1504,12 @@ def _travel_seeds(
         Js.append(float(np.percentile(slips["travel"][same], 25)))
     Js.append(float(np.median(slips["J"][sel])))
     return [(max(S, 0.0), max(J, 0.0)) for J in Js if math.isfinite(J)]
+
+
+#: Stages of :func:`grid_search_nd` when starting from the measured slips, whose
+#: S and J can be 30 % off for an asymmetric or time-varying valve (relative span,
+#: values per parameter).
+_WIDE_STAGES = ((0.35, 15), (0.06, 7), (0.015, 5), (0.004, 5))
 
 
 def grid_search_nd(
@@ -1837,6 +1847,7 @@ def fit_process(
             )
         )
         best = None
+        per_pole: dict = {}
         shifts = np.unique(np.concatenate([d_grid, d_grid + 1]))
         where = {int(d): i for i, d in enumerate(shifts)}
         for pole in pole_grid:
@@ -1865,6 +1876,8 @@ def fit_process(
                     sse = ee + float(rhs @ coef) * -1.0
                     if best is None or sse < best[0]:
                         best = (sse, ProcessModel(float(pole), int(d), float(lr)))
+                    if pole not in per_pole or sse < per_pole[pole][0]:
+                        per_pole[pole] = (sse, ProcessModel(float(pole), int(d), float(lr)))
         m = best[1]
         # Refine the dead time to the sample, then the pole and the load ratio.
         i = int(np.searchsorted(d_grid, m.delay))
@@ -1892,17 +1905,50 @@ def fit_process(
         # Predict as far ahead as the process takes to answer a valve step (dead time
         # plus one time constant): one step ahead, the load tracking hides most of a
         # wrong gain or a slow disturbance.
-        tau = 10.0 if m.pole >= 1.0 else -1.0 / math.log(max(m.pole, 1e-12))
+        # Predict as far ahead as the process takes to answer a valve step: dead time
+        # plus one time constant (an integrator answers with a ramp at once; a few
+        # samples show its slope).
+        tau = 5.0 if m.pole >= 1.0 else min(-1.0 / math.log(max(m.pole, 1e-12)), 40.0)
         horizon = int(min(max(round(m.delay + tau), 2), 60, max(n // 20, 2)))
-        m = ProcessModel(m.pole, m.delay, m.load_ratio, horizon)
-        lo, hi = math.log10(m.load_ratio) - 2.0, math.log10(m.load_ratio) + 2.0
-        ll = _golden(
-            lambda v: solve(ProcessModel(m.pole, m.delay, 10.0**v, horizon))[0], lo, hi, 14
-        )
-        cand = ProcessModel(m.pole, m.delay, 10.0**ll, horizon)
-        if solve(cand)[0] < solve(m)[0]:
-            m = cand
-        model = m
+
+        def tune(cm: ProcessModel) -> tuple[float, ProcessModel]:
+            """Load ratio (coarse grid, then golden) and dead time (+-2) at the horizon."""
+            grid = [ProcessModel(cm.pole, cm.delay, 10.0**e, horizon) for e in range(-9, 1)]
+            sse, cm = min(((solve(g)[0], g) for g in grid), key=lambda v: v[0])
+            c0 = math.log10(cm.load_ratio)
+            ll = _golden(
+                lambda v: solve(ProcessModel(cm.pole, cm.delay, 10.0**v, horizon))[0],
+                c0 - 1.0,
+                c0 + 1.0,
+                10,
+            )
+            cand = ProcessModel(cm.pole, cm.delay, 10.0**ll, horizon)
+            c = solve(cand)[0]
+            if c < sse:
+                sse, cm = c, cand
+            for dd in (-2, -1, 1, 2):
+                if cm.delay + dd < 0:
+                    continue
+                cand = ProcessModel(cm.pole, cm.delay + dd, cm.load_ratio, horizon)
+                c = solve(cand)[0]
+                if c < sse:
+                    sse, cm = c, cand
+            return sse, cm
+
+        # The structure is judged where the replay is: the best lags of the one-step
+        # grid and the integrator, each tuned at the horizon (a lag and an integrator
+        # can predict one step ahead equally well, not further).
+        best_h = tune(m)
+        others = sorted(per_pole.values(), key=lambda v: v[0])[:3]
+        if 1.0 in per_pole:
+            others.append(per_pole[1.0])
+        for _, cm in others:
+            if cm.pole == m.pole:
+                continue
+            cand = tune(cm)
+            if cand[0] < best_h[0]:
+                best_h = cand
+        model = best_h[1]
     elif retune:
         m0 = model
         lo, hi = math.log10(m0.load_ratio) - 2.0, math.log10(m0.load_ratio) + 1.0
@@ -2129,6 +2175,9 @@ def fit_actuator_lag(
     tau = math.exp(lt)
     mv_hat, _ = prob.series(_rows(S, J, lag=_lag_weight(tau))[0])
     return EffectFit(
+        # A lag shorter than half a sample cannot be told from the timing jitter of
+        # the replayed slips: it smooths every mistimed jump a little.
+        supported=tau >= 0.5,
         effect="actuator_lag",
         variant="first_order",
         n_params=1,
@@ -2267,7 +2316,7 @@ def fit_asymmetry(
         x = seeds[int(np.argmin(c))]
         # All four together: the two directions' slips are coupled through where the
         # valve stops.
-        x, _ = grid_search_nd(cost, x, (0, 1, 2, 3))
+        x, _ = grid_search_nd(cost, x, (0, 1, 2, 3), stages=_WIDE_STAGES)
         for pair in ((0, 1), (2, 3)):
             x, _ = needle_search(cost, x, pair, lower, upper, rel=0.03, zooms=1, n_grid=11)
     mv_hat, _ = prob.series(_rows(x[0], x[1], x[2], x[3])[0])
@@ -2382,7 +2431,7 @@ def fit_time_varying_stiction(
         cost = cost_h(_profile(n, t1, t2))
         # Start and end values together (coupled through where the valve stops),
         # then each pair finely.
-        stages = ((0.12, 7), (0.03, 5)) if rel > 0.1 else ((0.02, 5),)
+        stages = _WIDE_STAGES if rel > 0.1 else ((0.02, 5), (0.005, 5))
         x, _ = grid_search_nd(cost, x, (0, 1, 2, 3), stages=stages)
         for pair in ((0, 1), (2, 3)):
             x, c = needle_search(
@@ -2620,13 +2669,14 @@ def fit_quantization(
 ) -> EffectFit | None:
     """Historian or instrument resolution (Loop 4 of Section 3, Fig. 6).
 
-    The resolution (step and offset) of each recorded signal is read from the data
-    (:func:`detect_quantization`); the replay of every quantised signal is replaced by
-    its expected recorded value (:func:`expected_quantized`), with the noise before
-    the rounding fitted (one more parameter per signal).  None when no signal is
-    quantised.
+    The resolution (step ``q``) of each recorded signal is read from the data
+    (:func:`detect_quantization`).  A continuous replay cannot reproduce the rounding:
+    the recorded value departs from the true one by a rounding error of variance
+    ``q^2/12``, which the augmented replay accounts for as a known measurement error
+    (one parameter per quantised signal, the step).  The replay itself is unchanged.
+    None when no signal is quantised.
     """
-    preds, params = {}, {}
+    preds, params, explained = {}, {}, {}
     base_preds = base.predictions()
     for name in ("op", "mv", "pv"):
         x = getattr(ctx.sig, name)
@@ -2634,19 +2684,10 @@ def fit_quantization(
         if q is None or name not in base_preds:
             continue
         step, offset = q
-        pred = base_preds[name]
-        if init is not None and f"{name}_noise_std" in init.params:
-            sigma = float(init.params[f"{name}_noise_std"])
-        else:
-            grid = step * np.concatenate([[0.0], np.geomspace(0.02, 2.0, 25)])
-            errs = [
-                float(np.dot(w, (expected_quantized(pred, step, offset, g) - x) ** 2)) for g in grid
-            ]
-            sigma = float(grid[int(np.argmin(errs))])
-        preds[name] = expected_quantized(pred, step, offset, sigma)
+        preds[name] = base_preds[name]
+        explained[name] = step * step / 12.0
         params[f"{name}_step"] = step
         params[f"{name}_offset"] = offset
-        params[f"{name}_noise_std"] = sigma
     if not preds:
         return None
     return EffectFit(
@@ -2655,6 +2696,7 @@ def fit_quantization(
         n_params=len(preds),
         params=params,
         predictions=preds,
+        explained=explained,
     )
 
 
@@ -2674,7 +2716,7 @@ def phase_coherence(r: np.ndarray, omega: float, w: np.ndarray) -> tuple[float, 
     """Phase coherence of a sinusoid of ``omega`` [rad/sample] in ``r`` along the record.
 
     An oscillation from outside the loop keeps its own clock: its phase, measured
-    in consecutive blocks of four periods, stays put.  A loop's own stick-slip cycle
+    in consecutive blocks of two periods, stays put.  A loop's own stick-slip cycle
     drifts in phase from cycle to cycle (noise and load change each cycle's
     length), and a sinusoid fitted to broadband residual has random phases.  Returns
     the mean resultant length R of the block phases (1: one phase) and the Rayleigh
@@ -2682,7 +2724,7 @@ def phase_coherence(r: np.ndarray, omega: float, w: np.ndarray) -> tuple[float, 
     """
     n = r.size
     period = 2.0 * math.pi / max(omega, 1e-9)
-    L = int(max(4.0 * period, 16))
+    L = int(max(2.0 * period, 16))
     B = n // L
     if B < 3:
         return 0.0, 1.0

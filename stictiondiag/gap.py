@@ -29,20 +29,33 @@ mv))^2 / 2``; pv: see below; op: zero, the controller replays it exactly):
 so ``gap`` is the part of the replay error that is not noise, in % of the RMS of the
 signals' cycle-scale movement; 0 means "within its noise".  For pv the floor is what a
 correct replay still misses at its horizon: measurement noise plus the load it could
-not foresee (:func:`stictiondiag.effects.process_noise_floor`).
+not foresee, from the noise model of the best process replay
+(:func:`stictiondiag.effects.process_noise_floor`), and never below the best pv
+replay's error on held-out data.  A quantised signal's rounding error (``q^2/12``)
+counts as explained once quantization is added.
 
 Attribution
 -----------
-Each candidate is fitted on half of the record and judged on the other half, both
-ways (eight contiguous blocks, even against odd), so an effect wins by predicting
-data it was not fitted on, not by flexibility.  A candidate is accepted only when
-its held-out error is lower than the base model's by more than a penalty: twice the
-standard error of the block-by-block improvement (the improvement must be consistent
-along the record) and at least 1 % of the base model's held-out error per extra
-parameter.  The penalised score ``held-out error + penalty`` ranks the candidates;
-``none`` scores the base model's held-out error and wins when no candidate beats it.
-No threshold depends on the generator of the data: the penalty is set by the data's
-own block-to-block scatter.
+The record is cut into eight contiguous blocks; every candidate's smooth parameters
+(a lag's time constant, a miscalibration's slope and offset, a characteristic's
+curvature, a disturbance's amplitudes, the process gain and the controller) are
+fitted on the even blocks and judged on the odd ones, and the other way round, so an
+effect wins by predicting data it was not fitted on, not by flexibility.  Stiction
+thresholds (S and J, and those of the asymmetric and time-varying valves) are taken
+from the whole record: a replay is in step with the data only at the exact
+thresholds, and a refit on half the record would throw the other half out of step.
+
+A candidate is accepted only when its improvement over the base model on the judged
+blocks (best and worst block left out) exceeds a penalty: twice the robust standard
+error of the block-by-block improvement, and the BIC share ``log(n_eff)/n_eff`` of the
+base error per extra parameter (``n_eff``: effectively independent residuals, the
+judged samples over the residuals' integrated autocorrelation time); it must also
+beat that share in at least half of the blocks, and pass its own signature check (an
+external oscillation keeps its phase along the record).  The penalised score, base
+error less the improvement plus the penalty, ranks the candidates; ``none`` scores
+the base error and wins when no candidate beats it.  No threshold is tuned to a data
+generator: the penalties come from the data's own block-to-block scatter and
+residual correlation, and the signature check is a Rayleigh test at 1 %.
 """
 
 from __future__ import annotations
@@ -59,8 +72,8 @@ from .errors import DataError
 N_BLOCKS = 8
 #: Standard errors of the block-by-block improvement a candidate must exceed [-].
 SIGNIFICANCE = 2.0
-#: Minimum held-out improvement per extra parameter, as a share of the base error [-].
-PENALTY_PER_PARAMETER = 0.01
+#: Fewest effectively independent residuals assumed for the per-parameter penalty [-].
+MIN_EFFECTIVE_SAMPLES = 10
 #: Shortest record analysed [samples].
 MIN_SAMPLES = 400
 
@@ -155,8 +168,10 @@ class GapDiagnosis:
     runner_up : str or None
         Second-best candidate by penalised score.
     margin : float
-        How clearly the winner won: the runner-up's penalised score minus the
-        winner's, in % of the runner-up's [%].
+        How clearly the winner won [%]: the share of the winner's penalised gain over
+        the base model that the runner-up does not reach (100 when the runner-up gains
+        nothing); for ``none``, how far the best candidate's penalised score lies
+        above the base model's error, in % of it.
     candidates : tuple of Candidate
         Every assessed effect, best penalised score first.
     breakdown : dict
@@ -345,13 +360,17 @@ def _block_errors(
     blocks: np.ndarray,
     mask: np.ndarray,
     n_blocks: int,
+    explained: dict | None = None,
 ) -> dict:
-    """Normalised squared error of each signal, per block, on the samples in ``mask``."""
+    """Normalised squared error of each signal, per block, on the samples in ``mask``,
+    less any variance the effect accounts for as a known measurement error."""
     out = {}
     for name, pred in preds.items():
         r = pred - getattr(sig, name)
-        e = meas.w * mask * r * r / meas.norm[name]
-        out[name] = np.bincount(blocks, e, minlength=n_blocks)
+        e = meas.w * mask * r * r
+        if explained and name in explained:
+            e = e - meas.w * mask * explained[name]
+        out[name] = np.bincount(blocks, e / meas.norm[name], minlength=n_blocks)
     return out
 
 
@@ -361,6 +380,27 @@ def _add(acc: dict | None, new: dict) -> dict:
     for k, v in new.items():
         acc[k] += v
     return acc
+
+
+def _bic_share(residual: np.ndarray, w: np.ndarray) -> float:
+    """``log(n_eff) / n_eff`` for a replay residual: the BIC penalty per parameter as a
+    share of the squared error, with ``n_eff`` the judged samples over the integrated
+    autocorrelation time of the residual (summed until the autocorrelation first
+    turns negative)."""
+    r = residual[w > 0]
+    n = r.size
+    r = r - r.mean()
+    var = float(np.dot(r, r))
+    if n < 4 or var <= 0.0:
+        return math.log(MIN_EFFECTIVE_SAMPLES) / MIN_EFFECTIVE_SAMPLES
+    nfft = 1 << int(math.ceil(math.log2(2 * n)))
+    f = np.fft.rfft(r, nfft)
+    acf = np.fft.irfft(f * np.conj(f), nfft)[: n // 4] / var
+    neg = np.where(acf[1:] <= 0.0)[0]
+    stop = int(neg[0]) + 1 if neg.size else acf.size
+    tau = 1.0 + 2.0 * float(np.sum(acf[1:stop]))
+    n_eff = max(n / max(tau, 1.0), MIN_EFFECTIVE_SAMPLES)
+    return math.log(n_eff) / n_eff
 
 
 def diagnose_gap(
@@ -446,8 +486,17 @@ def diagnose_gap(
             ef = fx.EFFECT_MODELS[name](ctx, w_train, base_f, init=ef_full)
             if ef is None:
                 ef = ef_full
-            errs = _block_errors(_predictions(base_f, ef), sig, norm_only, blocks, test, n_blocks)
+            errs = _block_errors(
+                _predictions(base_f, ef), sig, norm_only, blocks, test, n_blocks, ef.explained
+            )
             held[name] = _add(held[name], errs)
+
+    # Per-parameter penalty of each signal, as for the Bayesian information criterion
+    # (an extra parameter must lower n log(SSE) by log(n)): a share log(n_eff)/n_eff of
+    # the base error, with n_eff the number of effectively independent residuals
+    # (the record over the residuals' integrated autocorrelation time), so that
+    # slowly varying replay errors do not count as many independent samples.
+    share = {s: _bic_share(p - getattr(sig, s), ctx.w_eval) for s, p in base.predictions().items()}
 
     # Penalised scores (normalised held-out squared error summed over signals).
     totals = {name: sum(v for v in h.values()) for name, h in held.items()}
@@ -462,8 +511,16 @@ def diagnose_gap(
         # Scatter of the block improvements, robust to a few blocks where a real
         # effect matters most (a characteristic away from the operating point).
         se = 1.4826 * float(np.median(np.abs(d - np.median(d)))) * math.sqrt(n_blocks)
-        penalty = max(SIGNIFICANCE * se, PENALTY_PER_PARAMETER * ef.n_params * base_total)
-        consistent = int(np.sum(d > 0)) >= n_blocks // 2 and ef.supported
+        # The per-parameter share is of the base error on the signals the effect
+        # changes: a valve effect is not asked to beat the process replay's error.
+        sigs = [s for s in ef.predictions if s in held["none"]]
+        per_param = sum(share[s] * float(held["none"][s].sum()) for s in sigs)
+        penalty = max(SIGNIFICANCE * se, ef.n_params * per_param)
+        # Better in at least half of the blocks, each time by more than the
+        # per-parameter share of the base error on the signals the effect changes.
+        per_param_b = sum(share[s] * np.abs(held["none"][s]) for s in sigs)
+        better = d > max(ef.n_params, 1) * per_param_b
+        consistent = int(np.sum(better)) >= n_blocks // 2 and ef.supported
         accepted = trimmed > penalty and consistent
         if _DEBUG:
             print(
@@ -480,9 +537,16 @@ def diagnose_gap(
     order = sorted(["none", *fits], key=lambda e: scores[e][0])
     winner = order[0]
     runner = order[1] if len(order) > 1 else None
+    # Margin: the share of the winner's penalised gain over the base model that the
+    # runner-up does not reach (100: the runner-up gains nothing); for ``none``, how
+    # far the best candidate's penalised score lies above the base error.
     margin = 0.0
     if runner is not None:
-        margin = 100.0 * (scores[runner][0] - scores[winner][0]) / max(scores[runner][0], 1e-300)
+        gain = base_total - scores[winner][0]
+        if winner == "none":
+            margin = 100.0 * (scores[runner][0] - base_total) / max(base_total, 1e-300)
+        else:
+            margin = 100.0 * (scores[runner][0] - scores[winner][0]) / max(gain, 1e-300)
     win_fit = None if winner == "none" else fits[winner]
 
     # Noise floors: white noise of mv; measurement noise and unforeseeable load of
@@ -493,11 +557,20 @@ def diagnose_gap(
         pv_floor = win_fit.pv_floor
     else:
         pv_floor = fx.process_noise_floor(fx._process_input(ctx, base), ctx, base.process)
+    # The pv floor is also never below what the best pv replay achieves on held-out
+    # data: the load the replay tracks is not white, so part of it stays
+    # unpredictable whatever the valve or the process does.
+    n_judged = max(float(ctx.w_eval.sum()), 1.0)
+    heldout_pv = [
+        float(held[name]["pv"].sum()) / n_judged * ctx.norm["pv"]
+        for name in ["none", *fits]
+        if "pv" in held[name] and (name == "none" or "pv" in fits[name].predictions)
+    ]
+    pv_floor = max(pv_floor, min(heldout_pv))
     floors = {"op": 0.0, "pv": pv_floor}
     if sig.mv is not None:
         floors["mv"] = noise_variance(sig.mv)
     meas = _Measure(norm=ctx.norm, floor=floors, w=ctx.w_eval)
-    n_judged = max(float(ctx.w_eval.sum()), 1.0)
 
     def as_gap(per_signal: dict, extra: float = 0.0) -> float:
         tot = sum(meas.excess(s, float(v.sum()) / n_judged) for s, v in per_signal.items())
@@ -510,7 +583,7 @@ def diagnose_gap(
     for name, ef in fits.items():
         per = dict(per_base)
         for s, p in ef.predictions.items():
-            per[s] = meas.nmse(s, p, getattr(sig, s))
+            per[s] = meas.nmse(s, p, getattr(sig, s)) - ef.explained.get(s, 0.0) / ctx.norm[s]
         after_c = meas.gap(per)
         shrink_c = 100.0 * (before - after_c) / before if before > 0 else 0.0
         _, accepted, penalty = scores[name]
