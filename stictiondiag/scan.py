@@ -213,7 +213,10 @@ def load_source(source: LoopSource, **read_options):
     """Read one loop as :class:`~stictiondiag.tags.Tags` (one loop in memory).
 
     A loop of a dataset is read with a row filter on the loop-id column, so only
-    its own rows (and, for a partitioned dataset, only its own files) are read.
+    its own rows are read (row groups whose statistics exclude the loop are
+    skipped).  In a hive-partitioned dataset only the loop's own folder
+    (``<column>=<loop>/``) is opened, so reading one loop does not list the whole
+    plant.
     """
     from .tags import read_frame, read_tags
 
@@ -222,8 +225,14 @@ def load_source(source: LoopSource, **read_options):
     import pyarrow as pa
     import pyarrow.dataset as ds
 
-    dataset = _open_dataset(Path(source.path))
     col = source.loop_column
+    label = f"{source.path}#{source.loop}"
+    partition = Path(source.path) / f"{col}={source.loop}"
+    if partition.is_dir():
+        files = [str(f) for f in _parquet_files(partition)]
+        frame = ds.dataset(files, format="parquet").to_table().to_pandas()
+        return read_frame(frame.drop(columns=[col], errors="ignore"), source=label, **read_options)
+    dataset = _open_dataset(Path(source.path))
     field_type = dataset.schema.field(col).type
     value = source.loop
     if pa.types.is_integer(field_type):
@@ -231,7 +240,7 @@ def load_source(source: LoopSource, **read_options):
     elif pa.types.is_floating(field_type):
         value = float(value)
     frame = dataset.to_table(filter=ds.field(col) == value).to_pandas().drop(columns=[col])
-    return read_frame(frame, source=f"{source.path}#{source.loop}", **read_options)
+    return read_frame(frame, source=label, **read_options)
 
 
 def analyse_source(source: LoopSource, read_options: dict, gap: bool) -> dict:
