@@ -294,6 +294,10 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
             rep = replay(tags, fit, integrating=tags.integrating)
         except StictionError as exc:
             warnings.append(f"replay not possible: {exc}")
+        else:
+            # A poor identification or a replay without a cycle changes how far the
+            # reconstruction can be trusted: the user sees it with the verdict.
+            warnings.extend(f"replay: {w}" for w in getattr(rep, "warnings", ()))
 
     # 6. Sim-to-real gap.
     gap = None

@@ -379,3 +379,14 @@ def test_set_point_step_does_not_hide_the_cycle():
     assert a.oscillation.present
     assert a.oscillation.period_s == pytest.approx(231.0, rel=0.05)
     assert any("control error" in w for w in a.warnings)
+
+
+@pytest.mark.parametrize("name", ["level_undershoot.csv", "slave_flow_stickslip.csv"])
+def test_replay_warnings_reach_the_user(name):
+    # The replay's own notes (poor identification, no cycle in the replay) decide
+    # how far the reconstruction can be trusted: they are part of the result.
+    a = sample_analysis(name)
+    assert a.replay is not None
+    for note in a.replay.warnings:
+        assert f"replay: {note}" in a.warnings
+    assert a.to_dict()["warnings"] == list(a.warnings)
