@@ -119,6 +119,10 @@ MAX_DELAY_PERIODS = 0.5
 #: started from the wrong point stays out of step with the valve.
 START_OFFSETS = (0.0, 0.01, 0.03, 0.1, 0.2, 0.4)
 
+#: Half-cycles whose residual energy exceeds this many times the median are left out
+#: of the fit (set-point moves and load steps the model cannot know).
+OUTLIER_FACTOR = 8.0
+
 #: Longest record fitted [samples]; longer records are fitted on their central part.
 MAX_SAMPLES = 12_000
 
@@ -221,12 +225,13 @@ def _regressors(u, tau, integrating, a_hp, k0):
 
 
 @jit
-def _normal_equations(u, taus, integrating, a_hp, k0, j0, j1, stride, Y):
+def _normal_equations(u, taus, integrating, a_hp, k0, j0, j1, stride, keep, Y):
     """Normal equations of the linear part for every time constant and delay, in one pass.
 
     The columns are those of :func:`_regressors`, computed on the fly and kept only at
-    the regression rows ``j = j0, j0 + stride, ... < j1``; ``Y[r, i]`` is the target
-    ``yf[j_r + delays[i]]``.  Returns ``A[t]`` (5 x 5) and ``B[t]`` (5 x delays).
+    the regression rows ``j = j0, j0 + stride, ... < j1`` whose ``keep`` flag is set;
+    ``Y[r, i]`` is the target ``yf[j_r + delays[i]]`` of the r-th kept row.  Returns
+    ``A[t]`` (5 x 5) and ``B[t]`` (5 x delays).
     """
     nt = taus.shape[0]
     n = u.shape[0]
@@ -243,6 +248,7 @@ def _normal_equations(u, taus, integrating, a_hp, k0, j0, j1, stride, Y):
     u0 = u[k0]
     c = 1.0 - a_hp
     r = 0
+    row = 0
     next_row = j0
     for k in range(k0, n):
         if k > k0:
@@ -265,6 +271,9 @@ def _normal_equations(u, taus, integrating, a_hp, k0, j0, j1, stride, Y):
             if r >= nr or k >= j1:
                 break
             next_row += stride
+            row += 1
+            if not keep[row - 1]:
+                continue
             for t in range(nt):
                 phi[t, r, 0] = g0
                 phi[t, r, 1] = g1[t]
@@ -363,13 +372,31 @@ def _same_sign_fit(A, b, yy, nb):
 
 @jit
 def _batch_cost(
-    x, S_arr, J_arr, offsets, taus, kano, k_start, d_start, integrating, a_hp, j0, j1, stride, Y, yy
+    x,
+    S_arr,
+    J_arr,
+    offsets,
+    taus,
+    kano,
+    k_start,
+    d_start,
+    integrating,
+    a_hp,
+    j0,
+    j1,
+    stride,
+    keep,
+    Y,
+    yy,
+    pre_lag,
 ):
     """Best cost over start offsets, process time constants and delays for every (S, J).
 
     ``Y[r, i]`` is the high-passed pv at regression row ``r`` shifted by delay ``i``
-    and ``yy[i]`` its sum of squares.  Returns the cost and, for each pair, the
-    indices of the best delay, start offset and time constant.
+    and ``yy[i]`` its sum of squares; ``pre_lag`` [samples] a lag applied to the valve
+    output first (the same lag the target went through; 0: none).  Returns the cost
+    and, for each pair, the indices of the best delay, start offset and time
+    constant.
     """
     m = S_arr.shape[0]
     cost = np.empty(m)
@@ -382,7 +409,9 @@ def _batch_cost(
         cost[i] = np.inf
         for io in range(offsets.shape[0]):
             u, _ = valve_run(x, S_arr[i], J_arr[i], kano, k_start, d_start, offsets[io])
-            A, B = _normal_equations(u, taus, integrating, a_hp, k_start, j0, j1, stride, Y)
+            if pre_lag > 0.0:
+                u = _lag(u, pre_lag, k_start)
+            A, B = _normal_equations(u, taus, integrating, a_hp, k_start, j0, j1, stride, keep, Y)
             for t in range(nt):
                 for k in range(nd):
                     sse = _same_sign_fit(A[t], B[t, :, k], yy[k], 2)
@@ -500,14 +529,23 @@ class _Problem:
         self.integrating, self.a_hp = bool(integrating), float(a_hp)
         self.k_start, self.d_start = int(k_start), float(d_start)
         self.j0, self.j1, self.stride = int(j0), int(j1), int(stride)
-        self.rows = np.arange(self.j0, self.j1, self.stride, dtype=np.int64)
+        self.all_rows = np.arange(self.j0, self.j1, self.stride, dtype=np.int64)
+        self.keep = np.ones(self.all_rows.size, dtype=np.bool_)
+        self.rows = self.all_rows
         self.inputs: dict[str, np.ndarray] = {}
+        self.pre_lag = 0.0
         self.set_delays(delays)
 
     def set_delays(self, delays):
         self.delays = np.asarray(delays, dtype=np.int64)
         self.Y = np.ascontiguousarray(self.yf[self.rows[:, None] + self.delays[None, :]])
         self.yy = np.sum(self.Y**2, axis=0)
+
+    def set_keep(self, keep):
+        """Leave out the regression rows whose flag is False."""
+        self.keep = np.asarray(keep, dtype=np.bool_)
+        self.rows = self.all_rows[self.keep]
+        self.set_delays(self.delays)
 
     def cost(self, S, J, variant: ValveVariant, offsets):
         """Cost, best delay, start offset and time constant for every (S, J) pair."""
@@ -529,8 +567,10 @@ class _Problem:
             self.j0,
             self.j1,
             self.stride,
+            self.keep,
             self.Y,
             self.yy,
+            self.pre_lag,
         )
         return c, self.delays[bd], off[bo], self.taus[bt]
 
@@ -546,7 +586,8 @@ class _Problem:
             self.d_start,
             float(offset),
         )
-        phi = _regressors(u, float(tau), self.integrating, self.a_hp, self.k_start)
+        uf = _lag(u, self.pre_lag, self.k_start) if self.pre_lag > 0 else u
+        phi = _regressors(uf, float(tau), self.integrating, self.a_hp, self.k_start)
         X = phi[self.rows]
         y = self.yf[self.rows + int(delay)]
         theta = _same_sign_lstsq(X, y, 2)
@@ -577,6 +618,23 @@ def cycle_travel(x: np.ndarray, period: int) -> float:
         return float(np.ptp(xd))
     w = xd[: nw * m].reshape(nw, m)
     return float(np.percentile(w.max(axis=1) - w.min(axis=1), 90))
+
+
+def _ordinary_blocks(resid: np.ndarray, block: int) -> np.ndarray:
+    """Rows to keep: those outside blocks whose residual energy exceeds
+    :data:`OUTLIER_FACTOR` times the median block energy.  Keeps everything when that
+    would leave out more than 10 % of the rows: set-point moves and load steps are
+    isolated events, a misfit spread over many blocks is the model's own."""
+    n = resid.size
+    nb = max(1, n // block)
+    e = np.array([np.sum(resid[i * block : (i + 1) * block] ** 2) for i in range(nb)])
+    keep = np.ones(n, dtype=bool)
+    med = float(np.median(e))
+    if not med > 0:
+        return keep
+    for i in np.flatnonzero(e > OUTLIER_FACTOR * med):
+        keep[i * block : n if i == nb - 1 else (i + 1) * block] = False
+    return keep if keep.mean() >= 0.9 else np.ones(n, dtype=bool)
 
 
 def _delay_window(d_best: int, d_max: int, half: int, most: int) -> np.ndarray:
@@ -633,7 +691,28 @@ def _setup(op, pv, dt, integrating, flow_loop, period_s) -> dict:
     if not scale > 0:
         scale = float(np.ptp(x))
     x = x / scale
-    prob = _Problem(x, yf, taus, integrating, a_hp, k_start, d_start, j0, j1, stride, coarse_delays)
+    pre_lag = 0.0
+    if integrating:
+        # The integrator is taken out of pv (its increments are driven by the valve
+        # directly), so an unknown inflow imbalance or a load step at the process
+        # input no longer leaves a lasting ramp.  Differencing amplifies white noise;
+        # a lag of a twentieth of a cycle on both sides of the model takes it back.
+        pre_lag = max(0.0, period / 20.0)
+        dy = np.diff(y, prepend=y[0])
+        dy = _lag(dy, pre_lag, 0) if pre_lag > 0 else dy
+        dy_std = float(dy.std())
+        if not dy_std > 0:
+            raise DataError("pv of the integrating loop never changes: nothing to fit")
+        yf = _highpass((dy - dy.mean()) / dy_std, a_hp, k_start)
+        # White noise on pv through the difference and the lag, in target units.
+        impulse = np.zeros(int(20 * pre_lag) + 10)
+        impulse[1] = 1.0
+        h = _lag(np.diff(impulse, prepend=0.0), pre_lag, 0)
+        noise_var = white_noise_std(y) ** 2 * float(np.sum(h**2)) / dy_std**2
+    else:
+        noise_var = white_noise_std(y) ** 2
+    prob = _Problem(x, yf, taus, False, a_hp, k_start, d_start, j0, j1, stride, coarse_delays)
+    prob.pre_lag = pre_lag
     S_max = float(min(1.25, np.ptp(x)))
 
     return {
@@ -647,6 +726,7 @@ def _setup(op, pv, dt, integrating, flow_loop, period_s) -> dict:
         "coarse_delays": coarse_delays,
         "taus": taus,
         "scale": scale,
+        "noise_var": noise_var,
         "S_max": S_max,
         "a_hp": a_hp,
     }
@@ -745,20 +825,29 @@ def fit_hammerstein(
         2 * prob.stride,
         prob.delays,
     )
+    prob1.pre_lag = prob.pre_lag
     coarse = {name: prob1.cost(SS, JJ, v, offsets_all) for name, v in variants.items()}
     n_eval = len(coarse) * SS.size * offsets_all.size
     # 1b. The five best cells of each variant with every time constant.
     prob1.taus = prob.taus
-    best1 = (np.inf, None, 0, 0.0, 0.0)
+    best1 = (np.inf, None, 0, 0.0, 0.0, 0.0, 0.0)
     for name, (c1, _, o1, _) in coarse.items():
         top = np.argsort(c1)[:5]
         for k in top:
             c, d, o, t = prob1.cost(SS[k], JJ[k], variants[name], o1[k])
             n_eval += 1
             if c[0] < best1[0]:
-                best1 = (float(c[0]), name, int(d[0]), float(o[0]), float(t[0]))
-    _, model, d_best, off_best, tau_best = best1
+                best1 = (float(c[0]), name, int(d[0]), float(o[0]), float(t[0]), SS[k], JJ[k])
+    _, model, d_best, off_best, tau_best, S1, J1 = best1
     variant = variants[model]
+
+    # Half-cycles the model cannot explain at all (set-point moves, load steps at
+    # the process input) are left out from here on.
+    resid1, *_ = prob.residual(S1, J1, variant, d_best, off_best, tau_best)
+    keep = _ordinary_blocks(resid1, max(2, period // (2 * stride)))
+    n_left_out = int(keep.size - keep.sum())
+    if n_left_out:
+        prob.set_keep(keep)
 
     # From here on: the best start offset and the plain one (stuck at the extreme).
     k_off = int(np.argmin(np.abs(offsets_all - off_best)))
@@ -857,8 +946,7 @@ def fit_hammerstein(
     n_eff = float(min(n_eff_resid, max(n_slips, 1) + 3))
     # White measurement noise on pv, in the units of the cost (pv scaled to unit
     # variance; the slow high-pass leaves white noise as it is).
-    noise_var = (white_noise_std(pv_fit) / float(np.std(pv_fit))) ** 2
-    noise_cost = noise_var * resid.size
+    noise_cost = setup["noise_var"] * resid.size
     thr = cost_threshold(cost, n_eff, 3, noise_cost)
     S_iv, _, S_open = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, _, J_open = profile_interval(J_all, C_all, thr, 0.0, J_max)
@@ -902,6 +990,7 @@ def fit_hammerstein(
         "structure": structure,
         "period_samples": period,
         "row_stride": stride,
+        "rows_left_out": n_left_out,
         "dead_time_s": delay * dt,
         "dead_time_interval_s": [d_iv[0] * dt, d_iv[1] * dt],
         "linear_valve_dead_time_s": float(lin_d[0]) * dt,

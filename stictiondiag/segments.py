@@ -507,7 +507,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
        :func:`stictiondiag.estimate.valve_variants` (the published flowchart and
        Kano's on a clean op; Kano's, raw and behind a play operator, on a noisy one;
        the best is kept), with a 95 % profile-cost interval (F test with the
-       residual's effective sample size, widened by any misfit beyond mv's noise).
+       residual's effective sample size).
 
     The model is started moving right after the first recorded slip, in its
     direction, so it is in step with the valve from there (the samples before are
@@ -586,7 +586,10 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
 
     n_eff = effective_samples(resid[k0:])
     noise_cost = float(segs.noise_mv**2 * (n - k0))
-    thr = cost_threshold(cost, n_eff, 3, noise_cost)
+    # No widening by the misfit here (unlike the Hammerstein fit): with mv the
+    # misfit of one (S, J) pair is the valve varying from slip to slip, which the
+    # interval over slips below reports directly.
+    thr = cost_threshold(cost, n_eff, 3)
     S_iv, S_lo_edge, S_hi_edge = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, J_lo_edge, J_hi_edge = profile_interval(J_all, C_all, thr, 0.0, J_max)
 

@@ -63,9 +63,14 @@ def test_level_loop_with_noise():
     # since the published flowchart never slips on a noisy op.
     op, pv, dt = loop("level", 3.0, 1.0, valve="kano", noise=0.02)
     fit = fit_hammerstein(op, pv, dt, integrating=True, flow_loop=False)
-    # Same reasoning as above; the integrator has no dead time to trade against.
-    assert fit.S == pytest.approx(3.0, abs=0.3)
-    assert fit.J == pytest.approx(1.0, abs=0.3)
+    # The integrator is differenced out of pv and a lag of a twentieth of a cycle
+    # put on both sides against the noise; S still trades against a dead time of a
+    # few samples (0.1 s of op ramp is about 0.05 % here).  0.5 % of span: half the
+    # 1 % aimed at without mv.  J is the least determined: with noise the valve moves
+    # smoothly only in short stretches, and the height of its jumps trades against
+    # the process gain (Eq. 4); 0.6 % for it.
+    assert fit.S == pytest.approx(3.0, abs=0.5)
+    assert fit.J == pytest.approx(1.0, abs=0.6)
     assert fit.details["structure"] == "integrating"
 
 
