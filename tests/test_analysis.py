@@ -91,11 +91,7 @@ def conc_no_mv(conc) -> Analysis:
 #: xfail, so the test fails (XPASS) as soon as the step is fixed and the mark can go.
 KNOWN = {
     ("S_J", "level_no_mv.csv"): "Hammerstein fit on the integrating loop without mv: "
-    "S 1.4 / J 5.8 against 3 / 1.5 (stictiondiag.hammerstein)",
-    ("verdict", "level_no_mv.csv"): "inconclusive: S of the Hammerstein fit not told "
-    "apart from 0 (follows from the S/J shortfall)",
-    ("verdict", "flow_mixed.csv"): "inconclusive: with mv and 231 slips the profile "
-    "interval of S still reaches 0 for the two-region valve (stictiondiag.segments)",
+    "S 2.3 / J 5.8 against 3 / 1.5 (stictiondiag.hammerstein)",
 }
 
 
