@@ -1550,6 +1550,22 @@ def grid_search_nd(
     return x, best
 
 
+def _sj_wide(cost2, seeds) -> np.ndarray:
+    """Best (S, J) on a grid of S around each seed (+-30 %) and J over [0, 1.4 S].
+
+    J has no reliable seed when slips are smeared (a lag) or mixed (asymmetry), and
+    the replay's error is a needle in J: it must be scanned over its whole range.
+    """
+    pts = []
+    for S0, _ in seeds:
+        for S in S0 * np.linspace(0.7, 1.3, 13):
+            for fj in np.linspace(0.0, 1.4, 36):
+                pts.append((S, S * fj))
+    X = np.array(pts + [tuple(s) for s in seeds])
+    c = cost2(X, np.inf)
+    return X[int(np.argmin(c))]
+
+
 def _sj_bounds(travel: float) -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(2), np.array([travel, 1.5 * travel])
 
@@ -2160,9 +2176,20 @@ def fit_actuator_lag(
         # Thresholds from the whole record; the lag is refitted here.
         S, J, tau = init.x
     else:
-        # The breakaways do not depend on the lag: S and J with a provisional lag.
-        tau = 2.0
-        (S, J), _ = _needle_sj(prob, seeds, travel, lag=_lag_weight(tau))
+        # The breakaways do not depend on the lag: S and J with a few provisional lags
+        # (a lag hides the size of the slips, so J can be far from the base fit's).
+        best = None
+        for tau in (1.0, 3.0, 6.0):
+
+            def cost2(X, bound, tau=tau):
+                return prob.costs(_rows(X[:, 0], X[:, 1], lag=_lag_weight(tau)), bound=bound)
+
+            x = _sj_wide(cost2, seeds)
+            x, c = grid_search_nd(cost2, x, (0, 1), stages=_WIDE_STAGES[1:])
+            if best is None or c < best[0]:
+                best = (c, x, tau)
+        _, (S, J), tau = best
+        (S, J), _ = _needle_sj(prob, [(S, J)], travel, rel=0.05, n_grid=15, lag=_lag_weight(tau))
         lt = _golden(lambda v: cost_tau(S, J)(math.exp(v)), math.log(0.1), math.log(tau_max), 24)
         tau = math.exp(lt)
         (S, J), _ = _needle_sj(prob, [(S, J)], travel, rel=0.05, n_grid=15, lag=_lag_weight(tau))
@@ -2241,7 +2268,8 @@ def fit_miscalibration(
         seeds = [(S0 / slopes[i], J0 / slopes[i]) for i in np.argsort(c)[:2]]
         # The demand travel of the slips is on the op axis already.
         seeds += _travel_seeds(ctx.slips)
-        x, _ = _needle_sj_affine(prob, seeds, travel * 3)
+        wide = _sj_wide(lambda X, bound: prob.costs(_rows(X[:, 0], X[:, 1]), affine=True), seeds)
+        x, _ = _needle_sj_affine(prob, [*seeds, tuple(wide)], travel * 3)
     v, _ = prob.series(_rows(x[0], x[1])[0])
     slope, offset = _affine(v, ctx.sig.mv, w)
     for _ in range(2 if init is None else 0):
@@ -2776,16 +2804,29 @@ def fit_external_disturbance(
         cand = np.where(ok)[0]
         if cand.size < 3:
             cand = np.arange(1, spec.size)
-        s = spec[cand]
-        peaks = [cand[i] for i in range(1, s.size - 1) if s[i] >= s[i - 1] and s[i] >= s[i + 1]]
-        peaks = sorted(peaks, key=lambda i: -spec[i])[:3] or [cand[int(np.argmax(s))]]
+
+        def top_peaks(spec_x, k):
+            sx = spec_x[cand]
+            pk = [
+                cand[i] for i in range(1, sx.size - 1) if sx[i] >= sx[i - 1] and sx[i] >= sx[i + 1]
+            ]
+            return sorted(pk, key=lambda i: -spec_x[i])[:k] or [cand[int(np.argmax(sx))]]
+
+        # Candidate frequencies: the largest peaks of the replay's residual and of pv
+        # itself (the load tracking follows part of a slow disturbance, so its peak
+        # can be small in the residual while it dominates pv).
+        pvc = (pv - np.sum(pv * w) / max(np.sum(w), 1.0)) * w
+        spec_pv = np.abs(np.fft.rfft(pvc, nfft)) ** 2
+        peaks = list(dict.fromkeys(top_peaks(spec, 3) + top_peaks(spec_pv, 3)))
         best = None
         width = 2.0 * math.pi / nfft * 4.0
         for i in peaks:
             om0 = omega[i]
             om = _golden(lambda o: cost(o, 1)[0], max(om0 - width, 1e-6), om0 + width, n_iter=14)
             for harmonics in (1, 2):
-                c, f = cost(om, harmonics)
+                # Judged with the load tracking retuned: with the oscillation in the
+                # model there is less load to follow.
+                c, f = cost(om, harmonics, retune=True)
                 if best is None or c < best[0]:
                     best = (c, om, harmonics, f)
         c, om, harmonics, f = best

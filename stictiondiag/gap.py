@@ -504,10 +504,16 @@ def diagnose_gap(
     scores = {"none": (base_total, True, 0.0)}
     for name, ef in fits.items():
         d = totals["none"] - totals[name]
-        # The improvement without its best and its worst block (scaled back to the
-        # whole record): one block where the replay happens to fall in or out of step
-        # with the data must not decide.
-        trimmed = (float(d.sum()) - float(d.max()) - float(d.min())) * n_blocks / (n_blocks - 2)
+        # For effects on the valve, the improvement without its best and its worst
+        # block (scaled back to the whole record): one block where the valve replay
+        # happens to fall in or out of step with the data must not decide.
+        if "mv" in ef.predictions:
+            trimmed = (float(d.sum()) - float(d.max()) - float(d.min())) * n_blocks / (n_blocks - 2)
+        else:
+            # Process-side replays are not thrown out of step by a lucky or unlucky
+            # block; an installed characteristic may show in the one block where the
+            # valve travels far from its operating point.
+            trimmed = float(d.sum())
         # Scatter of the block improvements, robust to a few blocks where a real
         # effect matters most (a characteristic away from the operating point).
         se = 1.4826 * float(np.median(np.abs(d - np.median(d)))) * math.sqrt(n_blocks)
