@@ -29,10 +29,15 @@ relation.  It is an output-error fit: the residual is what the model cannot repr
 from op alone, not a one-step-ahead prediction error (which the last pv sample would
 dominate, hiding the valve).
 
-* Integrating processes (``integrating=True``, a level loop, Table 3): ``H u`` and
-  ``H lag u`` are replaced by the integrals seen through the high-pass,
-  ``L = H / (1 - q^-1)``, a leaky integrator (an unknown inflow imbalance then decays
-  instead of accumulating).
+* Integrating processes (``integrating=True``, a level loop, Table 3): the
+  integrator is taken out of pv by differencing it, ``pv[k] - pv[k-1]``, which the
+  valve output drives directly; an unknown inflow imbalance or a load step at the
+  process input then shows as a step that the high-pass removes instead of a ramp
+  that lasts.  Differencing amplifies white noise, so a lag of a twentieth of a cycle
+  is put on both sides of the model (the same linear filter on both sides leaves
+  the relation unchanged).  (The compiled kernels also hold the undifferenced form,
+  the integral seen through the high-pass, ``integrating=True``; it left load steps
+  as lasting misfits.)
 * Flow loops (``flow_loop=True``, Section 5.3.1: "in liquid flow loops ... pv can be
   taken to be proportional to valve opening"): the lag is at most a few samples and
   the dead time one to three samples.
