@@ -9,10 +9,13 @@ the data.
 The *driven replay* feeds every element of the loop with its recorded input, so a
 departure is located in the element that causes it:
 
-* valve: ``mv_hat = valve(op)`` (the stiction model, Section 5.1);
-* process: ``pv_hat = G(mv)`` (a low-order linear model with dead time, Section 4.2.2,
-  Eq. 3), driven by the recorded mv (or the modelled mv when mv is not recorded);
-* controller: ``op_hat = C(sp - pv)`` (a PI controller, Eq. 3).
+* valve: ``mv_hat = valve(op)`` (the stiction model, Section 5.1), replayed freely
+  from the recorded op;
+* process: ``pv_hat = G(mv)`` (first order with dead time, or an integrator; Section
+  4.2.2, Eq. 3), driven by the recorded mv (or the modelled mv when mv is not
+  recorded) and predicted a dead time plus a time constant ahead, with the unmeasured
+  load tracked by a steady-state Kalman filter (:func:`fit_process`);
+* controller: ``op_hat = C(sp - pv)`` (a PI controller on a filtered pv, Eq. 3).
 
 The effects and where they act:
 
@@ -30,19 +33,31 @@ valve_characteristic   pv, mv  installed characteristic between valve position a
                                exponential (equal-percentage-like) or power
                                (quick-opening-like) curve, on the process input or on mv
 quantization           any     historian or instrument resolution (Loop 4, Section 3):
-                               the model output rounded to the resolution found in the
-                               data (step and offset per quantised signal)
+                               the rounding error ``q^2/12`` of each signal whose values
+                               lie on a grid of step ``q`` (one step per signal)
 external_disturbance   pv      an oscillation entering the loop that the valve did not
                                cause: a sinusoid and its second harmonic added to pv
-                               (frequency, amplitudes, phases)
-time_varying_stiction  mv      S and J drifting linearly during the record, or
-                               stepping at one instant (end values, step time)
+                               (frequency, amplitudes, phases); it must keep its phase
+                               along the record (:func:`phase_coherence`)
+time_varying_stiction  mv      S and J changing during the record: a step, a ramp
+                               between two instants or a drift over the record (end
+                               values and instants)
 =====================  ======  =====================================================
 
 Every fitter takes per-sample weights (0 or 1) so the same code fits on a training
 part of the record and is validated on the held-back part (:mod:`stictiondiag.gap`).
-Per-sample loops are compiled (:func:`stictiondiag._jit.jit`); the process fits are
-vectorised linear least squares over a small grid of poles and dead times.
+
+Searching the thresholds
+------------------------
+With a noisy demand each breakaway happens at the first noisy sample beyond the
+threshold, so a replay is in step with the data only in a narrow region of S and J
+(about 1 % of J) and off by whole slips elsewhere; the error is a rugged function
+that defeats descent methods.  The searches therefore start from the demand travel
+of the slips measured in the data (:func:`measure_slips`), lay dense product grids
+over the coupled thresholds (:func:`grid_search_nd`, :func:`needle_search`) and
+evaluate thousands of parameter sets per compiled call, abandoning each as soon as
+its error exceeds the best so far.  The process fits are vectorised linear least
+squares over a grid of poles, dead times and load-to-noise ratios.
 """
 
 from __future__ import annotations
@@ -361,171 +376,6 @@ def _valve_sse_batch(
     return costs
 
 
-@jit
-def _rest_levels(mv, moved):  # pragma: no cover - compiled
-    """Running mean of mv over the current run of samples without movement."""
-    n = mv.shape[0]
-    level = np.empty(n)
-    acc = 0.0
-    cnt = 0.0
-    for k in range(n):
-        if moved[k]:
-            acc = 0.0
-            cnt = 0.0
-        acc += mv[k]
-        cnt += 1.0
-        level[k] = acc / cnt
-    return level
-
-
-@jit
-def _teacher_forced_sse_batch(op, mv, w, moved, level, P, h, kano, bound):  # pragma: no cover
-    """Squared mv error of one-step predictions from the valve state the data show.
-
-    At every sample the valve's state is read from the data (moving or at rest, the
-    direction of its last movement, the demand where it stopped) and the model
-    (Fig. 10 with direction- and time-dependent S and J) predicts only the next
-    sample.  A wrong threshold then costs the slips it mistimes, one by one, instead
-    of throwing the whole replay out of step as a free replay does; the error is a
-    sum of step functions of S and J whose minimum is where the free replay is in
-    step with the data.  ``moved`` flags samples where mv moved beyond its noise;
-    ``level`` is the running mean of mv while at rest.
-    """
-    m = P.shape[0]
-    n = op.shape[0]
-    costs = np.empty(m)
-    tv = h.shape[0] > 1
-    limit = bound
-    for r in range(m):
-        su0, su1, sd0, sd1 = P[r, 0], P[r, 1], P[r, 2], P[r, 3]
-        ju0, ju1, jd0, jd1 = P[r, 4], P[r, 5], P[r, 6], P[r, 7]
-        su = max(su0 + (su1 - su0) * h[0], 0.0)
-        sd = max(sd0 + (sd1 - sd0) * h[0], 0.0)
-        ju = max(ju0 + (ju1 - ju0) * h[0], 0.0)
-        jd = max(jd0 + (jd1 - jd0) * h[0], 0.0)
-        sse = 0.0
-        last_dir = 0.0
-        xss = op[0]
-        vold = 0.0
-        for k in range(2, n):
-            if tv:
-                hk = h[k]
-                su = max(su0 + (su1 - su0) * hk, 0.0)
-                sd = max(sd0 + (sd1 - sd0) * hk, 0.0)
-                ju = max(ju0 + (ju1 - ju0) * hk, 0.0)
-                jd = max(jd0 + (jd1 - jd0) * hk, 0.0)
-            x = op[k]
-            vnew = _sgn(x - op[k - 1])
-            moving = moved[k - 1]
-            if moving:
-                d_prev = _sgn(mv[k - 1] - mv[k - 2])
-                if d_prev != 0.0:
-                    last_dir = d_prev
-            elif moved[k - 2]:
-                xss = op[k - 2]
-            pred = level[k - 1]
-            check = True
-            ref = xss
-            if moving and last_dir != 0.0:
-                stops = (
-                    (vnew == 0.0 or vnew != last_dir)
-                    if kano
-                    else (vnew != 0.0 and vnew != last_dir)
-                )
-                if stops:
-                    pred = mv[k - 1]
-                    ref = op[k - 1]
-                else:
-                    check = False
-                    if last_dir > 0.0:
-                        pred = x - (su - ju) / 2.0
-                    else:
-                        pred = x + (sd - jd) / 2.0
-            elif not kano and vnew != vold and vnew != 0.0 and vold != 0.0:
-                xss = op[k - 1]
-                ref = xss
-            if check:
-                dx = x - ref
-                d = _sgn(dx)
-                if d != 0.0:
-                    if d > 0.0:
-                        s_dd = su
-                        j_dd = ju
-                    else:
-                        s_dd = sd
-                        j_dd = jd
-                    thr = s_dd if (last_dir == 0.0 or d != last_dir) else j_dd
-                    if abs(dx) > thr:
-                        pred = x - d * (s_dd - j_dd) / 2.0
-            vold = vnew
-            e = pred - mv[k]
-            sse += w[k] * e * e
-            if sse > limit:
-                break
-        costs[r] = sse
-        if sse < limit:
-            limit = sse
-    return costs
-
-
-@jit
-def _synced_sse_batch(
-    op, mv, w, stop, stop_x, stop_dir, stop_y, P, h, kano, bound
-):  # pragma: no cover
-    """Squared mv error of a replay put back in step with the data at every stop.
-
-    The replay runs freely from one stop of the recorded valve to the next; at each
-    stop (``stop[k]``: mv came to rest at sample k) its state is set to what the
-    data show: at rest at ``stop_y[k]``, stopped at demand ``stop_x[k]`` after moving
-    in direction ``stop_dir[k]``.  A slip the replay makes too early or too late then
-    costs the samples until the data's next stop, in proportion to the timing error,
-    instead of throwing the rest of the record out of step: the error is a sum of
-    V-shaped functions of S and J, searchable on coarse grids, whose minimum is where
-    the free replay (:func:`_valve_sse_batch`) is in step with the data.
-    """
-    m = P.shape[0]
-    n = op.shape[0]
-    costs = np.empty(m)
-    tv = h.shape[0] > 1
-    limit = bound
-    for r in range(m):
-        su0, su1, sd0, sd1 = P[r, 0], P[r, 1], P[r, 2], P[r, 3]
-        ju0, ju1, jd0, jd1 = P[r, 4], P[r, 5], P[r, 6], P[r, 7]
-        su = max(su0 + (su1 - su0) * h[0], 0.0)
-        sd = max(sd0 + (sd1 - sd0) * h[0], 0.0)
-        ju = max(ju0 + (ju1 - ju0) * h[0], 0.0)
-        jd = max(jd0 + (jd1 - jd0) * h[0], 0.0)
-        st = _valve_init(op[0], mv[0], 0.0, su, sd, ju, jd)
-        sse = 0.0
-        for k in range(1, n):
-            if tv:
-                hk = h[k]
-                su = max(su0 + (su1 - su0) * hk, 0.0)
-                sd = max(sd0 + (sd1 - sd0) * hk, 0.0)
-                ju = max(ju0 + (ju1 - ju0) * hk, 0.0)
-                jd = max(jd0 + (jd1 - jd0) * hk, 0.0)
-            x = min(max(op[k], 0.0), 100.0)
-            if stop[k]:
-                st[_Y] = stop_y[k]
-                st[_XSS] = stop_x[k]
-                st[_DIR] = stop_dir[k]
-                st[_STUCK] = 1.0
-                st[_XPREV] = x
-                st[_VOLD] = 0.0
-                y = stop_y[k]
-            else:
-                y, ph = _valve_step(x, st, su, sd, ju, jd, kano)
-                y = min(max(y, 0.0), 100.0)
-            e = y - mv[k]
-            sse += w[k] * e * e
-            if sse > limit:
-                break
-        costs[r] = sse
-        if sse < limit:
-            limit = sse
-    return costs
-
-
 def valve_replay(
     op: np.ndarray,
     S: float | np.ndarray,
@@ -684,106 +534,6 @@ def detect_quantization(x: np.ndarray | None) -> tuple[float, float] | None:
 # --------------------------------------------------------------------------------------
 # Fitting helpers
 # --------------------------------------------------------------------------------------
-
-
-def pattern_search(
-    cost: Callable[[np.ndarray], float],
-    x0: np.ndarray,
-    steps: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    *,
-    min_step: np.ndarray | None = None,
-    max_evals: int = 600,
-) -> tuple[np.ndarray, float]:
-    """Compass search: try +-step on each coordinate, keep improvements, halve on failure.
-
-    Derivative-free, as the stiction models are piecewise constant in S (a slip moves
-    by whole samples); bounds are enforced by clipping.
-    """
-    x = np.clip(np.asarray(x0, dtype=float), lower, upper)
-    step = np.asarray(steps, dtype=float).copy()
-    floor = step / 64.0 if min_step is None else np.asarray(min_step, dtype=float)
-    best = cost(x)
-    evals = 1
-    while evals < max_evals and np.any(step > floor):
-        improved = False
-        for i in range(x.size):
-            if step[i] <= floor[i]:
-                continue
-            for sign in (1.0, -1.0):
-                trial = x.copy()
-                trial[i] = min(max(trial[i] + sign * step[i], lower[i]), upper[i])
-                if trial[i] == x[i]:
-                    continue
-                c = cost(trial)
-                evals += 1
-                if c < best:
-                    best, x = c, trial
-                    improved = True
-                    break
-        if not improved:
-            step = step / 2.0
-    return x, best
-
-
-def zoom_search(
-    batch_cost: Callable[[np.ndarray], np.ndarray],
-    x0: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    *,
-    pairs: tuple[tuple[int, int], ...],
-    floor: np.ndarray,
-    rel: float = 0.3,
-    n_grid: int = 13,
-    n_zoom: int = 3,
-    rounds: int = 2,
-) -> tuple[np.ndarray, float]:
-    """Zooming grid search over pairs of parameters, evaluated in batches.
-
-    The replay error of a stiction model is a rugged function of S and J: every
-    breakaway of the replay moves by whole samples, so the minimum is narrow and a
-    descent method stalls on the steps.  For each pair ``(i, j)`` a grid of
-    ``n_grid x n_grid`` points spanning ``+-rel`` of the current values (at least
-    ``+-rel floor``) is evaluated in one compiled call; the grid then shrinks around
-    its best point (to two of its steps either side) ``n_zoom`` times.  A pair with
-    ``i == j`` is a one-dimensional scan.
-
-    Returns the best point and its cost.
-    """
-    x = np.clip(np.asarray(x0, dtype=float), lower, upper)
-    best = float(batch_cost(x[None, :])[0])
-    for _ in range(rounds):
-        start = best
-        for i, j in pairs:
-            hw_i = rel * max(abs(x[i]), floor[i])
-            hw_j = rel * max(abs(x[j]), floor[j])
-            for _ in range(n_zoom):
-                if i == j:
-                    gi = np.clip(
-                        np.linspace(x[i] - hw_i, x[i] + hw_i, 2 * n_grid + 1), lower[i], upper[i]
-                    )
-                    X = np.repeat(x[None, :], gi.size, axis=0)
-                    X[:, i] = gi
-                    step_i = gi[1] - gi[0] if gi.size > 1 else hw_i
-                    step_j = step_i
-                else:
-                    gi = np.clip(np.linspace(x[i] - hw_i, x[i] + hw_i, n_grid), lower[i], upper[i])
-                    gj = np.clip(np.linspace(x[j] - hw_j, x[j] + hw_j, n_grid), lower[j], upper[j])
-                    GI, GJ = np.meshgrid(gi, gj, indexing="ij")
-                    X = np.repeat(x[None, :], GI.size, axis=0)
-                    X[:, i] = GI.ravel()
-                    X[:, j] = GJ.ravel()
-                    step_i, step_j = 2 * hw_i / (n_grid - 1), 2 * hw_j / (n_grid - 1)
-                c = batch_cost(X)
-                k = int(np.argmin(c))
-                if c[k] < best:
-                    best, x = float(c[k]), X[k].copy()
-                hw_i, hw_j = max(2.0 * step_i, 1e-9), max(2.0 * step_j, 1e-9)
-        if best >= start * (1.0 - 1e-9):
-            break
-    return x, best
 
 
 def needle_search(
@@ -985,15 +735,6 @@ class SlowLoad:
 # --------------------------------------------------------------------------------------
 # Loop data and fitted replays
 # --------------------------------------------------------------------------------------
-
-
-def _diff_noise_var(x: np.ndarray) -> float:
-    """White-noise variance from sample-to-sample changes: ``(1.4826 MAD(diff x))^2 / 2``."""
-    d = np.diff(np.asarray(x, dtype=float))
-    if d.size == 0:
-        return 0.0
-    mad = float(np.median(np.abs(d - np.median(d))))
-    return (1.4826 * mad) ** 2 / 2.0
 
 
 @dataclass(frozen=True)
@@ -1297,32 +1038,6 @@ class _ValveProblem:
         self.d0 = float(d0)
         self.y0 = min(max(float(y0), 0.0), 100.0)
         self.y0_data = self.y0
-        # Samples where mv moved beyond its noise (or its resolution), for the
-        # teacher-forced search.
-        d = np.abs(np.diff(self.mv, prepend=self.mv[0]))
-        q = detect_quantization(self.mv)
-        noise = math.sqrt(max(_diff_noise_var(self.mv), 0.0))
-        band = max(4.0 * noise, 0.5 * q[0] if q is not None else 0.0, 1e-9)
-        self.moved = d > band
-        self.level = _rest_levels(self.mv, self.moved)
-        # Stops of the recorded valve: moved into k-1, at rest at k.
-        n = self.mv.size
-        stop = np.zeros(n, dtype=np.bool_)
-        stop[2:] = self.moved[1:-1] & ~self.moved[2:]
-        self.stop = stop
-        self.stop_x = np.zeros(n)
-        self.stop_dir = np.zeros(n)
-        self.stop_y = np.zeros(n)
-        idx = np.where(stop)[0]
-        if idx.size:
-            self.stop_x[idx] = self.op[idx - 1]
-            self.stop_dir[idx] = np.sign(self.mv[idx - 1] - self.mv[idx - 2])
-            # Level of the rest that follows: mean of mv until it next moves.
-            nxt = np.searchsorted(np.where(self.moved)[0], idx)
-            moves = np.where(self.moved)[0]
-            for i, k in enumerate(idx):
-                end = moves[nxt[i]] if nxt[i] < moves.size else n
-                self.stop_y[k] = float(np.mean(self.mv[k:end]))
 
     @classmethod
     def of(cls, ctx: ReplayContext, w: np.ndarray, kano: bool, d0: float) -> _ValveProblem:
@@ -1356,40 +1071,6 @@ class _ValveProblem:
             bool(affine),
             float(curvature),
             _FAMILY_CODES[family],
-            float(bound) * self.var,
-        )
-        return c / self.var
-
-    def tf_costs(self, P, h=_CONSTANT, *, bound=np.inf):
-        """Normalised squared error of the one-step (teacher-forced) valve predictions
-        (:func:`_teacher_forced_sse_batch`) for every row of P."""
-        c = _teacher_forced_sse_batch(
-            self.op,
-            self.mv,
-            self.w,
-            self.moved,
-            self.level,
-            np.ascontiguousarray(P, dtype=float),
-            np.ascontiguousarray(h, dtype=float),
-            self.kano,
-            float(bound) * self.var,
-        )
-        return c / self.var
-
-    def synced_costs(self, P, h=_CONSTANT, *, bound=np.inf):
-        """Normalised squared error of the replay put back in step at every stop of the
-        recorded valve (:func:`_synced_sse_batch`) for every row of P."""
-        c = _synced_sse_batch(
-            self.op,
-            self.mv,
-            self.w,
-            self.stop,
-            self.stop_x,
-            self.stop_dir,
-            self.stop_y,
-            np.ascontiguousarray(P, dtype=float),
-            np.ascontiguousarray(h, dtype=float),
-            self.kano,
             float(bound) * self.var,
         )
         return c / self.var
@@ -2666,30 +2347,6 @@ def fit_valve_characteristic(
         process=proc,
         pv_floor=None if proc is None or init is not None else process_noise_floor(ue, ctx, proc),
     )
-
-
-def expected_quantized(x: np.ndarray, step: float, offset: float, noise_std: float) -> np.ndarray:
-    """Expected recorded value of ``x + noise`` rounded to ``offset + step * integer``.
-
-    With noise before the rounding (an instrument's noise, then the historian's
-    resolution) the rounded value of a model's prediction flips between levels near
-    the level boundaries; the expectation over a Gaussian noise of ``noise_std`` is
-    the prediction that minimises the squared error.
-    """
-    from scipy.special import ndtr
-
-    z = (np.asarray(x, dtype=float) - offset) / step
-    if noise_std <= 1e-9 * step:
-        return offset + step * np.round(z)
-    s = noise_std / step
-    centre = np.round(z)
-    out = np.zeros_like(z)
-    span = int(min(max(math.ceil(4.0 * s), 1), 20))
-    for j in range(-span, span + 1):
-        lev = centre + j
-        p = ndtr((lev + 0.5 - z) / s) - ndtr((lev - 0.5 - z) / s)
-        out += lev * p
-    return offset + step * out
 
 
 def fit_quantization(

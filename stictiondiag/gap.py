@@ -499,6 +499,7 @@ def diagnose_gap(
     share = {s: _bic_share(p - getattr(sig, s), ctx.w_eval) for s, p in base.predictions().items()}
 
     # Penalised scores (normalised held-out squared error summed over signals).
+    base_preds = base.predictions()
     totals = {name: sum(v for v in h.values()) for name, h in held.items()}
     base_total = float(totals["none"].sum())
     scores = {"none": (base_total, True, 0.0)}
@@ -526,7 +527,21 @@ def diagnose_gap(
         # per-parameter share of the base error on the signals the effect changes.
         per_param_b = sum(share[s] * np.abs(held["none"][s]) for s in sigs)
         better = d > max(ef.n_params, 1) * per_param_b
-        consistent = int(np.sum(better)) >= n_blocks // 2 and ef.supported
+        # A real effect also explains the whole record it was fitted on: a held-out
+        # gain that the in-sample fit does not show comes from a poor fit of the base
+        # on a half, not from the effect.
+        in_gain_norm = sum(
+            (
+                float(np.dot(ctx.w_eval, (base_preds[s] - getattr(sig, s)) ** 2))
+                - float(np.dot(ctx.w_eval, (ef.predictions[s] - getattr(sig, s)) ** 2))
+                + float(ctx.w_eval.sum()) * ef.explained.get(s, 0.0)
+            )
+            / ctx.norm[s]
+            for s in sigs
+        )
+        consistent = (
+            int(np.sum(better)) >= n_blocks // 2 and ef.supported and in_gain_norm > penalty
+        )
         accepted = trimmed > penalty and consistent
         if _DEBUG:
             print(

@@ -90,16 +90,6 @@ def test_detect_quantization():
     assert abs(offset) < 1e-9
 
 
-def test_expected_quantized_limits():
-    x = np.linspace(0, 5, 501)
-    # No noise: plain rounding; a lot of noise: the rounding averages out (within
-    # 1 % of the step for a noise of two steps, as the Gaussian smooths the staircase).
-    np.testing.assert_allclose(fx.expected_quantized(x, 1.0, 0.0, 0.0), np.round(x))
-    np.testing.assert_allclose(
-        fx.expected_quantized(x[100:400], 1.0, 0.0, 2.0), x[100:400], atol=0.01
-    )
-
-
 def test_characteristic_curves():
     x = np.array([0.0, 25.0, 50.0, 100.0])
     for family in ("exponential", "power"):
