@@ -2029,7 +2029,13 @@ def fit_asymmetry(
         for pair in ((0, 1), (2, 3)):
             x, _ = needle_search(cost, x, pair, lower, upper, rel=0.03, zooms=1, n_grid=11)
     mv_hat, _ = prob.series(_rows(x[0], x[1], x[2], x[3])[0])
+    p_slips = (
+        _slips_differ(ctx.slips, ctx.slips["direction"] > 0, ctx.slips["direction"] < 0)
+        if ctx.slips is not None
+        else 0.0
+    )
     return EffectFit(
+        supported=p_slips < SLIP_TEST_P,
         effect="asymmetry",
         variant="open_close",
         n_params=2,
@@ -2039,10 +2045,38 @@ def fit_asymmetry(
             "S_close": float(x[2]),
             "J_close": float(x[3]),
             "logic": _logic(prob),
+            "slips_differ_p": p_slips,
         },
         predictions={"mv": mv_hat},
         x=tuple(float(v) for v in x),
     )
+
+
+#: Significance the measured slips must show for a threshold-only effect (rank test).
+SLIP_TEST_P = 0.01
+
+
+def _slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
+    """Smallest p-value of two-sided rank tests that the slips in ``a`` and ``b`` differ,
+    in the demand travel at reversals (S) or in the jump (J); 0 when there are too
+    few measured slips to test (fewer than three on a side: the replay decides alone).
+
+    Thresholds are fitted on the whole record, where a replay that is more flexible
+    can fall in step with a few more slips by chance; the slips measured one by one
+    (:func:`measure_slips`) must show the difference too.
+    """
+    from scipy.stats import mannwhitneyu
+
+    if slips is None:
+        return 0.0
+    p = 1.0
+    tested = False
+    for key, mask in (("travel", slips["reversal"]), ("J", np.ones(slips["J"].size, dtype=bool))):
+        x, y = slips[key][a & mask], slips[key][b & mask]
+        if x.size >= 3 and y.size >= 3:
+            tested = True
+            p = min(p, float(mannwhitneyu(x, y, alternative="two-sided").pvalue))
+    return p if tested else 0.0
 
 
 def _profile(n: int, t1: float, t2: float) -> np.ndarray:
@@ -2220,6 +2254,15 @@ def fit_time_varying_stiction(
     h = _profile(n, t1, t2)
     row = _rows(x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3])[0]
     mv_hat, _ = prob.series(row, h)
+    if ctx.slips is not None:
+        ts_ = ctx.slips["time"]
+        if t1 <= 0.0 and t2 >= n - 1:
+            early, late = ts_ < n / 2, ts_ >= n / 2
+        else:
+            early, late = ts_ < t1, ts_ > t2
+        p_slips = _slips_differ(ctx.slips, early, late)
+    else:
+        p_slips = 0.0
     if t1 <= 0.0 and t2 >= n - 1:
         variant, n_params = "drift", 2
     elif t2 - t1 < 1.0:
@@ -2234,12 +2277,14 @@ def fit_time_varying_stiction(
         "change_start_s": float(t1) * ctx.sig.dt,
         "change_end_s": float(t2) * ctx.sig.dt,
         "logic": _logic(prob),
+        "slips_differ_p": p_slips,
     }
     if win:
         params["windows"] = [
             None if v is None else {"time_s": v[0] * ctx.sig.dt, "S": v[1], "J": v[2]} for v in win
         ]
     return EffectFit(
+        supported=p_slips < SLIP_TEST_P,
         effect="time_varying_stiction",
         variant=variant,
         n_params=n_params,
