@@ -2446,7 +2446,7 @@ def phase_coherence(r: np.ndarray, omega: float, w: np.ndarray) -> tuple[float, 
     """Phase coherence of a sinusoid of ``omega`` [rad/sample] in ``r`` along the record.
 
     An oscillation from outside the loop keeps its own clock: its phase, measured
-    in consecutive blocks of two periods, stays put.  A loop's own stick-slip cycle
+    in consecutive blocks of one period, stays put.  A loop's own stick-slip cycle
     drifts in phase from cycle to cycle (noise and load change each cycle's
     length), and a sinusoid fitted to broadband residual has random phases.  Returns
     the mean resultant length R of the block phases (1: one phase) and the Rayleigh
@@ -2454,7 +2454,7 @@ def phase_coherence(r: np.ndarray, omega: float, w: np.ndarray) -> tuple[float, 
     """
     n = r.size
     period = 2.0 * math.pi / max(omega, 1e-9)
-    L = int(max(2.0 * period, 16))
+    L = int(max(period, 16))
     B = n // L
     if B < 3:
         return 0.0, 1.0
