@@ -7,9 +7,11 @@ Each run starts from an empty output folder, so the wall time includes starting 
 worker processes (and the cluster). A warm-up scan of a few loops first fills the
 numba cache, as any installation does on its first run.
 
-Prints a Markdown table: wall time, loops/s, speed-up over one worker, the peak
-resident memory of the whole process tree (this process and its workers), and
-whether every run gave the same ranked table.
+Prints a Markdown table: wall time, loops/s, speed-up over one worker, CPU time
+per loop (this process and its worker processes, which on a machine shared with
+other work is the figure that extrapolates: wall time grows with the load, CPU time
+hardly), the load average during the run, the peak resident memory of the whole
+process tree, and whether every run gave the same ranked table.
 
 Usage::
 
@@ -22,6 +24,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import os
+import resource
 import tempfile
 import threading
 import time
@@ -72,13 +75,26 @@ class PeakMemory:
         self._thread.join()
 
 
+def _cpu_seconds() -> float:
+    """User + system CPU time of this process and its reaped children [s]."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def run(plant: Path, engine: str, workers: int, gap: bool, scratch: Path) -> dict:
     out = Path(tempfile.mkdtemp(prefix=f"{engine}{workers}-", dir=scratch))
+    cpu0 = _cpu_seconds()
     with PeakMemory() as memory:
         start = time.perf_counter()
         result = scan(plant, out=out, engine=engine, workers=workers, gap=gap)
         wall = time.perf_counter() - start
+    # Pool workers and the LocalCluster's worker processes are children of this
+    # process and have exited (been reaped) when scan returns.
+    cpu = _cpu_seconds() - cpu0
     return {
+        "cpu_s_per_loop": cpu / result.n_loops,
+        "load": os.getloadavg()[0],
         "engine": engine,
         "workers": workers,
         "loops": result.n_loops,
@@ -131,7 +147,8 @@ def main(argv: list[str] | None = None) -> None:
                 results.append(r)
                 print(
                     f"{engine:5s} workers={workers}: {r['wall_s']:.1f} s, "
-                    f"{r['loops_per_s']:.3f} loops/s, peak {r['peak_mb']:.0f} MB, "
+                    f"{r['loops_per_s']:.3f} loops/s, {r['cpu_s_per_loop']:.2f} CPU s/loop, "
+                    f"load {r['load']:.1f}, peak {r['peak_mb']:.0f} MB, "
                     f"{r['failed']} failed, verdicts {r['verdicts']}",
                     flush=True,
                 )
@@ -144,8 +161,11 @@ def main(argv: list[str] | None = None) -> None:
         f"{'on' if gap else 'off'}, {cores} cores ({os.uname().machine})"
     )
     print()
-    print("| engine | workers | wall [s] | loops/s | speed-up | peak memory [MB] | same table |")
-    print("|---|---:|---:|---:|---:|---:|---|")
+    print(
+        "| engine | workers | wall [s] | loops/s | speed-up | CPU s/loop | load avg "
+        "| peak memory [MB] | same table |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---|")
     for r in results:
         speedup = f"{base['wall_s'] / r['wall_s']:.2f}" if base else "n/a"
         try:
@@ -156,7 +176,8 @@ def main(argv: list[str] | None = None) -> None:
         label = f"{r['workers']}" + (" (all)" if r["workers"] == cores else "")
         print(
             f"| {r['engine']} | {label} | {r['wall_s']:.1f} | {r['loops_per_s']:.3f} | "
-            f"{speedup} | {r['peak_mb']:.0f} | {same} |"
+            f"{speedup} | {r['cpu_s_per_loop']:.2f} | {r['load']:.1f} | {r['peak_mb']:.0f} "
+            f"| {same} |"
         )
 
 
