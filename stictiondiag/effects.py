@@ -1191,6 +1191,8 @@ def _travel_seeds(
 #: S and J can be 30 % off for an asymmetric or time-varying valve (relative span,
 #: values per parameter).
 _WIDE_STAGES = ((0.35, 15), (0.06, 7), (0.015, 5), (0.004, 5))
+#: The same from the windowed fits of a time-varying valve, which start closer.
+_TVS_STAGES = ((0.25, 9), (0.06, 7), (0.015, 5), (0.004, 5))
 
 
 def grid_search_nd(
@@ -2174,7 +2176,7 @@ def fit_time_varying_stiction(
         cost = cost_h(_profile(n, t1, t2))
         # Start and end values together (coupled through where the valve stops),
         # then each pair finely.
-        stages = _WIDE_STAGES if rel > 0.1 else ((0.02, 5), (0.005, 5))
+        stages = _TVS_STAGES if rel > 0.1 else ((0.02, 5), (0.005, 5))
         x, _ = grid_search_nd(cost, x, (0, 1, 2, 3), stages=stages)
         for pair in ((0, 1), (2, 3)):
             x, c = needle_search(
