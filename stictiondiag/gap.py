@@ -86,7 +86,6 @@ METRIC_DEFINITION = (
 )
 
 SIGNALS = ("op", "mv", "pv")
-_DEBUG = False
 
 
 # --------------------------------------------------------------------------------------
@@ -543,16 +542,6 @@ def diagnose_gap(
             int(np.sum(better)) >= n_blocks // 2 and ef.supported and in_gain_norm > penalty
         )
         accepted = trimmed > penalty and consistent
-        if _DEBUG:
-            print(
-                name,
-                "d per block",
-                np.round(d, 1),
-                "trimmed",
-                round(trimmed, 1),
-                "pen",
-                round(penalty, 1),
-            )
         score = base_total - trimmed + penalty if consistent else base_total + penalty
         scores[name] = (score, accepted, score - float(totals[name].sum()))
     order = sorted(["none", *fits], key=lambda e: scores[e][0])
