@@ -53,7 +53,9 @@ judged samples over the residuals' integrated autocorrelation time); it must als
 beat that share in at least half of the blocks, and pass its own signature check (an
 external oscillation keeps its phase along the record).  The penalised score, base
 error less the improvement plus the penalty, ranks the candidates; ``none`` scores
-the base error and wins when no candidate beats it.  No threshold is tuned to a data
+the base error and wins when no candidate beats it.  An effect is named only if adding
+it lowers the gap on the record; a gap of 0 (the replay within its noise) is
+``none``.  No threshold is tuned to a data
 generator: the penalties come from the data's own block-to-block scatter and
 residual correlation, and the signature check is a Rayleigh test at 1 %.
 """
@@ -544,8 +546,52 @@ def diagnose_gap(
         accepted = trimmed > penalty and consistent
         score = base_total - trimmed + penalty if consistent else base_total + penalty
         scores[name] = (score, accepted, score - float(totals[name].sum()))
-    order = sorted(["none", *fits], key=lambda e: scores[e][0])
-    winner = order[0]
+    n_judged = max(float(ctx.w_eval.sum()), 1.0)
+    heldout_pv = [
+        float(held[name]["pv"].sum()) / n_judged * ctx.norm["pv"]
+        for name in ["none", *fits]
+        if "pv" in held[name] and (name == "none" or "pv" in fits[name].predictions)
+    ]
+    base_pv_floor = fx.process_noise_floor(fx._process_input(ctx, base), ctx, base.process)
+    excluded: set = set()
+    while True:
+        order = sorted(
+            [e for e in ["none", *fits] if e not in excluded], key=lambda e: scores[e][0]
+        )
+        winner = order[0]
+        win_fit = None if winner == "none" else fits[winner]
+        # Noise floors: white noise of mv; measurement noise and unforeseeable load of
+        # the pv prediction (from the winner's process replay when the effect is on
+        # the process side: an unmodelled disturbance would otherwise pass for load),
+        # never below what the best pv replay achieves on held-out data (the load the
+        # replay tracks is not white, so part of it stays unpredictable whatever the
+        # valve or the process does); none for op, which the controller replays
+        # exactly.
+        pv_floor = base_pv_floor
+        if win_fit is not None and win_fit.pv_floor is not None:
+            pv_floor = win_fit.pv_floor
+        floors = {"op": 0.0, "pv": max(pv_floor, min(heldout_pv))}
+        if sig.mv is not None:
+            floors["mv"] = noise_variance(sig.mv)
+        meas = _Measure(norm=ctx.norm, floor=floors, w=ctx.w_eval)
+
+        # In-sample gaps before and after.
+        per_base = {s: meas.nmse(s, p, getattr(sig, s)) for s, p in base.predictions().items()}
+        before = meas.gap(per_base)
+        afters = {}
+        for name, ef in fits.items():
+            per = dict(per_base)
+            for s_, p in ef.predictions.items():
+                per[s_] = (
+                    meas.nmse(s_, p, getattr(sig, s_)) - ef.explained.get(s_, 0.0) / ctx.norm[s_]
+                )
+            afters[name] = meas.gap(per)
+        # An effect is named only if adding it reduces the gap: a gap within the noise
+        # (0) is explained by the two-parameter model, and an effect that wins on
+        # held-out data without reducing the gap on the record is not the explanation.
+        if winner == "none" or afters[winner] < before:
+            break
+        excluded.add(winner)
     runner = order[1] if len(order) > 1 else None
     # Margin: the share of the winner's penalised gain over the base model that the
     # runner-up does not reach (100: the runner-up gains nothing); for ``none``, how
@@ -557,44 +603,14 @@ def diagnose_gap(
             margin = 100.0 * (scores[runner][0] - base_total) / max(base_total, 1e-300)
         else:
             margin = 100.0 * (scores[runner][0] - scores[winner][0]) / max(gain, 1e-300)
-    win_fit = None if winner == "none" else fits[winner]
-
-    # Noise floors: white noise of mv; measurement noise and unforeseeable load of
-    # the pv prediction (from the winner's process replay when the effect is on the
-    # process side: an unmodelled disturbance would otherwise pass for load); none
-    # for op, which the controller replays exactly.
-    if win_fit is not None and win_fit.pv_floor is not None:
-        pv_floor = win_fit.pv_floor
-    else:
-        pv_floor = fx.process_noise_floor(fx._process_input(ctx, base), ctx, base.process)
-    # The pv floor is also never below what the best pv replay achieves on held-out
-    # data: the load the replay tracks is not white, so part of it stays
-    # unpredictable whatever the valve or the process does.
-    n_judged = max(float(ctx.w_eval.sum()), 1.0)
-    heldout_pv = [
-        float(held[name]["pv"].sum()) / n_judged * ctx.norm["pv"]
-        for name in ["none", *fits]
-        if "pv" in held[name] and (name == "none" or "pv" in fits[name].predictions)
-    ]
-    pv_floor = max(pv_floor, min(heldout_pv))
-    floors = {"op": 0.0, "pv": pv_floor}
-    if sig.mv is not None:
-        floors["mv"] = noise_variance(sig.mv)
-    meas = _Measure(norm=ctx.norm, floor=floors, w=ctx.w_eval)
 
     def as_gap(per_signal: dict, extra: float = 0.0) -> float:
         tot = sum(meas.excess(s, float(v.sum()) / n_judged) for s, v in per_signal.items())
         return 100.0 * math.sqrt(max(tot + extra / n_judged, 0.0))
 
-    # In-sample gaps before and after.
-    per_base = {s: meas.nmse(s, p, getattr(sig, s)) for s, p in base.predictions().items()}
-    before = meas.gap(per_base)
     cands = []
     for name, ef in fits.items():
-        per = dict(per_base)
-        for s, p in ef.predictions.items():
-            per[s] = meas.nmse(s, p, getattr(sig, s)) - ef.explained.get(s, 0.0) / ctx.norm[s]
-        after_c = meas.gap(per)
+        after_c = afters[name]
         shrink_c = 100.0 * (before - after_c) / before if before > 0 else 0.0
         _, accepted, penalty = scores[name]
         cands.append(
@@ -607,7 +623,7 @@ def diagnose_gap(
                 n_params=ef.n_params,
                 heldout=as_gap(held[name]),
                 penalised_score=as_gap(held[name], penalty),
-                accepted=accepted,
+                accepted=accepted and name not in excluded,
             )
         )
     cands.sort(key=lambda c: scores[c.effect][0])
