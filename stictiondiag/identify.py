@@ -86,6 +86,17 @@ DRIFT_PERIODS = 1.0
 DRIFT_RECORD_FRACTION = 0.2
 #: Longest dead time searched, as a fraction of the record [-].
 MAX_DEAD_TIME_FRACTION = 0.25
+#: The integrator's differenced fit smooths pv's differences with a first-order lag of
+#: a period over this number (at least one sample) [-], and high-passes them with a
+#: time constant of this many periods [-]: in closed loop the controller moves the
+#: valve's mean with the wandering load, so the slow part of the valve position is
+#: confounded with the disturbance; the slips and jumps within a cycle are not.
+SMOOTH_PER_PERIOD = 100.0
+#: Below this filtered R^2 of the integrator's level fit the differenced fit is used [-].
+LEVEL_FIT_R2_MIN = 0.5
+DIFFERENCED_DRIFT_PERIODS = 0.25
+#: ... and the operating point is then fitted on the first this many periods [-].
+START_WINDOW_PERIODS = 2.0
 #: Fewest usable samples for an identification.
 MIN_SAMPLES = 20
 
@@ -678,6 +689,41 @@ def _fit_integrating(u, y_f, dt, b, d_max):
     return d, gain, u_bias, mse
 
 
+def _fit_integrating_differenced(u, pv, dt, b, d_max, smooth):
+    """Integrator fit on pv's differences: ``pv[k+1] - pv[k] = K dt (u[k - d] - u_b)``.
+
+    The balance input ``u_b`` of a real level loop wanders with the unmeasured
+    outflow; integrated, that wander swamps pv's level, so a fit of pv itself is
+    pulled far off.  In the differences it is a slow offset that the drift
+    high-pass removes.  Both sides pass the same high-pass and the same first-order
+    lag ``smooth`` (against the noise that differencing amplifies): the relation is
+    linear, so the filters leave the gain unchanged.  Every dead time is scanned at
+    once.  Returns (dead time, gain, R^2 of the filtered differences).
+    """
+    dy = np.diff(pv)
+    x = u[:-1] - u[0]
+    y_f = _highpass(lfilter([1.0 - smooth], [1.0, -smooth], dy - dy[0]), b)
+    w = _highpass(lfilter([1.0 - smooth], [1.0, -smooth], x), b)
+    zero = np.zeros_like(w)
+    d_max = min(d_max, w.size - MIN_SAMPLES)
+    costs = _delay_scan(w, zero, y_f, b, max(d_max, 0))
+    d = _pick_dead_time(costs)
+    k = np.arange(d + 1, w.size)
+    wd = w[k - d]
+    gain = float(wd @ y_f[k]) / (float(wd @ wd) or 1e-300) / dt
+    resid = y_f[k] - gain * dt * wd
+    r2 = 1.0 - float(resid @ resid) / (float(y_f[k] @ y_f[k]) or 1e-300)
+    return d, gain, r2
+
+
+def _oscillation_samples(pv: np.ndarray, dt: float) -> float | None:
+    """pv's dominant period in samples, or None."""
+    from .oscillation import dominant_period
+
+    period = dominant_period(pv, dt)
+    return None if period is None else period / dt
+
+
 def _drift_pole(pv: np.ndarray, dt: float, drift_time_constant: float | None):
     """Pole ``b`` of the drift high-pass and its time constant [s] (None: no filter)."""
     if drift_time_constant is None:
@@ -780,6 +826,22 @@ def identify_process(
         )
     else:
         chosen = "integrating" if integrating else "foptd"
+    if chosen == "integrating" and results["integrating"]["r2"] < LEVEL_FIT_R2_MIN:
+        # The level of pv is not explained (a wandering balance input integrated into
+        # it): the integrator's parameters come from pv's differences instead, which
+        # that wander does not bias.  Where the level fit holds it is kept: it is the
+        # more efficient of the two under measurement noise.
+        period = _oscillation_samples(pv, dt)
+        smooth = math.exp(-1.0 / max(1.0, (period or 100.0) / SMOOTH_PER_PERIOD))
+        b_diff = b
+        if drift_time_constant is None and period is not None:
+            b_diff = math.exp(-1.0 / max(2.0, DIFFERENCED_DRIFT_PERIODS * period))
+        d, gain, r2_diff = _fit_integrating_differenced(uc, pc, dt, b_diff, d_max, smooth)
+        if math.isfinite(gain) and gain != 0.0:
+            window = int(START_WINDOW_PERIODS * (period or n / START_WINDOW_PERIODS))
+            results["integrating"].update(
+                d=d, gain=gain, u_bias=None, r2=r2_diff, window=max(window, MIN_SAMPLES)
+            )
     p = results[chosen]
     if p["gain"] == 0.0 or not math.isfinite(p["gain"]):
         raise DataError(f"pv does not respond to the process input: no {chosen} model")
@@ -789,7 +851,13 @@ def identify_process(
     else:
         process = FOPTD(gain=p["gain"], time_constant=p["tau"], dead_time=d * dt)
     # Biases and initial state from the unfiltered data, dynamics fixed.
-    fit = _biases(process, u, pv, dt, d, u_bias=p.get("u_bias"))
+    if "window" in p:
+        # A wandering balance input: the operating point of the record's start, from
+        # its first cycles, is where a replay from the recorded start begins.
+        m = min(n, p["window"] + d + 1)
+        fit = _biases(process, u[:m], pv[:m], dt, d)
+    else:
+        fit = _biases(process, u, pv, dt, d, u_bias=p.get("u_bias"))
     return ProcessFit(
         process=process,
         u_bias=fit.u_bias,
