@@ -1,4 +1,5 @@
 """Imports every command module so each registers on :data:`cli.main.app`."""
+
 # isort: skip_file
 from . import analyze  # noqa: F401
 from . import report  # noqa: F401

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import sys
-from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
@@ -12,47 +11,22 @@ import typer
 
 from .common import friendly_errors, info
 from .main import app
-
-
-class LoopType(str, Enum):
-    flow = "flow"
-    pressure = "pressure"
-    level = "level"
-    temperature = "temperature"
-    composition = "composition"
-    other = "other"
-
-
-class OpUnits(str, Enum):
-    percent = "percent"
-    mA = "mA"
-
-
-def read_options(
-    pv: str | None,
-    op: str | None,
-    mv: str | None,
-    sp: str | None,
-    time: str | None,
-    ts: float | None,
-    op_units: OpUnits,
-    op_range: tuple[float, float] | None,
-    loop_type: LoopType,
-    integrating: bool | None,
-) -> dict:
-    """Keyword arguments for :func:`stictiondiag.tags.read_tags` from CLI options."""
-    return {
-        "pv": pv,
-        "op": op,
-        "mv": mv,
-        "sp": sp,
-        "time": time,
-        "ts": ts,
-        "op_units": op_units.value,
-        "op_range": op_range,
-        "loop_type": loop_type.value,
-        "integrating": integrating,
-    }
+from .options import (
+    IntegratingOption,
+    JsonOption,
+    LoopType,
+    LoopTypeOption,
+    MvOption,
+    OpOption,
+    OpRangeOption,
+    OpUnits,
+    OpUnitsOption,
+    PvOption,
+    SpOption,
+    TimeOption,
+    TsOption,
+    read_options,
+)
 
 
 def check_outputs(out: Path | None, json_path: str | None) -> None:
@@ -148,32 +122,18 @@ def render_summary(d: dict) -> str:
 @app.command()
 def analyze(
     file: Annotated[Path, typer.Argument(help="CSV or Parquet file with one loop's tags.")],
-    pv: Annotated[str | None, typer.Option(help="Column holding pv.")] = None,
-    op: Annotated[str | None, typer.Option(help="Column holding op (controller output).")] = None,
-    mv: Annotated[str | None, typer.Option(help="Column holding mv (valve position).")] = None,
-    sp: Annotated[str | None, typer.Option(help="Column holding sp (setpoint).")] = None,
-    time: Annotated[str | None, typer.Option(help="Time column (seconds or timestamps).")] = None,
-    ts: Annotated[
-        float | None, typer.Option(help="Sampling time [s] when there is no time column.")
-    ] = None,
-    op_units: Annotated[OpUnits, typer.Option(help="Units of op and mv.")] = OpUnits.percent,
-    op_range: Annotated[
-        tuple[float, float] | None,
-        typer.Option(help="LO HI of op in its own units, mapped to 0-100 % of span."),
-    ] = None,
-    loop_type: Annotated[
-        LoopType, typer.Option(help="What the loop controls (level implies integrating).")
-    ] = LoopType.other,
-    integrating: Annotated[
-        bool | None,
-        typer.Option(
-            "--integrating/--self-regulating", help="Process type; default from --loop-type."
-        ),
-    ] = None,
+    pv: PvOption = None,
+    op: OpOption = None,
+    mv: MvOption = None,
+    sp: SpOption = None,
+    time: TimeOption = None,
+    ts: TsOption = None,
+    op_units: OpUnitsOption = OpUnits.percent,
+    op_range: OpRangeOption = None,
+    loop_type: LoopTypeOption = LoopType.other,
+    integrating: IntegratingOption = None,
     out: Annotated[Path | None, typer.Option(help="Directory for the plots.")] = None,
-    json_path: Annotated[
-        str | None, typer.Option("--json", help="Write the result as JSON to PATH ('-' = stdout).")
-    ] = None,
+    json_path: JsonOption = None,
     gap: Annotated[bool, typer.Option(help="Run the sim-to-real gap diagnosis.")] = True,
 ) -> None:
     """Diagnose stiction in one loop: verdict, S and J, closed-loop replay, gap."""

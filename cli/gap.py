@@ -11,6 +11,22 @@ import typer
 
 from .common import friendly_errors, info
 from .main import app
+from .options import (
+    IntegratingOption,
+    JsonOption,
+    LoopType,
+    LoopTypeOption,
+    MvOption,
+    OpOption,
+    OpRangeOption,
+    OpUnits,
+    OpUnitsOption,
+    PvOption,
+    SpOption,
+    TimeOption,
+    TsOption,
+    read_options,
+)
 
 
 def _fmt(x, spec: str = ".1f") -> str:
@@ -48,17 +64,17 @@ def render_gap(d: dict) -> str:
 @app.command()
 def gap(
     file: Annotated[Path, typer.Argument(help="CSV or Parquet file with one loop's tags.")],
-    pv: Annotated[str | None, typer.Option(help="Column holding pv.")] = None,
-    op: Annotated[str | None, typer.Option(help="Column holding op (controller output).")] = None,
-    mv: Annotated[str | None, typer.Option(help="Column holding mv (valve position).")] = None,
-    sp: Annotated[str | None, typer.Option(help="Column holding sp (setpoint).")] = None,
-    time: Annotated[str | None, typer.Option(help="Time column (seconds or timestamps).")] = None,
-    ts: Annotated[
-        float | None, typer.Option(help="Sampling time in seconds when there is no time column.")
-    ] = None,
-    json_path: Annotated[
-        str | None, typer.Option("--json", help="Write the result as JSON to PATH ('-' = stdout).")
-    ] = None,
+    pv: PvOption = None,
+    op: OpOption = None,
+    mv: MvOption = None,
+    sp: SpOption = None,
+    time: TimeOption = None,
+    ts: TsOption = None,
+    op_units: OpUnitsOption = OpUnits.percent,
+    op_range: OpRangeOption = None,
+    loop_type: LoopTypeOption = LoopType.other,
+    integrating: IntegratingOption = None,
+    json_path: JsonOption = None,
     plot: Annotated[
         Path | None,
         typer.Option(
@@ -80,7 +96,8 @@ def gap(
                 f"cannot write {json_path}: it is a directory; give a file name for --json"
             )
         info(f"diagnosing the gap of {file} ...")
-        result = diagnose_file(file, pv=pv, op=op, mv=mv, sp=sp, time=time, ts=ts)
+        options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
+        result = diagnose_file(file, **options)
         d = result.to_dict()
         summary = render_gap(d)
         if json_path == "-":

@@ -16,9 +16,23 @@ import typer
 
 from stictiondiag.errors import EXIT_FINDING, EXIT_PARTIAL
 
-from .analyze import LoopType, OpUnits, read_options
 from .common import fail, friendly_errors, info
 from .main import app
+from .options import (
+    IntegratingOption,
+    LoopType,
+    LoopTypeOption,
+    MvOption,
+    OpOption,
+    OpRangeOption,
+    OpUnits,
+    OpUnitsOption,
+    PvOption,
+    SpOption,
+    TimeOption,
+    TsOption,
+    read_options,
+)
 
 #: Threshold used when ``--fail-on-stiction`` is given without a value.
 DEFAULT_FAIL_THRESHOLD = 0.5
@@ -48,29 +62,16 @@ def report(
             help="Loops analysed side by side (default: one per core, less one, on 4+ cores; else 1).",
         ),
     ] = None,
-    pv: Annotated[str | None, typer.Option(help="Column holding pv (every file).")] = None,
-    op: Annotated[str | None, typer.Option(help="Column holding op (every file).")] = None,
-    mv: Annotated[str | None, typer.Option(help="Column holding mv (every file).")] = None,
-    sp: Annotated[str | None, typer.Option(help="Column holding sp (every file).")] = None,
-    time: Annotated[str | None, typer.Option(help="Time column (seconds or timestamps).")] = None,
-    ts: Annotated[
-        float | None,
-        typer.Option(help="Sampling time in seconds, for files without a time column."),
-    ] = None,
-    op_units: Annotated[OpUnits, typer.Option(help="Units of op and mv.")] = OpUnits.percent,
-    op_range: Annotated[
-        tuple[float, float] | None,
-        typer.Option(help="LO HI of op in its own units, mapped to 0-100 % of span."),
-    ] = None,
-    loop_type: Annotated[
-        LoopType, typer.Option(help="What the loops control (level implies integrating).")
-    ] = LoopType.other,
-    integrating: Annotated[
-        bool | None,
-        typer.Option(
-            "--integrating/--self-regulating", help="Process type; default from --loop-type."
-        ),
-    ] = None,
+    pv: PvOption = None,
+    op: OpOption = None,
+    mv: MvOption = None,
+    sp: SpOption = None,
+    time: TimeOption = None,
+    ts: TsOption = None,
+    op_units: OpUnitsOption = OpUnits.percent,
+    op_range: OpRangeOption = None,
+    loop_type: LoopTypeOption = LoopType.other,
+    integrating: IntegratingOption = None,
 ) -> None:
     """Write a self-contained HTML report per loop, an index page, summary.md and JSON.
 

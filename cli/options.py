@@ -1,0 +1,83 @@
+"""Options shared by the commands that read loop files (analyze, gap, report).
+
+One definition each, so every command names its columns, units and loop type alike.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+from typing import Annotated
+
+import typer
+
+
+class LoopType(str, Enum):
+    flow = "flow"
+    pressure = "pressure"
+    level = "level"
+    temperature = "temperature"
+    composition = "composition"
+    other = "other"
+
+
+class OpUnits(str, Enum):
+    percent = "percent"
+    mA = "mA"
+
+
+PvOption = Annotated[str | None, typer.Option("--pv", help="Column holding pv.")]
+OpOption = Annotated[
+    str | None, typer.Option("--op", help="Column holding op (controller output).")
+]
+MvOption = Annotated[str | None, typer.Option("--mv", help="Column holding mv (valve position).")]
+SpOption = Annotated[str | None, typer.Option("--sp", help="Column holding sp (setpoint).")]
+TimeOption = Annotated[
+    str | None, typer.Option("--time", help="Time column (seconds or timestamps).")
+]
+TsOption = Annotated[
+    float | None,
+    typer.Option("--ts", help="Sampling time in seconds, for files without a time column."),
+]
+OpUnitsOption = Annotated[OpUnits, typer.Option("--op-units", help="Units of op and mv.")]
+OpRangeOption = Annotated[
+    tuple[float, float] | None,
+    typer.Option("--op-range", help="LO HI of op in its own units, mapped to 0-100 % of span."),
+]
+LoopTypeOption = Annotated[
+    LoopType,
+    typer.Option("--loop-type", help="What the loop controls (level implies integrating)."),
+]
+IntegratingOption = Annotated[
+    bool | None,
+    typer.Option("--integrating/--self-regulating", help="Process type; default from --loop-type."),
+]
+JsonOption = Annotated[
+    str | None, typer.Option("--json", help="Write the result as JSON to PATH ('-' = stdout).")
+]
+
+
+def read_options(
+    pv: str | None,
+    op: str | None,
+    mv: str | None,
+    sp: str | None,
+    time: str | None,
+    ts: float | None,
+    op_units: OpUnits,
+    op_range: tuple[float, float] | None,
+    loop_type: LoopType,
+    integrating: bool | None,
+) -> dict:
+    """Keyword arguments for :func:`stictiondiag.tags.read_tags` from CLI options."""
+    return {
+        "pv": pv,
+        "op": op,
+        "mv": mv,
+        "sp": sp,
+        "time": time,
+        "ts": ts,
+        "op_units": op_units.value,
+        "op_range": op_range,
+        "loop_type": loop_type.value,
+        "integrating": integrating,
+    }
