@@ -55,7 +55,7 @@ dead time whose fit is close to the best (:data:`DEAD_TIME_TOLERANCE`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -97,6 +97,10 @@ LEVEL_FIT_R2_MIN = 0.5
 DIFFERENCED_DRIFT_PERIODS = 0.25
 #: ... and the operating point is then fitted on the first this many periods [-].
 START_WINDOW_PERIODS = 2.0
+#: pv filters tried by the controller identification [samples], and the share of the
+#: unfiltered law's residual variance a filter must at most leave to be kept [-].
+PV_FILTER_GRID = (0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.7, 8.0, 11.0, 16.0)
+PV_FILTER_GAIN = 0.5
 #: Fewest usable samples for an identification.
 MIN_SAMPLES = 20
 
@@ -128,6 +132,10 @@ class ControllerFit:
         out as outliers of the PI law.
     integral_t_stat : float
         t-statistic of the integral coefficient [-].
+    pv_filter_time : float
+        Time constant of the first-order filter the controller applies to pv before
+        forming the error [s]; 0 for none.  Distributed control systems filter the
+        measurement; the PI law then holds for the filtered pv only.
     """
 
     controller: PI
@@ -141,6 +149,7 @@ class ControllerFit:
     n_saturated: int
     integral_t_stat: float
     n_outliers: int = 0
+    pv_filter_time: float = 0.0
 
     def to_dict(self) -> dict:
         """JSON-able dict (``integral_time_s`` is None for a P-only controller)."""
@@ -158,6 +167,7 @@ class ControllerFit:
             "n_used": int(self.n_used),
             "n_saturated": int(self.n_saturated),
             "n_outliers": int(self.n_outliers),
+            "pv_filter_time_s": _plain(self.pv_filter_time),
             "integral_t_stat": _plain(self.integral_t_stat),
         }
 
@@ -306,9 +316,61 @@ def saturated_samples(op: np.ndarray) -> np.ndarray:
     return sat
 
 
+def filtered_pv(pv: np.ndarray, time_constant: float, dt: float) -> np.ndarray:
+    """First-order filter of pv as a controller applies it, ``f[k] = a f[k-1] + (1 - a)
+    pv[k]`` with ``a = exp(-dt / T)``, started at ``pv[0]``; ``T = 0`` returns pv."""
+    pv = np.asarray(pv, dtype=float)
+    if not time_constant > 0.0:
+        return pv
+    a = math.exp(-dt / float(time_constant))
+    out, _ = lfilter([1.0 - a], [1.0, -a], pv, zi=[a * pv[0]])
+    return out
+
+
 def identify_controller(
-    sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: float
+    sp: np.ndarray | None,
+    pv: np.ndarray,
+    op: np.ndarray,
+    dt: float,
+    *,
+    pv_filter: str | float | None = "auto",
 ) -> ControllerFit:
+    """Identify the PI controller, with the pv filter in front of it (Eq. 3).
+
+    ``pv_filter="auto"`` tries first-order pv filters of :data:`PV_FILTER_GRID`
+    samples and keeps the one whose PI law fits op best, if it leaves at most
+    :data:`PV_FILTER_GAIN` of the unfiltered law's residual variance; a number is
+    the filter's time constant [s]; None or 0 means no filter.  A filter the
+    controller applies and the fit ignores biases ``Kc`` and ``Ti`` badly (the
+    filtered error lags the recorded one).  See :func:`_identify_pi` for the law.
+    """
+    dt = _check_dt(dt)
+    pv = _as_signal(pv, "pv")
+    if pv_filter is None or (not isinstance(pv_filter, str) and not pv_filter > 0.0):
+        return _identify_pi(sp, pv, op, dt)
+    if not isinstance(pv_filter, str):
+        if not math.isfinite(float(pv_filter)):
+            raise UsageError(f"pv_filter must be 'auto', None or a time in s, got {pv_filter}")
+        fit = _identify_pi(sp, filtered_pv(pv, float(pv_filter), dt), op, dt)
+        return replace(fit, pv_filter_time=float(pv_filter))
+    if pv_filter != "auto":
+        raise UsageError(f"pv_filter must be 'auto', None or a time in s, got {pv_filter!r}")
+    best = _identify_pi(sp, pv, op, dt)
+    plain_unexplained = 1.0 - best.fit_r2
+    for samples in PV_FILTER_GRID:
+        T = samples * dt
+        try:
+            fit = _identify_pi(sp, filtered_pv(pv, T, dt), op, dt)
+        except DataError:
+            continue
+        if fit.fit_r2 > best.fit_r2 and fit.n_used >= best.n_used * (1.0 - PV_FILTER_GAIN):
+            best = replace(fit, pv_filter_time=T)
+    if best.pv_filter_time > 0.0 and 1.0 - best.fit_r2 > PV_FILTER_GAIN * plain_unexplained:
+        return _identify_pi(sp, pv, op, dt)
+    return best
+
+
+def _identify_pi(sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: float) -> ControllerFit:
     """Identify the PI controller ``C(s) = Kc (Ti s + 1) / (Ti s)`` (Eq. 3).
 
     Parameters
@@ -370,19 +432,28 @@ def identify_controller(
 
 
 def controller_fit(
-    controller: PI, sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: float
+    controller: PI,
+    sp: np.ndarray | None,
+    pv: np.ndarray,
+    op: np.ndarray,
+    dt: float,
+    *,
+    pv_filter_time: float = 0.0,
 ) -> ControllerFit:
     """Fit measures and op bias of a *given* PI controller on recorded data.
 
     Same conventions as :func:`identify_controller` (``integral_time = inf`` for a
-    P-only law); ``Kc`` and ``Ti`` are kept, only ``op_bias`` is estimated.
+    P-only law); ``Kc``, ``Ti`` and the pv filter [s] are kept, only ``op_bias`` is
+    estimated.
     """
     if not isinstance(controller, PI):
         raise UsageError("controller must be a PI model (stictiondiag.processes.PI)")
     kc, ti = float(controller.gain), float(controller.integral_time)
     if kc == 0.0 or not math.isfinite(kc) or not ti > 0.0:
         raise UsageError(f"controller needs a non-zero gain and Ti > 0, got Kc={kc}, Ti={ti}")
-    return _ControllerData.build(sp, pv, op, dt).result(kc, ti, math.nan)
+    pv_f = filtered_pv(_as_signal(pv, "pv"), pv_filter_time, _check_dt(dt))
+    fit = _ControllerData.build(sp, pv_f, op, dt).result(kc, ti, math.nan)
+    return replace(fit, pv_filter_time=float(pv_filter_time))
 
 
 @dataclass(frozen=True, eq=False)

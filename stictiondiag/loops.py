@@ -323,6 +323,7 @@ def _loop_kernel(
     op0,
     mv0,
     integral0,
+    f_pole,
     out_pv,
     out_op,
     out_mv,
@@ -343,13 +344,15 @@ def _loop_kernel(
     i_prev = (size - delay - 1) % size
     linear_flow = char_kind == 0
     inv_Ti = 1.0 / Ti
+    pv_f = pv_bias + load[0] + noise[0]  # the controller's filtered pv, started at rest
     for k in range(n):
         spk = sp[k]
         band_k = band[k]
         disturbance = pv_bias + load[k] + noise[k]
         for j in range(n_sub):
             pv = y + disturbance
-            e = spk - pv
+            pv_f = f_pole * pv_f + (1.0 - f_pole) * pv
+            e = spk - pv_f
             trial = integral
             if band_k < 0.0 or abs(e) >= band_k:
                 trial = integral + e * h  # Gerry & Ruel: integrate only outside the band
@@ -512,6 +515,7 @@ def simulate_loop(
     initial_op: float | None = None,
     initial_mv: float | None = None,
     initial_integral: float | None = None,
+    pv_filter_time: float = 0.0,
 ) -> Simulation:
     """Simulate a PI control loop with a linear or sticky valve.
 
@@ -568,6 +572,11 @@ def simulate_loop(
     initial_integral : float, optional
         Initial integral of the error [pv units * s]; default: the value that gives
         ``initial_op`` at the initial error.
+    pv_filter_time : float
+        Time constant of a first-order filter on the measured pv in front of the
+        controller [s] (``f = a f + (1 - a) pv`` each controller step, ``a =
+        exp(-step / T)``, started at the first pv); 0, the default, for none, as in
+        the paper.  The recorded pv is the unfiltered one.
 
     Returns
     -------
@@ -644,6 +653,8 @@ def simulate_loop(
     else:
         integral0 = _number("initial_integral", initial_integral)
 
+    pv_filter_time = _number("pv_filter_time", pv_filter_time, minimum=0.0)
+    f_pole = math.exp(-h / pv_filter_time) if pv_filter_time > 0.0 else 0.0
     a, b_now, b_prev, delay = _process_coefficients(process, h)
     out_pv = np.empty(n)
     out_op = np.empty(n)
@@ -674,6 +685,7 @@ def simulate_loop(
         op0,
         mv0,
         integral0,
+        f_pole,
         out_pv,
         out_op,
         out_mv,
@@ -700,6 +712,7 @@ def simulate_loop(
         "noise_std": noise_std,
         "seed": None if seed is None else int(seed),
         "characteristic": characteristic,
+        "pv_filter_time": pv_filter_time,
     }
     return Simulation(
         time=np.arange(n) * dt,

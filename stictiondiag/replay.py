@@ -87,6 +87,10 @@ CYCLE_LENGTH_FACTOR = 1.6
 P_ONLY_INTEGRAL_FACTOR = 1.0e6
 #: Fewest samples a replay covers.
 MIN_REPLAY_SAMPLES = 100
+#: The process fit's drift high-pass is at most this many integral times of the
+#: identified controller, and at least this many samples [-].
+DRIFT_INTEGRAL_TIMES = 10.0
+MIN_DRIFT_SAMPLES = 20
 #: Identification R^2 below which the replay carries a warning [-].
 LOW_FIT_R2 = 0.5
 
@@ -448,19 +452,32 @@ def replay(
     # A fitted valve output may be defined only from some sample on (the fit starts
     # its valve at a known state, e.g. the first extreme of op, and holds it before):
     # without a recorded mv, the replay covers that part of the record only.
+    # With a recorded mv the simulated valve starts stuck where op turns (the state a
+    # sticky valve is known to be in there): started anywhere else, it would forget
+    # how far op had already travelled towards the next slip.
     start = 0
+    why = "where the fitted valve model starts"
     if mv_rec is None:
         details = getattr(fit, "details", None)
         if isinstance(details, dict):
             start = int(details.get("start_sample") or 0)
-        if not 0 <= start <= n - MIN_REPLAY_SAMPLES:
-            start = 0
-        if start > 0:
-            pv, op, u = pv[start:], op[start:], u[start:]
-            sp_rec = None if sp_rec is None else sp_rec[start:]
-            mv_model = mv_model[start:]
-            n = pv.size
-            warnings.append(f"replay starts at sample {start}, where the fitted valve model starts")
+    elif S > 0.0:
+        from .hammerstein import first_extreme
+
+        osc_op = detect_oscillation(op, dt)
+        if osc_op.present and osc_op.period_s:
+            start, _ = first_extreme(op, max(4, int(round(osc_op.period_s / dt))))
+            why = "the first extreme of op, where the sticky valve's state is known"
+    if not 0 <= start <= n - MIN_REPLAY_SAMPLES:
+        start = 0
+    if start > 0:
+        pv, op, u = pv[start:], op[start:], u[start:]
+        sp_rec = None if sp_rec is None else sp_rec[start:]
+        mv_rec = None if mv_rec is None else mv_rec[start:]
+        mv_model = None if mv_model is None else mv_model[start:]
+        n = pv.size
+        if mv_rec is None:  # with mv, settings["start_sample"] records it
+            warnings.append(f"replay starts at sample {start}, {why}")
 
     # 1. Controller.
     if controller is None:
@@ -473,7 +490,18 @@ def replay(
         warnings.append("no setpoint recorded: taken as constant at the mean of pv")
     # 2. Process.
     if process is None:
-        pf = identify_process(u, pv, dt, integrating=integrating)
+        # The loop rejects disturbances slower than some integral times; pv drifts
+        # on that scale are the load's, not the process's (identify.py, drift
+        # high-pass), so the high-pass is no slower than that.
+        drift = None
+        ti_c = cf.controller.integral_time
+        if math.isfinite(ti_c):
+            from .identify import _drift_pole
+
+            _, default_T = _drift_pole(pv, dt, None)
+            if default_T is not None and DRIFT_INTEGRAL_TIMES * ti_c < default_T:
+                drift = max(DRIFT_INTEGRAL_TIMES * ti_c, MIN_DRIFT_SAMPLES * dt)
+        pf = identify_process(u, pv, dt, integrating=integrating, drift_time_constant=drift)
     elif isinstance(process, ProcessFit):
         pf = process
     else:
@@ -545,6 +573,7 @@ def replay(
         initial_integral=initial_integral,
         noise_std=noise_std,
         seed=seed,
+        pv_filter_time=cf.pv_filter_time,
     )
     pv_r, op_r, mv_r = sim.pv[:n], sim.op[:n] - offset, sim.mv[:n] - offset
 

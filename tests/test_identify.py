@@ -363,3 +363,45 @@ def test_process_integrating_wandering_load():
     assert p.process.gain == pytest.approx(0.004, rel=0.15)
     assert p.process.dead_time <= 2 * tags.ts  # one sample true; the lag adds at most one
     assert p.fit_r2 > 0.8  # of the filtered differences: the fit explains the slips
+
+
+@pytest.mark.parametrize("filter_samples", [2.0, 6.0])
+def test_controller_with_pv_filter(filter_samples):
+    """A controller that filters pv (as distributed control systems do): the law holds
+    for the filtered pv only.  Ignoring the filter biases Kc and Ti badly (on the
+    sample loops by a factor of 2 to 10); the automatic search finds a filter on its
+    grid and recovers the law.  Tolerances: the grid's spacing is a factor of about
+    1.4 in the filter time, which moves Kc and Ti by a few % (measured: at most 6 %
+    for Ti); 10 % allows for it.
+    """
+    T = filter_samples * DT
+    sim = simulate_loop(
+        LEVEL["process"],
+        LEVEL["controller"],
+        duration=N * DT,
+        dt=DT,
+        valve="choudhury",
+        S=3.0,
+        J=3.0,
+        sp=setpoint_step(),
+        op_bias=40.0,
+        pv_filter_time=T,
+    )
+    plain = identify_controller(sim.sp, sim.pv, sim.op, DT, pv_filter=None)
+    auto = identify_controller(sim.sp, sim.pv, sim.op, DT)
+    exact = identify_controller(sim.sp, sim.pv, sim.op, DT, pv_filter=T)
+    kc, ti = LEVEL["controller"].gain, LEVEL["controller"].integral_time
+    assert exact.controller.gain == pytest.approx(kc, rel=0.01)  # the discretisation only
+    assert exact.controller.integral_time == pytest.approx(ti, rel=0.01)
+    assert auto.pv_filter_time == pytest.approx(T, rel=0.45)  # one grid step
+    assert auto.controller.gain == pytest.approx(kc, rel=0.1)
+    assert auto.controller.integral_time == pytest.approx(ti, rel=0.1)
+    # What the search is for: the plain law leaves at least twice the residual.
+    assert 1.0 - auto.fit_r2 < 0.5 * (1.0 - plain.fit_r2)
+
+
+def test_controller_without_pv_filter_keeps_none():
+    # No filter in the loop: the plain law explains op exactly, no filter is kept.
+    sim = run(CONC, 5.0, 2.0)
+    fit = identify_controller(sim.sp, sim.pv, sim.op, DT)
+    assert fit.pv_filter_time == 0.0
