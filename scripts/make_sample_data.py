@@ -491,8 +491,13 @@ def _readme(rows: list[tuple[LoopSpec, pd.DataFrame]]) -> str:
         "",
         "Process gains are in pv units per % of valve span (per % and second for the",
         "integrating level loops); the controller acts on a first-order filtered pv",
-        "(filter time constant one or two samples). `pv period` is the oscillation",
-        "period of the recorded pv found by `stictiondiag.oscillation.detect_oscillation`.",
+        "(`pv filter` below, backward-Euler discretisation, as a distributed control",
+        "system filters its measurement). `pv period` is the oscillation period of the",
+        "recorded pv found by `stictiondiag.oscillation.detect_oscillation`.",
+        "",
+        "pv filter time constants [s]: "
+        + ", ".join(f"`{spec.file}` {spec.filter_time:g}" for spec, _ in rows)
+        + ".",
         "",
         "Notes per file:",
         "",
