@@ -193,38 +193,70 @@ def _clean(obj):
     return obj
 
 
-def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) -> None:
-    """Refuse a record that shows a regular cycle but too few periods of it.
+#: Fewest periods of a regular cycle a record must hold to be analysed at all [-].
+#: Seen twice, a pattern repeats (and a sticky valve slips at least four times);
+#: seen once it is an event.  Between this and
+#: :data:`~stictiondiag.oscillation.MIN_CYCLES` the analysis runs but cannot
+#: conclude "no oscillation" (see :func:`check_record_length`).
+MIN_ANALYSIS_CYCLES = 2.0
+
+
+def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) -> str | None:
+    """Check that the record holds enough periods of a regular cycle.
 
     Stiction shows as a sustained limit cycle (Sections 4.2.2 and 5.3), and the
     oscillation test needs :data:`~stictiondiag.oscillation.MIN_CYCLES` periods.
     When pv or op has a regular autocorrelation (regularity above
     :data:`~stictiondiag.oscillation.REGULARITY_THRESHOLD`) whose period
     (:func:`~stictiondiag.oscillation.dominant_period`) the record holds fewer than
-    ``MIN_CYCLES`` times, "no oscillation" would only mean "not enough data": the
-    analysis stops and says how long a record it needs. A slow irregular wander is
-    not a cycle and passes. A recorded mv is exempt: its stick and slip phases show
-    the stiction directly, cycle or not (Figs. 3 and 6).
+    ``MIN_CYCLES`` times, "no oscillation" would only mean "not enough data":
+
+    * fewer than :data:`MIN_ANALYSIS_CYCLES` periods: the analysis stops and says
+      how long a record it needs;
+    * from ``MIN_ANALYSIS_CYCLES`` to ``MIN_CYCLES`` periods: the analysis runs, the
+      returned message goes into the warnings, and the verdict is told the record is
+      short (:func:`~stictiondiag.estimate.stiction_verdict`, ``short_record``): the
+      valve model's own evidence can still show stiction, but the missing cycle is
+      not taken as evidence against it.
+
+    A slow irregular wander is not a cycle and passes. A recorded mv is exempt: its
+    stick and slip phases show the stiction directly, cycle or not (Figs. 3 and 6).
+
+    Returns
+    -------
+    str or None
+        The short-record warning, or None when the record is long enough.
 
     Raises
     ------
     DataError
-        The record holds fewer than ``MIN_CYCLES`` periods of a regular cycle.
+        The record holds fewer than ``MIN_ANALYSIS_CYCLES`` periods of a regular
+        cycle.
     """
     if osc_pv.present or osc_op.present or tags.mv is not None:
-        return
+        return None
     for role, osc in (("pv", osc_pv), ("op", osc_op)):
         if osc.regularity is None or not osc.regularity > REGULARITY_THRESHOLD:
             continue
         period = dominant_period(getattr(tags, role), float(tags.ts))
-        if period and tags.duration < MIN_CYCLES * period:
-            need = math.ceil(MIN_CYCLES * period / float(tags.ts))
+        if not period or tags.duration >= MIN_CYCLES * period:
+            continue
+        need = math.ceil(MIN_CYCLES * period / float(tags.ts))
+        held = (
+            f"{tags.n} samples hold only {tags.duration / period:.1f} cycles of the "
+            f"{period:.0f} s oscillation in {role}"
+        )
+        if tags.duration < MIN_ANALYSIS_CYCLES * period:
             raise DataError(
-                f"record too short: {tags.n} samples hold only {tags.duration / period:.1f} "
-                f"cycles of the {period:.0f} s oscillation in {role}, and telling a limit "
-                f"cycle needs {MIN_CYCLES:g}; export at least {need} samples "
-                f"({MIN_CYCLES * period:.0f} s)"
+                f"record too short: {held}, and telling a limit cycle needs "
+                f"{MIN_CYCLES:g}; export at least {need} samples ({MIN_CYCLES * period:.0f} s)"
             )
+        return (
+            f"short record: {held}, and confirming a limit cycle needs {MIN_CYCLES:g}; "
+            "the verdict rests on the valve model alone and does not take the missing "
+            f"cycle as evidence against stiction (export at least {need} samples)"
+        )
+    return None
 
 
 def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
@@ -244,7 +276,8 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
     Raises
     ------
     DataError
-        The record is too short to tell a limit cycle (:func:`check_record_length`),
+        The record holds fewer than two periods of a regular cycle
+        (:func:`check_record_length`),
         or a step cannot use the data (its message says why).
     """
     from .estimate import stiction_verdict
@@ -268,7 +301,9 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
                 "the set point moves: the oscillation was found in the control error sp - pv"
             )
     osc_op = detect_oscillation(tags.op, dt)
-    check_record_length(tags, osc_pv, osc_op)
+    short = check_record_length(tags, osc_pv, osc_op)
+    if short:
+        warnings.append(short)
 
     # 3. S and J: from the valve's own signal when recorded, else the Hammerstein fit.
     if tags.mv is not None:
@@ -283,7 +318,13 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         )
 
     # 4. Verdict.
-    verdict = stiction_verdict(fit, osc_pv, oscillation_op=osc_op, has_mv=tags.mv is not None)
+    verdict = stiction_verdict(
+        fit,
+        osc_pv,
+        oscillation_op=osc_op,
+        has_mv=tags.mv is not None,
+        short_record=bool(short),
+    )
 
     # 5. Closed-loop replay.
     rep = None

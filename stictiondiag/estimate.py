@@ -593,6 +593,7 @@ def stiction_verdict(
     *,
     oscillation_op=None,
     has_mv: bool | None = None,
+    short_record: bool = False,
     min_improvement: float = MIN_IMPROVEMENT,
     decision_level: float = DECISION_LEVEL,
     seed: int = 0,
@@ -615,6 +616,10 @@ def stiction_verdict(
         The same for op; an oscillation in either counts.
     has_mv : bool, optional
         Whether the valve position was recorded; default from ``fit.method``.
+    short_record : bool
+        The record shows a regular cycle but holds fewer periods of it than the
+        oscillation test needs (:func:`stictiondiag.analysis.check_record_length`):
+        the missing oscillation is then no evidence against stiction.
     min_improvement : float
         Share of the linear valve's residual the stiction model must remove to count
         as a material improvement [-].
@@ -641,10 +646,15 @@ def stiction_verdict(
       valve (S = 0) inside the S interval: **no stiction**, confidence ``1 - P``.
     * No regular oscillation in pv or op: **no stiction**, confidence ``1 - P``,
       unless the valve evidence itself shows repeated stick-slip
-      (``P >= decision_level``, at least three slips, S determined): then
+      (``P >= decision_level``, at least three slips, S determined; on a short
+      record the support over at least three blocks): then
       **stiction**, confidence ``P`` (or **inconclusive** when ``P`` is that high
       but S is not determined).  With mv recorded that is the valve seen
-      sticking; without, a valve model that explains pv by its slips.  Plant
+      sticking; without, a valve model that explains pv by its slips.  When the
+      record is merely too short to confirm its cycle (``short_record``), the
+      missing oscillation proves nothing: **no stiction** then needs
+      ``P <= 1 - decision_level`` (a linear valve explains pv as well), and
+      anything between is **inconclusive**.  Plant
       stiction cycles are often too irregular for the regularity test of
       :func:`stictiondiag.oscillation.detect_oscillation` (its r > 1), and a fit
       whose band excludes zero and beats a linear valve in 95 % of the cycle
@@ -685,7 +695,9 @@ def stiction_verdict(
     improve_text = (
         f"the stiction model removes {100 * f:.0f} % of the linear valve's residual "
         f"(95 % interval over cycles {100 * f_iv[0]:.0f} to {100 * f_iv[1]:.0f} %; "
-        f"support {P:.2f} for more than {100 * min_improvement:.0f} %)"
+        f"support {P:.2f} for more than {100 * min_improvement:.0f} %"
+        + (f"; only {bs.size} cycle block(s), too few to measure consistency" if bs.size < 3 else "")
+        + ")"
     )
     osc_texts = [_osc_text("pv", oscillation)]
     if oscillation_op is not None:
@@ -713,6 +725,7 @@ def stiction_verdict(
         "S_determined": bool(S_determined),
         "n_slips": n_slips,
         "has_mv": bool(has_mv),
+        "short_record": bool(short_record),
         "confidence_formula": (
             "support = share of block-bootstrap resamples (one-cycle blocks) in which the "
             "stiction model removes more than min_improvement of the linear valve's "
@@ -722,7 +735,10 @@ def stiction_verdict(
     }
 
     if not oscillating:
-        if P >= decision_level and n_slips >= 3 and S_determined:
+        # A record too short to confirm its cycle must show the improvement over at
+        # least three blocks: a bootstrap over fewer measures no consistency.
+        enough_blocks = bs.size >= 3 or not short_record
+        if P >= decision_level and n_slips >= 3 and S_determined and enough_blocks:
             source = (
                 "the recorded valve position sticks and slips"
                 if has_mv
@@ -754,7 +770,29 @@ def stiction_verdict(
                 ),
                 evidence,
             )
-        reasons = (*osc_texts, "nothing for stiction to explain", improve_text)
+        if short_record and P > 1.0 - decision_level:
+            return Verdict(
+                "inconclusive",
+                None,
+                P,
+                (
+                    "the record is too short to confirm or rule out a limit cycle, and the "
+                    "valve model's evidence is not decisive: " + improve_text,
+                    *det_texts,
+                    *osc_texts,
+                    fit_text,
+                ),
+                evidence,
+            )
+        if short_record:
+            reasons = (
+                "a linear valve explains pv as well (the record is too short to confirm "
+                "its cycle): " + improve_text,
+                *osc_texts,
+                fit_text,
+            )
+        else:
+            reasons = (*osc_texts, "nothing for stiction to explain", improve_text)
         return Verdict("no_stiction", False, 1.0 - P, reasons, evidence)
 
     if P >= decision_level and S_determined:

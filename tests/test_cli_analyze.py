@@ -227,11 +227,6 @@ def _bad_files(tmp_path: Path, frame: pd.DataFrame) -> dict[str, tuple[Path, str
         "constant",
     )
     files["too short"] = (_write(tmp_path, "short.csv", frame.iloc[:60]), "samples")
-    # 2.9 cycles of a regular 140 s cycle and no mv: too short to tell a limit cycle.
-    files["too few cycles"] = (
-        _write(tmp_path, "few_cycles.csv", frame.iloc[:400].drop(columns="mv")),
-        "record too short",
-    )
     return files
 
 
@@ -248,7 +243,6 @@ BAD_FILE_CASES = [
     "constant op",
     "constant pv",
     "too short",
-    "too few cycles",
 ]
 
 
