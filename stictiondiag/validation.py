@@ -151,11 +151,12 @@ def score(table: pd.DataFrame, column: str, positive: Callable[[str], bool]) -> 
     out: dict = {}
     for group in ("stated", "likely", "none"):
         g = table[table["label_group"] == group]
-        called = g[column].map(lambda v: positive(str(v)))
+        # Plain booleans even for an empty group (an empty map has no bool dtype).
+        called = g[column].map(lambda v: positive(str(v))).astype(bool)
         if group == "none":
             out[group] = {"n": int(len(g)), "called_stiction": int(called.sum())}
             continue
-        truth = g["label"] == "stiction"
+        truth = (g["label"] == "stiction").astype(bool)
         tp = int((called & truth).sum())
         fn = int((~called & truth).sum())
         fp = int((called & ~truth).sum())
