@@ -530,6 +530,13 @@ MIN_IMPROVEMENT = 0.1
 #: Bootstrap support needed to call stiction (and 1 minus it to call no stiction).
 DECISION_LEVEL = 0.95
 
+#: "No stiction" is said only when the record bounds S below this [% of span]: a
+#: linear valve that explains the data as well as a sticky one is no evidence of a
+#: healthy valve when the fit leaves S anywhere up to several % (a record without
+#: clear cycles, disturbed by loads and set-point changes).  Stiction of a few % of
+#: span is what the paper's industrial loops show (Section 3).
+RULE_OUT_S = 2.0
+
 #: Bootstrap resamples of the per-cycle costs.
 N_BOOTSTRAP = 2000
 
@@ -661,6 +668,9 @@ def stiction_verdict(
       resamples is evidence of its own.
     * Otherwise **inconclusive** (weak or inconsistent improvement, or S poorly
       determined), confidence ``P`` (the support for stiction).
+    * Every **no stiction** above also needs the S interval to end below
+      :data:`RULE_OUT_S`; where the record leaves a larger S open the verdict is
+      **inconclusive** and says how much stiction is not ruled out.
 
     The confidence is therefore never set by hand: it is a bootstrap share computed
     from the fit's residuals.
@@ -696,7 +706,11 @@ def stiction_verdict(
         f"the stiction model removes {100 * f:.0f} % of the linear valve's residual "
         f"(95 % interval over cycles {100 * f_iv[0]:.0f} to {100 * f_iv[1]:.0f} %; "
         f"support {P:.2f} for more than {100 * min_improvement:.0f} %"
-        + (f"; only {bs.size} cycle block(s), too few to measure consistency" if bs.size < 3 else "")
+        + (
+            f"; only {bs.size} cycle block(s), too few to measure consistency"
+            if bs.size < 3
+            else ""
+        )
         + ")"
     )
     osc_texts = [_osc_text("pv", oscillation)]
@@ -793,22 +807,18 @@ def stiction_verdict(
             )
         else:
             reasons = (*osc_texts, "nothing for stiction to explain", improve_text)
-        return Verdict("no_stiction", False, 1.0 - P, reasons, evidence)
+        return _no_stiction_unless_open(P, reasons, S_iv, fit_text, evidence)
 
     if P >= decision_level and S_determined:
         return Verdict(
             "stiction", True, P, (improve_text, fit_text, *osc_texts, *det_texts), evidence
         )
     if P <= 1.0 - decision_level or (not S_excludes_zero and P < 0.5):
-        return Verdict(
-            "no_stiction",
-            False,
-            1.0 - P,
-            (
-                "a linear valve explains the oscillation as well: " + improve_text,
-                *osc_texts,
-                fit_text,
-            ),
+        return _no_stiction_unless_open(
+            P,
+            ("a linear valve explains the oscillation as well: " + improve_text, *osc_texts),
+            S_iv,
+            fit_text,
             evidence,
         )
     why = (
@@ -819,6 +829,28 @@ def stiction_verdict(
     return Verdict(
         "inconclusive", None, P, (why, improve_text, *det_texts, fit_text, *osc_texts), evidence
     )
+
+
+def _no_stiction_unless_open(P, reasons, S_iv, fit_text, evidence) -> Verdict:
+    """**No stiction** (confidence ``1 - P``) when the S interval's upper end is below
+    :data:`RULE_OUT_S`; otherwise **inconclusive** (confidence ``P``): the record does
+    not rule out a sticky valve of that size."""
+    upper = None if S_iv is None else float(S_iv[1])
+    evidence = {**evidence, "S_upper": upper, "rule_out_S": RULE_OUT_S}
+    if upper is not None and upper >= RULE_OUT_S:
+        return Verdict(
+            "inconclusive",
+            None,
+            P,
+            (
+                f"stiction up to S = {upper:.3g} % of span is not ruled out by the record "
+                f"(no stiction needs S bounded below {RULE_OUT_S:g} %)",
+                *reasons,
+                fit_text,
+            ),
+            evidence,
+        )
+    return Verdict("no_stiction", False, 1.0 - P, (*reasons, fit_text), evidence)
 
 
 # --------------------------------------------------------------------------------------

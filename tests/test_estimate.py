@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from stictiondiag.estimate import (
+    RULE_OUT_S,
     StictionFit,
     Verdict,
     cost_threshold,
@@ -244,3 +245,46 @@ def test_valve_run_matches_the_published_model():
     assert np.allclose(y[1:], ref[1:])
     # Four cycles: one slip after each of the eight turns of op.
     assert n_slips == 8
+
+
+@pytest.mark.parametrize(
+    "upper, status",
+    [(1.0, "no_stiction"), (RULE_OUT_S - 1e-9, "no_stiction"), (8.0, "inconclusive")],
+)
+def test_no_stiction_needs_S_bounded(upper, status):
+    # The linear valve explains every cycle as well as the stiction model (support 0).
+    # That says "no stiction" only when the fit also bounds S below RULE_OUT_S; a
+    # record that leaves S anywhere up to 8 % of span rules nothing out.
+    blocks = np.ones(12)
+    fit = StictionFit(
+        S=0.0,
+        J=0.0,
+        S_scaled=0.0,
+        J_scaled=0.0,
+        S_interval=(0.0, upper),
+        J_interval=(0.0, upper),
+        method="hammerstein",
+        mv_model=np.zeros(10),
+        n_slips=0,
+        cost=float(blocks.sum()),
+        linear_cost=float(blocks.sum()),
+        details={"block_sse": {"stiction": blocks.tolist(), "linear": blocks.tolist()}},
+    )
+
+    class Cycle:
+        present = True
+        period_s = 100.0
+        regularity = 3.0
+
+    class NoCycle:
+        present = False
+        reason = "irregular"
+
+    for osc in (Cycle(), NoCycle()):
+        v = stiction_verdict(fit, osc, oscillation_op=osc)
+        assert v.status == status
+        if status == "inconclusive":
+            assert "not ruled out" in v.reasons[0]
+            assert v.confidence == pytest.approx(0.0)  # the support for stiction
+        else:
+            assert v.confidence == pytest.approx(1.0)
