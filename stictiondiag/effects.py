@@ -1486,13 +1486,17 @@ def _prediction_errors(z, drive, pole, k1, k2, y0, horizon):  # pragma: no cover
         lf[k] = lh + k2 * e
         yh = pole * yf[k] + lf[k] + drive[k]
         lh = lf[k]
-    if horizon > 1:
-        for k in range(n - 1, horizon - 1, -1):
-            j0 = k - horizon
-            y = yf[j0]
-            for j in range(j0, k):
-                y = pole * y + lf[j0] + drive[j]
-            err[k] = z[k] - y
+    if horizon > 1 and n > horizon:
+        # The prediction of z[j0 + horizon] made at j0, for every j0 at once: the same
+        # operations per prediction as a loop over it, but the inner loop runs over
+        # contiguous samples and is vectorised by the compiler.
+        m = n - horizon
+        y = yf[:m].copy()
+        for i in range(horizon):
+            for j0 in range(m):
+                y[j0] = pole * y[j0] + lf[j0] + drive[j0 + i]
+        for j0 in range(m):
+            err[j0 + horizon] = z[j0 + horizon] - y[j0]
     return err
 
 
