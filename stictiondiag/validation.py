@@ -244,6 +244,13 @@ def _f(v, spec=".2f") -> str:
     return str(v)
 
 
+def _text(v, missing: str) -> str:
+    """A table cell for a text field; ``missing`` where the field is None or NaN."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)) or v == "":
+        return missing
+    return str(v)
+
+
 def render_markdown(result: ValidationResult, *, command: str) -> str:
     """The results page (``docs/isdb_validation.md``)."""
     t, sc = result.table, result.scores
@@ -277,6 +284,14 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
             f"| {method} | none | {groups['none']['n']} | called stiction: "
             f"{groups['none']['called_stiction']} | | | | | |"
         )
+    lines += [
+        "",
+        "*inconclusive* is the tool declining to call a loop: the oscillation is there",
+        "but the record does not pin S down (its interval reaches 0), or it does not",
+        "bound S below 2 % of span. Each such loop carries its reason below. In the",
+        "per-loop table, *not run* in the gap column means the record is too short for",
+        "the gap diagnosis or the loop could not be replayed (the flag says which).",
+    ]
     stated = t[t["label_group"] == "stated"]
     lines += [
         "",
@@ -323,9 +338,9 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
     ]
     for r in t.itertuples():
         lines.append(
-            f"| {r.loop} | {r.loop_type} | {_f(r.ts_s, 'g')} | {r.label or ''} | {r.label_group} | "
+            f"| {r.loop} | {r.loop_type} | {_f(r.ts_s, 'g')} | {_text(r.label, '-')} | {r.label_group} | "
             f"{r.verdict} | {_f(getattr(r, 'confidence', None))} | {_f(getattr(r, 'S', None))} | "
-            f"{_f(getattr(r, 'J', None))} | {getattr(r, 'gap_effect', '') or ''} | "
+            f"{_f(getattr(r, 'J', None))} | {_text(getattr(r, 'gap_effect', None), 'not run')} | "
             f"{getattr(r, 'baseline_horch', '')} | {getattr(r, 'baseline_bicoherence', '')} |"
         )
     return "\n".join(lines) + "\n"
