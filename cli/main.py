@@ -44,4 +44,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    main()
+    # ``python -m cli.main``: the sub-commands registered themselves on the ``app`` of
+    # ``cli.main`` (imported under its package name), not on this ``__main__`` copy.
+    from cli.main import main as _main
+
+    _main()
