@@ -54,16 +54,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-import pandas as pd
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy import signal as sps
-from scipy import stats
 
+from ._filters import detrend_linear
 from .errors import DataError, UsageError
 from .oscillation import detect_oscillation
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 VerdictLabel = Literal["stiction", "no_stiction", "inconclusive"]
 
@@ -214,8 +215,8 @@ def cross_correlation(op: np.ndarray, pv: np.ndarray, max_lag: int) -> np.ndarra
     computed by FFT with zero padding; returned for lags ``-max_lag .. max_lag``
     (index ``max_lag`` is lag 0) [-].
     """
-    a = sps.detrend(np.asarray(op, dtype=float))
-    b = sps.detrend(np.asarray(pv, dtype=float))
+    a = detrend_linear(np.asarray(op, dtype=float))
+    b = detrend_linear(np.asarray(pv, dtype=float))
     n = a.size
     nfft = 1 << (2 * n - 1).bit_length()
     spec = np.conj(np.fft.rfft(a, nfft)) * np.fft.rfft(b, nfft)
@@ -305,6 +306,8 @@ class HorchResult:
 
     def to_pandas(self) -> pd.DataFrame:
         """The CCF as a DataFrame with columns ``lag_s`` [s] and ``ccf`` [-]."""
+        import pandas as pd
+
         if self.ccf is None or self.lags_s is None:
             return pd.DataFrame({"lag_s": [], "ccf": []})
         return pd.DataFrame({"lag_s": self.lags_s, "ccf": self.ccf})
@@ -476,8 +479,10 @@ def _horch_integrating(
         )
     nyquist = 0.5 / dt
     wn = HORCH_FILTER_HARMONICS / period_s / nyquist
-    y = sps.detrend(pv)
+    y = detrend_linear(pv)
     if wn < 0.9:
+        from scipy import signal as sps  # imported here: scipy.signal is slow to import
+
         b, a = sps.butter(4, wn)
         y = sps.filtfilt(b, a, y)
     d2 = np.diff(y, 2)
@@ -599,6 +604,8 @@ class BicoherenceResult:
 
     def to_pandas(self) -> pd.DataFrame:
         """Principal domain as a DataFrame: ``f1_hz``, ``f2_hz``, ``bic2``, ``significant``."""
+        import pandas as pd
+
         return pd.DataFrame(
             {
                 "f1_hz": self.f1_hz,
@@ -729,7 +736,10 @@ def bicoherence_indices(
             f"conditioning_percentile must be in [0, 100] or None, got {conditioning_percentile}"
         )
 
-    x = sps.detrend(x)
+    from scipy import signal as sps  # imported here: scipy.signal is slow to import
+    from scipy.special import chdtri
+
+    x = detrend_linear(x)
     if decimation > 1:
         if x.size // decimation < MIN_NFFT * 2:
             raise DataError(
@@ -773,7 +783,7 @@ def bicoherence_indices(
 
     n_bif = int(bic2.size)
     alpha_point = alpha / n_bif if correction == "bonferroni" else alpha
-    threshold = float(stats.chi2.isf(alpha_point, 2) / (2.0 * k_seg))
+    threshold = float(chdtri(2, alpha_point) / (2.0 * k_seg))  # = scipy.stats.chi2.isf
     significant = bic2 > threshold
     n_sig = int(np.count_nonzero(significant))
     mean_sig = float(bic2[significant].mean()) if n_sig else 0.0
@@ -910,10 +920,12 @@ def pv_op_ellipse(op: np.ndarray, pv: np.ndarray, dt: float, period_s: float) ->
     out = {"fitted": False, "axis_ratio": None, "elliptic": False, "apparent_stiction": None}
     if not 0.0 < lo < hi < 1.0:
         return out
+    from scipy import signal as sps  # imported here: scipy.signal is slow to import
+
     b, a = sps.butter(2, [lo, hi], btype="band")
     padlen = min(3 * max(len(a), len(b)), op.size - 1)
-    opf = sps.filtfilt(b, a, sps.detrend(op), padlen=padlen)
-    pvf = sps.filtfilt(b, a, sps.detrend(pv), padlen=padlen)
+    opf = sps.filtfilt(b, a, detrend_linear(op), padlen=padlen)
+    pvf = sps.filtfilt(b, a, detrend_linear(pv), padlen=padlen)
     s_op, s_pv = float(opf.std()), float(pvf.std())
     if s_op <= 0 or s_pv <= 0:
         return out

@@ -69,8 +69,8 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from scipy.signal import lfilter
 
+from ._filters import lfilter1
 from ._jit import jit
 from .errors import UsageError
 
@@ -552,8 +552,7 @@ def first_order_lag(x: np.ndarray, time_constant: float, dt: float) -> np.ndarra
     if time_constant <= 0.0:
         return np.asarray(x, dtype=float)
     a = math.exp(-dt / time_constant)
-    y, _ = lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]])
-    return y
+    return lfilter1((1.0 - a,), -a, x, zi=a * x[0])
 
 
 def quantize(x: np.ndarray, step: float, offset: float = 0.0) -> np.ndarray:
@@ -2133,7 +2132,7 @@ def _slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
     can fall in step with a few more slips by chance; the slips measured one by one
     (:func:`measure_slips`) must show the difference too.
     """
-    from scipy.stats import mannwhitneyu
+    from ._stats import mannwhitneyu  # scipy.stats.mannwhitneyu, without importing scipy.stats
 
     if slips is None:
         return 0.0

@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from ._jit import jit
 from .valve import choudhury_step, kano_step, valve_state
@@ -469,8 +468,10 @@ def cost_threshold(
     excess of the optimum cannot be excluded either: the threshold is then at least
     ``2 C_min - noise_cost``.
     """
+    from scipy.special import fdtri  # = scipy.stats.f.ppf, without importing scipy.stats
+
     nu = max(1.0, n_eff - n_params)
-    thr = cost_min * (1.0 + stats.f.ppf(INTERVAL_LEVEL, 1, nu) / nu)
+    thr = cost_min * (1.0 + fdtri(1, nu, INTERVAL_LEVEL) / nu)
     if noise_cost is not None and math.isfinite(noise_cost) and cost_min > noise_cost:
         thr = max(thr, 2.0 * cost_min - max(noise_cost, 0.0))
     return float(thr)

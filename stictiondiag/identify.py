@@ -58,9 +58,9 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.optimize import minimize_scalar
-from scipy.signal import correlate, lfilter
 
+from ._filters import correlate_lags, lfilter1
+from ._optimize import minimize_scalar_bounded
 from .errors import DataError, UsageError
 from .processes import FOPTD, PI, Integrating
 
@@ -323,8 +323,7 @@ def filtered_pv(pv: np.ndarray, time_constant: float, dt: float) -> np.ndarray:
     if not time_constant > 0.0:
         return pv
     a = math.exp(-dt / float(time_constant))
-    out, _ = lfilter([1.0 - a], [1.0, -a], pv, zi=[a * pv[0]])
-    return out
+    return lfilter1((1.0 - a,), -a, pv, zi=a * pv[0])
 
 
 def identify_controller(
@@ -572,8 +571,7 @@ def _lag_response(u: np.ndarray, d: int, a: float) -> np.ndarray:
     """``z[k+1] = a z[k] + (1 - a) u[k - d]``, ``z[0] = u[0]``: first-order lag with
     dead time ``d`` samples (exact zero-order-hold discretisation of the FOPTD)."""
     x = _delayed(u, d + 1)
-    z, _ = lfilter([1.0 - a], [1.0, -a], x, zi=[a * u[0]])
-    return z
+    return lfilter1((1.0 - a,), -a, x, zi=a * u[0])
 
 
 def _integrating_regressors(u: np.ndarray, d: int, dt: float) -> np.ndarray:
@@ -602,7 +600,7 @@ def _highpass(x: np.ndarray, b: float) -> np.ndarray:
     x = np.asarray(x, dtype=float) - x[0]
     if b >= 1.0:
         return x
-    return lfilter([b, -b], [1.0, -b], x)
+    return lfilter1((b, -b), -b, x)
 
 
 def _solve_normal(A: np.ndarray, g: np.ndarray, yy: np.ndarray, rows: np.ndarray):
@@ -655,8 +653,8 @@ def _delay_scan(w: np.ndarray, r: np.ndarray, y_f: np.ndarray, b: float, d_max: 
     crr, crq, cqq = _prefix(r * r), _prefix(r * q), _prefix(q * q)
     cry, cqy, cyy = _prefix(r * y_f), _prefix(q * y_f), _prefix(y_f * y_f)
     # sum_{k>=d} v[k] w[k-d]: correlation of v with w at lag d (w[0] = 0 drops k = d).
-    wr = correlate(r, w, mode="full", method="auto")[(n - 1) + dd]
-    wy = correlate(y_f, w, mode="full", method="auto")[(n - 1) + dd]
+    wr = correlate_lags(r, w, d_max)
+    wy = correlate_lags(y_f, w, d_max)
     A = np.empty((d_max + 1, 3, 3))
     A[:, 0, 0] = cww[top] - cww[1]
     A[:, 0, 1] = A[:, 1, 0] = wr
@@ -692,17 +690,15 @@ def _fit_foptd(u, y_f, dt, b, d_max, tau_max):
         bracket moves while the optimum sits on its edge."""
         lo, hi = max(centre - spacing, log_lo), min(centre + spacing, log_hi)
         for _ in range(8):
-            res = minimize_scalar(
-                lambda g: mse(d, g), bounds=(lo, hi), method="bounded", options={"xatol": 1e-4}
-            )
-            x = float(res.x)
+            res_x, res_fun = minimize_scalar_bounded(lambda g: mse(d, g), (lo, hi), xatol=1e-4)
+            x = float(res_x)
             if x - lo < 0.05 * spacing and lo > log_lo:
                 lo, hi = max(lo - spacing, log_lo), lo + 0.1 * spacing
             elif hi - x < 0.05 * spacing and hi < log_hi:
                 lo, hi = hi - 0.1 * spacing, min(hi + spacing, log_hi)
             else:
                 break
-        return x, float(res.fun)
+        return x, float(res_fun)
 
     # Coarse joint grid: every dead time for each time constant of the grid.  The
     # time constant and the dead time trade off along a ridge, so the two are
@@ -773,8 +769,8 @@ def _fit_integrating_differenced(u, pv, dt, b, d_max, smooth):
     """
     dy = np.diff(pv)
     x = u[:-1] - u[0]
-    y_f = _highpass(lfilter([1.0 - smooth], [1.0, -smooth], dy - dy[0]), b)
-    w = _highpass(lfilter([1.0 - smooth], [1.0, -smooth], x), b)
+    y_f = _highpass(lfilter1((1.0 - smooth,), -smooth, dy - dy[0]), b)
+    w = _highpass(lfilter1((1.0 - smooth,), -smooth, x), b)
     zero = np.zeros_like(w)
     d_max = min(d_max, w.size - MIN_SAMPLES)
     costs = _delay_scan(w, zero, y_f, b, max(d_max, 0))

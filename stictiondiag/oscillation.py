@@ -38,8 +38,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import detrend, savgol_filter
 
+from ._filters import detrend_linear, savgol_smooth
 from .errors import UsageError
 
 #: Regularity above which a signal is called oscillating (Thornhill et al. 2003).
@@ -223,7 +223,7 @@ def dominant_period(x: np.ndarray, dt: float) -> float | None:
     x = _clean(x)
     if x.size < MIN_SAMPLES or np.ptp(x) == 0:
         return None
-    _, periods = _acf_periods(detrend(x))
+    _, periods = _acf_periods(detrend_linear(x))
     if periods.size == 0:
         return None
     return float(periods.mean() * dt)
@@ -308,7 +308,7 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
         return _absent(f"too few samples ({n} < {MIN_SAMPLES})")
     if np.ptp(x) == 0:
         return _absent("constant signal")
-    xd = detrend(x)
+    xd = detrend_linear(x)
     if np.ptp(xd) <= 1e-12 * max(1.0, float(np.max(np.abs(x)))):
         return _absent("signal is a pure ramp")
     crossings, periods = _acf_periods(xd)
@@ -338,7 +338,7 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
     sigma = _noise_std(xd)
     win = int(round(mean_tp / 10.0)) | 1
     if sigma > 0.01 * float(np.std(xd)) and win >= 5:
-        xs = savgol_filter(xd, win, 3)
+        xs = savgol_smooth(xd, win, 3)
     ranges = _cycle_ranges(xs, mean_tp)
     third = max(1, ranges.size // 3)
     early = float(np.median(ranges[:third]))

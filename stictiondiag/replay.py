@@ -65,6 +65,7 @@ from typing import Any
 
 import numpy as np
 
+from ._filters import lfilter1
 from ._jit import jit
 from .errors import DataError, UsageError
 from .identify import (
@@ -374,10 +375,8 @@ def _open_loop_like_simulator(
     dev = x - op_bias
     if pf.integrating:
         return pv_bias + pf.process.gain * dt * np.cumsum(dev)
-    from scipy.signal import lfilter
-
     a = math.exp(-dt / pf.process.time_constant)
-    y = lfilter([pf.process.gain * (1.0 - a)], [1.0, -a], dev)
+    y = lfilter1((pf.process.gain * (1.0 - a),), -a, dev)
     return pv_bias + y
 
 

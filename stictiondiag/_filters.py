@@ -1,0 +1,137 @@
+"""Drop-in replacements for the few :mod:`scipy.signal` calls on the analysis path.
+
+Importing :mod:`scipy.signal` costs more than a second (it pulls in
+:mod:`scipy.stats`), longer than a whole ``stiction analyze`` of a short loop
+otherwise needs.  The functions here compute the same numbers with numpy, a numba
+kernel and the light scipy modules the analysis loads anyway (:mod:`scipy.linalg`,
+:mod:`scipy.ndimage`); ``tests/test_filters.py`` checks each against the scipy
+function it replaces.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._jit import jit
+
+
+@jit
+def _lfilter1(b0, b1, a1, x, z0):
+    # Direct form II transposed, the operations of scipy's lfilter in their order:
+    # y = z + b0 x, then z = b1 x - a1 y.
+    y = np.empty(x.shape[0])
+    z = z0
+    for k in range(x.shape[0]):
+        yk = z + b0 * x[k]
+        y[k] = yk
+        z = x[k] * b1 - yk * a1
+    return y
+
+
+def lfilter1(b: tuple[float, ...], a1: float, x: np.ndarray, zi: float = 0.0) -> np.ndarray:
+    """``scipy.signal.lfilter(b, [1, a1], x, zi=[zi])[0]`` for a first-order filter.
+
+    ``b`` holds one or two numerator coefficients; the denominator is monic.  The
+    kernel performs scipy's operations in scipy's order, so the output is the same
+    to the last bit (the final filter state is not returned).
+    """
+    b0 = float(b[0])
+    b1 = float(b[1]) if len(b) > 1 else 0.0
+    x = np.ascontiguousarray(x, dtype=float)
+    return _lfilter1(b0, b1, float(a1), x, float(zi))
+
+
+def detrend_linear(x: np.ndarray) -> np.ndarray:
+    """``scipy.signal.detrend(x)`` (type ``'linear'``, no breakpoints) of a 1-D signal.
+
+    The same least-squares problem as scipy's (regressors ``k / n`` and 1, solved by
+    LAPACK ``gelsd``), so the result agrees to rounding.
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.size
+    a = np.ones((n, 2))
+    a[:, 0] = np.arange(1, n + 1, dtype=float) / n
+    coef = np.linalg.lstsq(a, x, rcond=None)[0]
+    return x - a @ coef
+
+
+def _fast_length(m: int) -> int:
+    """Smallest ``2^i 3^j 5^k >= m`` (a size the FFT handles quickly)."""
+    best = 1 << max(0, (m - 1).bit_length())
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            p = p35
+            while p < m:
+                p *= 2
+            best = min(best, p)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def correlate_lags(v: np.ndarray, w: np.ndarray, max_lag: int) -> np.ndarray:
+    """``c[d] = sum_k v[k] w[k - d]`` for ``d = 0 .. max_lag`` (real 1-D inputs).
+
+    Equals ``scipy.signal.correlate(v, w, mode="full")[w.size - 1 + d]``; computed,
+    like scipy's choice for long signals, by FFT, so both carry rounding errors of
+    order ``eps * |v| |w|`` (not relative to each lag's own value).
+    """
+    v = np.asarray(v, dtype=float)
+    w = np.asarray(w, dtype=float)
+    length = _fast_length(v.size + w.size - 1)
+    c = np.fft.irfft(np.fft.rfft(v, length) * np.conj(np.fft.rfft(w, length)), length)
+    return c[: max_lag + 1]
+
+
+def _polyfit_edge(t: np.ndarray, x: np.ndarray, order: int) -> np.ndarray:
+    """Polynomial coefficients (highest power first) as scipy 1.17's
+    ``scipy.signal._polyutils.polyfit``: column-scaled Vandermonde, ``scipy.linalg.lstsq``."""
+    from scipy.linalg import lstsq
+
+    powers = np.arange(order + 1, dtype=float)[::-1]
+    lhs = t[:, None] ** powers[None, :]
+    scale = np.sqrt(np.sum(lhs * lhs, axis=0))
+    lhs /= scale
+    c = lstsq(lhs, x, cond=t.shape[0] * np.finfo(float).eps)[0]
+    return (c.T / scale).T
+
+
+def savgol_smooth(x: np.ndarray, window_length: int, polyorder: int) -> np.ndarray:
+    """``scipy.signal.savgol_filter(x, window_length, polyorder)`` of a 1-D signal
+    (smoothing, ``mode="interp"``).
+
+    The steps of scipy 1.17's implementation with the same building blocks: the
+    least-squares convolution coefficients (``scipy.linalg.lstsq``), the convolution
+    (``scipy.ndimage.convolve1d``) and a polynomial fitted to the first and the last
+    window for the ``window_length // 2`` samples at either end.
+    """
+    from scipy.linalg import lstsq
+    from scipy.ndimage import convolve1d
+
+    x = np.asarray(x, dtype=float)
+    n = x.size
+    if polyorder >= window_length:
+        raise ValueError("polyorder must be less than window_length.")
+    if window_length > n:
+        raise ValueError("window_length must be less than or equal to the size of x.")
+    halflen, rem = divmod(window_length, 2)
+    pos = halflen if rem else halflen - 0.5
+    # savgol_coeffs: the rows of the (reversed) Vandermonde matrix, y = e_0.
+    t = np.arange(-pos, window_length - pos, dtype=float)[::-1]
+    a = t ** np.arange(polyorder + 1, dtype=float).reshape(-1, 1)
+    e0 = np.zeros(polyorder + 1)
+    e0[0] = 1.0
+    coeffs = lstsq(a, e0, cond=np.finfo(float).eps * max(a.shape))[0]
+    y = convolve1d(x, coeffs, mode="constant")
+    # _fit_edges_polyfit
+    t_edge = np.arange(0, window_length, dtype=float)
+    for w0, i0, i1 in ((0, 0, halflen), (n - window_length, n - halflen, n)):
+        c = _polyfit_edge(t_edge, x[w0 : w0 + window_length].reshape(window_length, -1), polyorder)
+        i = np.arange(i0 - w0, i1 - w0, dtype=float).reshape(-1, 1)
+        values = np.zeros_like(i)
+        for j in range(c.shape[0]):
+            values = values * i + c[j, ...]
+        y[i0:i1] = (values / 1.0).reshape(i1 - i0)
+    return y

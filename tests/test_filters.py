@@ -1,0 +1,168 @@
+"""The scipy-free replacements on the analysis path agree with the scipy functions.
+
+``stictiondiag._filters``, ``_stats`` and ``_optimize`` stand in for
+:mod:`scipy.signal`, :mod:`scipy.stats` and :mod:`scipy.optimize`, whose imports
+cost more than the rest of a ``stiction analyze`` run.  Each replacement performs
+scipy's own operations (or calls the same LAPACK/ndimage routines), so on this
+platform the results are identical to the last bit; the tests allow 1e-12 relative
+(to the scale of the output) so that only a real change of the computation fails,
+not a compiler or BLAS build that rounds one operation differently.
+:func:`correlate_lags` is the exception: it and scipy both correlate by FFT, whose
+rounding errors scale with ``|v| |w|``, not with each lag's own value.
+
+Also checked: the command-line entry point and the analysis modules do not import
+the heavy packages at import time.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy import optimize, signal, special, stats
+
+import stictiondiag
+from stictiondiag._filters import (
+    correlate_lags,
+    detrend_linear,
+    lfilter1,
+    savgol_smooth,
+)
+from stictiondiag._optimize import minimize_scalar_bounded
+from stictiondiag._stats import mannwhitneyu
+
+RTOL = 1e-12
+
+
+def _close(actual, expected, rtol=RTOL):
+    """Equal to ``rtol`` relative to the largest magnitude of ``expected``."""
+    expected = np.asarray(expected, dtype=float)
+    scale = max(float(np.max(np.abs(expected))), 1e-300) if expected.size else 1.0
+    np.testing.assert_allclose(actual, expected, rtol=0.0, atol=rtol * scale)
+
+
+@pytest.mark.parametrize("n", [1, 2, 17, 1000, 10_001])
+def test_lfilter1_matches_scipy_lfilter(n):
+    rng = np.random.default_rng(n)
+    x = rng.standard_normal(n).cumsum()
+    for a in (0.0, 0.3, 0.95, 0.9999):
+        # first-order lag started in steady state (identify, effects)
+        _close(
+            lfilter1((1.0 - a,), -a, x, zi=a * x[0]),
+            signal.lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]])[0],
+        )
+        # gain and lag from rest (replay)
+        _close(lfilter1((2.5 * (1.0 - a),), -a, x), signal.lfilter([2.5 * (1.0 - a)], [1.0, -a], x))
+        # first-order high-pass (identify._highpass)
+        _close(lfilter1((a, -a), -a, x), signal.lfilter([a, -a], [1.0, -a], x))
+
+
+@pytest.mark.parametrize("n", [2, 3, 50, 8_640])
+def test_detrend_linear_matches_scipy_detrend(n):
+    rng = np.random.default_rng(n)
+    x = 3.0 + 0.01 * np.arange(n) + rng.standard_normal(n)
+    _close(detrend_linear(x), signal.detrend(x))
+
+
+@pytest.mark.parametrize("n", [1, 5, 64, 1000, 10_000])
+def test_correlate_lags_matches_scipy_correlate(n):
+    rng = np.random.default_rng(n)
+    v, w = rng.standard_normal(n).cumsum(), rng.standard_normal(n)
+    d_max = n // 4
+    expected = signal.correlate(v, w, mode="full", method="auto")[(n - 1) + np.arange(d_max + 1)]
+    got = correlate_lags(v, w, d_max)
+    np.testing.assert_allclose(
+        got, expected, rtol=0.0, atol=RTOL * np.linalg.norm(v) * np.linalg.norm(w)
+    )
+
+
+@pytest.mark.parametrize("window,order", [(5, 3), (11, 3), (101, 3), (8, 2), (31, 0), (9, 5)])
+def test_savgol_smooth_matches_scipy_savgol_filter(window, order):
+    rng = np.random.default_rng(window)
+    x = np.sin(np.arange(3000) / 40.0) + 0.1 * rng.standard_normal(3000)
+    _close(savgol_smooth(x, window, order), signal.savgol_filter(x, window, order))
+    short = x[:window]  # window as long as the record: only the edge fits
+    _close(savgol_smooth(short, window, order), signal.savgol_filter(short, window, order))
+
+
+def test_mannwhitneyu_matches_scipy():
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        n1, n2 = rng.integers(1, 30, 2)
+        x = rng.standard_normal(n1)
+        y = rng.standard_normal(n2) + rng.uniform(-1.0, 1.0)
+        for kind in ("continuous", "rounded", "integers"):  # exact test; ties; many ties
+            if kind == "rounded":
+                x, y = np.round(x, 1), np.round(y, 1)
+            elif kind == "integers":
+                x = rng.integers(0, 4, n1).astype(float)
+                y = rng.integers(0, 4, n2).astype(float)
+            expected = stats.mannwhitneyu(x, y, alternative="two-sided")
+            got = mannwhitneyu(x, y, alternative="two-sided")
+            _close(got.statistic, expected.statistic)
+            _close(got.pvalue, expected.pvalue)
+
+
+def test_minimize_scalar_bounded_matches_scipy():
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        c, s = rng.uniform(-3.0, 3.0), rng.uniform(0.1, 3.0)
+
+        def f(g, c=c, s=s):
+            return float(np.cos(g * s) + 0.1 * (g - c) ** 2 + 0.01 * np.sin(13.0 * g))
+
+        lo = rng.uniform(-5.0, 0.0)
+        hi = lo + rng.uniform(0.01, 6.0)
+        res = optimize.minimize_scalar(
+            f, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4}
+        )
+        x, fx = minimize_scalar_bounded(f, (lo, hi), xatol=1e-4)
+        _close(x, res.x)
+        _close(fx, res.fun)
+
+
+@pytest.mark.parametrize("nu", [1.0, 3.5, 40.0, 1e4])
+def test_fdtri_is_the_f_quantile(nu):
+    # estimate.cost_threshold: scipy.stats.f.ppf(q, 1, nu) is scipy.special.fdtri(1, nu, q)
+    _close(special.fdtri(1, nu, 0.95), stats.f.ppf(0.95, 1, nu))
+
+
+@pytest.mark.parametrize("alpha", [0.05, 1e-3, 0.05 / 2016, 1e-9])
+def test_chdtri_is_the_chi2_upper_quantile(alpha):
+    # baselines.bicoherence_indices: scipy.stats.chi2.isf(alpha, 2) is scipy.special.chdtri(2, alpha)
+    _close(special.chdtri(2, alpha), stats.chi2.isf(alpha, 2))
+
+
+def test_lazy_package_namespace():
+    assert set(stictiondiag.__all__) <= set(dir(stictiondiag))
+    for name in stictiondiag.__all__:
+        assert getattr(stictiondiag, name) is not None
+    with pytest.raises(AttributeError):
+        stictiondiag.no_such_name  # noqa: B018
+
+
+def _imported(code: str) -> set[str]:
+    """Top-level packages (and scipy sub-packages) a fresh interpreter has imported."""
+    probe = (
+        code + "\nimport sys\n"
+        "print(' '.join(m for m in sys.modules if m.count('.') == 0 or m.startswith('scipy.')"
+        " and m.count('.') == 1))"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    return set(out.stdout.split())
+
+
+def test_cli_and_package_import_nothing_heavy():
+    heavy = {"numpy", "scipy", "pandas", "numba", "matplotlib", "pyarrow"}
+    assert not _imported("import cli.main") & heavy
+    assert not _imported("import stictiondiag") & heavy
+
+
+def test_analysis_path_imports_neither_scipy_signal_nor_stats():
+    mods = (
+        "analysis tags oscillation segments estimate identify replay loops hammerstein effects gap"
+    )
+    loaded = _imported("\n".join(f"import stictiondiag.{m}" for m in mods.split()))
+    assert not loaded & {"scipy.signal", "scipy.stats", "scipy.optimize"}
