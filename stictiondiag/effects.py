@@ -305,11 +305,53 @@ def _valve_series(op, s_up, s_dn, j_up, j_dn, kano, y0, d0, lag):  # pragma: no 
     return out, phase
 
 
+#: Samples between the checks of an affine row's partial error (a power of two).
+_CHECK_EVERY = 128
+
+
+@jit
+def _affine_prefix(mv, w):  # pragma: no cover - compiled
+    """Running sums ``(sum w, sum w mv, sum w mv^2)`` of the closed-form map, at the end
+    of every block of ``_CHECK_EVERY`` samples and (last row) over the whole record.
+
+    Summed in the order of the row loop of :func:`_valve_sse_row`, so the totals are
+    the very numbers a row would accumulate itself: they depend on mv and the
+    weights only, and are summed once per batch instead of once per row.
+    """
+    n = mv.shape[0]
+    nck = n // _CHECK_EVERY
+    pre = np.empty((nck + 1, 3))
+    sw = 0.0
+    sm = 0.0
+    smm = 0.0
+    for k in range(n):
+        wk = w[k]
+        if wk != 0.0:
+            sw += wk
+            sm += wk * mv[k]
+            smm += wk * mv[k] * mv[k]
+        if (k & (_CHECK_EVERY - 1)) == _CHECK_EVERY - 1:
+            c = k // _CHECK_EVERY
+            pre[c, 0] = sw
+            pre[c, 1] = sm
+            pre[c, 2] = smm
+    pre[nck, 0] = sw
+    pre[nck, 1] = sm
+    pre[nck, 2] = smm
+    return pre
+
+
 @_inline
 def _valve_sse_row(
-    xs, vs, mv, w, P, r, h, kano, y0, d0, affine, curvature, family, limit, tv
+    xs, vs, mv, w, P, r, h, kano, y0, d0, affine, curvature, family, limit, tv, pre, check
 ):  # pragma: no cover - compiled
-    """Error of row ``r`` of :func:`_valve_sse_batch` (``xs``, ``vs``: :func:`_clipped_moves`)."""
+    """Error of row ``r`` of :func:`_valve_sse_batch` (``xs``, ``vs``: :func:`_clipped_moves`).
+
+    With ``affine`` the sums over mv come from ``pre`` (:func:`_affine_prefix`); with
+    ``check`` the partial error, minimised over slope and offset, is compared with
+    ``limit`` every ``_CHECK_EVERY`` samples and returned once above it (the least
+    squares error of a map can only grow as samples are added).
+    """
     n = xs.shape[0]
     x0 = xs[0]
     su0, su1, sd0, sd1 = P[r, 0], P[r, 1], P[r, 2], P[r, 3]
@@ -326,11 +368,8 @@ def _valve_sse_row(
         jd0 + (jd1 - jd0) * h0,
     )
     yl = y0
-    sw = 0.0
     sz = 0.0
     szz = 0.0
-    sm = 0.0
-    smm = 0.0
     szm = 0.0
     sse = 0.0
     su, sd, ju, jd = su0, sd0, ju0, jd0
@@ -357,22 +396,36 @@ def _valve_sse_row(
             else:
                 yl = yc
         wk = w[k]
-        if wk == 0.0:
-            continue
-        z = yl if family == 0 else _characteristic(yl, curvature, family)
         if affine:
-            sw += wk
-            sz += wk * z
-            szz += wk * z * z
-            sm += wk * mv[k]
-            smm += wk * mv[k] * mv[k]
-            szm += wk * z * mv[k]
+            if wk != 0.0:
+                z = yl if family == 0 else _characteristic(yl, curvature, family)
+                sz += wk * z
+                szz += wk * z * z
+                szm += wk * z * mv[k]
+            if check and (k & (_CHECK_EVERY - 1)) == _CHECK_EVERY - 1:
+                c = k // _CHECK_EVERY
+                pw = pre[c, 0]
+                if pw > 0.0:
+                    vz = szz - sz * sz / pw
+                    # Only where the slope is well determined: a lower bound then.
+                    if vz > 1e-4 * szz:
+                        pm = pre[c, 1]
+                        vm = pre[c, 2] - pm * pm / pw
+                        cz = szm - sz * pm / pw
+                        part = vm - cz * cz / vz
+                        if part > limit:
+                            return part
         else:
+            if wk == 0.0:
+                continue
+            z = yl if family == 0 else _characteristic(yl, curvature, family)
             e = z - mv[k]
             sse += wk * e * e
             if sse > limit:
                 break
     if affine:
+        nck = pre.shape[0] - 1
+        sw, sm, smm = pre[nck, 0], pre[nck, 1], pre[nck, 2]
         if sw <= 0.0:
             return 0.0
         vz = szz - sz * sz / sw
@@ -384,7 +437,7 @@ def _valve_sse_row(
 
 @jit
 def _valve_sse_batch(
-    op, mv, w, P, h, kano, y0, d0, affine, curvature, family, bound
+    op, mv, w, P, h, kano, y0, d0, affine, curvature, family, bound, keep, order
 ):  # pragma: no cover
     """Weighted sum of squared mv errors for many parameter rows at once.
 
@@ -396,6 +449,14 @@ def _valve_sse_batch(
     slope and offset.  Without ``affine`` a row is abandoned (its partial error,
     already above, is returned) as soon as its error exceeds ``bound`` or the best
     complete row so far: most rows of a search grid are far from the minimum.
+
+    With ``affine`` and ``keep > 0`` only the ``keep`` lowest errors are needed
+    exactly: a row is abandoned once its partial error exceeds the ``keep``-th lowest
+    complete error so far by more than a rounding margin, and that partial error
+    (above every error kept) is returned.  The complete rows' errors are the same
+    numbers as without abandoning.  ``order`` is the order the rows are evaluated in
+    (the rows near the expected minimum first give a low limit early); only with
+    ``keep``, as it changes the limit of the rows without it.
     """
     # The stuck-phase logic, the closed-form map and the time profile are passed as
     # constants at separate call sites, so that each inlined copy of the row loop is
@@ -405,35 +466,150 @@ def _valve_sse_batch(
     limit = bound
     tv = h.shape[0] > 1
     xs, vs = _clipped_moves(op)
-    for r in range(m):
-        if kano:
-            if affine:
+    pre = _affine_prefix(mv, w) if affine else np.zeros((1, 3))
+    nck = pre.shape[0] - 1
+    # Rounding margin: far above the error of the running sums (n eps times their
+    # size; z and mv lie within 0-100 %), far below a slip's share of the error.
+    margin = 1e-9 * (pre[nck, 2] + 1e4 * pre[nck, 0])
+    kk = max(keep, 1)
+    kept = np.full(kk, np.inf)
+    check = affine and keep > 0
+    for t in range(m):
+        r = order[t] if check else t
+        if affine:
+            lim = kept[kk - 1] + margin if check else limit
+            if kano:
                 c = _valve_sse_row(
-                    xs, vs, mv, w, P, r, h, True, y0, d0, True, curvature, family, limit, tv
-                )
-            elif tv:
-                c = _valve_sse_row(
-                    xs, vs, mv, w, P, r, h, True, y0, d0, False, curvature, family, limit, True
+                    xs,
+                    vs,
+                    mv,
+                    w,
+                    P,
+                    r,
+                    h,
+                    True,
+                    y0,
+                    d0,
+                    True,
+                    curvature,
+                    family,
+                    lim,
+                    tv,
+                    pre,
+                    check,
                 )
             else:
                 c = _valve_sse_row(
-                    xs, vs, mv, w, P, r, h, True, y0, d0, False, curvature, family, limit, False
+                    xs,
+                    vs,
+                    mv,
+                    w,
+                    P,
+                    r,
+                    h,
+                    False,
+                    y0,
+                    d0,
+                    True,
+                    curvature,
+                    family,
+                    lim,
+                    tv,
+                    pre,
+                    check,
                 )
+        elif kano:
+            if tv:
+                c = _valve_sse_row(
+                    xs,
+                    vs,
+                    mv,
+                    w,
+                    P,
+                    r,
+                    h,
+                    True,
+                    y0,
+                    d0,
+                    False,
+                    curvature,
+                    family,
+                    limit,
+                    True,
+                    pre,
+                    False,
+                )
+            else:
+                c = _valve_sse_row(
+                    xs,
+                    vs,
+                    mv,
+                    w,
+                    P,
+                    r,
+                    h,
+                    True,
+                    y0,
+                    d0,
+                    False,
+                    curvature,
+                    family,
+                    limit,
+                    False,
+                    pre,
+                    False,
+                )
+        elif tv:
+            c = _valve_sse_row(
+                xs,
+                vs,
+                mv,
+                w,
+                P,
+                r,
+                h,
+                False,
+                y0,
+                d0,
+                False,
+                curvature,
+                family,
+                limit,
+                True,
+                pre,
+                False,
+            )
         else:
-            if affine:
-                c = _valve_sse_row(
-                    xs, vs, mv, w, P, r, h, False, y0, d0, True, curvature, family, limit, tv
-                )
-            elif tv:
-                c = _valve_sse_row(
-                    xs, vs, mv, w, P, r, h, False, y0, d0, False, curvature, family, limit, True
-                )
-            else:
-                c = _valve_sse_row(
-                    xs, vs, mv, w, P, r, h, False, y0, d0, False, curvature, family, limit, False
-                )
+            c = _valve_sse_row(
+                xs,
+                vs,
+                mv,
+                w,
+                P,
+                r,
+                h,
+                False,
+                y0,
+                d0,
+                False,
+                curvature,
+                family,
+                limit,
+                False,
+                pre,
+                False,
+            )
         costs[r] = c
-        if not affine and c < limit:
+        if affine:
+            # Insert a complete error among the lowest ``keep`` (an abandoned row's
+            # partial error lies above them all).
+            if c < kept[kk - 1]:
+                i = kk - 1
+                while i > 0 and kept[i - 1] > c:
+                    kept[i] = kept[i - 1]
+                    i -= 1
+                kept[i] = c
+        elif c < limit:
             limit = c
     return costs
 
@@ -866,6 +1042,10 @@ class ReplayContext:
     mv_model: np.ndarray | None = None
     slips: dict | None = None
     norm: dict = field(default_factory=dict)
+    #: Terms of the process fits that several fits share (:func:`fit_process`), by the
+    #: identity of their input and the filter; the inputs are held, so their identity
+    #: stays theirs.
+    cache: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float) -> dict | None:
@@ -1075,6 +1255,25 @@ class BaseFit:
 _CONSTANT = np.zeros(1)
 
 
+def _rows_order(m: int, order=None) -> np.ndarray:
+    """Evaluation order of ``m`` rows for :func:`_valve_sse_batch` (default: as given)."""
+    if order is None:
+        return np.arange(m, dtype=np.int64)
+    order = np.ascontiguousarray(order, dtype=np.int64)
+    if order.shape != (m,):
+        raise ValueError(f"order must be a permutation of the {m} rows")
+    return order
+
+
+def _centre_first(X: np.ndarray) -> np.ndarray:
+    """Rows of a search grid nearest its centre first (each column by its spread)."""
+    if X.shape[0] < 3:
+        return np.arange(X.shape[0])
+    lo, hi = X.min(axis=0), X.max(axis=0)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    return np.argsort(np.abs((X - 0.5 * (lo + hi)) / span).sum(axis=1), kind="stable")
+
+
 class _ValveProblem:
     """Recorded op and mv with the weights and the fixed valve settings of one fit.
 
@@ -1114,11 +1313,26 @@ class _ValveProblem:
             other.y0 = min(max((self.y0_data - offset) / slope, 0.0), 100.0)
         return other
 
-    def costs(self, P, h=_CONSTANT, *, affine=False, curvature=0.0, family="linear", bound=np.inf):
+    def costs(
+        self,
+        P,
+        h=_CONSTANT,
+        *,
+        affine=False,
+        curvature=0.0,
+        family="linear",
+        bound=np.inf,
+        keep=0,
+        order=None,
+    ):
         """Normalised weighted squared mv error for every row of P (see ``_P_COLUMNS``).
 
         Rows whose error exceeds ``bound`` (normalised) or the best row so far are
-        abandoned early; their returned error is then only a lower bound.
+        abandoned early; their returned error is then only a lower bound.  With
+        ``affine`` (no ``bound``) and ``keep > 0`` only the ``keep`` lowest errors are
+        exact (enough for the ``keep`` best rows); the others may be lower bounds that
+        lie above them.  ``order``: the order to evaluate the rows in with ``keep``
+        (likely best first makes the abandoning effective).
         """
         c = _valve_sse_batch(
             self.op,
@@ -1133,6 +1347,8 @@ class _ValveProblem:
             float(curvature),
             _FAMILY_CODES[family],
             float(bound) * self.var,
+            int(keep),
+            _rows_order(len(P), order if keep else None),
         )
         return c / self.var
 
@@ -1499,6 +1715,39 @@ def _prediction_errors(z, drive, pole, k1, k2, y0, horizon):  # pragma: no cover
     return err
 
 
+@jit
+def _prediction_errors_many(Z, D, y0, pole, k1, k2, horizon):  # pragma: no cover - compiled
+    """:func:`_prediction_errors` of every row of ``Z`` (driven by the row of ``D``,
+    started at ``y0``) with one filter: the same operations per row, but the rows'
+    filters run side by side, so one's latency hides behind the others'."""
+    m, n = Z.shape
+    yf = np.empty((m, n))
+    lf = np.empty((m, n))
+    err = np.empty((m, n))
+    yh = y0.copy()
+    lh = np.zeros(m)
+    for k in range(n):
+        for c in range(m):
+            e = Z[c, k] - yh[c]
+            err[c, k] = e
+            yf[c, k] = yh[c] + k1 * e
+            lf[c, k] = lh[c] + k2 * e
+            yh[c] = pole * yf[c, k] + lf[c, k] + D[c, k]
+            lh[c] = lf[c, k]
+    if horizon > 1 and n > horizon:
+        q = n - horizon
+        y = np.empty(q)
+        for c in range(m):
+            for j0 in range(q):
+                y[j0] = yf[c, j0]
+            for i in range(horizon):
+                for j0 in range(q):
+                    y[j0] = pole * y[j0] + lf[c, j0] + D[c, j0 + i]
+            for j0 in range(q):
+                err[c, j0 + horizon] = Z[c, j0 + horizon] - y[j0]
+    return err
+
+
 @dataclass(frozen=True)
 class ProcessModel:
     """Structure of the process replay.
@@ -1525,13 +1774,121 @@ class ProcessModel:
         return kalman_gains(self.pole, self.load_ratio)
 
 
-def _process_regressors(u: np.ndarray, model: ProcessModel, k1: float, k2: float) -> np.ndarray:
-    """Innovation responses to a unit gain on the input at two adjacent dead times."""
+def _input_response(u: np.ndarray, model: ProcessModel, k1: float, k2: float) -> np.ndarray:
+    """Innovation response to a unit gain on the input without dead time."""
     u0 = u - u[0]
-    base = _prediction_errors(
+    return _prediction_errors(
         np.zeros(u.size), np.ascontiguousarray(u0), model.pole, k1, k2, 0.0, model.horizon
     )
-    return np.column_stack([_delayed(base, model.delay), _delayed(base, model.delay + 1)])
+
+
+def _shifted_pair(base: np.ndarray, delay: int) -> np.ndarray:
+    """``base`` delayed by ``delay`` and ``delay + 1`` samples, as two columns."""
+    X = np.empty((base.size, 2))
+    X[:, 0] = _delayed(base, delay)
+    X[:, 1] = _delayed(base, delay + 1)
+    return X
+
+
+def _process_regressors(u: np.ndarray, model: ProcessModel, k1: float, k2: float) -> np.ndarray:
+    """Innovation responses to a unit gain on the input at two adjacent dead times."""
+    return _shifted_pair(_input_response(u, model, k1, k2), model.delay)
+
+
+#: Entries kept per kind in a context's cache of process terms.
+_CACHE_ENTRIES = 24
+
+
+def _cache_get(cache: dict | None, kind: str, key):
+    """The value remembered under ``key`` (see :func:`_cached`), or None."""
+    if cache is None:
+        return None
+    hit = cache.get(kind, {}).get(key)
+    return None if hit is None else hit[-1]
+
+
+def _cache_put(cache: dict | None, kind: str, key, value: tuple) -> None:
+    """Remember ``value`` (the arrays the key names, then the value) under ``key``."""
+    if cache is None:
+        return
+    store = cache.setdefault(kind, {})
+    if len(store) >= _CACHE_ENTRIES:
+        try:
+            del store[next(iter(store))]
+        except (KeyError, StopIteration, RuntimeError):  # pragma: no cover - a race
+            pass
+    store[key] = value
+
+
+def _cached(cache: dict | None, kind: str, key, compute):
+    """The last item of ``compute()`` (the arrays its key names, then the value),
+    remembered in ``cache[kind]`` under ``key`` (bounded, oldest out)."""
+    if cache is None:
+        return compute()[-1]
+    store = cache.setdefault(kind, {})
+    hit = store.get(key)
+    if hit is not None:
+        return hit[-1]
+    value = compute()
+    if len(store) >= _CACHE_ENTRIES:
+        try:
+            del store[next(iter(store))]
+        except (KeyError, StopIteration, RuntimeError):  # pragma: no cover - a race
+            pass
+    store[key] = value
+    return value[-1]
+
+
+def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
+    """The one-step prediction-error fit on a grid of poles, dead times and load ratios.
+
+    Returns the best ``(sse, ProcessModel)``, the best per pole and the dead-time grid
+    (see :func:`fit_process`).
+    """
+    n = u.size
+    zeros = np.zeros(n)
+    taus = np.geomspace(0.5, max(n / 8.0, 2.0), 14)
+    pole_grid = np.concatenate([np.exp(-1.0 / taus), [1.0]])
+    ratios = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1)
+    d_max = int(min(max(n // 10, 5), 200))
+    d_grid = np.unique(
+        np.concatenate(
+            [np.arange(0, min(d_max, 8)), np.geomspace(8, max(d_max, 9), 10).astype(int)]
+        )
+    )
+    best = None
+    per_pole: dict = {}
+    shifts = np.unique(np.concatenate([d_grid, d_grid + 1]))
+    where = {int(d): i for i, d in enumerate(shifts)}
+    for pole in pole_grid:
+        for lr in ratios:
+            k1, k2 = kalman_gains(pole, lr)
+            e0 = _prediction_errors(pv, zeros, pole, k1, k2, float(pv[0]), 1)
+            base_reg = _prediction_errors(
+                zeros, np.ascontiguousarray(u - u[0]), pole, k1, k2, 0.0, 1
+            )
+            # All dead times at once: Gram matrix of the shifted regressors.
+            Xs = np.stack([_delayed(base_reg, int(d)) for d in shifts])
+            Xw = Xs * w
+            G = Xw @ Xs.T
+            g = Xw @ e0
+            ee = float(np.dot(w * e0, e0))
+            for d in d_grid:
+                i, j = where[int(d)], where[int(d) + 1]
+                A = np.array([[G[i, i], G[i, j]], [G[j, i], G[j, j]]])
+                rhs = -np.array([g[i], g[j]])
+                A[0, 0] += 1e-12 * (A[0, 0] + 1e-300)
+                A[1, 1] += 1e-12 * (A[1, 1] + 1e-300)
+                try:
+                    coef = np.linalg.solve(A, rhs)
+                except np.linalg.LinAlgError:
+                    continue
+                sse = ee + float(rhs @ coef) * -1.0
+                if best is None or sse < best[0]:
+                    best = (sse, ProcessModel(float(pole), int(d), float(lr)))
+                if pole not in per_pole or sse < per_pole[pole][0]:
+                    per_pole[pole] = (sse, ProcessModel(float(pole), int(d), float(lr)))
+    return best, per_pole, d_grid
 
 
 def fit_process(
@@ -1580,68 +1937,89 @@ def fit_process(
     pv = np.ascontiguousarray(pv, dtype=float)
     zeros = np.zeros(n)
     extra_cols = None if extra is None else np.atleast_2d(extra.T).T
+    # Terms that depend on the structure only (the innovations of pv, the input's
+    # response) are shared with the other fits of this context: the searches over an
+    # effect's parameter refit the linear coefficients many times with one structure.
+    # Keys hold the arrays they name (an identity stays unique while it is held).
+    cache = ctx.cache if isinstance(getattr(ctx, "cache", None), dict) else None
+    u_key = (id(u), id(pv))
+    memo: dict = {}
 
-    def solve(m: ProcessModel, regs=None):
+    extra_rows = None if extra_cols is None else np.ascontiguousarray(extra_cols.T)
+    u0 = np.ascontiguousarray(u - u[0])
+
+    def terms(m: ProcessModel):
+        """Innovations of pv, the input's response and the extra columns' responses
+        for the filter of ``m``: whatever is not shared yet, in one compiled call."""
         k1, k2 = kalman_gains(m.pole, m.load_ratio)
-        e0 = _prediction_errors(pv, zeros, m.pole, k1, k2, float(pv[0]), m.horizon)
-        X = _process_regressors(u, m, k1, k2) if regs is None else regs
-        if extra_cols is not None:
+        fkey = (m.pole, m.load_ratio, m.horizon)
+        e_key, b_key = (id(pv), *fkey), (*u_key, *fkey)
+        e0 = _cache_get(cache, "innovations", e_key)
+        base = _cache_get(cache, "input_response", b_key)
+        rows, drives, starts = [], [], []
+        if e0 is None:
+            rows.append(pv)
+            drives.append(zeros)
+            starts.append(float(pv[0]))
+        if base is None:
+            rows.append(zeros)
+            drives.append(u0)
+            starts.append(0.0)
+        n_extra = 0 if extra_rows is None else extra_rows.shape[0]
+        E = None
+        if rows or n_extra:
+            Z = np.empty((len(rows) + n_extra, n))
+            D = np.zeros((len(rows) + n_extra, n))
+            for i, (z_, d_) in enumerate(zip(rows, drives, strict=True)):
+                Z[i] = z_
+                D[i] = d_
+            if n_extra:
+                Z[len(rows) :] = extra_rows
+            y0 = np.zeros(Z.shape[0])
+            y0[: len(starts)] = starts
+            R = _prediction_errors_many(Z, D, y0, m.pole, k1, k2, m.horizon)
+            i = 0
+            if e0 is None:
+                e0 = R[i].copy()
+                _cache_put(cache, "innovations", e_key, (pv, e0))
+                i += 1
+            if base is None:
+                base = R[i].copy()
+                _cache_put(cache, "input_response", b_key, (u, pv, base))
+                i += 1
+            E = R[i:]
+        X = np.empty((n, 2 + n_extra))
+        X[:, 0] = _delayed(base, m.delay)
+        X[:, 1] = _delayed(base, m.delay + 1)
+        if n_extra:
             # pv = y + d + e: the disturbance enters like a measurement offset.
-            E = np.column_stack(
-                [
-                    -_prediction_errors(
-                        np.ascontiguousarray(c), zeros, m.pole, k1, k2, 0.0, m.horizon
-                    )
-                    for c in extra_cols.T
-                ]
-            )
-            X = np.column_stack([X, E])
+            X[:, 2:] = -E.T
+        return e0, X
+
+    def solve(m: ProcessModel):
+        # The searches come back to points already solved (a golden section's last
+        # point, the chosen structure): the same model, the same numbers.
+        hit = memo.get(m)
+        if hit is None:
+            hit = memo[m] = _solve(m)
+        return hit
+
+    def _solve(m: ProcessModel):
+        e0, X = terms(m)
         coef = _wls(X, -e0, w)
         r = e0 + X @ coef
         return float(np.dot(w, r * r)), coef, r
 
     if model is None:
-        taus = np.geomspace(0.5, max(n / 8.0, 2.0), 14)
-        pole_grid = np.concatenate([np.exp(-1.0 / taus), [1.0]])
-        ratios = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1)
-        d_max = int(min(max(n // 10, 5), 200))
-        d_grid = np.unique(
-            np.concatenate(
-                [np.arange(0, min(d_max, 8)), np.geomspace(8, max(d_max, 9), 10).astype(int)]
-            )
+        # The grid of structures fits the input alone: shared by every fit of this
+        # context with the same input and weights (the extra columns come after).
+        best, per_pole, d_grid = _cached(
+            cache,
+            "structure_grid",
+            (*u_key, id(w)),
+            lambda: (u, pv, w, _structure_grid(u, pv, w)),
         )
-        best = None
-        per_pole: dict = {}
-        shifts = np.unique(np.concatenate([d_grid, d_grid + 1]))
-        where = {int(d): i for i, d in enumerate(shifts)}
-        for pole in pole_grid:
-            for lr in ratios:
-                k1, k2 = kalman_gains(pole, lr)
-                e0 = _prediction_errors(pv, zeros, pole, k1, k2, float(pv[0]), 1)
-                base_reg = _prediction_errors(
-                    zeros, np.ascontiguousarray(u - u[0]), pole, k1, k2, 0.0, 1
-                )
-                # All dead times at once: Gram matrix of the shifted regressors.
-                Xs = np.stack([_delayed(base_reg, int(d)) for d in shifts])
-                Xw = Xs * w
-                G = Xw @ Xs.T
-                g = Xw @ e0
-                ee = float(np.dot(w * e0, e0))
-                for d in d_grid:
-                    i, j = where[int(d)], where[int(d) + 1]
-                    A = np.array([[G[i, i], G[i, j]], [G[j, i], G[j, j]]])
-                    rhs = -np.array([g[i], g[j]])
-                    A[0, 0] += 1e-12 * (A[0, 0] + 1e-300)
-                    A[1, 1] += 1e-12 * (A[1, 1] + 1e-300)
-                    try:
-                        coef = np.linalg.solve(A, rhs)
-                    except np.linalg.LinAlgError:
-                        continue
-                    sse = ee + float(rhs @ coef) * -1.0
-                    if best is None or sse < best[0]:
-                        best = (sse, ProcessModel(float(pole), int(d), float(lr)))
-                    if pole not in per_pole or sse < per_pole[pole][0]:
-                        per_pole[pole] = (sse, ProcessModel(float(pole), int(d), float(lr)))
+        per_pole = dict(per_pole)
         m = best[1]
         # Refine the dead time to the sample, then the pole and the load ratio.
         i = int(np.searchsorted(d_grid, m.delay))
@@ -2016,7 +2394,10 @@ def fit_miscalibration(
         seeds = [(S0 / slopes[i], J0 / slopes[i]) for i in np.argsort(c)[:2]]
         # The demand travel of the slips is on the op axis already.
         seeds += _travel_seeds(ctx.slips)
-        wide = _sj_wide(lambda X, bound: prob.costs(_rows(X[:, 0], X[:, 1]), affine=True), seeds)
+        # Only the best point of the wide grid is used: the others need not be exact.
+        wide = _sj_wide(
+            lambda X, bound: prob.costs(_rows(X[:, 0], X[:, 1]), affine=True, keep=1), seeds
+        )
         x, _ = _needle_sj_affine(prob, [*seeds, tuple(wide)], travel * 3)
     v, _ = prob.series(_rows(x[0], x[1])[0])
     slope, offset = _affine(v, ctx.sig.mv, w)
@@ -2047,7 +2428,9 @@ def _needle_sj_affine(prob: _ValveProblem, seeds, travel: float, *, rel=0.15, zo
     lower, upper = _sj_bounds(travel)
 
     def cost(X, bound):
-        return prob.costs(_rows(X[:, 0], X[:, 1]), affine=True)
+        # needle_search uses the order of the ``beam`` (3) best rows of a grid only;
+        # its grids are centred on the best point so far.
+        return prob.costs(_rows(X[:, 0], X[:, 1]), affine=True, keep=3, order=_centre_first(X))
 
     best = None
     for s in seeds:
