@@ -378,14 +378,19 @@ def _valve_sse_row(
         sd = max(sd0 + (sd1 - sd0) * h0, 0.0)
         ju = max(ju0 + (ju1 - ju0) * h0, 0.0)
         jd = max(jd0 + (jd1 - jd0) * h0, 0.0)
+    hprev = np.nan
     for k in range(n):
         if k > 0:
             if tv:
                 hk = h[k]
-                su = max(su0 + (su1 - su0) * hk, 0.0)
-                sd = max(sd0 + (sd1 - sd0) * hk, 0.0)
-                ju = max(ju0 + (ju1 - ju0) * hk, 0.0)
-                jd = max(jd0 + (jd1 - jd0) * hk, 0.0)
+                # The profile is flat before and after the change: the thresholds
+                # are recomputed only where it moves.
+                if hk != hprev:
+                    su = max(su0 + (su1 - su0) * hk, 0.0)
+                    sd = max(sd0 + (sd1 - sd0) * hk, 0.0)
+                    ju = max(ju0 + (ju1 - ju0) * hk, 0.0)
+                    jd = max(jd0 + (jd1 - jd0) * hk, 0.0)
+                    hprev = hk
             y, xss, dr, stuck, _ = _valve_step(
                 xs[k], vs[k], xs[k - 1], y, xss, dr, vold, stuck, su, sd, ju, jd, kano
             )
