@@ -14,9 +14,10 @@ proportional control (Loop 3, Fig. 5).
 
 from __future__ import annotations
 
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
+
+from ._fast import new_figure, pin_decorations
 
 #: Cycles shown in the trend window when the loop oscillates.
 WINDOW_CYCLES = 8
@@ -105,13 +106,7 @@ def plot_phase(
     # a set point that is constant over the window (or steps once) adds nothing.
     has_sp = tags.sp is not None and float(np.std(tags.sp[win])) > 0
     rows = 1 + int(has_mv or has_model) + int(has_sp)
-    fig, axes = plt.subplots(
-        rows,
-        2,
-        figsize=(11.5, 3.1 * rows),
-        gridspec_kw={"width_ratios": [2.3, 1]},
-        squeeze=False,
-    )
+    fig, axes = new_figure(rows, 2, (11.5, 3.1 * rows), width_ratios=(2.3, 1))
     t = np.asarray(tags.time)[win]
     pv, op = _scaled(tags.pv), _scaled(tags.op)
     cycles = f", last {WINDOW_CYCLES} cycles" if period_s else ""
@@ -174,6 +169,7 @@ def plot_phase(
     axes[-1][0].set_xlabel("time [s]")
     fig.suptitle(title or str(getattr(tags, "source", "")), fontsize=10)
     _fixed_layout(fig, rows)
+    pin_decorations(fig)
     return fig
 
 

@@ -8,9 +8,17 @@ mv-op plot that Section 5.3.1 of Choudhury et al. (2005) recommends for valve fa
 
 from __future__ import annotations
 
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
+
+from ._fast import (
+    decimate,
+    new_figure,
+    pin_decorations,
+    place_axes,
+    text_width,
+    ytick_room,
+)
 
 _BEFORE = "tab:orange"
 _AFTER = "tab:green"
@@ -43,7 +51,7 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     Figure
     """
     b = diagnosis.breakdown
-    fig, axes = plt.subplots(2, 3, figsize=(14, 7.5))
+    fig, axes = new_figure(2, 3, (14, 7.5))
     ax = axes[0, 0]
     sig = b.get("signal", {})
     names = list(sig)
@@ -167,12 +175,29 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
             lines.append(f"{label} (data/before/after): {txt}")
     if diagnosis.not_assessed:
         lines.append("not assessed: " + ", ".join(diagnosis.not_assessed))
-    ax.text(
-        0.0, 1.0, "\n".join(lines), va="top", family="monospace", fontsize=8, transform=ax.transAxes
-    )
+    summary = "\n".join(lines)
+    ax.text(0.0, 1.0, summary, va="top", family="monospace", fontsize=8, transform=ax.transAxes)
     fig.suptitle(title or "Sim-to-real gap: where the replay departs from the data")
-    fig.tight_layout()
+    _breakdown_layout(fig, axes, text_width(summary, 8, "monospace"))
     return fig
+
+
+def _breakdown_layout(fig: Figure, axes, summary_width: float) -> None:
+    """Margins as ``tight_layout`` would set them, from estimates of the labels'
+    widths; the right margin grows when the summary text is wider than its column."""
+    pad = 0.1  # [in]
+
+    def room(ax):
+        return ytick_room(ax) if ax.axison else 0.0
+
+    left = max(0.6, max(room(ax) for ax in axes[:, 0]) + pad)
+    wspace = max(0.6, max(room(ax) for ax in axes[:, 1:].flat) + 2 * pad)
+    width = fig.get_figwidth()
+    # Summary text at the left edge of the last column (three equal columns).
+    cell = (width - left - 2 * wspace - pad - summary_width) / 2
+    right = max(0.25, width - left - 2 * wspace - 3 * cell)
+    place_axes(fig, left=left, right=right, top=0.66, bottom=0.6, wspace=wspace, hspace=0.72)
+    pin_decorations(fig)
 
 
 def plot_gap_replay(diagnosis, *, window: int | None = None, title: str | None = None) -> Figure:
@@ -198,21 +223,19 @@ def plot_gap_replay(diagnosis, *, window: int | None = None, title: str | None =
     m = min(max(n // 4, 200), 2000) if window is None else int(window)
     sl = slice(max(n - m, 0), n)
     rows = [name for name in ("mv", "pv", "op") if s.get(name) is not None]
-    fig, axes = plt.subplots(
-        len(rows),
-        2,
-        figsize=(13, 2.7 * len(rows)),
-        squeeze=False,
-        gridspec_kw={"width_ratios": [2.4, 1]},
-    )
+    fig, axes = new_figure(len(rows), 2, (13, 2.7 * len(rows)), width_ratios=(2.4, 1))
     for i, name in enumerate(rows):
         ax = axes[i, 0]
-        ax.plot(t[sl], s[name][sl], color=_DATA, lw=0.8, label="data")
-        ax.plot(t[sl], s[f"{name}_before"][sl], color=_BEFORE, lw=0.8, label="replay before")
+        ax.plot(*decimate(t[sl], s[name][sl]), color=_DATA, lw=0.8, label="data")
+        ax.plot(
+            *decimate(t[sl], s[f"{name}_before"][sl]),
+            color=_BEFORE,
+            lw=0.8,
+            label="replay before",
+        )
         if diagnosis.effect != "none":
             ax.plot(
-                t[sl],
-                s[f"{name}_after"][sl],
+                *decimate(t[sl], s[f"{name}_after"][sl]),
                 color=_AFTER,
                 lw=0.8,
                 label=f"with {diagnosis.effect}",
@@ -231,9 +254,9 @@ def plot_gap_replay(diagnosis, *, window: int | None = None, title: str | None =
         else:
             r0 = s[name][sl] - s[f"{name}_before"][sl]
             r1 = s[name][sl] - s[f"{name}_after"][sl]
-            ax2.plot(t[sl], r0, color=_BEFORE, lw=0.6, label="before")
+            ax2.plot(*decimate(t[sl], r0), color=_BEFORE, lw=0.6, label="before")
             if diagnosis.effect != "none":
-                ax2.plot(t[sl], r1, color=_AFTER, lw=0.6, label="after")
+                ax2.plot(*decimate(t[sl], r1), color=_AFTER, lw=0.6, label="after")
             ax2.set_title(f"{name} replay error", fontsize=9)
         ax2.legend(fontsize=7)
     axes[-1, 0].set_xlabel("time [s]")
@@ -242,5 +265,17 @@ def plot_gap_replay(diagnosis, *, window: int | None = None, title: str | None =
         or f"Replay against data: before and after {diagnosis.effect} "
         f"(gap {diagnosis.before:.1f} % -> {diagnosis.after:.1f} %)"
     )
-    fig.tight_layout()
+    # Margins as tight_layout would set them; a gap for the x label of the mv-op plot.
+    pad = 0.1  # [in]
+    xlabels = any(ax.get_xlabel() for ax in axes[:-1].flat)
+    place_axes(
+        fig,
+        left=max(0.6, max(ytick_room(ax) for ax in axes[:, 0]) + pad),
+        right=0.25,
+        top=0.66,
+        bottom=0.59,
+        wspace=max(0.55, max(ytick_room(ax) for ax in axes[:, 1]) + 2 * pad),
+        hspace=0.78 if xlabels else 0.58,
+    )
+    pin_decorations(fig)
     return fig

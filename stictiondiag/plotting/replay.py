@@ -8,12 +8,21 @@ Thornhill & Shah (2005), and the pv-op map of both.
 
 from __future__ import annotations
 
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
+from ._fast import (
+    decimate,
+    new_figure,
+    pin_decorations,
+    place_axes,
+    text_width,
+    ytick_room,
+)
+
 DATA_STYLE = {"color": "0.15", "lw": 0.8, "zorder": 3}
 REPLAY_STYLE = {"color": "tab:orange", "lw": 1.8, "alpha": 0.85, "zorder": 2}
+WIDTH_RATIOS = (2.4, 1)
 
 
 def _fmt(v, spec: str = ".3g") -> str:
@@ -58,13 +67,16 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
         mv_data = data.get("mv_model")
         mv_label = "mv model (fit)"
 
-    fig, axes = plt.subplots(
-        3, 2, figsize=(12, 7.5), gridspec_kw={"width_ratios": [2.4, 1]}, squeeze=False
-    )
+    fig, axes = new_figure(3, 2, (12, 7.5), width_ratios=WIDTH_RATIOS)
+
+    def trend(ax, y, **style):
+        # A record without a cycle is shown whole: a long trend is drawn decimated.
+        ax.plot(*decimate(t, y[:stop]), **style)
+
     ax = axes[0, 0]
-    ax.plot(t, replay.sp[:stop], lw=0.7, color="0.55", ls="--", label="sp")
-    ax.plot(t, data["pv"][:stop], label="pv data", **DATA_STYLE)
-    ax.plot(t, replay.pv[:stop], label="pv replay", **REPLAY_STYLE)
+    trend(ax, replay.sp, lw=0.7, color="0.55", ls="--", label="sp")
+    trend(ax, data["pv"], label="pv data", **DATA_STYLE)
+    trend(ax, replay.pv, label="pv replay", **REPLAY_STYLE)
     ax.set_ylabel("pv [pv units]")
     ax.set_title(
         f"pv: fit {_fmt(replay.fit.get('pv'), '.0f')} %, "
@@ -74,8 +86,8 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
     ax.legend(loc="upper right", fontsize=7, ncol=3)
 
     ax = axes[1, 0]
-    ax.plot(t, data["op"][:stop], label="op data", **DATA_STYLE)
-    ax.plot(t, replay.op[:stop], label="op replay", **REPLAY_STYLE)
+    trend(ax, data["op"], label="op data", **DATA_STYLE)
+    trend(ax, replay.op, label="op replay", **REPLAY_STYLE)
     ax.set_ylabel("op [% of span]")
     ax.set_title(
         f"op: fit {_fmt(replay.fit.get('op'), '.0f')} %, "
@@ -86,8 +98,8 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
 
     ax = axes[2, 0]
     if mv_data is not None:
-        ax.plot(t, mv_data[:stop], label=mv_label, **DATA_STYLE)
-    ax.plot(t, replay.mv[:stop], label="mv replay", **REPLAY_STYLE)
+        trend(ax, mv_data, label=mv_label, **DATA_STYLE)
+    trend(ax, replay.mv, label="mv replay", **REPLAY_STYLE)
     ax.set_ylabel("mv [% of span]")
     ax.set_xlabel("time [s]")
     if "mv" in replay.fit:
@@ -144,10 +156,27 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
         lines.append(
             f"amplitude {name}: data {_fmt(amp.get('data'))}, replay {_fmt(amp.get('replay'))}"
         )
-    ax.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", fontsize=8, family="monospace")
+    summary = "\n".join(lines)
+    ax.text(0.0, 1.0, summary, va="top", ha="left", fontsize=8, family="monospace")
 
     if title is None:
         title = "Closed-loop replay with the fitted valve"
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    _layout(fig, axes, text_width(summary, 8, "monospace"))
     return fig
+
+
+def _layout(fig: Figure, axes, summary_width: float) -> None:
+    """Margins as ``tight_layout`` would set them, from estimates of the labels'
+    widths; the right margin grows when the summary text is wider than its column."""
+    pad = 0.1  # [in]
+    left = max(0.6, max(ytick_room(ax) for ax in axes[:, 0]) + pad)
+    wspace = max(0.6, max(ytick_room(ax) for ax in axes[:2, 1]) + 2 * pad)
+    width = fig.get_figwidth()
+    # Summary text at the left edge of the right column: the column ends at
+    # left + wspace + total * cell, with cell = (right column width) / 1.
+    total = sum(WIDTH_RATIOS)
+    cell = (width - left - wspace - pad - summary_width) / (total - WIDTH_RATIOS[1])
+    right = max(0.15, width - left - wspace - total * cell)
+    place_axes(fig, left=left, right=right, top=0.64, bottom=0.59, wspace=wspace, hspace=0.76)
+    pin_decorations(fig)

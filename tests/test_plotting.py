@@ -1,0 +1,147 @@
+"""The cheap figure helpers of :mod:`stictiondiag.plotting._fast`: same pictures."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from matplotlib.font_manager import FontProperties
+from PIL import Image
+
+from stictiondiag.plotting._fast import (
+    decimate,
+    new_figure,
+    pin_decorations,
+    place_axes,
+    text_width,
+)
+
+
+def test_decimate_keeps_short_series_and_gaps():
+    t = np.arange(100.0)
+    y = np.sin(t)
+    td, yd = decimate(t, y)
+    assert td is t or np.array_equal(td, t)
+    assert np.array_equal(yd, y)
+    y_long = np.sin(np.arange(10_000.0))
+    y_long[50] = np.nan
+    assert decimate(np.arange(10_000.0), y_long)[1].size == 10_000
+
+
+def test_decimate_keeps_the_envelope():
+    rng = np.random.default_rng(0)
+    n = 10_001
+    t = np.arange(n) * 0.5
+    y = np.cumsum(rng.normal(size=n))
+    y[1234] += 50.0  # a spike
+    y[7000:] += 20.0  # a jump
+    td, yd = decimate(t, y, n_out=2000)
+    assert yd.size <= 2002
+    assert td[0] == t[0] and td[-1] == t[-1] and yd[-1] == y[-1]
+    assert np.all(np.diff(td) > 0)
+    assert yd.max() == y.max() and yd.min() == y.min()
+    assert 1234 * 0.5 in td
+    # Every run of samples keeps its extremes: the envelope is the same.
+    k = -(-n // 1000)
+    for start in range(0, n, k):
+        sel = (td >= t[start]) & (td <= t[min(start + k, n) - 1])
+        assert yd[sel].max() == y[start : start + k].max()
+        assert yd[sel].min() == y[start : start + k].min()
+
+
+@pytest.mark.parametrize(
+    "text", ["-0.125", "\N{MINUS SIGN}2.5", "valve_characteristic", "a\nlonger line"]
+)
+def test_text_width_is_the_drawn_width(text):
+    fig, _ = new_figure(1, 1, (4, 3))
+    renderer = fig.canvas.get_renderer()
+    for size in (8, 10):
+        drawn = max(
+            renderer.get_text_width_height_descent(line, FontProperties(size=size), False)[0]
+            for line in text.split("\n")
+        )
+        assert text_width(text, size) * fig.dpi == pytest.approx(drawn, rel=0.05, abs=1.0)
+
+
+def test_png_canvas_writes_the_same_pixels():
+    fig, axes = new_figure(1, 2, (6, 3))
+    axes[0, 0].plot([0, 1, 2], [3, -1, 2])
+    axes[0, 1].set_title("t")
+    fast, best = io.BytesIO(), io.BytesIO()
+    fig.savefig(fast, format="png", dpi=80)
+    fig.savefig(best, format="png", dpi=80, pil_kwargs={"compress_level": 9})
+    a = np.asarray(Image.open(io.BytesIO(fast.getvalue())))
+    b = np.asarray(Image.open(io.BytesIO(best.getvalue())))
+    assert a.shape == (240, 480, 4)
+    assert np.array_equal(a, b)
+    assert len(fast.getvalue()) >= len(best.getvalue())
+
+
+def _demo(pin: bool):
+    fig, axes = new_figure(2, 2, (9, 6), width_ratios=(2, 1))
+    rng = np.random.default_rng(1)
+    ax = axes[0, 0]
+    ax.plot(np.arange(500.0), 1234.5 + np.cumsum(rng.normal(size=500)))
+    ax.set_ylabel("pv [units]")
+    ax.set_title("trend", loc="left", fontsize=9)
+    ax = axes[0, 1]
+    ax.bar([0, 1, 2], [3e-7, 1e-7, 2e-7])  # y offset text: the title stays automatic
+    ax.set_xticks([0, 1, 2], ["op\nearly", "op\nlate", "pv\nearly"])
+    ax.set_title("over time (first and second half)", fontsize=10)
+    ax.set_ylabel("gap [%]")
+    ax = axes[1, 0]
+    ax.barh([0, 1], [0.1, 0.2])
+    ax.set_yticks([0, 1], ["valve_characteristic", "lag"], fontsize=8)
+    ax.set_xlabel("gap [%]")
+    ax = axes[1, 1]
+    ax.plot([-5, 5], [-0.02, 0.03])
+    ax.set_xlabel("op [% of span]")
+    ax.set_ylabel("mv\n[% of span]")
+    ax.set_title("mv-op")
+    place_axes(fig, left=1.6, right=0.2, top=0.5, bottom=0.7, wspace=1.0, hspace=0.9)
+    if pin:
+        pin_decorations(fig)
+    fig.set_dpi(110)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    boxes = {}
+    for i, ax in enumerate(fig.axes):
+        for name, text in (
+            ("x", ax.xaxis.label),
+            ("y", ax.yaxis.label),
+            ("title", ax.title),
+            ("left title", ax._left_title),
+        ):
+            if text.get_text():
+                boxes[i, name] = text.get_window_extent(renderer).extents
+    return boxes
+
+
+def test_pinned_labels_and_titles_sit_where_matplotlib_puts_them():
+    auto, pinned = _demo(False), _demo(True)
+    assert auto.keys() == pinned.keys()
+    for key, box in auto.items():
+        assert np.abs(np.asarray(pinned[key]) - box).max() < 1.5, key
+
+
+def test_analysis_figures_are_pngs(tmp_path):
+    from stictiondiag.analysis import AnalysisConfig, analyze
+    from stictiondiag.loops import simulate_loop
+    from stictiondiag.processes import LOOP_PARAMETERS
+    from stictiondiag.tags import Tags
+
+    loop = LOOP_PARAMETERS["concentration"]
+    sim = simulate_loop(
+        loop["process"], loop["controller"], duration=6000.0, dt=1.0, S=5.0, J=2.0, seed=2
+    )
+    tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, ts=1.0)
+    figs = analyze(tags, config=AnalysisConfig(gap=False)).figures()
+    assert set(figs) == {"phase", "reconstruction"}
+    for name, fig in figs.items():
+        path = tmp_path / f"{name}.png"
+        fig.savefig(path, dpi=110, format="png")
+        with Image.open(path) as im:
+            assert im.format == "PNG"
+            w, h = fig.get_size_inches() * 110
+            assert im.size == (round(w), round(h))
