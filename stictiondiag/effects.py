@@ -887,6 +887,33 @@ def _wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
         return coef
 
 
+def _fractional_delay_wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """:func:`_wls` with the first two columns (the input at dead times d and d + 1)
+    weighted with one sign.
+
+    The two columns stand for one gain and a dead time between d and d + 1 samples:
+    ``b ((1 - f) u(t - d) + f u(t - d - 1))`` with ``0 <= f <= 1``.  Unconstrained,
+    the pair can take large weights of opposite sign, ``b (u(t - d) - u(t - d - 1))``:
+    a differentiator that answers the valve's slips instead of its position, fits a
+    part of the record and fails elsewhere.  When the free solution has opposite
+    signs, the constrained optimum lies on the boundary ``f = 0`` or ``f = 1``: the
+    better fit with one of the two columns alone.
+    """
+    coef = _wls(X, y, w)
+    if X.shape[1] < 2 or coef[0] * coef[1] >= 0.0:
+        return coef
+    best = None
+    for drop in (1, 0):
+        keep = [j for j in range(X.shape[1]) if j != drop]
+        c = np.zeros(X.shape[1])
+        c[keep] = _wls(X[:, keep], y, w)
+        r = y - X @ c
+        sse = float(np.dot(w, r * r))
+        if best is None or sse < best[0]:
+            best = (sse, c)
+    return best[1]
+
+
 def dominant_period_samples(x: np.ndarray) -> float | None:
     """Period of the largest spectral peak of ``x`` [samples], or None.
 
@@ -1888,6 +1915,13 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
                     coef = np.linalg.solve(A, rhs)
                 except np.linalg.LinAlgError:
                     continue
+                if coef[0] * coef[1] < 0.0:
+                    # A dead time between d and d + 1 weighs both with one sign: on
+                    # the boundary, the better single column (see _fractional_delay_wls).
+                    coef = max(
+                        (np.array([rhs[0] / A[0, 0], 0.0]), np.array([0.0, rhs[1] / A[1, 1]])),
+                        key=lambda c: float(rhs @ c),
+                    )
                 sse = ee + float(rhs @ coef) * -1.0
                 if best is None or sse < best[0]:
                     best = (sse, ProcessModel(float(pole), int(d), float(lr)))
@@ -2011,7 +2045,7 @@ def fit_process(
 
     def _solve(m: ProcessModel):
         e0, X = terms(m)
-        coef = _wls(X, -e0, w)
+        coef = _fractional_delay_wls(X, -e0, w)
         r = e0 + X @ coef
         return float(np.dot(w, r * r)), coef, r
 
@@ -2875,14 +2909,58 @@ def fit_quantization(
         params[f"{name}_offset"] = offset
     if not preds:
         return None
+    if "pv_step" in params:
+        # A pv rounded by the historian (not by the instrument the controller reads)
+        # also throws the controller replay off: it is driven by the rounded pv.
+        extra = _rounding_in_op(ctx, w, base, params["pv_step"], params["pv_offset"])
+        if extra > 0.0:
+            preds["op"] = base_preds["op"]
+            explained["op"] = explained.get("op", 0.0) + extra
+            params["op_from_pv_rounding"] = extra
     return EffectFit(
         effect="quantization",
         variant="+".join(preds),
-        n_params=len(preds),
+        n_params=sum(k.endswith("_step") for k in params),
         params=params,
         predictions=preds,
         explained=explained,
     )
+
+
+def _rounding_in_op(
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, step: float, offset: float
+) -> float:
+    """Variance per sample of the controller replay's error that a rounded pv causes
+    [(% of span)^2].
+
+    The replayed controller (:func:`fit_controller`) is driven by the recorded pv; if
+    the historian rounded pv after the controller read it, the replay answers the
+    rounding error ``e`` that the controller never saw, by ``Kc (e_f + (1/Ti) int e_f)``
+    (``e_f`` the filtered ``e``).  ``e`` is unobserved; its stand-in is the rounding of
+    the continuous process replay (same step and grid), which moves like pv and so has
+    the rounding error's own correlation.  The value is capped by the controller
+    replay's error on ``w``: when the instrument rounds (the controller reads the
+    rounded pv), the replay has no such error and nothing is explained.
+    """
+    ctrl = base.controller
+    kc = float(ctrl.get("gain") or 0.0)
+    if kc == 0.0 or step <= 0.0:
+        return 0.0
+    dt = ctx.sig.dt
+    smooth = np.asarray(base.process.pv, dtype=float)
+    e = quantize(smooth, step, offset) - smooth
+    tf = float(ctrl.get("filter_time_s") or 0.0)
+    ef = first_order_lag(e, tf, dt) if tf > 0.0 else e
+    ti = ctrl.get("integral_time_s")
+    d_op = kc * ef
+    if ti:
+        d_op = d_op + kc / float(ti) * np.cumsum(ef) * dt
+    wsum = max(float(w.sum()), 1.0)
+    d_op = d_op - float(np.dot(w, d_op)) / wsum
+    predicted = float(np.dot(w, d_op * d_op)) / wsum
+    r = base.op - ctx.sig.op
+    observed = float(np.dot(w, r * r)) / wsum
+    return min(predicted, observed)
 
 
 def _sinusoids(n: int, omega: float, harmonics: int) -> np.ndarray:

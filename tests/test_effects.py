@@ -199,3 +199,65 @@ def test_assessable_effects_without_mv():
     ok, missing = fx.assessable_effects(False)
     assert "actuator_lag" in missing and "external_disturbance" in ok
     assert set(ok) | set(missing) == set(fx.EFFECTS) - {"none"}
+
+
+def test_fractional_delay_pair_keeps_one_sign():
+    # y = u(t - d) - u(t - d - 1) plus noise: the free least-squares solution is the
+    # differentiator (+1, -1); a dead time between d and d + 1 cannot have weights of
+    # opposite sign, so the constrained fit keeps one column, the other weight is 0.
+    rng = np.random.default_rng(7)
+    n = 3000
+    u = np.cumsum(rng.standard_normal(n))
+    X = np.column_stack([u, np.concatenate([[u[0]], u[:-1]])])
+    y = X[:, 0] - X[:, 1] + 0.01 * rng.standard_normal(n)
+    w = np.ones(n)
+    free = fx._wls(X, y, w)
+    assert free[0] * free[1] < 0.0
+    coef = fx._fractional_delay_wls(X, y, w)
+    assert coef[0] * coef[1] == 0.0
+    # With same-sign weights the free solution is kept (to 1e-5: the two columns are
+    # nearly collinear and _wls adds a ridge of 1e-10 to the scaled normal equations).
+    y2 = 0.3 * X[:, 0] + 0.7 * X[:, 1]
+    np.testing.assert_allclose(fx._fractional_delay_wls(X, y2, w), [0.3, 0.7], atol=1e-5)
+
+
+def _pi_loop_signals(n=4000, dt=1.0, Kc=1.5, Ti=30.0, seed=8):
+    """pv a slow wander, op a PI controller on it; the controller read pv unrounded."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    pv = 50.0 + 3.0 * np.sin(2 * np.pi * t / 400.0) + 0.5 * np.sin(2 * np.pi * t / 97.0)
+    pv = pv + 0.02 * rng.standard_normal(n)
+    sp = np.full(n, 50.0)
+    e = sp - pv
+    op = 50.0 + Kc * (e + np.cumsum(e) * dt / Ti)
+    return pv, op, sp
+
+
+@pytest.mark.parametrize("rounded_by", ["historian", "instrument"])
+def test_quantization_explains_the_controller_error_of_a_historian_rounding(rounded_by):
+    pv, op, sp = _pi_loop_signals()
+    q = 0.25
+    pv_rec = fx.quantize(pv, q)
+    if rounded_by == "instrument":
+        # The controller read the rounded pv: op follows it exactly.
+        e = sp - pv_rec
+        op = 50.0 + 1.5 * (e + np.cumsum(e) / 30.0)
+    sig = fx.LoopSignals(op=op, pv=pv_rec, dt=1.0, mv=op.copy(), sp=sp)
+    ctx = fx.build_context(sig)
+    base = fx.fit_base(ctx, ctx.w_eval)
+    ef = fx.fit_quantization(ctx, ctx.w_eval, base)
+    assert ef is not None and ef.params["pv_step"] == pytest.approx(q, rel=1e-6)
+    # One step read off the data: one parameter, whatever signals it explains.
+    assert ef.n_params == 1
+    w = ctx.w_eval
+    r = base.op - sig.op
+    op_mse = float(np.dot(w, r * r) / w.sum())
+    if rounded_by == "historian":
+        # The replay answers the rounding error the controller never saw: the effect
+        # accounts for most of the controller replay's error (the stand-in rounding
+        # of the process replay is not the true one: at least half, never more).
+        assert 0.5 * op_mse <= ef.explained["op"] <= op_mse * (1 + 1e-12)
+    else:
+        # The controller replay is exact up to its fit (op error ~0): nothing to
+        # explain beyond it (capped by the replay's own error).
+        assert ef.explained.get("op", 0.0) <= op_mse * (1 + 1e-12)
