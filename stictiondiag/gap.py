@@ -51,9 +51,13 @@ error of the block-by-block improvement, and the BIC share ``log(n_eff)/n_eff`` 
 base error per extra parameter (``n_eff``: effectively independent residuals, the
 judged samples over the residuals' integrated autocorrelation time); it must also
 beat that share in at least half of the blocks, and pass its own signature check (an
-external oscillation keeps its phase along the record).  The penalised score, base
-error less the improvement plus the penalty, ranks the candidates; ``none`` scores
-the base error and wins when no candidate beats it.  An effect is named only if adding
+external oscillation keeps its phase along the record).  ``none`` wins when no
+candidate is accepted.  The accepted candidates are ranked by their held-out evidence
+in the units of the Bayesian information criterion: for each signal the effect
+changes, ``n_eff`` times the log ratio of the base's squared error to the effect's,
+less ``log(n_eff)`` per extra parameter.  A ratio, not the raw sum of squared errors:
+pv carries load that no replay foresees, so a small share of a large pv error must
+not outrank most of the mv error removed.  An effect is named only if adding
 it lowers the gap on the record; a gap of 0 (the replay within its noise) is
 ``none``.  No threshold is tuned to a data
 generator: the penalties come from the data's own block-to-block scatter and
@@ -116,7 +120,7 @@ class Candidate:
     heldout : float
         Gap on held-out data (fitted on the other half) [%].
     penalised_score : float
-        Held-out gap with the penalty for extra parameters added [%]; the lowest wins.
+        Held-out gap with the penalty for extra parameters added [%].
     accepted : bool
         The held-out improvement over the base model exceeds the penalty.
     """
@@ -167,14 +171,16 @@ class GapDiagnosis:
         The winning effect, ``none`` when the two-parameter model explains the data
         to within its noise or no effect beats it on held-out data.
     runner_up : str or None
-        Second-best candidate by penalised score.
+        Second-best candidate (accepted effects by evidence, then ``none``, then the
+        rest by penalised score).
     margin : float
         How clearly the winner won [%]: the share of the winner's penalised gain over
         the base model that the runner-up does not reach (100 when the runner-up gains
-        nothing); for ``none``, how far the best candidate's penalised score lies
+        nothing; between two accepted effects, the share of the winner's evidence the
+        runner-up lacks); for ``none``, how far the best candidate's penalised score lies
         above the base model's error, in % of it.
     candidates : tuple of Candidate
-        Every assessed effect, best penalised score first.
+        Every assessed effect, in the order of ``runner_up``.
     breakdown : dict
         Where the gap lies, before and after: by signal, valve phase, frequency,
         time and feature (JSON-able).
@@ -385,23 +391,28 @@ def _add(acc: dict | None, new: dict) -> dict:
 
 def _bic_share(residual: np.ndarray, w: np.ndarray) -> float:
     """``log(n_eff) / n_eff`` for a replay residual: the BIC penalty per parameter as a
-    share of the squared error, with ``n_eff`` the judged samples over the integrated
+    share of the squared error, with ``n_eff`` from :func:`_effective_samples`."""
+    n_eff = _effective_samples(residual, w)
+    return math.log(n_eff) / n_eff
+
+
+def _effective_samples(residual: np.ndarray, w: np.ndarray) -> float:
+    """Effectively independent residuals: the judged samples over the integrated
     autocorrelation time of the residual (summed until the autocorrelation first
-    turns negative)."""
+    turns negative), at least :data:`MIN_EFFECTIVE_SAMPLES`."""
     r = residual[w > 0]
     n = r.size
     r = r - r.mean()
     var = float(np.dot(r, r))
     if n < 4 or var <= 0.0:
-        return math.log(MIN_EFFECTIVE_SAMPLES) / MIN_EFFECTIVE_SAMPLES
+        return float(MIN_EFFECTIVE_SAMPLES)
     nfft = 1 << int(math.ceil(math.log2(2 * n)))
     f = np.fft.rfft(r, nfft)
     acf = np.fft.irfft(f * np.conj(f), nfft)[: n // 4] / var
     neg = np.where(acf[1:] <= 0.0)[0]
     stop = int(neg[0]) + 1 if neg.size else acf.size
     tau = 1.0 + 2.0 * float(np.sum(acf[1:stop]))
-    n_eff = max(n / max(tau, 1.0), MIN_EFFECTIVE_SAMPLES)
-    return math.log(n_eff) / n_eff
+    return max(n / max(tau, 1.0), MIN_EFFECTIVE_SAMPLES)
 
 
 def diagnose_gap(
@@ -497,13 +508,17 @@ def diagnose_gap(
     # the base error, with n_eff the number of effectively independent residuals
     # (the record over the residuals' integrated autocorrelation time), so that
     # slowly varying replay errors do not count as many independent samples.
-    share = {s: _bic_share(p - getattr(sig, s), ctx.w_eval) for s, p in base.predictions().items()}
+    n_eff = {
+        s: _effective_samples(p - getattr(sig, s), ctx.w_eval) for s, p in base.predictions().items()
+    }
+    share = {s: math.log(v) / v for s, v in n_eff.items()}
 
     # Penalised scores (normalised held-out squared error summed over signals).
     base_preds = base.predictions()
     totals = {name: sum(v for v in h.values()) for name, h in held.items()}
     base_total = float(totals["none"].sum())
     scores = {"none": (base_total, True, 0.0)}
+    evidence = {"none": 0.0}
     for name, ef in fits.items():
         d = totals["none"] - totals[name]
         # For effects on the valve, the improvement without its best and its worst
@@ -546,6 +561,25 @@ def diagnose_gap(
         accepted = trimmed > penalty and consistent
         score = base_total - trimmed + penalty if consistent else base_total + penalty
         scores[name] = (score, accepted, score - float(totals[name].sum()))
+        # Evidence for the effect on the held-out blocks (those of ``trimmed``), in the
+        # units of the Bayesian information criterion: per signal it changes, n_eff
+        # times the log ratio of the base's squared error to the effect's, less log
+        # n_eff per extra parameter.  Signals differ in how much of their error a
+        # replay can ever explain (pv carries load no replay foresees): the accepted
+        # candidates are ranked by this ratio-based evidence, not by the raw sum.
+        kept = np.ones(n_blocks, dtype=bool)
+        if "mv" in ef.predictions:
+            kept[int(np.argmax(d))] = False
+            kept[int(np.argmin(d))] = False
+        ev = 0.0
+        for s in sigs:
+            e0 = float(held["none"][s][kept].sum())
+            e1 = float(held[name][s][kept].sum())
+            if e0 > 0.0 and e1 > 0.0:
+                ev += n_eff[s] * math.log(e0 / e1)
+        if sigs:
+            ev -= ef.n_params * max(math.log(n_eff[s]) for s in sigs)
+        evidence[name] = ev
     n_judged = max(float(ctx.w_eval.sum()), 1.0)
     heldout_pv = [
         float(held[name]["pv"].sum()) / n_judged * ctx.norm["pv"]
@@ -553,11 +587,18 @@ def diagnose_gap(
         if "pv" in held[name] and (name == "none" or "pv" in fits[name].predictions)
     ]
     base_pv_floor = fx.process_noise_floor(fx._process_input(ctx, base), ctx, base.process)
+    def rank(e: str) -> tuple:
+        # Accepted effects first, most evidence first; then ``none``; then the rest by
+        # penalised score.
+        if e == "none":
+            return (1, 0.0)
+        if scores[e][1]:
+            return (0, -evidence[e])
+        return (2, scores[e][0])
+
     excluded: set = set()
     while True:
-        order = sorted(
-            [e for e in ["none", *fits] if e not in excluded], key=lambda e: scores[e][0]
-        )
+        order = sorted([e for e in ["none", *fits] if e not in excluded], key=rank)
         winner = order[0]
         win_fit = None if winner == "none" else fits[winner]
         # Noise floors: white noise of mv; measurement noise and unforeseeable load of
@@ -601,6 +642,11 @@ def diagnose_gap(
         gain = base_total - scores[winner][0]
         if winner == "none":
             margin = 100.0 * (scores[runner][0] - base_total) / max(base_total, 1e-300)
+        elif runner != "none" and scores[runner][1]:
+            # Both accepted: the share of the winner's evidence the runner-up lacks.
+            margin = (
+                100.0 * (evidence[winner] - evidence[runner]) / max(evidence[winner], 1e-300)
+            )
         else:
             margin = 100.0 * (scores[runner][0] - scores[winner][0]) / max(gain, 1e-300)
 
@@ -626,7 +672,7 @@ def diagnose_gap(
                 accepted=accepted and name not in excluded,
             )
         )
-    cands.sort(key=lambda c: scores[c.effect][0])
+    cands.sort(key=lambda c: rank(c.effect))
     if winner == "none":
         after, shrink = before, 0.0
     else:

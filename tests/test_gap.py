@@ -165,3 +165,20 @@ def test_diagnosis_is_a_frozen_dataclass(miscal):
     assert isinstance(g, GapDiagnosis)
     with pytest.raises(AttributeError):
         g.effect = "none"  # type: ignore[misc]
+
+
+def test_effective_samples_of_white_and_correlated_residuals():
+    # The integrated autocorrelation time of white noise is 1 and of an AR(1) with
+    # phi = 0.8 it is (1 + phi) / (1 - phi) = 9, so n_eff is n and n / 9 (within 10 %:
+    # the autocorrelation is estimated from 20 000 samples and summed until it first
+    # turns negative).
+    from stictiondiag.gap import _effective_samples
+
+    rng = np.random.default_rng(11)
+    n = 20000
+    white = rng.standard_normal(n)
+    assert _effective_samples(white, np.ones(n)) == pytest.approx(n, rel=0.1)
+    ar = np.zeros(n)
+    for k in range(1, n):
+        ar[k] = 0.8 * ar[k - 1] + white[k]
+    assert _effective_samples(ar, np.ones(n)) == pytest.approx(n / 9.0, rel=0.1)
