@@ -23,6 +23,7 @@ samples of a residual, and the profile-cost intervals.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -361,6 +362,63 @@ def valve_sse_batch(op, mv, S_arr, J_arr, kano, k0, k_start, d_start, offset):
                 s1 += r
                 s2 += r * r
         out[i] = s2 - s1 * s1 / cnt if cnt > 0 else 0.0
+    return out
+
+
+#: Fewest (S, J) pairs per thread in :func:`valve_sse_many`.
+MIN_PAIRS_PER_THREAD = 60
+#: Most threads of :func:`valve_sse_many`.
+MAX_THREADS = 4
+
+
+def _cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not Linux
+        return os.cpu_count() or 1
+
+
+def valve_sse_many(op, mv, S_arr, J_arr, kano, k0, k_start, d_start, offset):
+    """:func:`valve_sse_batch`, the pairs shared between threads.
+
+    The compiled kernel releases the interpreter lock and every pair is computed on
+    its own, so the threads run side by side on a multi-core machine and return the
+    very numbers of one call.  Each thread takes at least
+    :data:`MIN_PAIRS_PER_THREAD` pairs; the threads have ended when this returns.
+    """
+    S_arr = np.ascontiguousarray(S_arr, dtype=float)
+    J_arr = np.ascontiguousarray(J_arr, dtype=float)
+    m = S_arr.shape[0]
+    k = min(MAX_THREADS, _cpus(), m // MIN_PAIRS_PER_THREAD)
+    if k <= 1:
+        return valve_sse_batch(op, mv, S_arr, J_arr, kano, k0, k_start, d_start, offset)
+    import threading
+
+    bounds = [m * i // k for i in range(k + 1)]
+    out = np.empty(m)
+    errors: dict[int, BaseException] = {}
+
+    def part(a: int, b: int) -> None:
+        try:
+            out[a:b] = valve_sse_batch(
+                op, mv, S_arr[a:b], J_arr[a:b], kano, k0, k_start, d_start, offset
+            )
+        except BaseException as exc:  # re-raised by the calling thread
+            errors[a] = exc
+
+    threads = [
+        threading.Thread(target=part, args=(bounds[i], bounds[i + 1]), daemon=True)
+        for i in range(1, k)
+    ]
+    for t in threads:
+        t.start()
+    try:
+        part(bounds[0], bounds[1])
+    finally:
+        for t in threads:
+            t.join()
+    if errors:
+        raise errors[min(errors)]
     return out
 
 

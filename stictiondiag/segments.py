@@ -47,6 +47,7 @@ from .estimate import (
     profile_interval,
     valve_run,
     valve_sse_batch,
+    valve_sse_many,
     valve_variants,
 )
 
@@ -465,7 +466,7 @@ def _grid_search(op, mv, sync, variant, S_max, J_max, seeds=(), n_grid=31, n_zoo
     def evaluate(Sg, Jg):
         SS, JJ = np.meshgrid(Sg, Jg, indexing="ij")
         SS, JJ = SS.ravel(), JJ.ravel()
-        C = valve_sse_batch(x, mv, variant.model_S(SS), JJ, variant.kano, *sync)
+        C = valve_sse_many(x, mv, variant.model_S(SS), JJ, variant.kano, *sync)
         S_all.append(SS)
         J_all.append(JJ)
         C_all.append(C)

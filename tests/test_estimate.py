@@ -288,3 +288,18 @@ def test_no_stiction_needs_S_bounded(upper, status):
             assert v.confidence == pytest.approx(0.0)  # the support for stiction
         else:
             assert v.confidence == pytest.approx(1.0)
+
+
+def test_valve_sse_many_is_valve_sse_batch():
+    # The pairs shared between threads give the very numbers of one kernel call.
+    from stictiondiag.estimate import MIN_PAIRS_PER_THREAD, valve_sse_batch, valve_sse_many
+
+    rng = np.random.default_rng(5)
+    op = np.ascontiguousarray(50 + 5 * np.sin(np.arange(3000) / 40) + rng.normal(0, 0.05, 3000))
+    mv = np.ascontiguousarray(op + rng.normal(0, 0.1, 3000))
+    for m in (1, MIN_PAIRS_PER_THREAD, 2 * MIN_PAIRS_PER_THREAD + 7, 961):
+        S = rng.uniform(0, 8, m)
+        J = rng.uniform(0, 4, m)
+        for kano in (False, True):
+            expected = valve_sse_batch(op, mv, S, J, kano, 11, 10, 1.0, -1.0)
+            assert np.array_equal(valve_sse_many(op, mv, S, J, kano, 11, 10, 1.0, -1.0), expected)
