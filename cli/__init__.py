@@ -10,3 +10,8 @@ import os as _os
 for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     _os.environ.setdefault(_var, "1")
 del _var
+# pyarrow (which pandas imports) starts a background thread of its jemalloc
+# allocator; without it the process keeps a single thread, so ``stiction analyze``
+# can draw its figures in forked worker processes while the analysis runs
+# (stictiondiag.plotting.writer forks only a single-threaded process).
+_os.environ.setdefault("JE_ARROW_MALLOC_CONF", "background_thread:false")

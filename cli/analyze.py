@@ -137,30 +137,34 @@ def analyze(
     gap: Annotated[bool, typer.Option(help="Run the sim-to-real gap diagnosis.")] = True,
 ) -> None:
     """Diagnose stiction in one loop: verdict, S and J, closed-loop replay, gap."""
+    import contextlib
+
     from stictiondiag.analysis import AnalysisConfig, analyze_file
-    from stictiondiag.atomic import atomic_path, write_atomic
+    from stictiondiag.atomic import write_atomic
 
     with friendly_errors():
         check_outputs(out, json_path)
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
         info(f"analysing {file} ...")
-        result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
-        d = result.to_dict()
-        summary = render_summary(d)
-        if json_path == "-":
-            info(summary)
-            sys.stdout.write(json.dumps(d, indent=2) + "\n")
+        if out is None:
+            figures = None
         else:
-            typer.echo(summary)
-            if json_path:
-                write_atomic(json_path, json.dumps(d, indent=2) + "\n")
-                info(f"wrote {json_path}")
-        if out is not None:
-            import matplotlib.pyplot as plt
+            # The figures are drawn in worker processes while the analysis goes on.
+            from stictiondiag.plotting.writer import FigureWriter
 
-            for name, fig in result.figures().items():
-                target = Path(out) / f"{result.loop}_{name}.png"
-                with atomic_path(target) as tmp:
-                    fig.savefig(tmp, dpi=110, format="png")
-                plt.close(fig)
-                info(f"wrote {target}")
+            figures = FigureWriter(out, dpi=110)
+        with figures if figures is not None else contextlib.nullcontext():
+            result = analyze_file(file, config=AnalysisConfig(gap=gap), figures=figures, **options)
+            d = result.to_dict()
+            summary = render_summary(d)
+            if json_path == "-":
+                info(summary)
+                sys.stdout.write(json.dumps(d, indent=2) + "\n")
+            else:
+                typer.echo(summary)
+                if json_path:
+                    write_atomic(json_path, json.dumps(d, indent=2) + "\n")
+                    info(f"wrote {json_path}")
+            if figures is not None:
+                for target in figures.finish():
+                    info(f"wrote {target}")

@@ -22,6 +22,7 @@ order and gathers their results in :class:`Analysis`.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from dataclasses import dataclass, field
@@ -164,15 +165,31 @@ class Analysis:
 
     def figures(self) -> dict:
         """Figures by name: ``phase`` (Figs. 3-6 style), ``reconstruction``, gap plots."""
-        from .plotting.analysis import plot_phase
+        return {name: build() for name, build in self.figure_builders().items()}
 
-        period = self.oscillation.period_s or self.oscillation_op.period_s
-        figs = {"phase": plot_phase(self.tags, fit=self.fit, title=self.loop, period_s=period)}
+    def figure_builders(self) -> dict:
+        """The functions that build :meth:`figures`, by name, without building them."""
+
+        def phase():
+            from .plotting.analysis import plot_phase
+
+            period = self.oscillation.period_s or self.oscillation_op.period_s
+            return plot_phase(self.tags, fit=self.fit, title=self.loop, period_s=period)
+
+        builders = {"phase": phase}
         if self.replay is not None:
-            figs["reconstruction"] = self.replay.plot()
+            builders["reconstruction"] = self.replay.plot
         if self.gap is not None and hasattr(self.gap, "figures"):
-            figs.update(self.gap.figures())
-        return figs
+            # The figures of GapDiagnosis.figures(), one at a time.
+            from .plotting.gap import plot_gap_breakdown, plot_gap_replay
+
+            builders["gap_breakdown"] = functools.partial(plot_gap_breakdown, self.gap)
+            builders["gap_replay"] = functools.partial(plot_gap_replay, self.gap)
+        return builders
+
+    def figure_file(self, name: str) -> str:
+        """File name of the figure ``name``: ``<loop>_<name>.png``."""
+        return f"{self.loop}_{name}.png"
 
 
 def _clean(obj):
@@ -259,7 +276,7 @@ def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) ->
     return None
 
 
-def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
+def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = None) -> Analysis:
     """Diagnose stiction in one loop.
 
     Parameters
@@ -268,6 +285,13 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         Loop data from :func:`stictiondiag.tags.read_tags` or ``Tags.from_arrays``.
     config : AnalysisConfig, optional
         Which optional steps to run.
+    figures : FigureWriter, optional
+        Receives every figure of the result
+        (:class:`stictiondiag.plotting.writer.FigureWriter`; ``add(filename,
+        build)`` and ``start()``), named by :meth:`Analysis.figure_file`.  The
+        figures that do not need the gap diagnosis are handed over, and started,
+        before it runs, so that they are drawn while it runs; the caller writes
+        them all with ``figures.finish()``.
 
     Returns
     -------
@@ -342,15 +366,32 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
 
     # 6. Sim-to-real gap.
     gap = None
+    sent: set[str] = set()
     if config.gap and rep is not None:
         from .gap import diagnose_gap
+
+        if figures is not None:
+            # The figures of the steps so far are drawn while the gap is diagnosed.
+            so_far = Analysis(
+                tags=tags,
+                oscillation=osc_pv,
+                oscillation_op=osc_op,
+                fit=fit,
+                verdict=verdict,
+                replay=rep,
+                warnings=tuple(warnings),
+            )
+            for name, build in so_far.figure_builders().items():
+                figures.add(so_far.figure_file(name), build)
+                sent.add(name)
+            figures.start()
 
         try:
             gap = diagnose_gap(tags, fit, rep)
         except StictionError as exc:
             warnings.append(f"gap diagnosis not possible: {exc}")
 
-    return Analysis(
+    result = Analysis(
         tags=tags,
         oscillation=osc_pv,
         oscillation_op=osc_op,
@@ -360,13 +401,19 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         gap=gap,
         warnings=tuple(warnings),
     )
+    if figures is not None:
+        for name, build in result.figure_builders().items():
+            if name not in sent:
+                figures.add(result.figure_file(name), build)
+    return result
 
 
 def analyze_file(
     path: str | os.PathLike,
     *,
     config: AnalysisConfig | None = None,
+    figures: Any = None,
     **read_options,
 ) -> Analysis:
     """Read one loop's file with :func:`read_tags` and :func:`analyze` it."""
-    return analyze(read_tags(path, **read_options), config=config)
+    return analyze(read_tags(path, **read_options), config=config, figures=figures)

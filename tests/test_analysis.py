@@ -331,15 +331,29 @@ def test_no_sp_and_no_replay(conc, conc_mv):
     plt.close(figs["phase"])
 
 
-def test_gap_diagnosis_is_reported(conc):
+def test_gap_diagnosis_is_reported(conc, tmp_path):
     # The one test with the gap on: its result lands in the JSON with its keys.
+    # Its figures, given to a writer, are the figures of the result, as files (those
+    # that do not need the gap handed over before it runs).
+    from stictiondiag.plotting.writer import FigureWriter
+
     tags = Tags.from_arrays(conc["pv"], conc["op"], mv=conc["mv"], sp=conc["sp"], ts=1.0)
-    a = analyze(tags)
+    with FigureWriter(tmp_path / "figures") as writer:
+        a = analyze(tags, figures=writer)
+        written = writer.finish()
     gap = a.to_dict()["gap"]
     assert gap is not None, a.warnings
     for key in ("metric", "before", "after", "shrink_pct", "effect", "candidates"):
         assert key in gap
     assert a.summary_row()["gap_effect"] == gap["effect"]
+    figs = a.figures()
+    assert list(figs) == ["phase", "reconstruction", "gap_breakdown", "gap_replay"]
+    assert written == [tmp_path / "figures" / a.figure_file(name) for name in figs]
+    for name, fig in figs.items():
+        fig.savefig(tmp_path / "direct.png", dpi=110, format="png")
+        assert (tmp_path / "figures" / a.figure_file(name)).read_bytes() == (
+            tmp_path / "direct.png"
+        ).read_bytes(), name
 
 
 def test_noise_free_constant_loop_is_not_stiction():
