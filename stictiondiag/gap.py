@@ -49,7 +49,9 @@ A candidate is accepted only when its improvement over the base model on the jud
 blocks (best and worst block left out) exceeds a penalty: twice the robust standard
 error of the block-by-block improvement, and the BIC share ``log(n_eff)/n_eff`` of the
 base error per extra parameter (``n_eff``: effectively independent residuals, the
-judged samples over the residuals' integrated autocorrelation time); it must also
+judged samples over the residuals' integrated autocorrelation time); when the log
+ratio of the blocks' errors, base against effect, passes the same two-standard-error
+test (free of the blocks' differing error sizes), the share alone; it must also
 beat that share in at least half of the blocks, and pass its own signature check (an
 external oscillation keeps its phase along the record).  ``none`` wins when no
 candidate is accepted.  The accepted candidates are ranked by their held-out evidence
@@ -539,6 +541,26 @@ def diagnose_gap(
         sigs = [s for s in ef.predictions if s in held["none"]]
         per_param = sum(share[s] * float(held["none"][s].sum()) for s in sigs)
         penalty = max(SIGNIFICANCE * se, ef.n_params * per_param)
+        # The scatter in absolute terms overstates the uncertainty when the blocks'
+        # errors differ in size (a valve replay far out of step in some blocks): the
+        # same test on the log ratio of each block's errors is free of that scale.
+        # When it passes, the penalty is the per-parameter share alone.
+        e0_b = sum(held["none"][s] for s in sigs)
+        e1_b = sum(held[name][s] for s in sigs)
+        if sigs:
+            # A block without judged samples (the start of the record) counts as even.
+            both = (e0_b > 0.0) & (e1_b > 0.0)
+            lr = np.where(both, np.log(np.where(both, e0_b, 1.0) / np.where(both, e1_b, 1.0)), 0.0)
+            if "mv" in ef.predictions:
+                keep_b = np.ones(n_blocks, dtype=bool)
+                keep_b[int(np.argmax(d))] = False
+                keep_b[int(np.argmin(d))] = False
+                lr_sum = float(lr[keep_b].sum()) * n_blocks / (n_blocks - 2)
+            else:
+                lr_sum = float(lr.sum())
+            se_lr = 1.4826 * float(np.median(np.abs(lr - np.median(lr)))) * math.sqrt(n_blocks)
+            if lr_sum > SIGNIFICANCE * se_lr:
+                penalty = ef.n_params * per_param
         # Better in at least half of the blocks, each time by more than the
         # per-parameter share of the base error on the signals the effect changes.
         per_param_b = sum(share[s] * np.abs(held["none"][s]) for s in sigs)
