@@ -511,7 +511,8 @@ def diagnose_gap(
     # (the record over the residuals' integrated autocorrelation time), so that
     # slowly varying replay errors do not count as many independent samples.
     n_eff = {
-        s: _effective_samples(p - getattr(sig, s), ctx.w_eval) for s, p in base.predictions().items()
+        s: _effective_samples(p - getattr(sig, s), ctx.w_eval)
+        for s, p in base.predictions().items()
     }
     share = {s: math.log(v) / v for s, v in n_eff.items()}
 
@@ -609,6 +610,7 @@ def diagnose_gap(
         if "pv" in held[name] and (name == "none" or "pv" in fits[name].predictions)
     ]
     base_pv_floor = fx.process_noise_floor(fx._process_input(ctx, base), ctx, base.process)
+
     def rank(e: str) -> tuple:
         # Accepted effects first, most evidence first; then ``none``; then the rest by
         # penalised score.
@@ -666,9 +668,7 @@ def diagnose_gap(
             margin = 100.0 * (scores[runner][0] - base_total) / max(base_total, 1e-300)
         elif runner != "none" and scores[runner][1]:
             # Both accepted: the share of the winner's evidence the runner-up lacks.
-            margin = (
-                100.0 * (evidence[winner] - evidence[runner]) / max(evidence[winner], 1e-300)
-            )
+            margin = 100.0 * (evidence[winner] - evidence[runner]) / max(evidence[winner], 1e-300)
         else:
             margin = 100.0 * (scores[runner][0] - scores[winner][0]) / max(gain, 1e-300)
 
