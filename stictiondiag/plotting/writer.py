@@ -10,6 +10,11 @@ reports back only which figures it wrote or the exception that stopped it.  Noth
 computed in a child flows back into a result: the files are the same as those the
 caller would write itself.
 
+A worker can also compute a value that its figures need and that the caller wants
+too (:meth:`FigureWriter.compute`): the worker computes it first, hands a copy back
+(pickled) and draws its figures from it, while the caller works on; where no worker
+is available the value is computed in the calling process when it is first needed.
+
 Workers are used only where forking is safe: on Linux, in a process running a single
 thread (a child of a multi-threaded process can inherit a lock that another thread
 held; the ``stiction`` command keeps BLAS to one thread), and with more than one CPU
@@ -28,7 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["FigureWriter", "available_workers"]
+__all__ = ["DependencyFailed", "FigureWriter", "Pending", "available_workers"]
 
 #: Resolution of the PNG files [dots per inch].
 DPI = 110
@@ -75,11 +80,135 @@ class _Job:
 
 @dataclass
 class _Child:
-    """A worker process, the read end of its report pipe and its jobs."""
+    """A worker process, the read end of its report pipe, its figures and its whole
+    work list (figures and values, as the worker numbers them in its report)."""
 
     pid: int
     fd: int
     jobs: list[_Job]
+    work: list
+
+
+class DependencyFailed(Exception):
+    """A figure needs a value (:class:`Pending`) whose computation failed: the figure
+    is left out, and the caller learns of the failure from :meth:`Pending.get`."""
+
+
+class _StandIn:
+    """Stands for the value of a :class:`Pending`: attribute access waits for it."""
+
+    def __init__(self, pending: Pending) -> None:
+        self._pending = pending
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self._pending.value_for_dependents(), name)
+
+
+class Pending:
+    """A value computed by a function, in a worker process or in this one.
+
+    Handed to a worker (by :meth:`FigureWriter.start`), the function runs there and
+    a pickled copy of its value, or of the exception it raised, comes back; in any
+    other case (no worker, a worker that died, a value that cannot be pickled) the
+    function runs in this process the first time the value is asked for.
+    """
+
+    def __init__(self, fn: Callable) -> None:
+        self._fn = fn
+        self._owner = os.getpid()
+        self._done = False
+        self._value = None
+        self._error: BaseException | None = None
+        self._ready: int | None = None  # read end: one byte when the worker has stored
+        self._store = None  # temporary file the worker stores the pickled outcome in
+
+    def get(self):
+        """The value (waits for the worker); re-raises the function's exception."""
+        if not self._done:
+            if self._ready is not None and os.getpid() == self._owner:
+                self._receive()
+            else:
+                self._run()
+        if self._error is not None:
+            raise self._error
+        return self._value
+
+    def value_for_dependents(self):
+        """The value for a figure or a step that needs it: :class:`DependencyFailed`
+        when the function raised (the caller handles that error at :meth:`get`)."""
+        try:
+            return self.get()
+        except Exception as exc:
+            raise DependencyFailed(str(exc)) from exc
+
+    def stand_in(self) -> _StandIn:
+        """An object whose attributes are those of the value, fetched when read."""
+        return _StandIn(self)
+
+    def _run(self) -> None:
+        try:
+            self._value = self._fn()
+        except Exception as exc:
+            self._error = exc
+        self._done = True
+
+    def _handed_out(self) -> tuple[int, int]:
+        """Before forking the worker that computes the value: its pipe and file."""
+        import tempfile
+
+        self._store = tempfile.TemporaryFile()
+        read_fd, write_fd = os.pipe()
+        self._ready = read_fd
+        return read_fd, write_fd
+
+    def _deliver(self, write_fd: int) -> None:  # pragma: no cover - in a worker
+        """In the worker: compute, store the pickled outcome, signal."""
+        self._run()
+        try:
+            if self._error is None:
+                outcome = ("value", self._value)
+            else:
+                text = "".join(traceback.format_exception(self._error))
+                outcome = ("error", _portable(self._error), text)
+            data = pickle.dumps(outcome, protocol=pickle.HIGHEST_PROTOCOL)
+        except Exception:
+            data = b""  # not picklable: the caller computes it itself
+        fd = self._store.fileno()
+        view, offset = memoryview(data), 0
+        while offset < len(data):
+            offset += os.pwrite(fd, view[offset:], offset)
+        os.write(write_fd, b"d" if data else b"-")
+        os.close(write_fd)
+
+    def _receive(self) -> None:
+        """In the caller: wait for the worker's outcome (or compute it here)."""
+        try:
+            signal_byte = os.read(self._ready, 1)
+        finally:
+            os.close(self._ready)
+            self._ready = None
+        outcome = None
+        if signal_byte == b"d":
+            try:
+                fd = self._store.fileno()
+                size = os.fstat(fd).st_size
+                outcome = pickle.loads(os.pread(fd, size, 0))
+            except Exception:
+                outcome = None
+        self._store.close()
+        self._store = None
+        if isinstance(outcome, tuple) and outcome[0] == "value":
+            self._value, self._done = outcome[1], True
+        elif isinstance(outcome, tuple) and outcome[0] == "error":
+            error, text = outcome[1], outcome[2]
+            if text:
+                error.add_note(f"raised in a worker process:\n{text}")
+            self._error, self._done = error, True
+        else:
+            # The worker died or its value could not be pickled: compute it here.
+            self._run()
 
 
 def _save(job: _Job, dpi: int) -> None:
@@ -116,15 +245,22 @@ def _stop_on_sigterm(signum, frame):  # pragma: no cover - runs in a worker
     raise SystemExit(128 + signum)
 
 
-def _work(jobs: list[_Job], fd: int, dpi: int) -> None:  # pragma: no cover - in a worker
-    """Body of a worker process: render ``jobs`` in order, report, exit."""
+def _work(jobs: list, fd: int, dpi: int, deliver: dict) -> None:  # pragma: no cover - worker
+    """Body of a worker process: compute the values and render the figures of ``jobs``
+    in order, report, exit.  ``deliver`` maps each value to the write end of its pipe."""
     status = 1
     try:
         signal.signal(signal.SIGTERM, _stop_on_sigterm)
         report: list = []
         for i, job in enumerate(jobs):
+            if isinstance(job, Pending):
+                job._deliver(deliver[id(job)])
+                continue
             try:
                 _save(job, dpi)
+            except DependencyFailed:
+                report.append((i, "skipped", None))
+                continue
             except BaseException as exc:
                 text = "".join(traceback.format_exception(exc))
                 report.append((i, _portable(exc), text))
@@ -147,11 +283,12 @@ def _work(jobs: list[_Job], fd: int, dpi: int) -> None:  # pragma: no cover - in
 class FigureWriter:
     """Writes figures as PNG files, in worker processes where it can.
 
-    Add figures with :meth:`add`; :meth:`start` hands the figures added so far to
-    workers (call it before the caller's own long work); :meth:`finish` shares the
-    rest between free workers and this process, waits for the workers and returns
-    the files written.  Used as a context manager, an exception inside the block
-    stops the workers (their temporary files are removed).
+    Add figures with :meth:`add` (and values they need with :meth:`compute`);
+    :meth:`start` hands what was added so far to a worker (call it before the
+    caller's own long work); :meth:`finish` shares the rest between workers and this
+    process, waits for the workers and returns the files written.  Used as a context
+    manager, an exception inside the block stops the workers (their temporary files
+    are removed).
 
     Parameters
     ----------
@@ -181,15 +318,34 @@ class FigureWriter:
         self._queue.append(job)
         return job.target
 
-    def start(self) -> None:
-        """Hand the queued figures to free workers now (none free: they wait)."""
+    def compute(self, fn: Callable) -> Pending:
+        """Queue ``fn()``, a value that figures added after it may need (through
+        :meth:`Pending.stand_in`): the worker that draws them computes it first and
+        hands a copy back.  Ask for the value with :meth:`Pending.get`."""
+        pending = Pending(fn)
+        self._queue.append(pending)
+        return pending
+
+    def can_start(self) -> bool:
+        """True when :meth:`start` would hand work to a worker now."""
         self._collect(block=False)
+        return self.workers > len(self._children) and _single_threaded()
+
+    def start(self) -> None:
+        """Hand what is queued to free workers now (none free: it waits).
+
+        Queued values (:meth:`compute`) go with every figure queued so far to one
+        worker, so that the figures find the values they need there.
+        """
+        if not self._queue or not self.can_start():
+            return
         free = self.workers - len(self._children)
-        if free > 0 and self._queue and _single_threaded():
-            shares = _shares(self._queue, free)
-            self._queue = []
-            for share in shares:
-                self._fork(share)
+        if any(isinstance(job, Pending) for job in self._queue):
+            free = 1
+        shares = _shares(self._queue, free)
+        self._queue = []
+        for share in shares:
+            self._fork(share)
 
     def finish(self) -> list[Path]:
         """Write every figure added; return the files in the order they were added.
@@ -206,6 +362,8 @@ class FigureWriter:
         """
         try:
             self._collect(block=False)
+            # Values not handed out are computed here when a figure asks for them.
+            self._queue = [job for job in self._queue if not isinstance(job, Pending)]
             # Workers still busy with earlier figures are not waited for: they finish
             # soon, and sharing the cores with them a moment is sooner than drawing
             # everything here.
@@ -250,6 +408,8 @@ class FigureWriter:
         for job in jobs:
             try:
                 _save(job, self.dpi)
+            except DependencyFailed:
+                continue  # the caller handles the failed value
             except Exception as exc:
                 job.error = exc
                 return
@@ -261,19 +421,26 @@ class FigureWriter:
                 stream.flush()
             except Exception:  # pragma: no cover - a closed or odd stream
                 pass
+        pendings = [job for job in jobs if isinstance(job, Pending)]
+        deliver = {id(p): p._handed_out()[1] for p in pendings}
         read_fd, write_fd = os.pipe()
         try:
             pid = os.fork()
         except OSError:
             os.close(read_fd)
             os.close(write_fd)
-            self._queue.extend(jobs)  # rendered here at finish()
+            for p in pendings:
+                os.close(deliver[id(p)])  # the value reads as lost: computed here
+            self._queue.extend(job for job in jobs if not isinstance(job, Pending))
             return
         if pid == 0:  # pragma: no cover - the worker
             os.close(read_fd)
-            _work(jobs, write_fd, self.dpi)
+            _work(jobs, write_fd, self.dpi, deliver)
         os.close(write_fd)
-        self._children.append(_Child(pid, read_fd, jobs))
+        for p in pendings:
+            os.close(deliver[id(p)])
+        figures = [job for job in jobs if not isinstance(job, Pending)]
+        self._children.append(_Child(pid, read_fd, figures, jobs))
 
     def _collect(self, *, block: bool, fallback: bool = True) -> None:
         """Reap finished workers (all of them with ``block``) and take their reports."""
@@ -314,22 +481,28 @@ class FigureWriter:
 
     @staticmethod
     def _take_report(child: _Child, data: bytes) -> list[_Job]:
-        """Mark the child's jobs written or failed; return the jobs it did not report."""
+        """Mark the child's figures written, skipped or failed; return the figures
+        it did not report on."""
         try:
             report = pickle.loads(data) if data else None
         except Exception:
             report = None
         if not isinstance(report, list):
             return list(child.jobs)
+        reported = set()
+        failed = False
         for i, error, text in report:
-            job = child.jobs[i]
+            job = child.work[i]
+            reported.add(id(job))
             if error is None:
                 job.written = True
+            elif error == "skipped":
+                pass
             else:
                 if text:
                     error.add_note(
                         f"raised while writing {job.target} in a worker process:\n{text}"
                     )
                 job.error = error
-        failed = any(error is not None for _, error, _ in report)
-        return [] if failed else list(child.jobs[len(report) :])
+                failed = True
+        return [] if failed else [job for job in child.jobs if id(job) not in reported]
