@@ -178,7 +178,8 @@ class Analysis:
 
         builders = {"phase": phase}
         if self.replay is not None:
-            builders["reconstruction"] = self.replay.plot
+            # Looked up when drawn: the replay may still be on its way from a worker.
+            builders["reconstruction"] = lambda: self.replay.plot()
         if self.gap is not None and hasattr(self.gap, "figures"):
             # The figures of GapDiagnosis.figures(), one at a time.
             from .plotting.gap import plot_gap_breakdown, plot_gap_replay
@@ -286,12 +287,12 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
     config : AnalysisConfig, optional
         Which optional steps to run.
     figures : FigureWriter, optional
-        Receives every figure of the result
-        (:class:`stictiondiag.plotting.writer.FigureWriter`; ``add(filename,
-        build)`` and ``start()``), named by :meth:`Analysis.figure_file`.  The
-        figures that do not need the gap diagnosis are handed over, and started,
-        before it runs, so that they are drawn while it runs; the caller writes
-        them all with ``figures.finish()``.
+        Receives every figure of the result, named by :meth:`Analysis.figure_file`
+        (:class:`stictiondiag.plotting.writer.FigureWriter`); the caller writes them
+        with ``figures.finish()``.  The figures that do not need the gap diagnosis
+        are handed to a worker process before it runs, and when a worker is free it
+        also computes the closed-loop replay, while this process diagnoses the gap:
+        the result is the same as without ``figures``.
 
     Returns
     -------
@@ -350,46 +351,85 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         short_record=bool(short),
     )
 
-    # 5. Closed-loop replay.
-    rep = None
-    if config.replay:
+    def so_far(replay_value) -> Analysis:
+        return Analysis(
+            tags=tags,
+            oscillation=osc_pv,
+            oscillation_op=osc_op,
+            fit=fit,
+            verdict=verdict,
+            replay=replay_value,
+            warnings=tuple(warnings),
+        )
+
+    def run_replay():
         from .replay import replay
 
-        try:
-            rep = replay(tags, fit, integrating=tags.integrating)
-        except StictionError as exc:
-            warnings.append(f"replay not possible: {exc}")
-        else:
-            # A poor identification or a replay without a cycle changes how far the
-            # reconstruction can be trusted: the user sees it with the verdict.
-            warnings.extend(f"replay: {w}" for w in getattr(rep, "warnings", ()))
+        return replay(tags, fit, integrating=tags.integrating)
 
-    # 6. Sim-to-real gap.
-    gap = None
     sent: set[str] = set()
-    if config.gap and rep is not None:
+
+    def hand_over(partial: Analysis) -> None:
+        # The figures of the steps so far are drawn while the gap is diagnosed.
+        for name, build in partial.figure_builders().items():
+            figures.add(partial.figure_file(name), build)
+            sent.add(name)
+        figures.start()
+
+    rep = gap = None
+    if (
+        figures is not None
+        and config.replay
+        and config.gap
+        and hasattr(figures, "compute")
+        and figures.can_start()
+    ):
+        # 5 and 6 side by side: a worker process replays the loop (and draws the
+        # figures of the steps so far), this one diagnoses the gap, which needs the
+        # replay only at its end (for the feature breakdown) and then waits for it.
+        # The outcome is that of the two steps one after the other.
         from .gap import diagnose_gap
 
-        if figures is not None:
-            # The figures of the steps so far are drawn while the gap is diagnosed.
-            so_far = Analysis(
-                tags=tags,
-                oscillation=osc_pv,
-                oscillation_op=osc_op,
-                fit=fit,
-                verdict=verdict,
-                replay=rep,
-                warnings=tuple(warnings),
-            )
-            for name, build in so_far.figure_builders().items():
-                figures.add(so_far.figure_file(name), build)
-                sent.add(name)
-            figures.start()
-
+        pending = figures.compute(run_replay)
+        hand_over(so_far(pending.stand_in()))
+        gap_error = None
         try:
-            gap = diagnose_gap(tags, fit, rep)
+            gap = diagnose_gap(tags, fit, pending.stand_in())
+        except Exception as exc:  # judged once the replay's outcome is known
+            gap_error = exc
+        try:
+            rep = pending.get()
         except StictionError as exc:
-            warnings.append(f"gap diagnosis not possible: {exc}")
+            warnings.append(f"replay not possible: {exc}")
+            gap = gap_error = None  # without a replay there is no gap diagnosis
+        else:
+            warnings.extend(f"replay: {w}" for w in getattr(rep, "warnings", ()))
+        if gap_error is not None:
+            if not isinstance(gap_error, StictionError):
+                raise gap_error
+            warnings.append(f"gap diagnosis not possible: {gap_error}")
+    else:
+        # 5. Closed-loop replay.
+        if config.replay:
+            try:
+                rep = run_replay()
+            except StictionError as exc:
+                warnings.append(f"replay not possible: {exc}")
+            else:
+                # A poor identification or a replay without a cycle changes how far
+                # the reconstruction can be trusted: the user sees it with the verdict.
+                warnings.extend(f"replay: {w}" for w in getattr(rep, "warnings", ()))
+
+        # 6. Sim-to-real gap.
+        if config.gap and rep is not None:
+            from .gap import diagnose_gap
+
+            if figures is not None:
+                hand_over(so_far(rep))
+            try:
+                gap = diagnose_gap(tags, fit, rep)
+            except StictionError as exc:
+                warnings.append(f"gap diagnosis not possible: {exc}")
 
     result = Analysis(
         tags=tags,

@@ -197,3 +197,214 @@ def test_workers_write_the_figures_and_report_errors(tmp_path):
     assert "cannot write" in report["usage_error"]
     assert report["d_files"] == []
     assert not report["children_left"]
+
+
+def test_pending_without_workers_computes_here_once():
+    calls = []
+
+    def value():
+        calls.append(os.getpid())
+        return {"x": 1.5}
+
+    writer = FigureWriter(Path("."), workers=0)
+    pending = writer.compute(value)
+    writer.start()
+    assert pending.stand_in().get("x") == 1.5  # attribute of the value (dict.get)
+    assert pending.get() == {"x": 1.5}
+    assert calls == [os.getpid()]
+    assert writer.finish() == []
+
+
+def test_pending_error_is_raised_by_get_and_skips_the_figures_that_need_it(tmp_path):
+    from stictiondiag.plotting.writer import DependencyFailed
+
+    def value():
+        raise UsageError("no value")
+
+    writer = FigureWriter(tmp_path, workers=0)
+    pending = writer.compute(value)
+    writer.add("needs.png", lambda: pending.stand_in().figure())
+    writer.add("other.png", lambda: _figure(1))
+    with pytest.raises(UsageError, match="no value"):
+        pending.get()
+    with pytest.raises(DependencyFailed):
+        pending.value_for_dependents()
+    assert writer.finish() == [tmp_path / "other.png"]
+
+
+_SCRIPT_PENDING = textwrap.dedent(
+    """
+    import json, os, sys
+    from pathlib import Path
+
+    from stictiondiag.errors import DataError
+    from stictiondiag.plotting.writer import FigureWriter
+
+    out = Path(sys.argv[1])
+    parent = os.getpid()
+    report = {}
+
+    # A value computed by the worker, which then draws a figure from it.
+    class Value:
+        def __init__(self):
+            self.pid = os.getpid()
+            self.k = 3
+        def figure(self):
+            from stictiondiag.plotting._fast import new_figure
+            fig, axes = new_figure(1, 1, (3, 2))
+            axes[0, 0].plot([0, 1, 2], [0, self.k, 1])
+            return fig
+
+    w = FigureWriter(out / "a", workers=1)
+    p = w.compute(Value)
+    w.add("v.png", lambda: p.stand_in().figure())
+    w.start()
+    v = p.get()
+    report["value_from_worker"] = v.pid != parent and v.k == 3
+    report["written"] = [q.name for q in w.finish()]
+
+    # The function's exception comes back with its class; the figure needing the
+    # value is left out, the others are drawn.
+    def fails():
+        raise DataError("nothing to replay")
+    w = FigureWriter(out / "b", workers=1)
+    p = w.compute(fails)
+    w.add("needs.png", lambda: p.stand_in().figure())
+    w.add("free.png", lambda: Value().figure())
+    w.start()
+    try:
+        p.get()
+    except DataError as exc:
+        report["error"] = str(exc)
+    report["b_written"] = [q.name for q in w.finish()]
+
+    # A worker that dies before delivering: the value is computed here.
+    def dies():
+        if os.getpid() != parent:
+            os._exit(3)
+        return "here"
+    w = FigureWriter(out / "c", workers=1)
+    p = w.compute(dies)
+    w.start()
+    report["after_death"] = p.get()
+    w.finish()
+
+    # A value that cannot be pickled is computed here too.
+    def unpicklable():
+        return (os.getpid(), lambda: None)
+    w = FigureWriter(out / "d", workers=1)
+    p = w.compute(unpicklable)
+    w.start()
+    report["unpicklable_here"] = p.get()[0] == parent
+    w.finish()
+    print(json.dumps(report))
+    """
+)
+
+
+def _run_single_threaded(script: str, *args: str) -> dict:
+    env = dict(os.environ)
+    env.update({"OPENBLAS_NUM_THREADS": "1", "JE_ARROW_MALLOC_CONF": "background_thread:false"})
+    proc = subprocess.run(
+        [sys.executable, "-c", script, *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.skipif(available_workers() == 0, reason="workers need Linux and two CPUs")
+def test_values_computed_by_a_worker(tmp_path):
+    report = _run_single_threaded(_SCRIPT_PENDING, str(tmp_path))
+    assert report["value_from_worker"]
+    assert report["written"] == ["v.png"]
+    assert report["error"] == "nothing to replay"
+    assert report["b_written"] == ["free.png"]
+    assert report["after_death"] == "here"
+    assert report["unpicklable_here"]
+
+
+_SCRIPT_ANALYSIS = textwrap.dedent(
+    """
+    import json, os, sys
+    from pathlib import Path
+
+    from stictiondiag import replay as replay_module
+    from stictiondiag.analysis import analyze
+    from stictiondiag.errors import DataError
+    from stictiondiag.loops import simulate_loop
+    from stictiondiag.plotting.writer import FigureWriter, _single_threaded
+    from stictiondiag.processes import LOOP_PARAMETERS
+    from stictiondiag.tags import Tags
+
+    out = Path(sys.argv[1])
+    loop = LOOP_PARAMETERS["concentration"]
+    sim = simulate_loop(loop["process"], loop["controller"], duration=3000.0, dt=1.0,
+                        S=5.0, J=2.0, noise_std=0.05, seed=3)
+    keep = slice(500, None)
+    tags = Tags.from_arrays(sim.pv[keep], sim.op[keep], mv=sim.mv[keep], sp=sim.sp[keep],
+                            ts=1.0)
+    report = {"single_threaded": _single_threaded()}
+
+    def run(folder):
+        with FigureWriter(out / folder) as w:
+            report[folder + "_worker"] = w.can_start()
+            a = analyze(tags, figures=w)
+            written = [p.name for p in w.finish()]
+        return a, written
+
+    # The replay in a worker beside the gap diagnosis: the result of the steps one
+    # after the other, and every figure.
+    a, written = run("both")
+    plain = analyze(tags)
+    report["same_result"] = a.to_dict() == plain.to_dict()
+    report["written"] = written
+    for name, fig in plain.figures().items():
+        fig.savefig(out / f"plain_{name}.png", dpi=110, format="png")
+
+    # A replay that is not possible: no gap diagnosis, a warning, no reconstruction.
+    def no_replay(*args, **kwargs):
+        raise DataError("no replay here")
+    replay_module.replay = no_replay
+    a, written = run("no_replay")
+    plain = analyze(tags)
+    report["no_replay_same"] = a.to_dict() == plain.to_dict()
+    report["no_replay_warnings"] = [w for w in a.warnings if "replay" in w]
+    report["no_replay_gap"] = a.gap is None
+    report["no_replay_written"] = written
+
+    # A replay that fails unexpectedly: the error reaches the caller.
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("broken replay")
+    replay_module.replay = broken
+    try:
+        run("broken")
+    except ZeroDivisionError as exc:
+        report["broken"] = str(exc)
+    print(json.dumps(report))
+    """
+)
+
+
+@pytest.mark.skipif(available_workers() == 0, reason="workers need Linux and two CPUs")
+def test_analysis_with_the_replay_in_a_worker(tmp_path):
+    report = _run_single_threaded(_SCRIPT_ANALYSIS, str(tmp_path))
+    if not report["single_threaded"]:
+        pytest.skip("the interpreter runs threads: no workers")
+    assert report["both_worker"]
+    assert report["same_result"]
+    names = ["phase", "reconstruction", "gap_breakdown", "gap_replay"]
+    assert report["written"] == [f"<memory>_{n}.png" for n in names]
+    for n in names:
+        assert (tmp_path / "both" / f"<memory>_{n}.png").read_bytes() == (
+            tmp_path / f"plain_{n}.png"
+        ).read_bytes(), n
+    assert report["no_replay_same"]
+    assert report["no_replay_warnings"] == ["replay not possible: no replay here"]
+    assert report["no_replay_gap"]
+    assert report["no_replay_written"] == ["<memory>_phase.png"]
+    assert report["broken"] == "broken replay"
