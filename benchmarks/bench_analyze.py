@@ -6,10 +6,11 @@ keeps its limit cycle: it re-arms at every reversal of op, Section 5.1) is writt
 ``stiction analyze FILE --out DIR --json PATH`` does it: read the file, analyse
 (oscillation, S and J, verdict, closed-loop replay, sim-to-real gap), write the
 JSON, build the figures and save them as PNG.  As in the command (whose package
-sets the environment: one BLAS thread), the figures are drawn by
-:class:`~stictiondiag.plotting.writer.FigureWriter`: the phase and reconstruction
-plots in a worker process while the gap is diagnosed, the gap plots shared between
-a worker and this process after it (all in this process where workers are not
+sets the environment: one BLAS thread), the figures go to a
+:class:`~stictiondiag.plotting.writer.FigureWriter`: with the gap diagnosis on, a
+worker process replays the loop and draws the phase and reconstruction plots while
+this process diagnoses the gap, and the two gap plots are shared between a worker
+and this process after it (everything in this process where workers are not
 available).  Two variants:
 
 * with mv: S and J from the stick and slip segments of the mv-op plot;
@@ -23,10 +24,11 @@ For each variant the table gives
   numba's on-disk cache included (what a user waits for after typing the command);
 * ``warm``: the best of ``--repeat`` runs in one process (the machine is shared,
   so the best run is the one least disturbed by other work);
-* the warm breakdown per step: read, oscillation, fit, verdict, replay, gap,
-  JSON, figures (building and saving the PNGs that are not done when the analysis
-  ends, and waiting for the workers), and the CPU time the worker processes spent
-  on figures (beside the wall time, not in the total).
+* the warm breakdown per step in this process: read, oscillation, fit, verdict,
+  replay (``-`` when a worker replayed the loop), gap, JSON, figures (building and
+  saving the PNGs that are not done when the analysis ends, and waiting for the
+  workers), and the CPU time of the worker processes (beside the wall time, not in
+  the total).
 
 The steps are timed by wrapping the library functions that
 :func:`stictiondiag.analysis.analyze` calls, so the orchestrator itself is timed
@@ -256,6 +258,9 @@ def main() -> None:
     line("total", [rows[v][k]["total"] for v, k in cols])
     line("workers (cpu)", [rows[v][k]["worker_cpu"] for v, k in cols])
     print()
+    if any(rows[v][k]["steps"].get("replay") is None for v, k in cols):
+        print("replay '-': replayed by a worker process beside the gap diagnosis")
+        print()
     for variant, row in rows.items():
         target = TARGET_S[variant]
         warm, cold = row["warm"]["total"], row["cold"]["total"]
