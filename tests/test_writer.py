@@ -111,6 +111,8 @@ _SCRIPT = textwrap.dedent(
     w.add("f4.png", figure(4, "f4"))
     written = w.finish()
     report["written"] = [p.name for p in written]
+    import gc
+    report["frozen_after"] = gc.get_freeze_count()
     report["pids"] = {k: int((out / f"pid_{k}").read_text()) != parent for k in ("f1", "f2", "f3", "f4")}
 
     # 2. An error in a worker reaches the caller, with the worker's traceback.
@@ -186,6 +188,7 @@ def test_workers_write_the_figures_and_report_errors(tmp_path):
     if not report["single_threaded"]:
         pytest.skip("the interpreter runs threads: no workers")
     assert report["written"] == ["f1.png", "f2.png", "f3.png", "f4.png"]
+    assert report["frozen_after"] == 0  # the collector sees every object again
     # The figures handed out at start() are drawn by a worker, the last one here.
     assert report["pids"]["f1"] and report["pids"]["f2"] and not report["pids"]["f4"]
     for k in (1, 2, 3, 4):

@@ -308,6 +308,7 @@ class FigureWriter:
         self._jobs: list[_Job] = []
         self._queue: list[_Job] = []
         self._children: list[_Child] = []
+        self._frozen = False
 
     # -- adding and handing out ---------------------------------------------------
 
@@ -378,6 +379,7 @@ class FigureWriter:
             self.stop()
             raise
         self._collect(block=True)
+        self._thaw()
         for job in self._jobs:
             if job.error is not None:
                 raise job.error
@@ -401,8 +403,31 @@ class FigureWriter:
                 pass
         self._queue = []
         self._collect(block=True, fallback=False)
+        self._thaw()
 
     # -- internals --------------------------------------------------------------------
+
+    def _freeze(self) -> None:
+        """Before a fork: move the objects that exist now out of the garbage
+        collector's sight (``gc.freeze``), unless someone else froze objects already.
+
+        A worker then does not copy every page of the caller's heap by touching the
+        objects' collector headers, and the caller's full collections while the
+        workers run scan only the objects made since (a full scan of the analysis'
+        heap costs 0.1-0.2 s).  :meth:`finish` and :meth:`stop` undo it.
+        """
+        import gc
+
+        if self._frozen or gc.get_freeze_count() == 0:
+            gc.freeze()
+            self._frozen = True
+
+    def _thaw(self) -> None:
+        if self._frozen:
+            import gc
+
+            gc.unfreeze()
+            self._frozen = False
 
     def _render_here(self, jobs: list[_Job]) -> None:
         for job in jobs:
@@ -423,6 +448,7 @@ class FigureWriter:
                 pass
         pendings = [job for job in jobs if isinstance(job, Pending)]
         deliver = {id(p): p._handed_out()[1] for p in pendings}
+        self._freeze()
         read_fd, write_fd = os.pipe()
         try:
             pid = os.fork()
