@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from .common import friendly_errors, info
+from .common import emit, friendly_errors, info
 from .main import app
 from .options import (
     IntegratingOption,
@@ -140,7 +138,6 @@ def analyze(
     import contextlib
 
     from stictiondiag.analysis import AnalysisConfig, analyze_file
-    from stictiondiag.atomic import write_atomic
 
     with friendly_errors():
         check_outputs(out, json_path)
@@ -156,15 +153,7 @@ def analyze(
         with figures if figures is not None else contextlib.nullcontext():
             result = analyze_file(file, config=AnalysisConfig(gap=gap), figures=figures, **options)
             d = result.to_dict()
-            summary = render_summary(d)
-            if json_path == "-":
-                info(summary)
-                sys.stdout.write(json.dumps(d, indent=2) + "\n")
-            else:
-                typer.echo(summary)
-                if json_path:
-                    write_atomic(json_path, json.dumps(d, indent=2) + "\n")
-                    info(f"wrote {json_path}")
+            emit(d, render_summary(d), json_path)
             if figures is not None:
                 for target in figures.finish():
                     info(f"wrote {target}")

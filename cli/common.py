@@ -33,3 +33,25 @@ def friendly_errors() -> Iterator[None]:
 def info(message: str) -> None:
     """Progress and messages go to stderr; stdout carries data only."""
     print(message, file=sys.stderr)
+
+
+def emit(d: dict, summary: str, json_path: str | None) -> None:
+    """Print a result's summary and write its JSON.
+
+    ``--json -`` puts the JSON on stdout (data only) and the summary on stderr;
+    otherwise the summary goes to stdout and the JSON, if asked for, to the file,
+    written whole or not at all.
+    """
+    import json
+
+    text = json.dumps(d, indent=2) + "\n"
+    if json_path == "-":
+        info(summary)
+        sys.stdout.write(text)
+        return
+    typer.echo(summary)
+    if json_path:
+        from stictiondiag.atomic import write_atomic
+
+        write_atomic(json_path, text)
+        info(f"wrote {json_path}")

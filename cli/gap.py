@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from .common import friendly_errors, info
+from .common import emit, friendly_errors, info
 from .main import app
 from .options import (
     IntegratingOption,
@@ -84,7 +82,7 @@ def gap(
     ] = None,
 ) -> None:
     """Sim-to-real gap: measure and locate it, and name the unmodelled effect that explains it."""
-    from stictiondiag.atomic import atomic_path, write_atomic
+    from stictiondiag.atomic import atomic_path
     from stictiondiag.errors import UsageError
     from stictiondiag.gap import diagnose_file
 
@@ -99,15 +97,7 @@ def gap(
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
         result = diagnose_file(file, **options)
         d = result.to_dict()
-        summary = render_gap(d)
-        if json_path == "-":
-            info(summary)
-            sys.stdout.write(json.dumps(d, indent=2) + "\n")
-        else:
-            typer.echo(summary)
-            if json_path:
-                write_atomic(json_path, json.dumps(d, indent=2) + "\n")
-                info(f"wrote {json_path}")
+        emit(d, render_gap(d), json_path)
         if plot is not None:
             import matplotlib.pyplot as plt
 
