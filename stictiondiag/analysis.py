@@ -351,7 +351,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         short_record=bool(short),
     )
 
-    def so_far(replay_value) -> Analysis:
+    def so_far(replay_value, gap_value=None) -> Analysis:
         return Analysis(
             tags=tags,
             oscillation=osc_pv,
@@ -359,6 +359,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
             fit=fit,
             verdict=verdict,
             replay=replay_value,
+            gap=gap_value,
             warnings=tuple(warnings),
         )
 
@@ -431,16 +432,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
             except StictionError as exc:
                 warnings.append(f"gap diagnosis not possible: {exc}")
 
-    result = Analysis(
-        tags=tags,
-        oscillation=osc_pv,
-        oscillation_op=osc_op,
-        fit=fit,
-        verdict=verdict,
-        replay=rep,
-        gap=gap,
-        warnings=tuple(warnings),
-    )
+    result = so_far(rep, gap)
     if figures is not None:
         for name, build in result.figure_builders().items():
             if name not in sent:
