@@ -108,8 +108,8 @@ def render_summary(d: dict) -> str:
     gap = d.get("gap")
     if gap:
         lines.append(
-            f"gap         {gap.get('metric_name', gap.get('metric'))}: before {_fmt(gap.get('before'), '.3f')}, "
-            f"after {_fmt(gap.get('after'), '.3f')} ({_fmt(gap.get('shrink_pct'), '.0f')} % shrink) "
+            f"gap         {gap.get('metric_name', gap.get('metric'))}: before {_fmt(gap.get('before'), '.1f')} %, "
+            f"after {_fmt(gap.get('after'), '.1f')} % ({_fmt(gap.get('shrink_pct'), '.0f')} % shrink) "
             f"-> effect {gap.get('effect')} (runner-up {gap.get('runner_up')})"
         )
     for w in d.get("warnings") or []:
