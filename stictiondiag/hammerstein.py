@@ -54,8 +54,13 @@ How well S and J are determined
 -------------------------------
 From the cost profile: the 95 % interval holds the values whose best cost (other
 parameters free) is within an F-test threshold of the minimum, counting as many
-independent observations as the fitted valve has slips, and widened by the misfit
-the fit leaves beyond pv's white noise (:func:`stictiondiag.estimate.cost_threshold`).
+independent observations as the fitted valve has slips, the allowed increase
+scaled by :data:`PROFILE_INFLATION` (:func:`stictiondiag.estimate.cost_threshold`).
+That factor is measured, not assumed: ``benchmarks/calibration_nomv.py`` simulates
+loops with known S (white noise, coloured loads, healthy valves under external
+oscillations) and prints how often the interval holds the true S.  The threshold
+scales with the fit's own residual, coloured disturbances included, and narrows as
+a longer record brings more slips.
 Without mv the breakaway point S trades off against the process dead time, and J
 against the process gain when the valve never moves smoothly (then J is reported
 unbounded); ``details["determinacy"]`` says "poorly determined" when the interval is
@@ -112,6 +117,17 @@ HIGHPASS_PERIODS = 4.0
 
 #: Fewest regression rows per oscillation period (sets the row stride).
 ROWS_PER_PERIOD = 60
+
+#: Factor on the allowed cost increase of the profile intervals of S, J and the dead
+#: time (:func:`stictiondiag.estimate.cost_threshold`).  The F test assumes a cost
+#: that is quadratic near its minimum; here a band a little wider or narrower moves
+#: whole slips by a sample, the profile is ragged, and the textbook threshold held the
+#: true S in only 59 % of simulated records.  The factor is the smallest
+#: integer that gives the nominal 95 % coverage of S on the calibration draw of
+#: ``benchmarks/calibration_nomv.py`` (four PI loops, self-regulating and
+#: integrating, S of 1 to 5 % of span, white noise and coloured loads, records of
+#: 2000 and 4000 samples; ``--seed 7 --reps 2``); other seeds check it.
+PROFILE_INFLATION = 10.0
 
 
 #: Longest dead time searched, as a fraction of the oscillation period.
@@ -950,9 +966,9 @@ def fit_hammerstein(
     n_eff_resid = effective_samples(resid)
     n_eff = float(min(n_eff_resid, max(n_slips, 1) + 3))
     # White measurement noise on pv, in the units of the cost (pv scaled to unit
-    # variance; the slow high-pass leaves white noise as it is).
+    # variance; the slow high-pass leaves white noise as it is): a diagnostic only.
     noise_cost = setup["noise_var"] * resid.size
-    thr = cost_threshold(cost, n_eff, 3, noise_cost)
+    thr = cost_threshold(cost, n_eff, 3, inflation=PROFILE_INFLATION)
     S_iv, _, S_open = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, _, J_open = profile_interval(J_all, C_all, thr, 0.0, J_max)
     d_iv, _, _ = profile_interval(D_all.astype(float), C_all, thr, 1.0, float(d_max))
@@ -1010,7 +1026,8 @@ def fit_hammerstein(
         "determinacy": _determinacy(S_hat, S_iv, S_open, J_hat, J_iv, J_open),
         "interval_method": (
             "95 % profile-cost interval over the grid search (F test, as many independent "
-            "observations as slips); J unbounded when the valve never moves smoothly"
+            f"observations as slips, allowed cost increase x{PROFILE_INFLATION:g} as "
+            "measured on simulated loops); J unbounded when the valve never moves smoothly"
         ),
         "effective_samples": n_eff,
         "effective_samples_residual": n_eff_resid,

@@ -215,8 +215,11 @@ def test_cost_threshold_and_profile_interval():
     # Grid values 1.0 ... 5.0 are inside; the interval reaches the next ones out.
     assert lo == pytest.approx(0.9, abs=1e-9) and hi == pytest.approx(5.1, abs=1e-9)
     assert not at_lo and not at_hi
-    # Misfit beyond the measurement noise widens the threshold to 2 C_min - noise.
-    assert cost_threshold(100.0, 100.0, 3, noise_cost=20.0) == pytest.approx(180.0)
+    # The inflation factor scales the allowed increase: 100 (1 + 10 * 3.939 / 97) =
+    # 140.61 (F quantile to four digits, hence 0.01).  It shrinks as the evidence
+    # grows: with 1000 effective samples, 100 (1 + 10 * 3.851 / 997) = 103.86.
+    assert cost_threshold(100.0, 100.0, 3, inflation=10.0) == pytest.approx(140.61, abs=0.01)
+    assert cost_threshold(100.0, 1000.0, 3, inflation=10.0) == pytest.approx(103.86, abs=0.01)
 
 
 def test_noise_and_cycle_helpers():
