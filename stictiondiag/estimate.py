@@ -511,22 +511,26 @@ def effective_samples(residual: np.ndarray) -> float:
     return float(max(2.0, n / tau))
 
 
-def cost_threshold(cost_min: float, n_eff: float, n_params: int, inflation: float = 1.0) -> float:
+def cost_threshold(
+    cost_min: float, n_eff: float, n_params: int, model_error: float = 0.0
+) -> float:
     """Cost below which a parameter value cannot be told apart from the optimum.
 
     Profile-likelihood F test for one parameter (Seber & Wild 1989, Section 5.9):
-    ``C <= C_min (1 + inflation F_{0.95}(1, nu) / nu)`` with ``nu = N_eff - p``.
+    ``C <= C_min (1 + F_{0.95}(1, nu) / nu)`` with ``nu = N_eff - p``.
 
-    ``inflation`` (1 for the textbook test) scales the allowed cost increase where
-    the profile is known not to follow the test's quadratic approximation: the
-    Hammerstein fit's profile in S is ragged (a band a little wider or narrower
-    moves whole slips by a sample), and its factor is measured on simulated loops
-    (:data:`stictiondiag.hammerstein.PROFILE_INFLATION`).
+    The F test assumes the model is right and only noise is left, so that the
+    allowed increase shrinks as the record grows.  Where the model itself is known
+    to be off by a share of the residual that no record length removes,
+    ``model_error`` (a share of ``C_min``) is the smallest increase allowed:
+    ``C <= C_min (1 + max(F_{0.95}(1, nu) / nu, model_error))``.  The Hammerstein
+    fit measures its share on simulated loops
+    (:data:`stictiondiag.hammerstein.MODEL_ERROR_SHARE`).
     """
     from scipy.special import fdtri  # = scipy.stats.f.ppf, without importing scipy.stats
 
     nu = max(1.0, n_eff - n_params)
-    return float(cost_min * (1.0 + inflation * fdtri(1, nu, INTERVAL_LEVEL) / nu))
+    return float(cost_min * (1.0 + max(fdtri(1, nu, INTERVAL_LEVEL) / nu, model_error)))
 
 
 def profile_interval(
