@@ -511,9 +511,7 @@ def effective_samples(residual: np.ndarray) -> float:
     return float(max(2.0, n / tau))
 
 
-def cost_threshold(
-    cost_min: float, n_eff: float, n_params: int, model_error: float = 0.0
-) -> float:
+def cost_threshold(cost_min: float, n_eff: float, n_params: int, model_error: float = 0.0) -> float:
     """Cost below which a parameter value cannot be told apart from the optimum.
 
     Profile-likelihood F test for one parameter (Seber & Wild 1989, Section 5.9):
