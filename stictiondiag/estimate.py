@@ -511,28 +511,24 @@ def effective_samples(residual: np.ndarray) -> float:
     return float(max(2.0, n / tau))
 
 
-def cost_threshold(
-    cost_min: float, n_eff: float, n_params: int, noise_cost: float | None = None
-) -> float:
+def cost_threshold(cost_min: float, n_eff: float, n_params: int, model_error: float = 0.0) -> float:
     """Cost below which a parameter value cannot be told apart from the optimum.
 
     Profile-likelihood F test for one parameter (Seber & Wild 1989, Section 5.9):
     ``C <= C_min (1 + F_{0.95}(1, nu) / nu)`` with ``nu = N_eff - p``.
 
-    The F test assumes the model is right and only noise is left.  When the best fit
-    leaves more than the measurement noise (``noise_cost``, the cost white noise of
-    the measured level alone would give), the excess ``C_min - noise_cost`` is
-    misfit of the model itself, and a parameter value whose cost is within that
-    excess of the optimum cannot be excluded either: the threshold is then at least
-    ``2 C_min - noise_cost``.
+    The F test assumes the model is right and only noise is left, so that the
+    allowed increase shrinks as the record grows.  Where the model itself is known
+    to be off by a share of the residual that no record length removes,
+    ``model_error`` (a share of ``C_min``) is the smallest increase allowed:
+    ``C <= C_min (1 + max(F_{0.95}(1, nu) / nu, model_error))``.  The Hammerstein
+    fit measures its share on simulated loops
+    (:data:`stictiondiag.hammerstein.MODEL_ERROR_SHARE`).
     """
     from scipy.special import fdtri  # = scipy.stats.f.ppf, without importing scipy.stats
 
     nu = max(1.0, n_eff - n_params)
-    thr = cost_min * (1.0 + fdtri(1, nu, INTERVAL_LEVEL) / nu)
-    if noise_cost is not None and math.isfinite(noise_cost) and cost_min > noise_cost:
-        thr = max(thr, 2.0 * cost_min - max(noise_cost, 0.0))
-    return float(thr)
+    return float(cost_min * (1.0 + max(fdtri(1, nu, INTERVAL_LEVEL) / nu, model_error)))
 
 
 def profile_interval(

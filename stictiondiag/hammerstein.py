@@ -54,8 +54,12 @@ How well S and J are determined
 -------------------------------
 From the cost profile: the 95 % interval holds the values whose best cost (other
 parameters free) is within an F-test threshold of the minimum, counting as many
-independent observations as the fitted valve has slips, and widened by the misfit
-the fit leaves beyond pv's white noise (:func:`stictiondiag.estimate.cost_threshold`).
+independent observations as the fitted valve has slips, and never less than
+:data:`MODEL_ERROR_SHARE` of the best cost, for the model's own error
+(:func:`stictiondiag.estimate.cost_threshold`).  That share is measured, not
+assumed: ``benchmarks/calibration_nomv.py`` simulates loops with known S (white
+noise, coloured loads, healthy valves under external oscillations) and prints how
+often the interval holds the true S.
 Without mv the breakaway point S trades off against the process dead time, and J
 against the process gain when the valve never moves smoothly (then J is reported
 unbounded); ``details["determinacy"]`` says "poorly determined" when the interval is
@@ -112,6 +116,21 @@ HIGHPASS_PERIODS = 4.0
 
 #: Fewest regression rows per oscillation period (sets the row stride).
 ROWS_PER_PERIOD = 60
+
+#: Share of the best cost by which a parameter value's profile cost may exceed it
+#: and still be inside the S, J and dead-time intervals, whatever the record length
+#: (:func:`stictiondiag.estimate.cost_threshold`).  The F test alone assumes the
+#: model is right; here the valve model and the first-order linear part meet a
+#: real loop only approximately, and a band a little wider or narrower moves whole
+#: slips by a sample, so the cost at the true S exceeds the best one by a share of
+#: the residual that does not shrink as slips accumulate (measured on simulated
+#: loops: its 90th percentile is 0.2 to 0.46 of the best cost, with no trend, from
+#: 20 to over 150 slips).  The F test alone held the true S in 59 % of them.  The share is the smallest
+#: tenth that gives the nominal 95 % coverage of S on the calibration draw of
+#: ``benchmarks/calibration_nomv.py`` (four PI loops, self-regulating and
+#: integrating, S of 1 to 5 % of span, white noise and coloured loads, records of
+#: 2000 and 4000 samples; ``--seed 7 --reps 2``); other seeds check it.
+MODEL_ERROR_SHARE = 0.6
 
 
 #: Longest dead time searched, as a fraction of the oscillation period.
@@ -950,9 +969,9 @@ def fit_hammerstein(
     n_eff_resid = effective_samples(resid)
     n_eff = float(min(n_eff_resid, max(n_slips, 1) + 3))
     # White measurement noise on pv, in the units of the cost (pv scaled to unit
-    # variance; the slow high-pass leaves white noise as it is).
+    # variance; the slow high-pass leaves white noise as it is): a diagnostic only.
     noise_cost = setup["noise_var"] * resid.size
-    thr = cost_threshold(cost, n_eff, 3, noise_cost)
+    thr = cost_threshold(cost, n_eff, 3, model_error=MODEL_ERROR_SHARE)
     S_iv, _, S_open = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, _, J_open = profile_interval(J_all, C_all, thr, 0.0, J_max)
     d_iv, _, _ = profile_interval(D_all.astype(float), C_all, thr, 1.0, float(d_max))
@@ -1010,7 +1029,9 @@ def fit_hammerstein(
         "determinacy": _determinacy(S_hat, S_iv, S_open, J_hat, J_iv, J_open),
         "interval_method": (
             "95 % profile-cost interval over the grid search (F test, as many independent "
-            "observations as slips); J unbounded when the valve never moves smoothly"
+            f"observations as slips, at least {MODEL_ERROR_SHARE:g} of the best cost for "
+            "the model's own error, as measured on simulated loops); J unbounded when the "
+            "valve never moves smoothly"
         ),
         "effective_samples": n_eff,
         "effective_samples_residual": n_eff_resid,

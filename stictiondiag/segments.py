@@ -587,7 +587,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
 
     n_eff = effective_samples(resid[k0:])
     noise_cost = float(segs.noise_mv**2 * (n - k0))
-    # No widening by the misfit here (unlike the Hammerstein fit): with mv the
+    # The textbook threshold here, no widening by the misfit: with mv the
     # misfit of one (S, J) pair is the valve varying from slip to slip, which the
     # interval over slips below reports directly.
     thr = cost_threshold(cost, n_eff, 3)

@@ -215,8 +215,13 @@ def test_cost_threshold_and_profile_interval():
     # Grid values 1.0 ... 5.0 are inside; the interval reaches the next ones out.
     assert lo == pytest.approx(0.9, abs=1e-9) and hi == pytest.approx(5.1, abs=1e-9)
     assert not at_lo and not at_hi
-    # Misfit beyond the measurement noise widens the threshold to 2 C_min - noise.
-    assert cost_threshold(100.0, 100.0, 3, noise_cost=20.0) == pytest.approx(180.0)
+    # A model-error share is the least increase allowed: 100 (1 + max(0.0406, 0.6))
+    # = 160 exactly; it does not shrink with the evidence (1000 effective samples,
+    # F / nu = 0.0039).  With 5 effective samples the F test's own increase
+    # F_0.95(1, 2) / 2 = 18.513 / 2 is the larger: 1025.6 (F to five digits, 0.1).
+    assert cost_threshold(100.0, 100.0, 3, model_error=0.6) == pytest.approx(160.0, abs=1e-9)
+    assert cost_threshold(100.0, 1000.0, 3, model_error=0.6) == pytest.approx(160.0, abs=1e-9)
+    assert cost_threshold(100.0, 5.0, 3, model_error=0.6) == pytest.approx(1025.6, abs=0.1)
 
 
 def test_noise_and_cycle_helpers():
