@@ -25,13 +25,17 @@ effect                 signal  augmentation (extra parameters)
 actuator_lag           mv      first-order positioner/actuator lag after the friction
                                element (time constant)
 miscalibration         mv      moving-phase slope of mv against op not 1 and an offset
-                               (Section 4.2.1, Fig. 8 bottom row) (slope, offset)
+                               (Section 4.2.1, Fig. 8 bottom row) (slope, offset); the
+                               slips measured in the data must show the slope
+                               (:func:`slip_slope_test`)
 asymmetry              mv      S and J differ opening and closing (Loop 1, Section 3)
                                (S and J of the second direction)
 valve_characteristic   pv, mv  installed characteristic between valve position and
                                flow (Section 5.1, last step of Fig. 10): curvature of an
                                exponential (equal-percentage-like) or power
-                               (quick-opening-like) curve, on the process input or on mv
+                               (quick-opening-like) curve, on the process input or on mv;
+                               the loop's gain must change with the operating point
+                               (:func:`gain_change_test`)
 quantization           any     historian or instrument resolution (Loop 4, Section 3):
                                the rounding error ``q^2/12`` of each signal whose values
                                lie on a grid of step ``q`` (one step per signal)
