@@ -2460,12 +2460,12 @@ def fit_miscalibration(
         slope, offset = _affine(v, ctx.sig.mv, w)
     # The signature (whole-record fit only): the slope of the position after each
     # slip against the demand at its breakaway, measured in the data, differs from 1
-    # in the fitted direction (:func:`slip_slope_test`).
+    # in the fitted direction (:func:`slip_slope_test`, one-sided).
     slip_slope, p_slope = math.nan, 0.0
     if init is None:
         slip_slope, p_slope = slip_slope_test(ctx.slips)
-        if not (math.isfinite(slip_slope) and (slip_slope - 1.0) * (slope - 1.0) > 0.0):
-            p_slope = 1.0
+        agrees = math.isfinite(slip_slope) and (slip_slope - 1.0) * (slope - 1.0) > 0.0
+        p_slope = _one_sided(p_slope, agrees)
     return EffectFit(
         effect="miscalibration",
         variant="slope_offset",
@@ -2570,7 +2570,8 @@ SLIP_TEST_P = 0.01
 
 #: Blocks of the record whose scatter gives a signature coefficient's standard error.
 SIGNATURE_BLOCKS = 12
-#: Significance an effect's own signature must show (two-sided t test).
+#: Significance an effect's own signature must show (t test, one-sided in the
+#: direction of the fitted effect).
 SIGNATURE_P = 0.01
 
 
@@ -2620,6 +2621,13 @@ def signature_test(
         return beta, 0.0 if beta != 0.0 else 1.0
     t = beta * sxx / math.sqrt(var_sum)
     return beta, float(2.0 * stdtr(n_blocks - 1, -abs(t)))
+
+
+def _one_sided(p_two_sided: float, agrees: bool) -> float:
+    """p-value of the one-sided test in the direction of the fitted effect from that of
+    the two-sided test: half of it when the estimate points that way, else 1 or more
+    (``1 - p/2``)."""
+    return 0.5 * p_two_sided if agrees else 1.0 - 0.5 * p_two_sided
 
 
 def _slip_blocks(n_rows: int) -> int:
@@ -3036,9 +3044,10 @@ def fit_valve_characteristic(
     supported = True
     if init is None:
         gain_change, p_gain = gain_change_test(ctx, w, base, params["side"])
-        params = {**params, "gain_change": gain_change, "gain_change_p": p_gain}
         # Convex (curvature > 0, both families) means more gain above the middle.
-        supported = p_gain < SIGNATURE_P and gain_change * params["curvature"] > 0.0
+        p_gain = _one_sided(p_gain, gain_change * params["curvature"] > 0.0)
+        params = {**params, "gain_change": gain_change, "gain_change_p": p_gain}
+        supported = p_gain < SIGNATURE_P
     return EffectFit(
         effect="valve_characteristic",
         variant=variant,

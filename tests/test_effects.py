@@ -392,3 +392,11 @@ def test_gain_change_test_is_quiet_on_a_linear_process():
     # checked on noise above), and a small estimate.
     assert p > fx.SIGNATURE_P
     assert abs(change) < 0.1
+
+
+def test_one_sided_signature_p_follows_the_fitted_direction():
+    # Half the two-sided p-value when the signature points the way the fitted effect
+    # does, at least 1/2 when it points the other way (exact arithmetic).
+    assert fx._one_sided(0.02, True) == pytest.approx(0.01, abs=1e-15)
+    assert fx._one_sided(0.02, False) == pytest.approx(0.99, abs=1e-15)
+    assert fx._one_sided(1.0, True) == 0.5
