@@ -2464,8 +2464,12 @@ def fit_miscalibration(
     slip_slope, p_slope = math.nan, 0.0
     if init is None:
         slip_slope, p_slope = slip_slope_test(ctx.slips)
-        agrees = math.isfinite(slip_slope) and (slip_slope - 1.0) * (slope - 1.0) > 0.0
-        p_slope = _one_sided(p_slope, agrees)
+        if math.isfinite(slip_slope):
+            p_slope = _one_sided(p_slope, (slip_slope - 1.0) * (slope - 1.0) > 0.0)
+        else:
+            # Too few measured slips to test (as for :func:`_slips_differ`): the
+            # replay decides alone.
+            p_slope = 0.0
     return EffectFit(
         effect="miscalibration",
         variant="slope_offset",
@@ -2647,7 +2651,8 @@ def slip_slope_test(slips: dict | None) -> tuple[float, float]:
     its travel the valve slips.  A miscalibrated positioner gives another slope
     (Section 4.2.1, Fig. 8, bottom row).  The slope's uncertainty comes from the
     scatter between blocks of consecutive slips (:func:`signature_test`); ``(nan, 1)``
-    with fewer than twelve slips.
+    with fewer than twelve slips (too few to test: :func:`fit_miscalibration` then
+    leaves the decision to the replay, as :func:`_slips_differ` does).
     """
     if slips is None or "op_break" not in slips:
         return math.nan, 1.0
@@ -2940,7 +2945,8 @@ def gain_change_test(
     relative gain change and the two-sided p-value of :func:`signature_test` (the
     block-to-block scatter of the record decides, so a change that only part of the
     record shows does not pass).  An operating point that never moves (a cycle
-    between two fixed positions) leaves the hinge a copy of ``u``: p = 1.
+    between two fixed positions) leaves the hinge a copy of ``u``: p = 1.  On the
+    valve side with fewer than twelve measured slips: ``(nan, 1)``, too few to test.
     """
     sig = ctx.sig
     if side == "process":
@@ -2955,13 +2961,13 @@ def gain_change_test(
         return signature_test(x_h, -r, w, others=others)
     slips = ctx.slips
     if slips is None or "op_break" not in slips:
-        return 0.0, 1.0
+        return math.nan, 1.0
     x, y, d = slips["op_break"], slips["mv_after"], slips["op_direction"]
     ok = np.isfinite(x) & np.isfinite(y)
     x, y, d = x[ok], y[ok], d[ok]
     n_blocks = _slip_blocks(x.size)
     if n_blocks < 4:
-        return 0.0, 1.0
+        return math.nan, 1.0
     others = np.column_stack([(d > 0).astype(float), (d < 0).astype(float), x])
     h = np.maximum(x - float(np.median(x)), 0.0)
     beta, p = signature_test(h, y, np.ones(x.size), others=others, n_blocks=n_blocks)
@@ -3044,8 +3050,12 @@ def fit_valve_characteristic(
     supported = True
     if init is None:
         gain_change, p_gain = gain_change_test(ctx, w, base, params["side"])
-        # Convex (curvature > 0, both families) means more gain above the middle.
-        p_gain = _one_sided(p_gain, gain_change * params["curvature"] > 0.0)
+        if math.isfinite(gain_change):
+            # Convex (curvature > 0, both families) means more gain above the middle.
+            p_gain = _one_sided(p_gain, gain_change * params["curvature"] > 0.0)
+        else:
+            # Too few measured slips to test: the replay decides alone.
+            p_gain = 0.0
         params = {**params, "gain_change": gain_change, "gain_change_p": p_gain}
         supported = p_gain < SIGNATURE_P
     return EffectFit(
