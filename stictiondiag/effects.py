@@ -25,13 +25,17 @@ effect                 signal  augmentation (extra parameters)
 actuator_lag           mv      first-order positioner/actuator lag after the friction
                                element (time constant)
 miscalibration         mv      moving-phase slope of mv against op not 1 and an offset
-                               (Section 4.2.1, Fig. 8 bottom row) (slope, offset)
+                               (Section 4.2.1, Fig. 8 bottom row) (slope, offset); the
+                               slips measured in the data must show the slope
+                               (:func:`slip_slope_test`)
 asymmetry              mv      S and J differ opening and closing (Loop 1, Section 3)
                                (S and J of the second direction)
 valve_characteristic   pv, mv  installed characteristic between valve position and
                                flow (Section 5.1, last step of Fig. 10): curvature of an
                                exponential (equal-percentage-like) or power
-                               (quick-opening-like) curve, on the process input or on mv
+                               (quick-opening-like) curve, on the process input or on mv;
+                               the loop's gain must change with the operating point
+                               (:func:`gain_change_test`)
 quantization           any     historian or instrument resolution (Loop 4, Section 3):
                                the rounding error ``q^2/12`` of each signal whose values
                                lie on a grid of step ``q`` (one step per signal)
@@ -1094,6 +1098,12 @@ def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float) -> dict | None:
         return None
     if seg.n_slips == 0:
         return None
+    # The demand's direction at the breakaway (the sample that crossed the threshold):
+    # the side of the deadband the valve moves on afterwards (Eq. 4).
+    op = np.asarray(op, dtype=float)
+    e = np.clip(np.asarray(seg.slip[:, 0], dtype=int), 1, op.size - 1)
+    op_dir = np.sign(op[e] - op[e - 1])
+    op_dir = np.where(op_dir == 0.0, np.asarray(seg.direction, dtype=float), op_dir)
     return {
         "time": np.asarray(seg.slip[:, 0], dtype=float),
         "direction": np.asarray(seg.direction, dtype=float),
@@ -1101,6 +1111,9 @@ def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float) -> dict | None:
         "J": np.asarray(seg.jump, dtype=float),
         "travel": np.asarray(seg.travel, dtype=float),
         "reversal": np.asarray(seg.reversal, dtype=bool),
+        "op_break": np.asarray(seg.op_break, dtype=float),
+        "mv_after": np.asarray(seg.mv_after, dtype=float),
+        "op_direction": op_dir,
     }
 
 
@@ -2445,10 +2458,23 @@ def fit_miscalibration(
         x, _ = _needle_sj_affine(prob, [x], travel * 3, rel=0.03, zooms=1, n_grid=11)
         v, _ = prob.series(_rows(x[0], x[1])[0])
         slope, offset = _affine(v, ctx.sig.mv, w)
+    # The signature (whole-record fit only): the slope of the position after each
+    # slip against the demand at its breakaway, measured in the data, differs from 1
+    # in the fitted direction (:func:`slip_slope_test`, one-sided).
+    slip_slope, p_slope = math.nan, 0.0
+    if init is None:
+        slip_slope, p_slope = slip_slope_test(ctx.slips)
+        if math.isfinite(slip_slope):
+            p_slope = _one_sided(p_slope, (slip_slope - 1.0) * (slope - 1.0) > 0.0)
+        else:
+            # Too few measured slips to test (as for :func:`_slips_differ`): the
+            # replay decides alone.
+            p_slope = 0.0
     return EffectFit(
         effect="miscalibration",
         variant="slope_offset",
         n_params=2,
+        supported=p_slope < SIGNATURE_P,
         params={
             "S": float(x[0] * slope),
             "J": float(x[1] * slope),
@@ -2457,6 +2483,8 @@ def fit_miscalibration(
             "slope": slope,
             "offset_pct": offset,
             "logic": _logic(prob),
+            "slip_slope": slip_slope,
+            "slip_slope_p": p_slope,
         },
         predictions={"mv": offset + slope * v},
         x=(float(x[0]), float(x[1])),
@@ -2543,6 +2571,102 @@ def fit_asymmetry(
 
 #: Significance the measured slips must show for a threshold-only effect (rank test).
 SLIP_TEST_P = 0.01
+
+#: Blocks of the record whose scatter gives a signature coefficient's standard error.
+SIGNATURE_BLOCKS = 12
+#: Significance an effect's own signature must show (t test, one-sided in the
+#: direction of the fitted effect).
+SIGNATURE_P = 0.01
+
+
+def signature_test(
+    x: np.ndarray,
+    y: np.ndarray,
+    w: np.ndarray,
+    others: np.ndarray | None = None,
+    n_blocks: int = SIGNATURE_BLOCKS,
+) -> tuple[float, float]:
+    """Least-squares coefficient of ``x`` in ``y`` (``others`` partialled out) and the
+    two-sided p-value that it is 0: ``(beta, p)``; ``(0, 1)`` when ``x`` carries nothing
+    the other columns do not.
+
+    Replay errors are correlated in time (a whole slip or cycle at a time), so the
+    standard error is not the textbook one: the products ``x~ e`` (``x~`` the column
+    with ``others`` partialled out, ``e`` the fit's residual) are summed over
+    ``n_blocks`` consecutive blocks of the weighted samples and the coefficient's
+    variance is taken from the scatter of those block sums (batch means), with a
+    Student t distribution on ``n_blocks - 1`` degrees of freedom.  A coefficient that
+    only some part of the record supports has a large scatter and fails.
+    """
+    from scipy.special import stdtr
+
+    sel = w > 0
+    xs = np.asarray(x, dtype=float)[sel]
+    ys = np.asarray(y, dtype=float)[sel]
+    n_blocks = int(n_blocks)
+    if xs.size < 3 * n_blocks or n_blocks < 3:
+        return 0.0, 1.0
+    if others is not None:
+        Z = np.asarray(others, dtype=float)[sel]
+        Z = Z.reshape(xs.size, -1)
+        coef_x = np.linalg.lstsq(Z, xs, rcond=None)[0]
+        coef_y = np.linalg.lstsq(Z, ys, rcond=None)[0]
+        xs = xs - Z @ coef_x
+        ys = ys - Z @ coef_y
+    sxx = float(np.dot(xs, xs))
+    scale = float(np.dot(np.asarray(x, dtype=float)[sel], np.asarray(x, dtype=float)[sel]))
+    if sxx <= 1e-12 * max(scale, 1e-300):
+        return 0.0, 1.0
+    beta = float(np.dot(xs, ys)) / sxx
+    z = xs * (ys - beta * xs)
+    sums = np.array([b.sum() for b in np.array_split(z, n_blocks)])
+    var_sum = n_blocks * float(np.sum((sums - sums.mean()) ** 2)) / (n_blocks - 1)
+    if var_sum <= 0.0:
+        return beta, 0.0 if beta != 0.0 else 1.0
+    t = beta * sxx / math.sqrt(var_sum)
+    return beta, float(2.0 * stdtr(n_blocks - 1, -abs(t)))
+
+
+def _one_sided(p_two_sided: float, agrees: bool) -> float:
+    """p-value of the one-sided test in the direction of the fitted effect from that of
+    the two-sided test: half of it when the estimate points that way, else 1 or more
+    (``1 - p/2``)."""
+    return 0.5 * p_two_sided if agrees else 1.0 - 0.5 * p_two_sided
+
+
+def _slip_blocks(n_rows: int) -> int:
+    """Blocks for :func:`signature_test` on per-slip values: three slips or more each."""
+    return min(SIGNATURE_BLOCKS, n_rows // 3)
+
+
+def slip_slope_test(slips: dict | None) -> tuple[float, float]:
+    """Slope of the valve position after each slip against the demand it broke away at,
+    and the two-sided p-value that it is 1: ``(slope, p)``.
+
+    After a slip the two-parameter valve rests at (or, moving on, follows) the demand
+    less ``d (S - J)/2`` (Section 5.1, Eq. 4, ``d`` the direction the demand moves
+    in at the breakaway): the position after each slip, measured in the data
+    (:func:`measure_slips`), against the demand at the breakaway is a line of slope 1
+    with one offset per direction, wherever along
+    its travel the valve slips.  A miscalibrated positioner gives another slope
+    (Section 4.2.1, Fig. 8, bottom row).  The slope's uncertainty comes from the
+    scatter between blocks of consecutive slips (:func:`signature_test`); ``(nan, 1)``
+    with fewer than twelve slips (too few to test: :func:`fit_miscalibration` then
+    leaves the decision to the replay, as :func:`_slips_differ` does).
+    """
+    if slips is None or "op_break" not in slips:
+        return math.nan, 1.0
+    x, y, d = slips["op_break"], slips["mv_after"], slips["op_direction"]
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y, d = x[ok], y[ok], d[ok]
+    n_blocks = _slip_blocks(x.size)
+    if n_blocks < 4:
+        return math.nan, 1.0
+    others = np.column_stack([(d > 0).astype(float), (d < 0).astype(float)])
+    beta, p = signature_test(x, y - x, np.ones(x.size), others=others, n_blocks=n_blocks)
+    if p >= 1.0 and beta == 0.0:
+        return math.nan, 1.0
+    return 1.0 + beta, p
 
 
 def _slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
@@ -2799,6 +2923,58 @@ def _search_curvature(cost: Callable[[float], float], family: str) -> tuple[floa
     return (c, cc) if cc < costs[i] else (float(grid[i]), costs[i])
 
 
+def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    v = np.asarray(x, dtype=float)[w > 0]
+    return float(np.median(v)) if v.size else float(np.median(x))
+
+
+def gain_change_test(
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, side: str
+) -> tuple[float, float]:
+    """The signature of an installed characteristic: a gain that changes with the
+    operating point, which no linear process gives (Section 5.1, last step of Fig. 10).
+
+    The base replay's input ``u`` is joined by a hinge ``max(u - u_50, 0)`` at its
+    median: its coefficient is the relative change of the gain above the middle of
+    the range travelled against below it, whatever the shape of the curve.
+    Process side (``u`` the process input): the hinge passes through the base
+    process's dynamics, load tracking and prediction horizon, and its coefficient is
+    fitted to the base pv replay's errors.  Valve side (mv itself flow-like): the
+    position after each slip against the demand at its breakaway and the hinge of it,
+    with an offset per direction (as :func:`slip_slope_test`).  Returns the
+    relative gain change and the two-sided p-value of :func:`signature_test` (the
+    block-to-block scatter of the record decides, so a change that only part of the
+    record shows does not pass).  An operating point that never moves (a cycle
+    between two fixed positions) leaves the hinge a copy of ``u``: p = 1.  On the
+    valve side with fewer than twelve measured slips: ``(nan, 1)``, too few to test.
+    """
+    sig = ctx.sig
+    if side == "process":
+        u = _process_input(ctx, base)
+        model = base.process.model
+        k1, k2 = model.gains
+        h = np.maximum(u - _weighted_median(u, w), 0.0)
+        X_u = _process_regressors(u, model, k1, k2)
+        x_h = _process_regressors(h, model, k1, k2) @ base.process.coef[:2]
+        r = sig.pv - base.process.pv
+        others = np.column_stack([np.ones(sig.n), X_u])
+        return signature_test(x_h, -r, w, others=others)
+    slips = ctx.slips
+    if slips is None or "op_break" not in slips:
+        return math.nan, 1.0
+    x, y, d = slips["op_break"], slips["mv_after"], slips["op_direction"]
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y, d = x[ok], y[ok], d[ok]
+    n_blocks = _slip_blocks(x.size)
+    if n_blocks < 4:
+        return math.nan, 1.0
+    others = np.column_stack([(d > 0).astype(float), (d < 0).astype(float), x])
+    h = np.maximum(x - float(np.median(x)), 0.0)
+    beta, p = signature_test(h, y, np.ones(x.size), others=others, n_blocks=n_blocks)
+    b = float(np.linalg.lstsq(others, y, rcond=None)[0][2])
+    return (beta / b if b != 0.0 else 0.0), p
+
+
 def fit_valve_characteristic(
     ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
 ) -> EffectFit:
@@ -2871,10 +3047,22 @@ def fit_valve_characteristic(
                 )
             )
     _, variant, n_params, params, preds, proc, ue = min(results, key=lambda r: r[0])
+    supported = True
+    if init is None:
+        gain_change, p_gain = gain_change_test(ctx, w, base, params["side"])
+        if math.isfinite(gain_change):
+            # Convex (curvature > 0, both families) means more gain above the middle.
+            p_gain = _one_sided(p_gain, gain_change * params["curvature"] > 0.0)
+        else:
+            # Too few measured slips to test: the replay decides alone.
+            p_gain = 0.0
+        params = {**params, "gain_change": gain_change, "gain_change_p": p_gain}
+        supported = p_gain < SIGNATURE_P
     return EffectFit(
         effect="valve_characteristic",
         variant=variant,
         n_params=n_params,
+        supported=supported,
         params=params,
         predictions=preds,
         x=(params["curvature"],),

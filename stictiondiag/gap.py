@@ -52,9 +52,15 @@ base error per extra parameter (``n_eff``: effectively independent residuals, th
 judged samples over the residuals' integrated autocorrelation time); when the log
 ratio of the blocks' errors, base against effect, passes the same two-standard-error
 test (free of the blocks' differing error sizes), the share alone; it must also
-beat that share in at least half of the blocks, and pass its own signature check (an
-external oscillation keeps its phase along the record).  ``none`` wins when no
-candidate is accepted.  The accepted candidates are ranked by their held-out evidence
+beat that share in at least half of the blocks, and its own signature must be in the
+data, not only a smaller error: an external oscillation keeps its phase along the
+record; an asymmetric or time-varying valve has slips that differ by direction or by
+time; a miscalibrated positioner puts the valve after each slip on a line of slope
+other than 1 against the demand at the breakaway; an installed characteristic
+makes the loop's gain change with the operating point, which no linear process does
+(:func:`stictiondiag.effects.slip_slope_test`,
+:func:`stictiondiag.effects.gain_change_test`).  A signature with a direction is
+tested one-sided, in the direction of the fitted effect.  ``none`` wins when no candidate is accepted.  The accepted candidates are ranked by their held-out evidence
 in the units of the Bayesian information criterion: for each signal the effect
 changes, ``n_eff`` times the log ratio of the base's squared error to the effect's,
 less ``log(n_eff)`` per extra parameter.  A ratio, not the raw sum of squared errors:
@@ -63,7 +69,9 @@ not outrank most of the mv error removed.  An effect is named only if adding
 it lowers the gap on the record; a gap of 0 (the replay within its noise) is
 ``none``.  No threshold is tuned to a data
 generator: the penalties come from the data's own block-to-block scatter and
-residual correlation, and the signature check is a Rayleigh test at 1 %.
+residual correlation, and the signature checks are tests at 1 % (Rayleigh, rank,
+and t tests whose standard errors come from the scatter between blocks of the
+record, :func:`stictiondiag.effects.signature_test`).
 """
 
 from __future__ import annotations

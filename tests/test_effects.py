@@ -261,3 +261,142 @@ def test_quantization_explains_the_controller_error_of_a_historian_rounding(roun
         # The controller replay is exact up to its fit (op error ~0): nothing to
         # explain beyond it (capped by the replay's own error).
         assert ef.explained.get("op", 0.0) <= op_mse * (1 + 1e-12)
+
+
+def test_signature_test_recovers_a_coefficient_and_keeps_its_level():
+    # Replay errors are correlated (AR(1), phi = 0.95) and so is the regressor (a
+    # slow sinusoid plus its own AR(1) part): the textbook standard error would be
+    # about six times too small and reject far more often than 1 %.
+    rng = np.random.default_rng(11)
+    n, phi = 2400, 0.95
+
+    def ar1(size):
+        e = rng.standard_normal(size)
+        out = np.empty(size)
+        out[0] = e[0]
+        for k in range(1, size):
+            out[k] = phi * out[k - 1] + e[k]
+        return out
+
+    k = np.arange(n)
+    rejections = 0
+    n_rep = 300
+    for _ in range(n_rep):
+        x = np.sin(k / 90.0) + 0.3 * ar1(n)
+        _, p = fx.signature_test(x, ar1(n), np.ones(n))
+        rejections += p < 0.01
+    # Level 1 %: 3 of 300 expected; binomial sd 1.7.  The batch-means variance with
+    # twelve blocks of 200 samples (correlation time about 40) is slightly
+    # optimistic, so allow up to 4 % (12 of 300), still far below what ignoring the
+    # correlation gives.
+    assert rejections <= 12
+    x = np.sin(k / 90.0) + 0.3 * ar1(n)
+    beta, p = fx.signature_test(x, 2.0 * x + ar1(n), np.ones(n))
+    # Signal 2 x against AR(1) noise of sd 3.2 correlated over ~40 samples: a standard
+    # error of about 0.35, so the estimate is within 1.0 (three standard errors) and
+    # clear at the 1 % level.
+    assert beta == pytest.approx(2.0, abs=1.0)
+    assert p < 0.01
+
+
+def test_signature_test_partials_out_other_columns():
+    rng = np.random.default_rng(12)
+    n = 1200
+    z = rng.standard_normal(n)
+    x = z + 0.1 * rng.standard_normal(n)
+    y = 3.0 * z + 0.05 * rng.standard_normal(n)
+    # y depends on z only; x is nearly a copy of z: with z partialled out x adds
+    # nothing (p well above 1 %); without, it would look highly significant.
+    beta, p = fx.signature_test(x, y, np.ones(n), others=z[:, None])
+    assert abs(beta) < 0.05
+    assert p > 0.01
+    # A column that is a copy of another carries nothing: (0, 1).
+    assert fx.signature_test(z, y, np.ones(n), others=z[:, None]) == (0.0, 1.0)
+
+
+def _wandering_stickslip_op(n=8000, seed=7):
+    """A noisy triangular demand whose centre wanders: slips at many positions."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)
+    tri = 6.0 * (2.0 * np.abs((t / 150.0) % 2.0 - 1.0) - 1.0)
+    return 50.0 + 15.0 * np.sin(t / 1300.0) + tri + 0.05 * rng.standard_normal(n)
+
+
+@pytest.mark.parametrize("slope", [1.0, 0.8, 1.25])
+def test_slip_slope_test_sees_a_miscalibrated_positioner(slope):
+    op = _wandering_stickslip_op()
+    v, _ = fx.valve_replay(op, 3.0, 1.5, initial_direction=1.0)
+    rng = np.random.default_rng(8)
+    mv = 4.0 + slope * v + 0.03 * rng.standard_normal(op.size)
+    slips = fx.measure_slips(op, mv, 1.0)
+    s, p = fx.slip_slope_test(slips)
+    # About 50 slips spread over 30 % of span: the slope is read to within 0.02
+    # (mv noise 0.03 %, the one-sample resolution of the breakaway demand, and the
+    # noisy demand's direction at the breakaway setting each slip's offset).
+    assert s == pytest.approx(slope, abs=0.02)
+    if slope == 1.0:
+        # A correct positioner: no signature at the 1 % level (a fixed seed; the
+        # test's level is checked on noise above).
+        assert p > fx.SIGNATURE_P
+    else:
+        assert p < 1e-4
+
+
+def test_slip_slope_test_needs_slips():
+    # Fewer than twelve slips: nothing to tell (nan, 1).
+    assert fx.slip_slope_test(None) == (pytest.approx(math.nan, nan_ok=True), 1.0)
+    few = {
+        "op_break": np.arange(8.0),
+        "mv_after": np.arange(8.0),
+        "op_direction": np.tile([1.0, -1.0], 4),
+    }
+    s, p = fx.slip_slope_test(few)
+    assert math.isnan(s) and p == 1.0
+
+
+def _levels_loop(curvature, family="power", n=6000, seed=9):
+    """Open-loop steps of a valve across its range into a lag with dead time, through
+    an installed characteristic (curvature 0: linear)."""
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.uniform(15.0, 85.0, n // 60 + 1), 60)[:n]
+    u = u + 0.2 * rng.standard_normal(n)
+    flow = fx.characteristic_curve(u, curvature, family)
+    a = math.exp(-1.0 / 10.0)
+    y = np.zeros(n)
+    for k in range(4, n):
+        y[k] = a * y[k - 1] + 0.8 * (1 - a) * flow[k - 4]
+    pv = y + 0.1 * rng.standard_normal(n)
+    sig = fx.LoopSignals(op=u, pv=pv, dt=1.0, mv=u)
+    ctx = fx.build_context(sig)
+    proc = fx.fit_process(u, ctx, ctx.w_eval)
+    base = fx.BaseFit(valve=None, process=proc, op=u, controller={}, mv_model=u)
+    return ctx, base
+
+
+@pytest.mark.parametrize("curvature", [math.log(2.0), math.log(0.5)])
+def test_gain_change_test_sees_an_installed_characteristic(curvature):
+    ctx, base = _levels_loop(curvature)
+    change, p = fx.gain_change_test(ctx, ctx.w_eval, base, "process")
+    # Power 2 (convex): the gain at 70 % is about three times that at 30 %, so the
+    # hinge at the median finds a gain higher above the middle; power 1/2 (concave)
+    # the other way.  Strong and clear: p far below 1 %.
+    assert change * curvature > 0.0
+    assert abs(change) > 0.3
+    assert p < 1e-4
+
+
+def test_gain_change_test_is_quiet_on_a_linear_process():
+    ctx, base = _levels_loop(0.0)
+    change, p = fx.gain_change_test(ctx, ctx.w_eval, base, "process")
+    # A linear valve: no gain change beyond noise (a fixed seed; the test's level is
+    # checked on noise above), and a small estimate.
+    assert p > fx.SIGNATURE_P
+    assert abs(change) < 0.1
+
+
+def test_one_sided_signature_p_follows_the_fitted_direction():
+    # Half the two-sided p-value when the signature points the way the fitted effect
+    # does, at least 1/2 when it points the other way (exact arithmetic).
+    assert fx._one_sided(0.02, True) == pytest.approx(0.01, abs=1e-15)
+    assert fx._one_sided(0.02, False) == pytest.approx(0.99, abs=1e-15)
+    assert fx._one_sided(1.0, True) == 0.5

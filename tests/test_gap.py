@@ -46,6 +46,13 @@ def test_names_a_withheld_miscalibration(miscal):
     assert params["slope"] == pytest.approx(
         case.truth["effect_parameters"]["calibration_gain"], rel=0.1
     )
+    # Its own signature is in the slips measured in the data: the position after each
+    # slip against the breakaway demand has the hidden slope (within 10 %, as the
+    # fitted slope), clearly (p far below the 1 % the diagnosis asks for).
+    assert params["slip_slope"] == pytest.approx(
+        case.truth["effect_parameters"]["calibration_gain"], rel=0.1
+    )
+    assert params["slip_slope_p"] < 1e-3
     # Adding the effect must remove most of the gap, and it must win on held-out data.
     assert g.shrink_pct > 50.0
     assert g.after < g.before
