@@ -1648,7 +1648,12 @@ def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None
             best = (float(c[i]), kano, tuple(X[i]))
     _, kano, top = best
     prob = _ValveProblem.of(ctx, w, kano, 1.0)
-    x, c = _needle_sj(prob, list(dict.fromkeys([top, *extra])), travel)
+    seeds = list(dict.fromkeys([top, *extra]))
+    # J scanned over its whole range around each seed, as the augmented valves do
+    # (:func:`_sj_wide`): the error is a needle in J, and a base that misses it would
+    # credit any augmentation that re-searches S and J with the base's own shortfall.
+    wide = _sj_wide(lambda X, bound: prob.costs(_rows(X[:, 0], X[:, 1]), bound=bound), seeds)
+    x, c = _needle_sj(prob, list(dict.fromkeys([*seeds, tuple(wide)])), travel)
     # The direction of travel before the record only matters until the first slip.
     prob_neg = _ValveProblem.of(ctx, w, kano, -1.0)
     d0 = -1.0 if prob_neg.costs(_rows(x[0], x[1]))[0] < c else 1.0

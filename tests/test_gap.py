@@ -100,6 +100,21 @@ def test_none_when_the_model_explains_the_data():
     assert g.after == g.before and g.shrink_pct == 0.0
 
 
+def test_base_valve_finds_j_of_a_stick_slip_valve():
+    """A Karnopp valve with almost no Coulomb friction (J = S: pure stick-slip) under
+    coloured noise: the base two-parameter fit must find J itself.  A base that stops
+    far below it (J 0.06 or 0.25 on this record) leaves an mv error that any augmentation
+    re-searching S and J removes, and such a loop was then called miscalibrated with
+    a fitted slope of 1.0001."""
+    case = generate_case("none", 2891957045)
+    g = diagnose_gap(_tags(case))
+    valve = g.to_dict()["base"]["valve"]
+    # J within 0.05 % of span of the quasi-static truth 0.890: the replay is in step
+    # with the recorded mv only near the exact threshold (a J on the coarse grid missed by 0.6 or more).
+    assert valve["J"] == pytest.approx(case.truth["J"], abs=0.05)
+    assert g.effect == "none", [(c.effect, c.shrink_pct) for c in g.candidates]
+
+
 def test_pv_scale_does_not_change_the_diagnosis():
     # The gap is normalised per signal: pv in other units (x 7.5) must give the same
     # gap (to the conditioning of the least-squares fits, 1e-6 relative) and effect.
