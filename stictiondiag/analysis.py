@@ -189,6 +189,14 @@ class Analysis:
         return f"{self.loop}_{name}.png"
 
 
+def _replay(tags: Tags, fit):
+    """Step 5, the closed-loop replay (:func:`stictiondiag.replay.replay`, looked up
+    when called)."""
+    from .replay import replay
+
+    return replay(tags, fit, integrating=tags.integrating)
+
+
 def _phase_figure(analysis: Analysis):
     from .plotting.analysis import plot_phase
 
@@ -204,6 +212,17 @@ def _gap_figure(which: str, gap):
     from .plotting.gap import plot_gap_breakdown, plot_gap_replay
 
     return (plot_gap_breakdown if which == "breakdown" else plot_gap_replay)(gap)
+
+
+def prepare_analysis() -> None:
+    """Import the modules of the analysis steps and set up numba's compiler state
+    (the first call of any compiled kernel: about 0.3 s), before the data arrive."""
+    import numpy as np
+
+    from . import effects, estimate, gap, hammerstein, segments  # noqa: F401
+    from ._filters import lfilter1
+
+    lfilter1((1.0,), 0.0, np.zeros(1))
 
 
 def prepare_figure_worker() -> None:
@@ -398,9 +417,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         )
 
     def run_replay():
-        from .replay import replay
-
-        return replay(tags, fit, integrating=tags.integrating)
+        return _replay(tags, fit)
 
     sent: set[str] = set()
 
@@ -424,12 +441,9 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         # replay only at its end (for the feature breakdown) and then waits for it.
         # The outcome is that of the two steps one after the other.
         from .gap import diagnose_gap
-        from .replay import replay
 
         # A picklable call: the worker may have been started before the fit.
-        pending = figures.compute(
-            functools.partial(replay, tags, fit, integrating=tags.integrating)
-        )
+        pending = figures.compute(functools.partial(_replay, tags, fit))
         hand_over(so_far(pending.stand_in()))
         gap_error = None
         try:
@@ -485,5 +499,23 @@ def analyze_file(
     figures: Any = None,
     **read_options,
 ) -> Analysis:
-    """Read one loop's file with :func:`read_tags` and :func:`analyze` it."""
-    return analyze(read_tags(path, **read_options), config=config, figures=figures)
+    """Read one loop's file with :func:`read_tags` and :func:`analyze` it.
+
+    With ``figures`` (a :class:`~stictiondiag.plotting.writer.FigureWriter`) the
+    file is read by the figure worker as it starts, while this process sets up the
+    steps that follow (:func:`prepare_analysis`): pandas and the compiled kernels'
+    set-up, each about half a second, then load side by side.  A file that cannot
+    be read is read again here, so its error is the one :func:`read_tags` raises.
+    """
+    tags = None
+    if figures is not None and hasattr(figures, "warm_up") and figures.can_start():
+        reading = figures.compute(functools.partial(read_tags, path, **read_options))
+        if figures.warm_up(prepare_figure_worker):
+            prepare_analysis()
+        try:
+            tags = reading.get()
+        except Exception:
+            pass  # read again here: the error as read_tags raises it
+    if tags is None:
+        tags = read_tags(path, **read_options)
+    return analyze(tags, config=config, figures=figures)

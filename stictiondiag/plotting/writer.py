@@ -291,13 +291,13 @@ class _Worker:  # pragma: no cover - runs in a worker process
         status = 1
         try:
             signal.signal(signal.SIGTERM, _stop_on_sigterm)
+            if first:
+                self.run(0, first, 1)
             if warm is not None:
                 try:
                     warm()
                 except Exception:  # the work itself will meet the same problem
                     pass
-            if first:
-                self.run(0, first, 1)
             while True:
                 message = _receive_message(self.command_fd)
                 if message is None:
@@ -568,12 +568,15 @@ class FigureWriter:
         return self._idle() is not None or self._can_fork()
 
     def warm_up(self, prepare: Callable | None = None) -> bool:
-        """Start a worker now, before there is work for it: it runs ``prepare()``
+        """Start a worker now, before the work that needs it exists: it takes what
+        is queued (a value to compute at once, say), then runs ``prepare()``
         (imports, set-up) and then takes the work that :meth:`start` and
-        :meth:`finish` send it (pickled).  False when no worker can start."""
+        :meth:`finish` send it (pickled).  False when a worker is there already or
+        none can start."""
         if self._children or not self._can_fork():
             return False
-        return self._fork([], warm=prepare)
+        work, self._queue = self._queue, []
+        return self._fork(work, warm=prepare)
 
     def start(self) -> None:
         """Hand what is queued to a worker now: to a waiting worker (pickled), else
@@ -582,6 +585,8 @@ class FigureWriter:
         Queued values (:meth:`compute`) go with every figure queued so far to one
         worker, so that the figures find the values they need there.
         """
+        # A value computed here meanwhile needs no worker.
+        self._queue = [j for j in self._queue if not (isinstance(j, Pending) and j._done)]
         if not self._queue:
             return
         self._collect(block=False)
