@@ -31,6 +31,7 @@ available.  Elsewhere every figure is rendered in the calling process, at
 
 from __future__ import annotations
 
+import gc
 import itertools
 import os
 import pickle
@@ -291,6 +292,10 @@ class _Worker:  # pragma: no cover - runs in a worker process
         status = 1
         try:
             signal.signal(signal.SIGTERM, _stop_on_sigterm)
+            if warm is not None:
+                # Imports make objects, not garbage: the collector would only scan
+                # them over and over.  Frozen afterwards, they are not scanned again.
+                gc.disable()
             if first:
                 self.run(0, first, 1)
             if warm is not None:
@@ -298,6 +303,8 @@ class _Worker:  # pragma: no cover - runs in a worker process
                     warm()
                 except Exception:  # the work itself will meet the same problem
                     pass
+                gc.freeze()
+                gc.enable()
             while True:
                 message = _receive_message(self.command_fd)
                 if message is None:
