@@ -264,6 +264,17 @@ def _receive_message(fd: int) -> tuple | None:
     return None if data is None else pickle.loads(data)
 
 
+def _pread(fd: int, size: int, offset: int) -> bytes:
+    chunks, done = [], 0
+    while done < size:
+        chunk = os.pread(fd, size - done, offset + done)
+        if not chunk:
+            break
+        chunks.append(chunk)
+        done += len(chunk)
+    return b"".join(chunks)
+
+
 def _append(fd: int, data: bytes, offset: int) -> None:
     view, done = memoryview(data), 0
     while done < len(data):
@@ -311,7 +322,7 @@ class _Worker:  # pragma: no cover - runs in a worker process
                     break
                 _, number, offset, size, parallel = message
                 try:
-                    work = pickle.loads(os.pread(self.inbox, size, offset))
+                    work = pickle.loads(_pread(self.inbox, size, offset))
                 except Exception:
                     self.send("report", number, b"")  # unreadable: the caller does it
                     continue
@@ -347,10 +358,16 @@ class _Worker:  # pragma: no cover - runs in a worker process
             and _single_threaded()
         ):
             shares = _shares(indexed, parallel)
-        helpers = []
+        helpers, here = [], shares[-1]
         for share in shares[:-1]:
             read_fd, write_fd = os.pipe()
-            pid = os.fork()
+            try:
+                pid = os.fork()
+            except OSError:
+                os.close(read_fd)
+                os.close(write_fd)
+                here = share + here
+                continue
             if pid == 0:
                 os.close(read_fd)
                 self.helpers = []
@@ -358,7 +375,7 @@ class _Worker:  # pragma: no cover - runs in a worker process
             os.close(write_fd)
             helpers.append((pid, read_fd))
             self.helpers.append(pid)
-        report = self.render(shares[-1])
+        report = self.render(here)
         for pid, read_fd in helpers:
             data = FigureWriter._read(read_fd)
             os.waitpid(pid, 0)
@@ -467,7 +484,7 @@ class _Child:
             self.end()
             return False
         kind, ident, offset, size = message
-        data = os.pread(self.outbox.fileno(), size, offset) if size else b""
+        data = _pread(self.outbox.fileno(), size, offset) if size else b""
         if kind == "value":
             pending = self.values.pop(ident, None)
             if pending is not None:
