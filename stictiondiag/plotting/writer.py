@@ -589,7 +589,7 @@ class FigureWriter:
     def can_start(self) -> bool:
         """True when :meth:`start` would hand work to a worker now."""
         self._collect(block=False)
-        return self._idle() is not None or self._can_fork()
+        return bool(self._serving()) or self._can_fork()
 
     def warm_up(self, prepare: Callable | None = None) -> bool:
         """Start a worker now, before the work that needs it exists: it takes what
@@ -604,7 +604,8 @@ class FigureWriter:
 
     def start(self) -> None:
         """Hand what is queued to a worker now: to a waiting worker (pickled), else
-        to new workers (none free: it waits).
+        to new workers, else to a busy worker, which takes it next (none at all:
+        it waits).
 
         Queued values (:meth:`compute`) go with every figure queued so far to one
         worker, so that the figures find the values they need there.
@@ -619,6 +620,10 @@ class FigureWriter:
             self._queue = []
             return
         if not self._can_fork():
+            for child in self._serving():
+                if child.send(self._queue, 1):
+                    self._queue = []
+                    return
             return
         free = self.workers - len(self._children)
         if any(isinstance(job, Pending) for job in self._queue):
