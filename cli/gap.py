@@ -99,7 +99,9 @@ def gap(
         d = result.to_dict()
         emit(d, render_gap(d), json_path)
         if plot is not None:
-            import matplotlib.pyplot as plt
+            from stictiondiag.plotting import pyplot
+
+            plt = pyplot()
 
             figs = result.figures()
             suffix = plot.suffix or ".png"

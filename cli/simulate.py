@@ -237,7 +237,9 @@ def simulate(
         if csv is not None:
             write_atomic(csv, sim.to_pandas().to_csv(index=False))
         if plot is not None:
-            import matplotlib.pyplot as plt
+            from stictiondiag.plotting import pyplot
+
+            plt = pyplot()
 
             fig = sim.plot()
             try:

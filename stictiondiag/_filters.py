@@ -1,10 +1,12 @@
-"""Drop-in replacements for the few :mod:`scipy.signal` calls on the analysis path.
+"""Drop-in replacements for the few :mod:`scipy.signal` and :mod:`scipy.ndimage`
+calls on the analysis path.
 
 Importing :mod:`scipy.signal` costs more than a second (it pulls in
 :mod:`scipy.stats`), longer than a whole ``stiction analyze`` of a short loop
-otherwise needs.  The functions here compute the same numbers with numpy, a numba
-kernel and the light scipy modules the analysis loads anyway (:mod:`scipy.linalg`,
-:mod:`scipy.ndimage`); ``tests/test_filters.py`` checks each against the scipy
+otherwise needs; :mod:`scipy.ndimage` about 0.1 s (its array-API layer parses
+every function's docstring at import).  The functions here compute the same numbers
+with numpy, numba kernels and :mod:`scipy.linalg`, which the analysis loads anyway
+(numba itself imports it); ``tests/test_filters.py`` checks each against the scipy
 function it replaces.
 """
 
@@ -98,17 +100,121 @@ def _polyfit_edge(t: np.ndarray, x: np.ndarray, order: int) -> np.ndarray:
     return (c.T / scale).T
 
 
+#: DBL_EPSILON, the tolerance of ndimage's symmetry test of a filter.
+_DBL_EPSILON = float(np.finfo(float).eps)
+
+
+@jit
+def _correlate_constant(x, w, origin):
+    # scipy.ndimage's NI_Correlate1D on one line padded with zeros (mode "constant",
+    # cval 0): the same symmetry test and the same operations in the same order.
+    n = x.shape[0]
+    fs = w.shape[0]
+    size1 = fs // 2
+    size2 = fs - size1 - 1
+    symmetric = 0
+    if fs & 1:
+        symmetric = 1
+        for i in range(1, fs // 2 + 1):
+            if abs(w[i + size1] - w[size1 - i]) > _DBL_EPSILON:
+                symmetric = 0
+                break
+        if symmetric == 0:
+            symmetric = -1
+            for i in range(1, fs // 2 + 1):
+                if abs(w[size1 + i] + w[size1 - i]) > _DBL_EPSILON:
+                    symmetric = 0
+                    break
+    before = size1 + origin
+    buf = np.zeros(n + before + size2 - origin)
+    buf[before : before + n] = x
+    out = np.empty(n)
+    for k in range(n):
+        c = size1 + k  # the centre sample in the padded line
+        if symmetric > 0:
+            acc = buf[c] * w[size1]
+            for j in range(-size1, 0):
+                acc += (buf[c + j] + buf[c - j]) * w[size1 + j]
+        elif symmetric < 0:
+            acc = buf[c] * w[size1]
+            for j in range(-size1, 0):
+                acc += (buf[c + j] - buf[c - j]) * w[size1 + j]
+        else:
+            acc = buf[c + size2] * w[size1 + size2]
+            for j in range(-size1, size2):
+                acc += buf[c + j] * w[size1 + j]
+        out[k] = acc
+    return out
+
+
+def convolve1d_constant(x: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.convolve1d(x, weights, mode="constant")`` of a 1-D signal.
+
+    ndimage's own loop (:func:`_correlate_constant`) on the reversed weights, with
+    the origin ndimage gives a convolution; the same numbers to the last bit.
+    """
+    x = np.ascontiguousarray(x, dtype=float)
+    w = np.ascontiguousarray(np.asarray(weights, dtype=float)[::-1])
+    origin = 0 if w.size & 1 else -1
+    return _correlate_constant(x, w, origin)
+
+
+@jit
+def _median_nearest(x, size):
+    # Running median over an odd window, the record extended by its end values: a
+    # sorted copy of the window, one sample out and one in per step.
+    n = x.shape[0]
+    half = size // 2
+    ext = np.empty(n + 2 * half)
+    ext[:half] = x[0]
+    ext[half : half + n] = x
+    ext[half + n :] = x[n - 1]
+    window = np.sort(ext[:size])
+    out = np.empty(n)
+    out[0] = window[half]
+    for k in range(1, n):
+        old = ext[k - 1]
+        new = ext[k - 1 + size]
+        i = np.searchsorted(window, old)  # window[i] == old
+        j = np.searchsorted(window, new)
+        if j > i:  # out at i, the ones between one place down, new above them
+            for m in range(i, j - 1):
+                window[m] = window[m + 1]
+            window[j - 1] = new
+        else:  # the ones between one place up, new below them
+            for m in range(i, j, -1):
+                window[m] = window[m - 1]
+            window[j] = new
+        out[k] = window[half]
+    return out
+
+
+def median_filter_nearest(x: np.ndarray, size: int) -> np.ndarray:
+    """``scipy.ndimage.median_filter(x, size=size, mode="nearest")`` of a 1-D signal.
+
+    A median picks one of the samples, so any exact method gives the same numbers;
+    an odd ``size`` and finite samples here (anything else goes to scipy).
+    """
+    x = np.ascontiguousarray(x, dtype=float)
+    size = int(size)
+    if size < 1 or not size & 1 or x.size == 0 or not np.all(np.isfinite(x)):
+        from scipy.ndimage import median_filter
+
+        return median_filter(x, size=size, mode="nearest")
+    return _median_nearest(x, size)
+
+
 def savgol_smooth(x: np.ndarray, window_length: int, polyorder: int) -> np.ndarray:
     """``scipy.signal.savgol_filter(x, window_length, polyorder)`` of a 1-D signal
     (smoothing, ``mode="interp"``).
 
     The steps of scipy 1.17's implementation with the same building blocks: the
     least-squares convolution coefficients (``scipy.linalg.lstsq``), the convolution
-    (``scipy.ndimage.convolve1d``) and a polynomial fitted to the first and the last
-    window for the ``window_length // 2`` samples at either end.
+    (``scipy.ndimage.convolve1d``, as :func:`convolve1d_constant`) and a polynomial
+    fitted to the first and the last window for the ``window_length // 2`` samples
+    at either end.
     """
     from scipy.linalg import lstsq
-    from scipy.ndimage import convolve1d
 
     x = np.asarray(x, dtype=float)
     n = x.size
@@ -124,7 +230,7 @@ def savgol_smooth(x: np.ndarray, window_length: int, polyorder: int) -> np.ndarr
     e0 = np.zeros(polyorder + 1)
     e0[0] = 1.0
     coeffs = lstsq(a, e0, cond=np.finfo(float).eps * max(a.shape))[0]
-    y = convolve1d(x, coeffs, mode="constant")
+    y = convolve1d_constant(x, coeffs)
     # _fit_edges_polyfit
     t_edge = np.arange(0, window_length, dtype=float)
     for w0, i0, i1 in ((0, 0, halflen), (n - window_length, n - halflen, n)):

@@ -168,29 +168,78 @@ class Analysis:
         return {name: build() for name, build in self.figure_builders().items()}
 
     def figure_builders(self) -> dict:
-        """The functions that build :meth:`figures`, by name, without building them."""
+        """The functions that build :meth:`figures`, by name, without building them.
 
-        def phase():
-            from .plotting.analysis import plot_phase
-
-            period = self.oscillation.period_s or self.oscillation_op.period_s
-            return plot_phase(self.tags, fit=self.fit, title=self.loop, period_s=period)
-
-        builders = {"phase": phase}
+        Each is a module-level function bound to its data (picklable, so that a
+        worker process started before the analysis can draw it); none imports
+        matplotlib before it is called.
+        """
+        builders = {"phase": functools.partial(_phase_figure, self)}
         if self.replay is not None:
             # Looked up when drawn: the replay may still be on its way from a worker.
-            builders["reconstruction"] = lambda: self.replay.plot()
+            builders["reconstruction"] = functools.partial(_reconstruction_figure, self)
         if self.gap is not None and hasattr(self.gap, "figures"):
             # The figures of GapDiagnosis.figures(), one at a time.
-            from .plotting.gap import plot_gap_breakdown, plot_gap_replay
-
-            builders["gap_breakdown"] = functools.partial(plot_gap_breakdown, self.gap)
-            builders["gap_replay"] = functools.partial(plot_gap_replay, self.gap)
+            builders["gap_breakdown"] = functools.partial(_gap_figure, "breakdown", self.gap)
+            builders["gap_replay"] = functools.partial(_gap_figure, "replay", self.gap)
         return builders
 
     def figure_file(self, name: str) -> str:
         """File name of the figure ``name``: ``<loop>_<name>.png``."""
         return f"{self.loop}_{name}.png"
+
+
+def _replay(tags: Tags, fit):
+    """Step 5, the closed-loop replay (:func:`stictiondiag.replay.replay`, looked up
+    when called)."""
+    from .replay import replay
+
+    return replay(tags, fit, integrating=tags.integrating)
+
+
+def _phase_figure(analysis: Analysis):
+    from .plotting.analysis import plot_phase
+
+    period = analysis.oscillation.period_s or analysis.oscillation_op.period_s
+    return plot_phase(analysis.tags, fit=analysis.fit, title=analysis.loop, period_s=period)
+
+
+def _reconstruction_figure(analysis: Analysis):
+    return analysis.replay.plot()
+
+
+def _gap_figure(which: str, gap):
+    from .plotting.gap import plot_gap_breakdown, plot_gap_replay
+
+    return (plot_gap_breakdown if which == "breakdown" else plot_gap_replay)(gap)
+
+
+def prepare_analysis() -> None:
+    """Import the modules of the analysis steps and set up numba's compiler state
+    (the first call of any compiled kernel: about 0.3 s), before the data arrive."""
+    import numpy as np
+
+    from . import effects, estimate, gap, hammerstein, segments  # noqa: F401
+    from ._filters import lfilter1
+
+    lfilter1((1.0,), 0.0, np.zeros(1))
+
+
+def prepare_figure_worker() -> None:
+    """Warm-up of a worker process that will draw this module's figures and replay
+    the loop (:meth:`~stictiondiag.plotting.writer.FigureWriter.warm_up`): the
+    plotting modules imported and numba's compiler state set up, before the work
+    arrives."""
+    import numpy as np  # noqa: F401
+
+    from . import replay  # noqa: F401
+    from ._filters import lfilter1
+    from .plotting import analysis, gap  # noqa: F401
+    from .plotting import replay as _replay_plots  # noqa: F401
+
+    # The first call of any compiled kernel sets up numba's target (about 0.3 s);
+    # the replay's own kernels then load in a few ms each.
+    lfilter1((1.0,), 0.0, np.zeros(1))
 
 
 def _clean(obj):
@@ -312,6 +361,10 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
     config = config or AnalysisConfig()
     warnings = list(tags.warnings)
     dt = float(tags.ts)
+    if figures is not None and hasattr(figures, "warm_up"):
+        # A worker process gets ready to draw and replay (imports, compiler set-up)
+        # on the other core while this one finds the oscillation and fits S and J.
+        figures.warm_up(prepare_figure_worker)
 
     # 2. Is there an oscillation at all?
     osc_pv = detect_oscillation(tags.pv, dt)
@@ -364,9 +417,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         )
 
     def run_replay():
-        from .replay import replay
-
-        return replay(tags, fit, integrating=tags.integrating)
+        return _replay(tags, fit)
 
     sent: set[str] = set()
 
@@ -391,7 +442,8 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         # The outcome is that of the two steps one after the other.
         from .gap import diagnose_gap
 
-        pending = figures.compute(run_replay)
+        # A picklable call: the worker may have been started before the fit.
+        pending = figures.compute(functools.partial(_replay, tags, fit))
         hand_over(so_far(pending.stand_in()))
         gap_error = None
         try:
@@ -447,5 +499,23 @@ def analyze_file(
     figures: Any = None,
     **read_options,
 ) -> Analysis:
-    """Read one loop's file with :func:`read_tags` and :func:`analyze` it."""
-    return analyze(read_tags(path, **read_options), config=config, figures=figures)
+    """Read one loop's file with :func:`read_tags` and :func:`analyze` it.
+
+    With ``figures`` (a :class:`~stictiondiag.plotting.writer.FigureWriter`) the
+    file is read by the figure worker as it starts, while this process sets up the
+    steps that follow (:func:`prepare_analysis`): pandas and the compiled kernels'
+    set-up, each about half a second, then load side by side.  A file that cannot
+    be read is read again here, so its error is the one :func:`read_tags` raises.
+    """
+    tags = None
+    if figures is not None and hasattr(figures, "warm_up") and figures.can_start():
+        reading = figures.compute(functools.partial(read_tags, path, **read_options))
+        if figures.warm_up(prepare_figure_worker):
+            prepare_analysis()
+        try:
+            tags = reading.get()
+        except Exception:
+            pass  # read again here: the error as read_tags raises it
+    if tags is None:
+        tags = read_tags(path, **read_options)
+    return analyze(tags, config=config, figures=figures)

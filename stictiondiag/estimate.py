@@ -459,7 +459,7 @@ def cycle_samples(x: np.ndarray) -> int:
     the record.  The result sets time scales of the fits, not a reported period
     (that is :func:`stictiondiag.oscillation.detect_oscillation`'s job).
     """
-    from scipy.ndimage import median_filter
+    from ._filters import median_filter_nearest
 
     x = np.asarray(x, dtype=float)
     n = x.size
@@ -469,7 +469,7 @@ def cycle_samples(x: np.ndarray) -> int:
     window = n / 4.0
     period = None
     for _ in range(6):
-        xd = x - median_filter(x, size=max(3, int(window) | 1), mode="nearest")
+        xd = x - median_filter_nearest(x, max(3, int(window) | 1))
         p = _schmitt_period(xd)
         if p is None:
             break

@@ -633,9 +633,9 @@ def cycle_travel(x: np.ndarray, period: int) -> float:
     that slips every cycle, without the load moves of op that a range of the whole
     record would include.
     """
-    from scipy.ndimage import median_filter
+    from ._filters import median_filter_nearest
 
-    xd = x - median_filter(x, size=max(3, int(3 * period) | 1), mode="nearest")
+    xd = x - median_filter_nearest(x, max(3, int(3 * period) | 1))
     m = max(2, int(2 * period))
     nw = xd.size // m
     if nw < 1:

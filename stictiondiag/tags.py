@@ -78,12 +78,14 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-import pandas as pd
 
 from .errors import DataError, UsageError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     "LOOP_TYPES",
@@ -265,6 +267,8 @@ class Tags:
 
     def to_pandas(self) -> pd.DataFrame:
         """DataFrame with columns ``time`` [s], ``sp``, ``pv``, ``op``, ``mv`` (present ones)."""
+        import pandas as pd
+
         columns: dict[str, np.ndarray] = {"time": self.time}
         for role in ("sp", "pv", "op", "mv"):
             values = getattr(self, role)
@@ -490,6 +494,8 @@ def read_frame(
     pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating
         As for :func:`read_tags`.
     """
+    import pandas as pd
+
     _check_options(op_units, op_range, loop_type)
     if ts is not None:
         ts = _check_ts(ts)
@@ -611,6 +617,8 @@ def _read_parquet(file: Path) -> pd.DataFrame:
 
 
 def _read_csv(file: Path, compression: str | None) -> pd.DataFrame:
+    import pandas as pd
+
     if file.stat().st_size == 0:
         raise DataError(f"{file} is empty: export the loop data again")
     opener = {None: open, "gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}[compression]
@@ -712,6 +720,8 @@ def _match_columns(
     frame: pd.DataFrame, overrides: Mapping[str, str | None], file: str
 ) -> dict[str, str]:
     """Role -> column name, from explicit names first, then the matching rules."""
+    import pandas as pd
+
     chosen: dict[str, str] = {}
     for role, name in overrides.items():
         if name is None:
@@ -778,6 +788,8 @@ def _match_columns(
 
 def _numeric(series: pd.Series, role: str, column: str, file: str, notes: list[str]) -> np.ndarray:
     """Column as float array; sparse non-numeric entries become gaps, mostly text is an error."""
+    import pandas as pd
+
     if pd.api.types.is_bool_dtype(series) or pd.api.types.is_numeric_dtype(series):
         return series.to_numpy(dtype=float, na_value=np.nan)
     if pd.api.types.is_datetime64_any_dtype(series):
@@ -811,6 +823,8 @@ def _numeric(series: pd.Series, role: str, column: str, file: str, notes: list[s
 
 def _time_seconds(series: pd.Series, column: str, file: str) -> np.ndarray:
     """Time column as seconds (float, NaN where unreadable)."""
+    import pandas as pd
+
     if pd.api.types.is_datetime64_any_dtype(series):
         stamps = series
     elif pd.api.types.is_timedelta64_dtype(series):

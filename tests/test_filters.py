@@ -1,8 +1,9 @@
 """The scipy-free replacements on the analysis path agree with the scipy functions.
 
 ``stictiondiag._filters``, ``_stats`` and ``_optimize`` stand in for
-:mod:`scipy.signal`, :mod:`scipy.stats` and :mod:`scipy.optimize`, whose imports
-cost more than the rest of a ``stiction analyze`` run.  Each replacement performs
+:mod:`scipy.signal`, :mod:`scipy.ndimage`, :mod:`scipy.stats` and
+:mod:`scipy.optimize`, whose imports cost more than the rest of a ``stiction
+analyze`` run (ndimage: a tenth of a second).  Each replacement performs
 scipy's own operations (or calls the same LAPACK/ndimage routines), so on this
 platform the results are identical to the last bit; the tests allow 1e-12 relative
 (to the scale of the output) so that only a real change of the computation fails,
@@ -21,13 +22,15 @@ import sys
 
 import numpy as np
 import pytest
-from scipy import optimize, signal, special, stats
+from scipy import ndimage, optimize, signal, special, stats
 
 import stictiondiag
 from stictiondiag._filters import (
+    convolve1d_constant,
     correlate_lags,
     detrend_linear,
     lfilter1,
+    median_filter_nearest,
     savgol_smooth,
 )
 from stictiondiag._optimize import minimize_scalar_bounded
@@ -85,6 +88,41 @@ def test_savgol_smooth_matches_scipy_savgol_filter(window, order):
     _close(savgol_smooth(x, window, order), signal.savgol_filter(x, window, order))
     short = x[:window]  # window as long as the record: only the edge fits
     _close(savgol_smooth(short, window, order), signal.savgol_filter(short, window, order))
+
+
+def test_convolve1d_constant_matches_ndimage():
+    # ndimage's loop and symmetry test, repeated: the same numbers to the last bit on
+    # this platform (checked to 1e-12 here, like the others).
+    rng = np.random.default_rng(7)
+    for trial in range(400):
+        size = int(rng.integers(1, 40))
+        half = rng.standard_normal(size // 2)
+        weights = [
+            rng.standard_normal(size),
+            np.concatenate([half, rng.standard_normal(size % 2), half[::-1]]),  # symmetric
+            np.concatenate([half, np.zeros(size % 2), -half[::-1]]),  # antisymmetric
+        ][trial % 3]
+        x = rng.standard_normal(int(rng.integers(1, 500))).cumsum()
+        _close(convolve1d_constant(x, weights), ndimage.convolve1d(x, weights, mode="constant"))
+
+
+def test_median_filter_nearest_matches_ndimage():
+    # A median picks a sample: the same numbers, exactly.
+    rng = np.random.default_rng(8)
+    for trial in range(300):
+        n = int(rng.integers(1, 600))
+        x = rng.standard_normal(n).cumsum()
+        if trial % 3 == 0:
+            x = np.round(x)  # ties
+        size = int(rng.integers(0, 800)) | 1
+        np.testing.assert_array_equal(
+            median_filter_nearest(x, size), ndimage.median_filter(x, size=size, mode="nearest")
+        )
+    x = np.array([1.0, np.nan, 3.0, 2.0, 5.0])  # not finite, an even size: scipy's own
+    for size in (3, 4):
+        np.testing.assert_array_equal(
+            median_filter_nearest(x, size), ndimage.median_filter(x, size=size, mode="nearest")
+        )
 
 
 def test_mannwhitneyu_matches_scipy():
@@ -165,4 +203,4 @@ def test_analysis_path_imports_neither_scipy_signal_nor_stats():
         "analysis tags oscillation segments estimate identify replay loops hammerstein effects gap"
     )
     loaded = _imported("\n".join(f"import stictiondiag.{m}" for m in mods.split()))
-    assert not loaded & {"scipy.signal", "scipy.stats", "scipy.optimize"}
+    assert not loaded & {"scipy.signal", "scipy.stats", "scipy.optimize", "scipy.ndimage"}

@@ -331,6 +331,110 @@ def test_values_computed_by_a_worker(tmp_path):
     assert report["unpicklable_here"]
 
 
+_SCRIPT_SERVING = textwrap.dedent(
+    """
+    import functools, json, os, sys
+    from pathlib import Path
+
+    import numpy as np
+
+    from stictiondiag.errors import DataError
+    from stictiondiag.plotting.writer import FigureWriter, _single_threaded
+
+    out = Path(sys.argv[1])
+    parent = os.getpid()
+    report = {"single_threaded": _single_threaded()}
+
+    # Module-level functions bound with functools.partial: picklable, so that work
+    # added after a worker started can be sent to it.
+    def figure(k, log):
+        (out / f"pid_{log}").write_text(str(os.getpid()))
+        if log == "dies" and os.getpid() != parent:
+            os._exit(3)
+        from stictiondiag.plotting._fast import new_figure
+        fig, axes = new_figure(1, 1, (3, 2))
+        axes[0, 0].plot(np.arange(10.0), np.arange(10.0) ** k)
+        axes[0, 0].set_title(f"power {k}")
+        return fig
+
+    def prepare():
+        import matplotlib.figure  # noqa: F401
+        (out / "prepared").write_text(str(os.getpid()))
+
+    def value(x):
+        return {"pid": os.getpid(), "x": x}
+
+    def fails():
+        raise DataError("no value here")
+
+    # 1. A worker started early: it computes the value queued before it, prepares,
+    #    computes a value sent later and draws a figure sent later; the figures of
+    #    finish() are drawn by it and a fork of it, none here.
+    w = FigureWriter(out / "a", workers=1)
+    first = w.compute(functools.partial(value, 1))
+    report["warm"] = w.warm_up(prepare)
+    report["warm_again"] = w.warm_up(prepare)
+    v1 = first.get()
+    later = w.compute(functools.partial(value, 2))
+    bad = w.compute(fails)
+    w.add("f1.png", functools.partial(figure, 1, "f1"))
+    w.start()
+    v2 = later.get()
+    try:
+        bad.get()
+    except DataError as exc:
+        report["error"] = str(exc)
+    w.add("f2.png", functools.partial(figure, 2, "f2"))
+    w.add("f3.png", functools.partial(figure, 3, "f3"))
+    report["written"] = [p.name for p in w.finish()]
+    pid = {k: int((out / f"pid_{k}").read_text()) for k in ("f1", "f2", "f3")}
+    worker = int((out / "prepared").read_text())
+    report["values"] = [v1["pid"] == worker, v2["pid"] == worker, v1["x"], v2["x"]]
+    report["f1_by_worker"] = pid["f1"] == worker
+    report["f2_f3_side_by_side"] = len({pid["f2"], pid["f3"], parent}) == 3
+    report["no_matplotlib_here"] = "matplotlib" not in sys.modules
+
+    # 2. A worker that dies with work sent to it: the figures are drawn here.
+    w = FigureWriter(out / "b", workers=1)
+    w.warm_up()
+    w.add("dies.png", functools.partial(figure, 4, "dies"))
+    w.add("lives.png", functools.partial(figure, 5, "lives"))
+    report["b_written"] = [p.name for p in w.finish()]
+
+    # 3. Work that cannot be pickled does not go to a waiting worker: drawn here.
+    w = FigureWriter(out / "c", workers=1)
+    w.warm_up()
+    w.add("lambda.png", lambda: figure(6, "lambda"))
+    report["c_written"] = [p.name for p in w.finish()]
+    report["c_here"] = int((out / "pid_lambda").read_text()) == parent
+    try:
+        report["children_left"] = os.waitpid(-1, os.WNOHANG) != (0, 0)
+    except ChildProcessError:
+        report["children_left"] = False
+    print(json.dumps(report))
+    """
+)
+
+
+@pytest.mark.skipif(available_workers() == 0, reason="workers need Linux and two CPUs")
+def test_a_worker_started_early_takes_later_work(tmp_path):
+    report = _run_single_threaded(_SCRIPT_SERVING, str(tmp_path))
+    if not report["single_threaded"]:
+        pytest.skip("the interpreter runs threads: no workers")
+    assert report["warm"] and not report["warm_again"]
+    assert report["values"] == [True, True, 1, 2]
+    assert report["error"] == "no value here"
+    assert report["written"] == ["f1.png", "f2.png", "f3.png"]
+    assert report["f1_by_worker"] and report["f2_f3_side_by_side"]
+    assert report["no_matplotlib_here"]
+    for k in (1, 2, 3):
+        assert (tmp_path / "a" / f"f{k}.png").read_bytes() == _direct(tmp_path / f"d{k}.png", k)
+    assert report["b_written"] == ["dies.png", "lives.png"]
+    assert (tmp_path / "b" / "dies.png").read_bytes() == _direct(tmp_path / "d4.png", 4)
+    assert report["c_written"] == ["lambda.png"] and report["c_here"]
+    assert not report["children_left"]
+
+
 _SCRIPT_ANALYSIS = textwrap.dedent(
     """
     import json, os, sys
@@ -369,6 +473,27 @@ _SCRIPT_ANALYSIS = textwrap.dedent(
     for name, fig in plain.figures().items():
         fig.savefig(out / f"plain_{name}.png", dpi=110, format="png")
 
+    # From a file: the worker reads it while this process sets up the analysis.
+    from stictiondiag.analysis import analyze_file
+    from stictiondiag.errors import StictionError
+
+    csv = out / "loop.csv"
+    tags.to_pandas().to_csv(csv, index=False)
+    with FigureWriter(out / "file") as w:
+        a = analyze_file(csv, figures=w)
+        report["file_written"] = [p.name for p in w.finish()]
+    report["file_same"] = a.to_dict() == analyze_file(csv).to_dict()
+    (out / "bad.csv").write_text("a,b\\n1,2\\n")
+    errors = []
+    for figures in (FigureWriter(out / "bad"), None):
+        try:
+            analyze_file(out / "bad.csv", figures=figures)
+        except StictionError as exc:
+            errors.append((type(exc).__name__, str(exc)))
+        if figures is not None:
+            figures.stop()
+    report["bad_same_error"] = len(errors) == 2 and errors[0] == errors[1]
+
     # A replay that is not possible: no gap diagnosis, a warning, no reconstruction.
     def no_replay(*args, **kwargs):
         raise DataError("no replay here")
@@ -406,6 +531,8 @@ def test_analysis_with_the_replay_in_a_worker(tmp_path):
         assert (tmp_path / "both" / f"<memory>_{n}.png").read_bytes() == (
             tmp_path / f"plain_{n}.png"
         ).read_bytes(), n
+    assert report["file_same"] and report["bad_same_error"]
+    assert report["file_written"] == [f"loop_{n}.png" for n in names]
     assert report["no_replay_same"]
     assert report["no_replay_warnings"] == ["replay not possible: no replay here"]
     assert report["no_replay_gap"]

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
@@ -59,6 +58,9 @@ def plot_nyquist_df(
         Each predicted limit cycle is marked with its period [s] and controller-output
         amplitude ``X_m`` [% of span].
     """
+    from . import pyplot
+
+    plt = pyplot()
     if ax is None:
         fig, ax = plt.subplots(figsize=(6, 6))
     else:

@@ -7,7 +7,6 @@ mixes in the process dynamics (Section 5.3.1).
 
 from __future__ import annotations
 
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
@@ -52,7 +51,9 @@ def plot_simulation(sim, *, last: float | None = None, title: str | None = None)
     t = sim.time[start:]
     sp, pv, op, mv = sim.sp[start:], sim.pv[start:], sim.op[start:], sim.mv[start:]
 
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6), gridspec_kw={"width_ratios": [2.2, 1]})
+    from . import pyplot
+
+    fig, axes = pyplot().subplots(2, 2, figsize=(11, 6), gridspec_kw={"width_ratios": [2.2, 1]})
     ax = axes[0, 0]
     ax.plot(t, sp, lw=0.8, color="0.5", ls="--", label="sp")
     ax.plot(t, pv, lw=1.2, color="tab:blue", label="pv")
