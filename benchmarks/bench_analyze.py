@@ -41,7 +41,7 @@ unchanged.  ``--no-gap`` leaves the gap diagnosis out (as ``stiction analyze
 --no-gap``).  ``--empty-cache`` runs the cold runs with an empty numba cache (a
 fresh install: every kernel compiles once).
 
-Usage: ``python benchmarks/bench_analyze.py [--repeat 3] [--runs 3] [--no-gap] [--empty-cache]``.
+Usage: ``python benchmarks/bench_analyze.py [--repeat 3] [--runs 5] [--no-gap] [--empty-cache]``.
 """
 
 from __future__ import annotations
@@ -257,7 +257,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3, help="warm runs per variant (best of)")
     parser.add_argument(
-        "--runs", type=int, default=3, help="fresh-process runs of the command per variant"
+        "--runs", type=int, default=5, help="fresh-process runs of the command per variant"
     )
     parser.add_argument("--no-gap", dest="gap", action="store_false", help="skip the gap step")
     parser.add_argument(

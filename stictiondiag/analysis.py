@@ -338,10 +338,13 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
     figures : FigureWriter, optional
         Receives every figure of the result, named by :meth:`Analysis.figure_file`
         (:class:`stictiondiag.plotting.writer.FigureWriter`); the caller writes them
-        with ``figures.finish()``.  The figures that do not need the gap diagnosis
-        are handed to a worker process before it runs, and when a worker is free it
-        also computes the closed-loop replay, while this process diagnoses the gap:
-        the result is the same as without ``figures``.
+        with ``figures.finish()``.  A worker process starts at once and imports
+        and sets up what drawing and replaying need (:func:`prepare_figure_worker`)
+        while this process finds the oscillation and fits S and J; the figures
+        that do not need the gap diagnosis, and the closed-loop replay, are then
+        handed to it while this process diagnoses the gap, and the gap's figures
+        at the end: the result is the same as without ``figures``, and this
+        process never imports matplotlib.
 
     Returns
     -------
