@@ -2644,6 +2644,21 @@ def _slip_blocks(n_rows: int) -> int:
     return min(SIGNATURE_BLOCKS, n_rows // 3)
 
 
+def _testable_slips(slips: dict | None):
+    """Demand at breakaway, position after the slip and demand direction of the
+    measured slips, with the number of blocks to test them in; None when there are
+    too few slips for a test (fewer than four blocks)."""
+    if slips is None or "op_break" not in slips:
+        return None
+    x, y, d = slips["op_break"], slips["mv_after"], slips["op_direction"]
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y, d = x[ok], y[ok], d[ok]
+    n_blocks = _slip_blocks(x.size)
+    if n_blocks < 4:
+        return None
+    return x, y, d, n_blocks
+
+
 def slip_slope_test(slips: dict | None) -> tuple[float, float]:
     """Slope of the valve position after each slip against the demand it broke away at,
     and the two-sided p-value that it is 1: ``(slope, p)``.
@@ -2659,14 +2674,10 @@ def slip_slope_test(slips: dict | None) -> tuple[float, float]:
     with fewer than twelve slips (too few to test: :func:`fit_miscalibration` then
     leaves the decision to the replay, as :func:`_slips_differ` does).
     """
-    if slips is None or "op_break" not in slips:
+    measured = _testable_slips(slips)
+    if measured is None:
         return math.nan, 1.0
-    x, y, d = slips["op_break"], slips["mv_after"], slips["op_direction"]
-    ok = np.isfinite(x) & np.isfinite(y)
-    x, y, d = x[ok], y[ok], d[ok]
-    n_blocks = _slip_blocks(x.size)
-    if n_blocks < 4:
-        return math.nan, 1.0
+    x, y, d, n_blocks = measured
     others = np.column_stack([(d > 0).astype(float), (d < 0).astype(float)])
     beta, p = signature_test(x, y - x, np.ones(x.size), others=others, n_blocks=n_blocks)
     if p >= 1.0 and beta == 0.0:
@@ -2964,15 +2975,10 @@ def gain_change_test(
         r = sig.pv - base.process.pv
         others = np.column_stack([np.ones(sig.n), X_u])
         return signature_test(x_h, -r, w, others=others)
-    slips = ctx.slips
-    if slips is None or "op_break" not in slips:
+    measured = _testable_slips(ctx.slips)
+    if measured is None:
         return math.nan, 1.0
-    x, y, d = slips["op_break"], slips["mv_after"], slips["op_direction"]
-    ok = np.isfinite(x) & np.isfinite(y)
-    x, y, d = x[ok], y[ok], d[ok]
-    n_blocks = _slip_blocks(x.size)
-    if n_blocks < 4:
-        return math.nan, 1.0
+    x, y, d, n_blocks = measured
     others = np.column_stack([(d > 0).astype(float), (d < 0).astype(float), x])
     h = np.maximum(x - float(np.median(x)), 0.0)
     beta, p = signature_test(h, y, np.ones(x.size), others=others, n_blocks=n_blocks)
