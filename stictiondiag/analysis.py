@@ -419,8 +419,17 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
             warnings=tuple(warnings),
         )
 
-    def run_replay():
-        return _replay(tags, fit)
+    def take_replay(get):
+        # The replay's outcome, or None with the reason among the warnings.
+        try:
+            value = get()
+        except StictionError as exc:
+            warnings.append(f"replay not possible: {exc}")
+            return None
+        # A poor identification or a replay without a cycle changes how far the
+        # reconstruction can be trusted: the user sees it with the verdict.
+        warnings.extend(f"replay: {w}" for w in getattr(value, "warnings", ()))
+        return value
 
     sent: set[str] = set()
 
@@ -453,13 +462,9 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
             gap = diagnose_gap(tags, fit, pending.stand_in())
         except Exception as exc:  # judged once the replay's outcome is known
             gap_error = exc
-        try:
-            rep = pending.get()
-        except StictionError as exc:
-            warnings.append(f"replay not possible: {exc}")
+        rep = take_replay(pending.get)
+        if rep is None:
             gap = gap_error = None  # without a replay there is no gap diagnosis
-        else:
-            warnings.extend(f"replay: {w}" for w in getattr(rep, "warnings", ()))
         if gap_error is not None:
             if not isinstance(gap_error, StictionError):
                 raise gap_error
@@ -467,14 +472,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
     else:
         # 5. Closed-loop replay.
         if config.replay:
-            try:
-                rep = run_replay()
-            except StictionError as exc:
-                warnings.append(f"replay not possible: {exc}")
-            else:
-                # A poor identification or a replay without a cycle changes how far
-                # the reconstruction can be trusted: the user sees it with the verdict.
-                warnings.extend(f"replay: {w}" for w in getattr(rep, "warnings", ()))
+            rep = take_replay(functools.partial(_replay, tags, fit))
 
         # 6. Sim-to-real gap.
         if config.gap and rep is not None:
