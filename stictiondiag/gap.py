@@ -60,7 +60,8 @@ other than 1 against the demand at the breakaway; an installed characteristic
 makes the loop's gain change with the operating point, which no linear process does
 (:func:`stictiondiag.effects.slip_slope_test`,
 :func:`stictiondiag.effects.gain_change_test`).  A signature with a direction is
-tested one-sided, in the direction of the fitted effect.  ``none`` wins when no candidate is accepted.  The accepted candidates are ranked by their held-out evidence
+tested one-sided, in the direction of the fitted effect.  ``none`` wins when no
+candidate is accepted.  The accepted candidates are ranked by their held-out evidence
 in the units of the Bayesian information criterion: for each signal the effect
 changes, ``n_eff`` times the log ratio of the base's squared error to the effect's,
 less ``log(n_eff)`` per extra parameter.  A ratio, not the raw sum of squared errors:
