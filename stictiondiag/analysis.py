@@ -470,7 +470,10 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
                 raise gap_error
             warnings.append(f"gap diagnosis not possible: {gap_error}")
     else:
-        # 5. Closed-loop replay.
+        # 5. Closed-loop replay; a worker, when there is one, draws the phase plot
+        # meanwhile.
+        if figures is not None and config.replay and not config.gap:
+            hand_over(so_far(None))
         if config.replay:
             rep = take_replay(functools.partial(_replay, tags, fit))
 
