@@ -572,11 +572,28 @@ class _Problem:
         self.set_delays(self.delays)
 
     def cost(self, S, J, variant: ValveVariant, offsets):
-        """Cost, best delay, start offset and time constant for every (S, J) pair."""
+        """Cost, best delay, start offset and time constant for every (S, J) pair.
+
+        Pairs with a band narrower than the play operator are run without it
+        (:meth:`stictiondiag.estimate.ValveVariant.for_band`).
+        """
         S = np.atleast_1d(np.asarray(S, dtype=float))
         J = np.atleast_1d(np.asarray(J, dtype=float))
-        x = self.inputs.setdefault(variant.name, variant.prepare(self.x))
         off = np.atleast_1d(np.asarray(offsets, dtype=float))
+        narrow = S < variant.play_width
+        if narrow.any():
+            raw = variant.for_band(0.0)
+            out = [np.empty(S.size), np.empty(S.size, np.int64), np.empty(S.size), np.empty(S.size)]
+            for mask, v in ((narrow, raw), (~narrow, variant)):
+                if mask.any():
+                    part = self._cost(S[mask], J[mask], v, off)
+                    for o, p in zip(out, part, strict=True):
+                        o[mask] = p
+            return out[0], out[1], out[2], out[3]
+        return self._cost(S, J, variant, off)
+
+    def _cost(self, S, J, variant: ValveVariant, off):
+        x = self.inputs.setdefault(variant.name, variant.prepare(self.x))
         c, bd, bo, bt = _batch_cost(
             x,
             variant.model_S(S),
@@ -600,6 +617,7 @@ class _Problem:
 
     def residual(self, S, J, variant: ValveVariant, delay, offset, tau):
         """Residual on the regression rows, fitted parameters and valve output."""
+        variant = variant.for_band(float(S))
         x = self.inputs.setdefault(variant.name, variant.prepare(self.x))
         u, n_slips = valve_run(
             x,
@@ -930,9 +948,16 @@ def fit_hammerstein(
     if structure != "flow":
         prob.set_delays(_delay_window(int(d_best), d_max, 2, 5))
 
+    # The time constant stays inside the structure's range (a flow loop's few
+    # samples, else TAU_PERIODS): outside it the basis is no longer the structure's
+    # process, and an unbounded polish found lags of hundreds of cycles, integrators
+    # through which a deadband imitates a load on pv that op does not drive.
+    tau_lo = min(float(taus.min()), float(tau_best))
+    tau_hi = max(float(taus.max()), float(tau_best))
+
     def objective(v):
         S_v, J_v = min(max(v[0], 0.0), S_max), min(max(v[1], 0.0), J_max)
-        prob.taus = np.array([float(tau_best) * math.exp(v[2])])
+        prob.taus = np.array([min(max(float(tau_best) * math.exp(v[2]), tau_lo), tau_hi)])
         return float(evaluate(np.array([S_v]), np.array([J_v]))[0])
 
     from scipy.optimize import minimize
@@ -952,13 +977,37 @@ def fit_hammerstein(
     S_hat, J_hat, cost = float(S_all[i]), float(J_all[i]), float(C_all[i])
     delay, offset, tau = int(D_all[i]), float(O_all[i]), float(T_all[i])
 
-    # The linear valve gets every time constant and dead time searched, so it is not
-    # handicapped.
+    # The linear valve gets every time constant and dead time searched, the stiction
+    # fit's own, and the same continuous polish of the time constant, so it is not
+    # handicapped: the improvement compares the two valves, not two searches.
     linear = ValveVariant("linear", False)
-    prob.taus = np.union1d(taus, prob.taus)
     prob.set_delays(np.union1d(coarse_delays, prob.delays))
+    prob.taus = np.union1d(taus, [tau])
     lin_c, lin_d, _, lin_t = prob.cost(0.0, 0.0, linear, 0.0)
-    linear_cost = float(lin_c[0])
+    lin_best = (float(lin_c[0]), int(lin_d[0]), float(lin_t[0]))
+
+    def lin_objective(log_tau):
+        nonlocal lin_best
+        prob.taus = np.array([math.exp(log_tau)])
+        c_l, d_l, _, t_l = prob.cost(0.0, 0.0, linear, 0.0)
+        if c_l[0] < lin_best[0]:
+            lin_best = (float(c_l[0]), int(d_l[0]), float(t_l[0]))
+        return float(c_l[0])
+
+    from scipy.optimize import minimize_scalar
+
+    lt0 = math.log(lin_best[2])
+    minimize_scalar(
+        lin_objective,
+        bounds=(
+            max(lt0 - math.log(3.0), math.log(tau_lo)),
+            min(lt0 + math.log(3.0), math.log(tau_hi)),
+        ),
+        method="bounded",
+        options={"maxiter": 30, "xatol": 0.01},
+    )
+    linear_cost = lin_best[0]
+    lin_d, lin_t = np.array([lin_best[1]]), np.array([lin_best[2]])
     lin_resid, *_ = prob.residual(0.0, 0.0, linear, int(lin_d[0]), 0.0, float(lin_t[0]))
     resid, theta, mv_model, n_slips = prob.residual(S_hat, J_hat, variant, delay, offset, tau)
 
@@ -976,6 +1025,11 @@ def fit_hammerstein(
     J_iv, _, J_open = profile_interval(J_all, C_all, thr, 0.0, J_max)
     d_iv, _, _ = profile_interval(D_all.astype(float), C_all, thr, 1.0, float(d_max))
     n_par = NCOL + 5  # linear columns; S, J, dead time, time constant, offset
+
+    # The flowchart that ran at the estimate: a band narrower than the play
+    # operator runs on the raw op (ValveVariant.for_band).
+    variant = variant.for_band(S_hat)
+    model = variant.name
 
     # Without a smooth moving phase the valve output is a square wave whose height
     # is J (Eq. 4): the process gain scales it, so J cannot be told apart from the

@@ -195,3 +195,42 @@ def test_result_is_json_and_reports_determinacy():
 def test_bad_input_is_a_data_error(op, pv, match):
     with pytest.raises(DataError, match=match):
         fit_hammerstein(op, pv, 1.0, integrating=False, flow_loop=False)
+
+
+def _noisy_flow_loop(lag_s=8.0, seed=3):
+    """A flow loop (pv about proportional to the valve, Section 5.3.1) with a healthy
+    linear valve, cycling under a sinusoidal load, white noise on pv fed back into
+    op; its lag of several samples lies above the flow structure's grid lags."""
+    sim = simulate_loop(
+        FOPTD(1.0, lag_s, 2.0),
+        PI(0.3, 6.0),
+        duration=1500.0,
+        dt=1.0,
+        valve="linear",
+        S=0.0,
+        J=0.0,
+        noise_std=0.05,
+        seed=seed,
+        load=1.5 * np.sin(2 * np.pi * np.arange(1500) / 120.0),
+    )
+    return sim.op[300:], sim.pv[300:]
+
+
+def test_play_variant_band_below_play_width_is_the_raw_flowchart():
+    # Behind the play operator every S below its width w is the same deadband of w;
+    # the search must see S = J = 0 as the linear valve and S < w as that band.
+    from stictiondiag.estimate import ValveVariant, valve_variants
+    from stictiondiag.hammerstein import _setup
+
+    op, pv = _noisy_flow_loop()
+    prob = _setup(op, pv, 1.0, False, True, None)["problem"]
+    played = [v for v in valve_variants(prob.x) if v.name == "kano+play"]
+    assert played, "the noisy op should bring in the play variant"
+    v = played[0]
+    linear = ValveVariant("linear", False)
+    c_play, *_ = prob.cost([0.0, 0.5 * v.play_width], [0.0, 0.0], v, [0.0])
+    c_lin, *_ = prob.cost(0.0, 0.0, linear, 0.0)
+    c_raw, *_ = prob.cost(0.5 * v.play_width, 0.0, v.for_band(0.0), [0.0])
+    assert c_play[0] == pytest.approx(c_lin[0], rel=1e-9)
+    assert c_play[1] == pytest.approx(c_raw[0], rel=1e-9)
+    assert v.for_band(v.play_width) is v
