@@ -218,7 +218,7 @@ def test_bad_input_is_a_data_error(op, pv, match):
 def _noisy_flow_loop(lag_s=8.0, seed=3):
     """A flow loop (pv about proportional to the valve, Section 5.3.1) with a healthy
     linear valve, cycling under a sinusoidal load, white noise on pv fed back into
-    op; its lag of several samples lies above the flow structure's grid lags."""
+    op; its lag is one to several samples."""
     sim = simulate_loop(
         FOPTD(1.0, lag_s, 2.0),
         PI(0.3, 6.0),
