@@ -41,9 +41,10 @@ from .oscillation import (
 )
 from .tags import Tags, read_tags
 
-#: Loop types where pv is (nearly) proportional to the valve opening: the flow-loop
-#: shortcut of Section 5.3.1 ("in liquid flow loops ... pv can be taken to be
-#: proportional to valve opening").
+#: Loop types where pv is (nearly) proportional to the valve opening (Section 5.3.1:
+#: "in liquid flow loops ... pv can be taken to be proportional to valve opening").
+#: Without mv the fit records it and uses the self-regulating structure
+#: (:mod:`stictiondiag.hammerstein`, "The linear part").
 FLOW_LIKE = frozenset({"flow"})
 
 

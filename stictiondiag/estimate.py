@@ -237,6 +237,20 @@ class ValveVariant:
         """``S`` to give the model for a band ``S`` on the raw op."""
         return np.maximum(np.asarray(S, dtype=float) - self.play_width, 0.0)
 
+    def for_band(self, S: float) -> ValveVariant:
+        """The variant that represents a band ``S`` on the raw op.
+
+        Behind the play operator every ``S <= w`` gives the same model, a valve
+        stuck for a travel of ``w`` at each reversal (a deadband of ``w``, Fig. 11
+        with ``J = 0``), not a valve with the smaller band: ``S = 0`` would not be
+        the linear valve.  A band below ``w`` is therefore run on the raw op, by the
+        same flowchart without the play operator, so that every ``S`` of the search
+        is the model of Fig. 10 with that band and ``S = J = 0`` is a linear valve.
+        """
+        if self.play_width > 0 and S < self.play_width:
+            return ValveVariant(self.name.removesuffix("+play"), self.kano)
+        return self
+
 
 def white_noise_std(x: np.ndarray) -> float:
     """Standard deviation of white noise on ``x`` [units of x]; 0 for a smooth signal.

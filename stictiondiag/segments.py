@@ -462,11 +462,18 @@ def _grid_search(op, mv, sync, variant, S_max, J_max, seeds=(), n_grid=31, n_zoo
     """
     S_all, J_all, C_all = [], [], []
     x = variant.prepare(op)
+    raw = variant.for_band(0.0)
+    x_raw = raw.prepare(op)
 
     def evaluate(Sg, Jg):
         SS, JJ = np.meshgrid(Sg, Jg, indexing="ij")
         SS, JJ = SS.ravel(), JJ.ravel()
         C = valve_sse_many(x, mv, variant.model_S(SS), JJ, variant.kano, *sync)
+        # A band narrower than the play operator runs on the raw op
+        # (ValveVariant.for_band): S = J = 0 is then the linear valve.
+        narrow = SS < variant.play_width
+        if narrow.any():
+            C[narrow] = valve_sse_many(x_raw, mv, SS[narrow], JJ[narrow], raw.kano, *sync)
         S_all.append(SS)
         J_all.append(JJ)
         C_all.append(C)
@@ -575,6 +582,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
         searches[variant.name] = (variant, res)
     best = min(searches, key=lambda k: searches[k][1][5])
     variant, (S_all, J_all, C_all, S_ls, J_ls, cost) = searches[best]
+    variant = variant.for_band(S_ls)
     x_valve = variant.prepare(op)
     y, n_slips = valve_run(
         x_valve, float(variant.model_S(S_ls)), J_ls, variant.kano, k_start, d_start, -1.0
@@ -608,13 +616,14 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     J_interval = hull(J_iv, J_ci)
     seg_cost = None
     if S_seg is not None and J_seg is not None:
+        v_seg = searches[best][0].for_band(max(S_seg, 0.0))
         seg_cost = float(
             valve_sse_batch(
-                x_valve,
+                v_seg.prepare(op),
                 mv,
-                variant.model_S(np.array([max(S_seg, 0.0)])),
+                v_seg.model_S(np.array([max(S_seg, 0.0)])),
                 np.array([max(J_seg, 0.0)]),
-                variant.kano,
+                v_seg.kano,
                 k0,
                 k_start,
                 d_start,
@@ -624,7 +633,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
 
     period = cycle_samples(op)
     details = {
-        "valve_model": best,
+        "valve_model": variant.name,
         "play_width": variant.play_width,
         "bias": bias,
         "least_squares": {

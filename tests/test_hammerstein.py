@@ -76,14 +76,32 @@ def test_level_loop_with_noise():
     assert fit.details["structure"] == "integrating"
 
 
-def test_flow_loop_shortcut():
-    # Section 5.3.1: in a flow loop pv is (nearly) proportional to mv.
+def test_flow_loop():
+    # Section 5.3.1: in a flow loop pv is (nearly) proportional to mv.  The
+    # self-regulating structure holds that process (a lag and dead time of a sample).
     op, pv, dt = loop("flow", 4.0, 2.0)
     fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=True)
     # The flow lag (0.5 s) is one sample; 0.3 % as above.
     assert fit.S == pytest.approx(4.0, abs=0.3)
     assert fit.J == pytest.approx(2.0, abs=0.3)
-    assert fit.details["structure"] == "flow"
+    assert fit.details["structure"] == "self-regulating"
+    assert "flow loop" in fit.details["note"]
+
+
+@pytest.mark.parametrize("lag_s", [1.0, 8.0])
+def test_flow_loop_under_external_oscillation_is_not_called_stiction(lag_s):
+    # A healthy valve in a flow loop cycling under a sinusoidal load on pv.  In
+    # closed loop pv lags op by a phase that a structure with a few samples of lag
+    # and dead time cannot give; a deadband supplied it, and such loops were called
+    # stiction with confidence 1.
+    from stictiondiag.analysis import AnalysisConfig, analyze
+    from stictiondiag.tags import Tags
+
+    op, pv = _noisy_flow_loop(lag_s)
+    tags = Tags.from_arrays(pv=pv, op=op, ts=1.0, loop_type="flow")
+    result = analyze(tags, config=AnalysisConfig(gap=False, replay=False))
+    assert result.verdict.status != "stiction"
+    assert result.fit.improvement < 0.1
 
 
 def test_linear_valve_gives_no_band():
@@ -195,3 +213,42 @@ def test_result_is_json_and_reports_determinacy():
 def test_bad_input_is_a_data_error(op, pv, match):
     with pytest.raises(DataError, match=match):
         fit_hammerstein(op, pv, 1.0, integrating=False, flow_loop=False)
+
+
+def _noisy_flow_loop(lag_s=8.0, seed=3):
+    """A flow loop (pv about proportional to the valve, Section 5.3.1) with a healthy
+    linear valve, cycling under a sinusoidal load, white noise on pv fed back into
+    op; its lag is one to several samples."""
+    sim = simulate_loop(
+        FOPTD(1.0, lag_s, 2.0),
+        PI(0.3, 6.0),
+        duration=1500.0,
+        dt=1.0,
+        valve="linear",
+        S=0.0,
+        J=0.0,
+        noise_std=0.05,
+        seed=seed,
+        load=1.5 * np.sin(2 * np.pi * np.arange(1500) / 120.0),
+    )
+    return sim.op[300:], sim.pv[300:]
+
+
+def test_play_variant_band_below_play_width_is_the_raw_flowchart():
+    # Behind the play operator every S below its width w is the same deadband of w;
+    # the search must see S = J = 0 as the linear valve and S < w as that band.
+    from stictiondiag.estimate import ValveVariant, valve_variants
+    from stictiondiag.hammerstein import _setup
+
+    op, pv = _noisy_flow_loop()
+    prob = _setup(op, pv, 1.0, False, None)["problem"]
+    played = [v for v in valve_variants(prob.x) if v.name == "kano+play"]
+    assert played, "the noisy op should bring in the play variant"
+    v = played[0]
+    linear = ValveVariant("linear", False)
+    c_play, *_ = prob.cost([0.0, 0.5 * v.play_width], [0.0, 0.0], v, [0.0])
+    c_lin, *_ = prob.cost(0.0, 0.0, linear, 0.0)
+    c_raw, *_ = prob.cost(0.5 * v.play_width, 0.0, v.for_band(0.0), [0.0])
+    assert c_play[0] == pytest.approx(c_lin[0], rel=1e-9)
+    assert c_play[1] == pytest.approx(c_raw[0], rel=1e-9)
+    assert v.for_band(v.play_width) is v

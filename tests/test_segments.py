@@ -184,3 +184,24 @@ def test_to_dict_is_json():
 def test_bad_input_is_a_data_error(op, mv, match):
     with pytest.raises(DataError, match=match):
         estimate_from_mv(op, mv, 1.0)
+
+
+def test_play_variant_band_below_play_width_is_the_raw_flowchart():
+    # With mv too: behind the play operator every S below its width is a deadband
+    # of that width, so S = J = 0 must run on the raw op and be the linear valve.
+    from stictiondiag.estimate import valve_variants
+    from stictiondiag.segments import _grid_search
+
+    rng = np.random.default_rng(5)
+    t = np.arange(2000)
+    op = 50 + 5 * np.sin(2 * np.pi * t / 200) + 0.1 * rng.standard_normal(t.size)
+    mv = op.copy()  # a linear valve
+    played = [v for v in valve_variants(op) if v.name == "kano+play"]
+    assert played, "the noisy op should bring in the play variant"
+    v = played[0]
+    S_all, J_all, C_all, S_ls, J_ls, cost = _grid_search(
+        op, mv, (1, 0, 0.0, -1.0), v, 10.0, 10.0, n_grid=11, n_zoom=1
+    )
+    at_zero = C_all[(S_all == 0) & (J_all == 0)]
+    assert at_zero.size and float(at_zero.min()) == pytest.approx(0.0, abs=1e-9)
+    assert S_ls < v.play_width
