@@ -553,7 +553,12 @@ def profile_interval(
     The profile cost at a value is the smallest cost evaluated there (the other
     parameters free).  The interval spans the values whose profile cost is within
     ``threshold``, widened to the neighbouring evaluated values (the true edge lies
-    between them) and clipped to the searched range [lo, hi].
+    between them) and clipped to the searched range [lo, hi].  Where that neighbour
+    is the end of the searched range itself, evaluated and outside the threshold (S
+    = 0, the linear valve, tested and rejected), the edge is where the profile,
+    interpolated linearly between the two values, crosses the threshold: widening
+    to the end would put back a value the data reject, and an interval of S that
+    reaches 0 reads as "S cannot be told apart from 0".
 
     Returns
     -------
@@ -573,8 +578,26 @@ def profile_interval(
     if inside.size == 0:
         inside = np.array([int(np.argmin(prof))])
     i0, i1 = int(inside[0]), int(inside[-1])
-    a = float(uv[i0 - 1]) if i0 > 0 else float(lo)
-    b = float(uv[i1 + 1]) if i1 + 1 < uv.size else float(hi)
+
+    def crossing(j_out: int, j_in: int) -> float:
+        # Where the profile, linear between an evaluated value outside the threshold
+        # and its neighbour inside, crosses the threshold.
+        c_out, c_in = float(prof[j_out]), float(prof[j_in])
+        t = (c_out - threshold) / (c_out - c_in) if c_out > c_in else 1.0
+        return float(uv[j_out] + min(max(t, 0.0), 1.0) * (uv[j_in] - uv[j_out]))
+
+    if i0 == 0:
+        a = float(lo)
+    elif uv[i0 - 1] <= lo and prof[i0] <= threshold:
+        a = crossing(i0 - 1, i0)
+    else:
+        a = float(uv[i0 - 1])
+    if i1 + 1 >= uv.size:
+        b = float(hi)
+    elif uv[i1 + 1] >= hi and prof[i1] <= threshold:
+        b = crossing(i1 + 1, i1)
+    else:
+        b = float(uv[i1 + 1])
     return (max(float(lo), a), min(float(hi), b)), i0 == 0, i1 == uv.size - 1
 
 

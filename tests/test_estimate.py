@@ -224,6 +224,26 @@ def test_cost_threshold_and_profile_interval():
     assert cost_threshold(100.0, 5.0, 3, model_error=0.6) == pytest.approx(1025.6, abs=0.1)
 
 
+
+def test_profile_interval_does_not_widen_onto_a_rejected_end():
+    # Coarse grid 0, 1, ..., 6 of C = 100 + 10 (s - 3)^2; threshold 130: inside
+    # |s - 3| <= sqrt(3) = 1.73, i.e. grid values 2, 3, 4.  The grid's ends 0 and 6
+    # (cost 190) were evaluated and rejected, so the interval must exclude them: its
+    # edges are the profile's linear crossings of 130 between 1 (cost 140) and 2
+    # (cost 110), 1 + 10 / 30 = 1.333, and between 5 and 4, 4.667 (exact).
+    s = np.arange(7.0)
+    c = 100 + 10 * (s - 3) ** 2
+    (lo, hi), at_lo, at_hi = profile_interval(s, c, 130.0, 1.0, 5.0)
+    # Searched range [1, 5]: the values 1 and 5 are its ends, outside the threshold.
+    assert lo == pytest.approx(1 + 1 / 3, abs=1e-12) and hi == pytest.approx(5 - 1 / 3, abs=1e-12)
+    assert not at_lo and not at_hi
+    # An end inside the threshold is kept, as before.
+    (lo, hi), at_lo, _ = profile_interval(s, c, 200.0, 0.0, 6.0)
+    assert lo == 0.0 and hi == 6.0 and at_lo
+    # Not at an end: widened to the neighbouring evaluated value.
+    (lo, hi), _, _ = profile_interval(s, c, 130.0, 0.0, 6.0)
+    assert lo == 1.0 and hi == 5.0
+
 def test_noise_and_cycle_helpers():
     rng = np.random.default_rng(1)
     t = np.arange(5000)
