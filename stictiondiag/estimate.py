@@ -810,7 +810,7 @@ def stiction_verdict(
         osc_texts.append(_osc_text("op", oscillation_op))
     det_texts = []
     if not S_excludes_zero:
-        det_texts.append("S cannot be told apart from 0 (a linear valve)")
+        det_texts.append("S cannot be told apart from 0 (no stick band)")
     elif S_open:
         det_texts.append("S poorly determined: its interval reaches the search limit")
     if d.get("J_confounded_with_gain"):
