@@ -10,9 +10,10 @@ that the data do not call for); much less is over-confident.
 
 Cases, drawn with a fixed seed (every combination, ``--reps`` times):
 
-* four PI loops of :func:`stictiondiag.loops.simulate_loop` (the templates of
-  ``benchmarks/accuracy_analyze.py``): the concentration loop of Eq. 3 / Table 3,
-  a faster FOPTD loop and two integrating (level-like) loops, sampled at 1 s,
+* five PI loops of :func:`stictiondiag.loops.simulate_loop`: the four templates of
+  ``benchmarks/accuracy_analyze.py`` (the concentration loop of Eq. 3 / Table 3,
+  a faster FOPTD loop and two integrating, level-like, loops) and a flow loop
+  (1 s dead time, 3 s lag, analysed as loop type ``flow``), sampled at 1 s,
   :data:`N_SAMPLES` samples after a :data:`WARMUP_S` start-up;
 * the valve: the data-driven valve with true S in :data:`S_TRUE` % of span and J a
   random 0.2-1.0 S, in Kano's form (``valve="kano"``): the published flowchart
@@ -37,7 +38,7 @@ unbounded), and the shares of the verdicts.  The healthy rows show the false-sti
 rate: the share of loops with a linear valve called ``stiction``.
 
 Usage: ``python benchmarks/calibration_nomv.py [--reps 1] [--seed 7] [--workers 1]
-[--csv rows.csv]``.  One rep is 144 records, about 70 s with two workers on an
+[--csv rows.csv]``.  One rep is 180 records, about 90 s with two workers on an
 idle two-core machine.  The threshold of the intervals
 (:data:`stictiondiag.hammerstein.MODEL_ERROR_SHARE`) was set on ``--seed 7 --reps
 2``; other seeds check it.
@@ -88,7 +89,14 @@ def templates():
         "foptd_fast": (False, FOPTD(1.5, 20.0, 4.0), PI(0.6, 8.0)),
         "level_slow": (True, Integrating(0.1, 0.0), PI(0.4, 20.0)),
         "level_deadtime": (True, Integrating(0.05, 3.0), PI(1.5, 40.0)),
+        # A flow loop (pv about proportional to the valve, a few seconds of lag),
+        # analysed as loop type "flow".
+        "flow": (False, FOPTD(1.0, 3.0, 1.0), PI(0.3, 5.0)),
     }
+
+
+#: Loop type given to the analysis, by template (integrating ones are "level").
+LOOP_TYPES = {"flow": "flow"}
 
 
 def draw_cases(reps: int, seed: int) -> list[dict]:
@@ -181,7 +189,7 @@ def run_case(case: dict) -> dict:
         sim.op[keep],
         sp=sim.sp[keep],
         ts=TS,
-        loop_type="level" if integrating else "other",
+        loop_type="level" if integrating else LOOP_TYPES.get(case["template"], "other"),
         integrating=integrating,
         source=f"{case['template']}/{case['valve']}/{case['disturbance']}",
     )
