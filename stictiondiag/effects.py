@@ -2708,6 +2708,23 @@ def _slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
     return p if tested else 0.0
 
 
+def _change_sides(times: np.ndarray, t1: float, t2: float, n: int) -> tuple:
+    """Slips before and after a change of stiction between samples t1 and t2 (masks
+    of ``times``): those before t1 and after t2; for a drift over the whole record,
+    those in its first and second half.  A change placed at an end of the record
+    leaves (almost) no slips on that side: then those before and after the middle of
+    the change, so that the fit cannot place a change where the slips cannot test it
+    (fewer than three on a side leave the decision to the replay,
+    :func:`_slips_differ`)."""
+    if t1 <= 0.0 and t2 >= n - 1:
+        return times < n / 2, times >= n / 2
+    early, late = times < t1, times > t2
+    if min(int(early.sum()), int(late.sum())) < 3:
+        mid = 0.5 * (t1 + t2)
+        early, late = times < mid, times >= mid
+    return early, late
+
+
 def _profile(n: int, t1: float, t2: float) -> np.ndarray:
     """0 before sample t1, 1 after t2, linear between (a step when t2 <= t1)."""
     k = np.arange(n, dtype=float)
@@ -2884,11 +2901,7 @@ def fit_time_varying_stiction(
     row = _rows(x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3])[0]
     mv_hat, _ = prob.series(row, h)
     if ctx.slips is not None:
-        ts_ = ctx.slips["time"]
-        if t1 <= 0.0 and t2 >= n - 1:
-            early, late = ts_ < n / 2, ts_ >= n / 2
-        else:
-            early, late = ts_ < t1, ts_ > t2
+        early, late = _change_sides(ctx.slips["time"], t1, t2, n)
         p_slips = _slips_differ(ctx.slips, early, late)
     else:
         p_slips = 0.0
@@ -2950,31 +2963,48 @@ def gain_change_test(
     """The signature of an installed characteristic: a gain that changes with the
     operating point, which no linear process gives (Section 5.1, last step of Fig. 10).
 
-    The base replay's input ``u`` is joined by a hinge ``max(u - u_50, 0)`` at its
-    median: its coefficient is the relative change of the gain above the middle of
-    the range travelled against below it, whatever the shape of the curve.
-    Process side (``u`` the process input): the hinge passes through the base
-    process's dynamics, load tracking and prediction horizon, and its coefficient is
-    fitted to the base pv replay's errors.  Valve side (mv itself flow-like): the
-    position after each slip against the demand at its breakaway and the hinge of it,
-    with an offset per direction (as :func:`slip_slope_test`).  Returns the
-    relative gain change and the two-sided p-value of :func:`signature_test` (the
-    block-to-block scatter of the record decides, so a change that only part of the
-    record shows does not pass).  An operating point that never moves (a cycle
-    between two fixed positions) leaves the hinge a copy of ``u``: p = 1.  On the
-    valve side with fewer than twelve measured slips: ``(nan, 1)``, too few to test.
+    Process side (``u`` the process input): a gain that changes steadily along the
+    travel makes the process see ``u + beta (u - u_50)^2 / s^2`` (``u_50`` the median of
+    ``u``, ``s`` its spread) to first order, whatever the shape of the curve; the
+    square passes through the base process's dynamics, load tracking and prediction
+    horizon, and its coefficient ``beta`` is fitted to the base pv replay's errors (the
+    score test of a curvature 0, which uses every operating point the record visits,
+    not only those on either side of one).  The relative gain change reported is that
+    between the medians of ``u`` above and below ``u_50``.  Valve side (mv itself
+    flow-like): ``u`` is joined by a hinge ``max(u - u_50, 0)`` at its median, whose
+    coefficient is the relative change of the gain above the middle of the range
+    travelled against below it: the position after each slip against the demand at
+    its breakaway and the hinge of it, with an offset per direction (as
+    :func:`slip_slope_test`).  Returns the relative gain change and the two-sided
+    p-value of :func:`signature_test` (the block-to-block scatter of the record
+    decides, so a change that only part of the record shows does not pass).  An
+    operating point that never moves (a cycle between two fixed positions) leaves the
+    square a constant and the hinge a copy of ``u``: p = 1.  On the valve side with
+    fewer than twelve measured slips: ``(nan, 1)``, too few to test.
     """
     sig = ctx.sig
     if side == "process":
         u = _process_input(ctx, base)
         model = base.process.model
         k1, k2 = model.gains
-        h = np.maximum(u - _weighted_median(u, w), 0.0)
+        u50 = _weighted_median(u, w)
+        used = u[w > 0] if np.any(w > 0) else u
+        spread = float(np.std(used))
+        if not spread > 0.0:
+            return 0.0, 1.0
+        q = ((u - u50) / spread) ** 2
         X_u = _process_regressors(u, model, k1, k2)
-        x_h = _process_regressors(h, model, k1, k2) @ base.process.coef[:2]
+        x_q = _process_regressors(q, model, k1, k2) @ base.process.coef[:2]
         r = sig.pv - base.process.pv
         others = np.column_stack([np.ones(sig.n), X_u])
-        return signature_test(x_h, -r, w, others=others)
+        beta, p = signature_test(x_q, -r, w, others=others)
+        # Local gain 1 + 2 beta (u - u_50) / s^2, relative to the base process's.
+        above, below = used[used > u50], used[used < u50]
+        if above.size == 0 or below.size == 0:
+            return 0.0, 1.0
+        g_hi = 1.0 + 2.0 * beta * (float(np.median(above)) - u50) / spread**2
+        g_lo = 1.0 + 2.0 * beta * (float(np.median(below)) - u50) / spread**2
+        return (g_hi - g_lo) / abs(g_lo) if g_lo != 0.0 else 0.0, p
     measured = _testable_slips(ctx.slips)
     if measured is None:
         return math.nan, 1.0
