@@ -378,8 +378,8 @@ def test_gain_change_test_sees_an_installed_characteristic(curvature):
     ctx, base = _levels_loop(curvature)
     change, p = fx.gain_change_test(ctx, ctx.w_eval, base, "process")
     # Power 2 (convex): the gain at 70 % is about three times that at 30 %, so the
-    # square of the centred input finds a gain higher above the middle; power 1/2
-    # (concave) the other way.  Strong and clear: p far below 1 %.
+    # hinge at the median finds a gain higher above the middle; power 1/2 (concave)
+    # the other way.  Strong and clear: p far below 1 %.
     assert change * curvature > 0.0
     assert abs(change) > 0.3
     assert p < 1e-4
