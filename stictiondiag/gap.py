@@ -63,8 +63,7 @@ time; a miscalibrated positioner puts the valve after each slip on a line of slo
 other than 1 against the demand at the breakaway; an installed characteristic
 makes the loop's gain change with the operating point, which no linear process does
 (:func:`stictiondiag.effects.slip_slope_test`,
-:func:`stictiondiag.effects.gain_change_test`; on the process side the score test of
-a curvature 0, which uses every operating point the record visits).  A signature with a direction is
+:func:`stictiondiag.effects.gain_change_test`).  A signature with a direction is
 tested one-sided, in the direction of the fitted effect.  ``none`` wins when no
 candidate is accepted.  The accepted candidates are ranked by their held-out evidence
 in the units of the Bayesian information criterion: for each signal the effect
