@@ -2708,6 +2708,23 @@ def _slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
     return p if tested else 0.0
 
 
+def _change_sides(times: np.ndarray, t1: float, t2: float, n: int) -> tuple:
+    """Slips before and after a change of stiction between samples t1 and t2 (masks
+    of ``times``): those before t1 and after t2; for a drift over the whole record,
+    those in its first and second half.  A change placed at an end of the record
+    leaves (almost) no slips on that side: then those before and after the middle of
+    the change, so that the fit cannot place a change where the slips cannot test it
+    (fewer than three on a side leave the decision to the replay,
+    :func:`_slips_differ`)."""
+    if t1 <= 0.0 and t2 >= n - 1:
+        return times < n / 2, times >= n / 2
+    early, late = times < t1, times > t2
+    if min(int(early.sum()), int(late.sum())) < 3:
+        mid = 0.5 * (t1 + t2)
+        early, late = times < mid, times >= mid
+    return early, late
+
+
 def _profile(n: int, t1: float, t2: float) -> np.ndarray:
     """0 before sample t1, 1 after t2, linear between (a step when t2 <= t1)."""
     k = np.arange(n, dtype=float)
@@ -2884,11 +2901,7 @@ def fit_time_varying_stiction(
     row = _rows(x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3])[0]
     mv_hat, _ = prob.series(row, h)
     if ctx.slips is not None:
-        ts_ = ctx.slips["time"]
-        if t1 <= 0.0 and t2 >= n - 1:
-            early, late = ts_ < n / 2, ts_ >= n / 2
-        else:
-            early, late = ts_ < t1, ts_ > t2
+        early, late = _change_sides(ctx.slips["time"], t1, t2, n)
         p_slips = _slips_differ(ctx.slips, early, late)
     else:
         p_slips = 0.0

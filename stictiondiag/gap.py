@@ -47,13 +47,17 @@ thresholds, and a refit on half the record would throw the other half out of ste
 
 A candidate is accepted only when its improvement over the base model on the judged
 blocks (best and worst block left out) exceeds a penalty: twice the robust standard
-error of the block-by-block improvement, and the BIC share ``log(n_eff)/n_eff`` of the
-base error per extra parameter (``n_eff``: effectively independent residuals, the
-judged samples over the residuals' integrated autocorrelation time); when the log
-ratio of the blocks' errors, base against effect, passes the same two-standard-error
-test (free of the blocks' differing error sizes), the share alone; it must also
-beat that share in at least half of the blocks, and its own signature must be in the
-data, not only a smaller error: an external oscillation keeps its phase along the
+error of the block-by-block improvement, and the reduction of the base error that the
+Bayesian information criterion asks of its extra parameters, ``E0 (1 - exp(-k
+log(n_eff)/n_eff))`` for ``k`` parameters (``n_eff log(E0/E1) >= k log(n_eff)``; ``n_eff``:
+effectively independent residuals, the judged samples over the residuals' integrated
+autocorrelation time); when the log ratio of the blocks' errors, base against effect,
+passes the same two-standard-error test (free of the blocks' differing error sizes),
+the BIC reduction alone.  It must also beat that reduction, block by block, in at
+least two blocks and in at least as many blocks as it falls short of the base by as
+much (blocks it changes less count neither way: a change of stiction during the
+record leaves the rest of it as the base has it), and its own signature must be in
+the data, not only a smaller error: an external oscillation keeps its phase along the
 record; an asymmetric or time-varying valve has slips that differ by direction or by
 time; a miscalibrated positioner puts the valve after each slip on a line of slope
 other than 1 against the demand at the breakaway; an installed characteristic
@@ -407,6 +411,19 @@ def _bic_share(residual: np.ndarray, w: np.ndarray) -> float:
     return math.log(n_eff) / n_eff
 
 
+def _bic_gain(base_error, n_params: float, share: float):
+    """Least reduction of a squared error ``base_error`` that pays for ``n_params``
+    extra parameters under the Bayesian information criterion.
+
+    BIC asks ``n_eff log(E0 / E1) >= k log(n_eff)``, that is ``E1 <= E0 exp(-k s)`` with
+    ``s = log(n_eff) / n_eff``: the reduction ``E0 - E1`` must reach
+    ``E0 (1 - exp(-k s))``.  For a small ``k s`` this is ``k s E0``; for a large one
+    (few effectively independent residuals) it stays below ``E0``, so an effect that
+    removes most of the error is never asked for more than all of it.
+    """
+    return base_error * -math.expm1(-n_params * share)
+
+
 def _effective_samples(residual: np.ndarray, w: np.ndarray) -> float:
     """Effectively independent residuals: the judged samples over the integrated
     autocorrelation time of the residual (summed until the autocorrelation first
@@ -424,6 +441,19 @@ def _effective_samples(residual: np.ndarray, w: np.ndarray) -> float:
     stop = int(neg[0]) + 1 if neg.size else acf.size
     tau = 1.0 + 2.0 * float(np.sum(acf[1:stop]))
     return max(n / max(tau, 1.0), MIN_EFFECTIVE_SAMPLES)
+
+
+def _blocks_agree(gain: np.ndarray, threshold: np.ndarray) -> bool:
+    """Whether the blocks bear out an effect: it is better by more than ``threshold``
+    in at least two blocks and in at least as many blocks as it is worse by as much.
+
+    A block the effect changes by less than the threshold counts neither way: a
+    change of stiction during the record, or an effect that shows only where the
+    operating point goes, leaves the rest of the record as the base model has it.
+    """
+    better = int(np.sum(gain > threshold))
+    worse = int(np.sum(gain < -threshold))
+    return better >= max(worse, 2)
 
 
 def diagnose_gap(
@@ -549,8 +579,10 @@ def diagnose_gap(
         # The per-parameter share is of the base error on the signals the effect
         # changes: a valve effect is not asked to beat the process replay's error.
         sigs = [s for s in ef.predictions if s in held["none"]]
-        per_param = sum(share[s] * float(held["none"][s].sum()) for s in sigs)
-        penalty = max(SIGNIFICANCE * se, ef.n_params * per_param)
+        per_param = sum(
+            _bic_gain(float(held["none"][s].sum()), ef.n_params, share[s]) for s in sigs
+        )
+        penalty = max(SIGNIFICANCE * se, per_param)
         # The scatter in absolute terms overstates the uncertainty when the blocks'
         # errors differ in size (a valve replay far out of step in some blocks): the
         # same test on the log ratio of each block's errors is free of that scale.
@@ -570,11 +602,13 @@ def diagnose_gap(
                 lr_sum = float(lr.sum())
             se_lr = 1.4826 * float(np.median(np.abs(lr - np.median(lr)))) * math.sqrt(n_blocks)
             if lr_sum > SIGNIFICANCE * se_lr:
-                penalty = ef.n_params * per_param
-        # Better in at least half of the blocks, each time by more than the
-        # per-parameter share of the base error on the signals the effect changes.
-        per_param_b = sum(share[s] * np.abs(held["none"][s]) for s in sigs)
-        better = d > max(ef.n_params, 1) * per_param_b
+                penalty = per_param
+        # Better in at least as many blocks as worse, and in two at least
+        # (:func:`_blocks_agree`), each time by more than the per-parameter share of
+        # the base error on the signals the effect changes.
+        per_param_b = sum(
+            _bic_gain(np.abs(held["none"][s]), max(ef.n_params, 1), share[s]) for s in sigs
+        )
         # A real effect also explains the whole record it was fitted on: a held-out
         # gain that the in-sample fit does not show comes from a poor fit of the base
         # on a half, not from the effect.
@@ -587,9 +621,7 @@ def diagnose_gap(
             / ctx.norm[s]
             for s in sigs
         )
-        consistent = (
-            int(np.sum(better)) >= n_blocks // 2 and ef.supported and in_gain_norm > penalty
-        )
+        consistent = _blocks_agree(d, per_param_b) and ef.supported and in_gain_norm > penalty
         accepted = trimmed > penalty and consistent
         score = base_total - trimmed + penalty if consistent else base_total + penalty
         scores[name] = (score, accepted, score - float(totals[name].sum()))

@@ -400,3 +400,17 @@ def test_one_sided_signature_p_follows_the_fitted_direction():
     assert fx._one_sided(0.02, True) == pytest.approx(0.01, abs=1e-15)
     assert fx._one_sided(0.02, False) == pytest.approx(0.99, abs=1e-15)
     assert fx._one_sided(1.0, True) == 0.5
+
+
+def test_change_sides_never_leave_a_side_without_slips():
+    # Slips every 10 samples over 1000.  A step at 400: slips before and after it.
+    times = np.arange(5.0, 1000.0, 10.0)
+    early, late = fx._change_sides(times, 400.0, 400.0, 1000)
+    assert early.sum() == 40 and late.sum() == 60
+    # A ramp from the start of the record to sample 900 has no slip before it: the
+    # sides are split at the middle of the ramp (450) instead, 45 and 55 slips.
+    early, late = fx._change_sides(times, 0.0, 900.0, 1000)
+    assert early.sum() == 45 and late.sum() == 55
+    # A drift over the whole record: its two halves.
+    early, late = fx._change_sides(times, 0.0, 999.0, 1000)
+    assert early.sum() == 50 and late.sum() == 50
