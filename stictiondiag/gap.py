@@ -37,13 +37,15 @@ counts as explained once quantization is added.
 Attribution
 -----------
 The record is cut into eight contiguous blocks; every candidate's smooth parameters
-(a lag's time constant, a miscalibration's slope and offset, a characteristic's
-curvature, a disturbance's amplitudes, the process gain and the controller) are
-fitted on the even blocks and judged on the odd ones, and the other way round, so an
-effect wins by predicting data it was not fitted on, not by flexibility.  Stiction
-thresholds (S and J, and those of the asymmetric and time-varying valves) are taken
-from the whole record: a replay is in step with the data only at the exact
-thresholds, and a refit on half the record would throw the other half out of step.
+(a lag's time constant, a miscalibration's slope and offset, a disturbance's
+amplitudes, the process gain and the controller) are fitted on the even blocks and
+judged on the odd ones, and the other way round, so an effect wins by predicting
+data it was not fitted on, not by flexibility.  Stiction thresholds (S and J, and
+those of the asymmetric and time-varying valves) are taken from the whole record: a
+replay is in step with the data only at the exact thresholds, and a refit on half
+the record would throw the other half out of step.  So is an installed
+characteristic's curvature (its form and curvature searched once, on the record; the
+gain and offset it feeds are refitted on each half).
 
 A candidate is accepted only when its improvement over the base model on the judged
 blocks (best and worst block left out) exceeds a penalty: twice the robust standard
