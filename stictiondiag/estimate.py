@@ -251,6 +251,13 @@ class ValveVariant:
             return ValveVariant(self.name.removesuffix("+play"), self.kano)
         return self
 
+    def band_parts(self, S: np.ndarray) -> list[tuple[np.ndarray, ValveVariant]]:
+        """The bands ``S`` split by the variant that runs them (:meth:`for_band`):
+        ``(mask, variant)`` pairs, each mask non-empty, together covering ``S``."""
+        narrow = np.asarray(S, dtype=float) < self.play_width
+        parts = [(~narrow, self), (narrow, self.for_band(0.0))]
+        return [(mask, v) for mask, v in parts if mask.any()]
+
 
 def white_noise_std(x: np.ndarray) -> float:
     """Standard deviation of white noise on ``x`` [units of x]; 0 for a smooth signal.

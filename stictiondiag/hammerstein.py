@@ -583,20 +583,25 @@ class _Problem:
         S = np.atleast_1d(np.asarray(S, dtype=float))
         J = np.atleast_1d(np.asarray(J, dtype=float))
         off = np.atleast_1d(np.asarray(offsets, dtype=float))
-        narrow = S < variant.play_width
-        if narrow.any():
-            raw = variant.for_band(0.0)
-            out = [np.empty(S.size), np.empty(S.size, np.int64), np.empty(S.size), np.empty(S.size)]
-            for mask, v in ((narrow, raw), (~narrow, variant)):
-                if mask.any():
-                    part = self._cost(S[mask], J[mask], v, off)
-                    for o, p in zip(out, part, strict=True):
-                        o[mask] = p
-            return out[0], out[1], out[2], out[3]
-        return self._cost(S, J, variant, off)
+        parts = variant.band_parts(S)
+        if len(parts) == 1:
+            return self._cost(S, J, parts[0][1], off)
+        out = [np.empty(S.size), np.empty(S.size, np.int64), np.empty(S.size), np.empty(S.size)]
+        for mask, v in parts:
+            part = self._cost(S[mask], J[mask], v, off)
+            for o, p in zip(out, part, strict=True):
+                o[mask] = p
+        return out[0], out[1], out[2], out[3]
+
+    def _input(self, variant: ValveVariant) -> np.ndarray:
+        """The op that ``variant`` runs on (prepared once per variant)."""
+        x = self.inputs.get(variant.name)
+        if x is None:
+            x = self.inputs[variant.name] = variant.prepare(self.x)
+        return x
 
     def _cost(self, S, J, variant: ValveVariant, off):
-        x = self.inputs.setdefault(variant.name, variant.prepare(self.x))
+        x = self._input(variant)
         c, bd, bo, bt = _batch_cost(
             x,
             variant.model_S(S),
@@ -621,7 +626,7 @@ class _Problem:
     def residual(self, S, J, variant: ValveVariant, delay, offset, tau):
         """Residual on the regression rows, fitted parameters and valve output."""
         variant = variant.for_band(float(S))
-        x = self.inputs.setdefault(variant.name, variant.prepare(self.x))
+        x = self._input(variant)
         u, n_slips = valve_run(
             x,
             float(variant.model_S(S)),

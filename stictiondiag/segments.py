@@ -461,19 +461,19 @@ def _grid_search(op, mv, sync, variant, S_max, J_max, seeds=(), n_grid=31, n_zoo
     Returns all evaluated (S, J, cost) and the best pair with its cost.
     """
     S_all, J_all, C_all = [], [], []
-    x = variant.prepare(op)
-    raw = variant.for_band(0.0)
-    x_raw = raw.prepare(op)
+    inputs: dict = {}
 
     def evaluate(Sg, Jg):
         SS, JJ = np.meshgrid(Sg, Jg, indexing="ij")
         SS, JJ = SS.ravel(), JJ.ravel()
-        C = valve_sse_many(x, mv, variant.model_S(SS), JJ, variant.kano, *sync)
+        C = np.empty(SS.size)
         # A band narrower than the play operator runs on the raw op
-        # (ValveVariant.for_band): S = J = 0 is then the linear valve.
-        narrow = SS < variant.play_width
-        if narrow.any():
-            C[narrow] = valve_sse_many(x_raw, mv, SS[narrow], JJ[narrow], raw.kano, *sync)
+        # (ValveVariant.band_parts): S = J = 0 is then the linear valve.
+        for mask, v in variant.band_parts(SS):
+            x = inputs.get(v.name)
+            if x is None:
+                x = inputs[v.name] = v.prepare(op)
+            C[mask] = valve_sse_many(x, mv, v.model_S(SS[mask]), JJ[mask], v.kano, *sync)
         S_all.append(SS)
         J_all.append(JJ)
         C_all.append(C)
