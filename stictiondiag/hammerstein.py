@@ -1000,9 +1000,8 @@ def fit_hammerstein(
         method="bounded",
         options={"maxiter": 30, "xatol": 0.01},
     )
-    linear_cost = lin_best[0]
-    lin_d, lin_t = np.array([lin_best[1]]), np.array([lin_best[2]])
-    lin_resid, *_ = prob.residual(0.0, 0.0, linear, int(lin_d[0]), 0.0, float(lin_t[0]))
+    linear_cost, lin_delay, lin_tau = lin_best
+    lin_resid, *_ = prob.residual(0.0, 0.0, linear, lin_delay, 0.0, lin_tau)
     resid, theta, mv_model, n_slips = prob.residual(S_hat, J_hat, variant, delay, offset, tau)
 
     # Independent evidence on S and J comes from the breakaways: each slip is one
@@ -1065,7 +1064,7 @@ def fit_hammerstein(
         "rows_left_out": n_left_out,
         "dead_time_s": delay * dt,
         "dead_time_interval_s": [d_iv[0] * dt, d_iv[1] * dt],
-        "linear_valve_dead_time_s": float(lin_d[0]) * dt,
+        "linear_valve_dead_time_s": float(lin_delay) * dt,
         "time_constant_s": tau * dt,
         "process_gains": {"direct": float(theta[0]), "lag": float(theta[1])},
         "highpass_corner_s": HIGHPASS_PERIODS * period * dt,
