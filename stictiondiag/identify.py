@@ -354,7 +354,7 @@ def identify_controller(
         return replace(fit, pv_filter_time=float(pv_filter))
     if pv_filter != "auto":
         raise UsageError(f"pv_filter must be 'auto', None or a time in s, got {pv_filter!r}")
-    best = _identify_pi(sp, pv, op, dt)
+    best = plain = _identify_pi(sp, pv, op, dt)
     plain_unexplained = 1.0 - best.fit_r2
     for samples in PV_FILTER_GRID:
         T = samples * dt
@@ -362,11 +362,34 @@ def identify_controller(
             fit = _identify_pi(sp, filtered_pv(pv, T, dt), op, dt)
         except DataError:
             continue
-        if fit.fit_r2 > best.fit_r2 and fit.n_used >= best.n_used * (1.0 - PV_FILTER_GAIN):
+        # The law is judged on the samples it keeps; a filter must also not worsen
+        # the reconstruction of op over the whole record.  On a quantised pv a long
+        # filter fits the stretches between pv's steps exactly and leaves the steps
+        # out as outliers (Kc and Ti a tenth of the truth).
+        if (
+            fit.fit_r2 > best.fit_r2
+            and fit.n_used >= best.n_used * (1.0 - PV_FILTER_GAIN)
+            and fit.op_fit_r2 >= plain.op_fit_r2
+        ):
             best = replace(fit, pv_filter_time=T)
     if best.pv_filter_time > 0.0 and 1.0 - best.fit_r2 > PV_FILTER_GAIN * plain_unexplained:
         return _identify_pi(sp, pv, op, dt)
     return best
+
+
+#: Trimming stops before it keeps less than this share of the rows where a
+#: regressor is not zero.
+TRIM_KEEP_REGRESSOR = 0.1
+
+
+def _loses_regressor(X: np.ndarray, keep: np.ndarray, inlier: np.ndarray) -> bool:
+    """Whether going from the rows ``keep`` to ``inlier`` keeps less than
+    :data:`TRIM_KEEP_REGRESSOR` of the rows where a column of ``X`` is not zero
+    (a quantised pv: the error changes at its steps only)."""
+    active = np.abs(X) > 1e-12 * np.max(np.abs(X), axis=0)
+    total = active[keep].sum(axis=0)
+    kept = active[inlier].sum(axis=0)
+    return bool(np.any((total > 0) & (kept < TRIM_KEEP_REGRESSOR * total)))
 
 
 def _identify_pi(sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: float) -> ControllerFit:
@@ -410,6 +433,11 @@ def _identify_pi(sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: floa
         sigma = 1.4826 * float(np.median(np.abs(r_in - np.median(r_in))))
         inlier = np.abs(resid) <= max(TRIM_SIGMAS * sigma, floor)
         if inlier.sum() < max(MIN_SAMPLES, dop.size // 2) or np.array_equal(inlier, keep):
+            break
+        # A quantised pv changes at a few samples only, where a small pv filter of
+        # the controller leaves the largest residuals: trimming them would leave
+        # the proportional term nothing to be fitted on (Kc = 0, no PI law).
+        if _loses_regressor(X, keep, inlier):
             break
         keep = inlier
     coef, t_int, _ = _lstsq_t(X[keep], dop[keep])

@@ -405,3 +405,31 @@ def test_controller_without_pv_filter_keeps_none():
     sim = run(CONC, 5.0, 2.0)
     fit = identify_controller(sim.sp, sim.pv, sim.op, DT)
     assert fit.pv_filter_time == 0.0
+
+
+def test_controller_quantised_pv_with_small_filter():
+    """A pv read at a coarse instrument resolution (Loop 4 of Section 3) changes at
+    a quarter of the samples only; a controller filter of a fraction of a sample
+    leaves its largest residuals exactly there (the identification ignores a
+    filter this small: the automatic search's grid starts at half a sample).  Trimming them as outliers left the
+    proportional term no data (Kc = 0: "no PI law found", so no replay and no gap
+    diagnosis), and a long pv filter then fitted the stretches between the steps
+    exactly with Kc and Ti a tenth of the truth.  The law is found.  Tolerance: the
+    filter the fit ignores moves Kc and Ti by less than 0.1 % here (4 % at a
+    filter of 0.3 samples); 3 % allows for it.
+    """
+    rng = np.random.default_rng(6006)
+    n, dt, kc, ti = 6000, 2.0, 0.67, 70.0
+    # A cycling pv, rounded by the instrument to 0.45 units.
+    t = np.arange(n) * dt
+    pv_true = 50.0 + 1.5 * np.sin(2 * np.pi * t / 600.0) + np.cumsum(rng.normal(0, 0.02, n))
+    pv = 0.45 * np.round(pv_true / 0.45)
+    sp = np.full(n, 50.0)
+    a = math.exp(-dt / 0.4)  # a fifth of a sample
+    pv_f = lfilter([1.0 - a], [1.0, -a], pv, zi=[a * pv[0]])[0]
+    e = sp - pv_f
+    op = 40.0 + kc * (e + np.cumsum(e) * dt / ti)
+    fit = identify_controller(sp, pv, op, dt)
+    assert fit.controller.gain == pytest.approx(kc, rel=0.03)
+    assert fit.controller.integral_time == pytest.approx(ti, rel=0.03)
+    assert fit.pv_filter_time == 0.0
