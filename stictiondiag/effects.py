@@ -69,7 +69,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numba
 import numpy as np
@@ -3131,6 +3131,46 @@ def fit_quantization(
             params["op_from_pv_rounding"] = extra
     return EffectFit(
         effect="quantization",
+        variant="+".join(preds),
+        n_params=sum(k.endswith("_step") for k in params),
+        params=params,
+        predictions=preds,
+        explained=explained,
+    )
+
+
+def quantized_signals(ef: EffectFit) -> tuple[str, ...]:
+    """The signals whose resolution a quantization fit reads from the data (``op``,
+    ``mv``, ``pv``, in that order)."""
+    return tuple(name for name in ("op", "mv", "pv") if f"{name}_step" in ef.params)
+
+
+def restrict_quantization(ef: EffectFit, signals: tuple[str, ...]) -> EffectFit:
+    """The quantization fit ``ef`` with the resolution of ``signals`` only.
+
+    Each step is one parameter and acts on its own signal (a historian-rounded pv also
+    on the controller replay, ``op_from_pv_rounding``), so a loop whose mv is rounded
+    and whose pv is rounded too finely to matter is explained by mv's step alone; the
+    gap diagnosis keeps the subset that pays for its parameters
+    (:func:`stictiondiag.gap.diagnose_gap`).
+    """
+    params, explained, preds = {}, {}, {}
+    for name in ("op", "mv", "pv"):
+        if name not in signals or f"{name}_step" not in ef.params:
+            continue
+        step = float(ef.params[f"{name}_step"])
+        params[f"{name}_step"] = step
+        params[f"{name}_offset"] = ef.params[f"{name}_offset"]
+        explained[name] = step * step / 12.0
+        preds[name] = ef.predictions[name]
+    extra = ef.params.get("op_from_pv_rounding")
+    if "pv_step" in params and extra is not None:
+        params["op_from_pv_rounding"] = extra
+        explained["op"] = explained.get("op", 0.0) + float(extra)
+        preds["op"] = ef.predictions["op"]
+    preds = {k: v for k, v in ef.predictions.items() if k in preds}
+    return replace(
+        ef,
         variant="+".join(preds),
         n_params=sum(k.endswith("_step") for k in params),
         params=params,

@@ -83,6 +83,7 @@ record, :func:`stictiondiag.effects.signature_test`).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -530,6 +531,12 @@ def diagnose_gap(
     # Held-out errors: fit on even blocks, judge on odd ones, and the other way round.
     blocks = _blocks(n, n_blocks)
     held: dict = dict.fromkeys(["none", *fits])
+    # Quantization: every subset of the quantised signals (each step one parameter).
+    q_subsets = []
+    if "quantization" in fits:
+        q_sig = fx.quantized_signals(fits["quantization"])
+        q_subsets = [c for r in range(1, len(q_sig)) for c in itertools.combinations(q_sig, r)]
+    q_held: dict = dict.fromkeys(q_subsets)
     for parity in (0, 1):
         train = (blocks % 2 == parity).astype(float)
         test = 1.0 - train
@@ -545,6 +552,19 @@ def diagnose_gap(
                 _predictions(base_f, ef), sig, norm_only, blocks, test, n_blocks, ef.explained
             )
             held[name] = _add(held[name], errs)
+            if name == "quantization":
+                for sub in q_subsets:
+                    ef_s = fx.restrict_quantization(ef, sub)
+                    errs = _block_errors(
+                        _predictions(base_f, ef_s),
+                        sig,
+                        norm_only,
+                        blocks,
+                        test,
+                        n_blocks,
+                        ef_s.explained,
+                    )
+                    q_held[sub] = _add(q_held[sub], errs)
 
     # Per-parameter penalty of each signal, as for the Bayesian information criterion
     # (an extra parameter must lower n log(SSE) by log(n)): a share log(n_eff)/n_eff of
@@ -556,6 +576,30 @@ def diagnose_gap(
         for s, p in base.predictions().items()
     }
     share = {s: math.log(v) / v for s, v in n_eff.items()}
+
+    if q_subsets:
+        # All quantised signals when their steps together pay for themselves on
+        # held-out data, else the subset that pays best: a step is one parameter on
+        # its own signal, and a pv rounded too finely to matter must not charge an
+        # mv rounding the BIC share of pv's error (pv carries load no replay
+        # foresees).
+        def q_net(h: dict, ef: fx.EffectFit) -> float:
+            sigs = [s for s in ef.predictions if s in held["none"]]
+            gain = sum(float((held["none"][s] - h[s]).sum()) for s in sigs)
+            return gain - sum(
+                _bic_gain(float(held["none"][s].sum()), ef.n_params, share[s]) for s in sigs
+            )
+
+        full_net = q_net(held["quantization"], fits["quantization"])
+        best_q = (full_net, None)
+        for sub in q_subsets if full_net <= 0.0 else ():
+            ef_s = fx.restrict_quantization(fits["quantization"], sub)
+            net = q_net(q_held[sub], ef_s)
+            if net > best_q[0]:
+                best_q = (net, sub)
+        if best_q[1] is not None:
+            fits["quantization"] = fx.restrict_quantization(fits["quantization"], best_q[1])
+            held["quantization"] = q_held[best_q[1]]
 
     # Penalised scores (normalised held-out squared error summed over signals).
     base_preds = base.predictions()

@@ -244,3 +244,50 @@ def test_blocks_agree_counts_only_blocks_the_effect_changes():
     # As many better as worse: agree (the sizes are judged by the penalty elsewhere).
     assert _blocks_agree(np.array([5.0, 5.0, -5.0, -5.0, 0.0, 0.0, 0.0, 0.0]), thr)
     assert not _blocks_agree(np.array([5.0, 5.0, -5.0, -5.0, -5.0, 0.0, 0.0, 0.0]), thr)
+
+
+def test_quantization_keeps_the_steps_that_pay_for_themselves():
+    """mv rounded to 0.62 % and pv to 0.058 units, on an integrating loop whose pv
+    error is mostly load no replay foresees.  mv's rounding is 60 % of its replay
+    error; pv's rounding is 1 % of pv's.  Charged with the BIC share of pv's error
+    for both steps, the quantization fit lost to ``none``; mv's step alone pays for
+    itself many times over, and is what the diagnosis keeps."""
+    case = generate_case("quantization", 6011)
+    truth = case.truth["effect_parameters"]
+    assert truth["quantised"] == "both"  # the case is what the docstring says
+    g = diagnose_gap(_tags(case), effects=("quantization",))
+    assert g.effect == "quantization"
+    q = next(c for c in g.candidates if c.effect == "quantization")
+    # The step read from the data is the hidden one (to the 6 decimals of the CSV).
+    assert q.params["mv_step"] == pytest.approx(truth["mv_quantum_pct"], abs=1e-5)
+    assert "pv_step" not in q.params and q.n_params == 1
+    assert g.shrink_pct > 20.0  # measured 36 %: most of mv's replay error is rounding
+
+
+def test_restrict_quantization_keeps_one_signal():
+    from stictiondiag.effects import EffectFit, restrict_quantization
+
+    pred = np.zeros(3)
+    ef = EffectFit(
+        effect="quantization",
+        variant="mv+pv+op",
+        n_params=2,
+        params={
+            "mv_step": 0.6,
+            "mv_offset": 0.0,
+            "pv_step": 0.2,
+            "pv_offset": 0.1,
+            "op_from_pv_rounding": 0.05,
+        },
+        predictions={"mv": pred, "pv": pred, "op": pred},
+        explained={"mv": 0.03, "pv": 0.2**2 / 12, "op": 0.05},
+    )
+    mv_only = restrict_quantization(ef, ("mv",))
+    assert mv_only.n_params == 1 and mv_only.variant == "mv"
+    assert mv_only.explained == {"mv": pytest.approx(0.6**2 / 12)}
+    pv_only = restrict_quantization(ef, ("pv",))
+    # pv's step also explains the controller replay's error it causes.
+    assert pv_only.variant == "pv+op" and pv_only.explained["op"] == pytest.approx(0.05)
+    assert restrict_quantization(ef, ("mv", "pv")).explained == pytest.approx(
+        {"mv": 0.03, "pv": 0.2**2 / 12, "op": 0.05}
+    )
