@@ -24,6 +24,7 @@ Design:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -352,6 +353,31 @@ def rank(rows: list[dict]) -> pd.DataFrame:
     return frame[lead + sorted(c for c in frame.columns if c not in lead)]
 
 
+#: Thread-count settings of the BLAS libraries numpy may be built with.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """Worker processes started inside this block run one BLAS thread each.
+
+    The scan already runs one worker per core; a multi-threaded BLAS in each would
+    put two threads on every core, and on two cores the workers then waited for
+    each other's small matrix products: 100 loops took 206 s with two workers
+    against 79 s with one BLAS thread each (``benchmarks/bench_scan.py``).  The
+    ``stiction`` command sets this for its own process; a value the user set is
+    kept.  Only the workers are concerned: this process's BLAS has started.
+    """
+    added = [v for v in BLAS_THREAD_VARIABLES if v not in os.environ]
+    for v in added:
+        os.environ[v] = "1"
+    try:
+        yield
+    finally:
+        for v in added:
+            os.environ.pop(v, None)
+
+
 def run_local(
     todo,
     fn,
@@ -397,40 +423,43 @@ def run_local(
     it = iter(todo)
     pool = None
     pending: dict = {}
-    try:
-        while True:
-            if pool is None:
-                pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
-            for src in it:
-                pending[pool.submit(fn, src, *args)] = src
-                if len(pending) >= 2 * workers:
-                    break
-            if not pending:
-                return
-            done, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-            broken = False
-            for fut in done:
-                src = pending.pop(fut)
-                try:
-                    res = fut.result()
-                except Exception as exc:
-                    if on_error is None:
-                        raise
-                    broken = broken or isinstance(exc, BrokenProcessPool)
-                    res = on_error(src, exc)
-                yield res
-            if broken:
-                # A dead worker breaks the whole pool: the loops still in flight fail
-                # with it, and a fresh pool takes the rest.
-                for fut in cf.as_completed(list(pending)):
+    # Workers (this pool's, and a fresh pool's after a worker died) get one BLAS
+    # thread each.
+    with _one_blas_thread():
+        try:
+            while True:
+                if pool is None:
+                    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+                for src in it:
+                    pending[pool.submit(fn, src, *args)] = src
+                    if len(pending) >= 2 * workers:
+                        break
+                if not pending:
+                    return
+                done, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                broken = False
+                for fut in done:
                     src = pending.pop(fut)
-                    exc = fut.exception()
-                    yield fut.result() if exc is None else on_error(src, exc)
+                    try:
+                        res = fut.result()
+                    except Exception as exc:
+                        if on_error is None:
+                            raise
+                        broken = broken or isinstance(exc, BrokenProcessPool)
+                        res = on_error(src, exc)
+                    yield res
+                if broken:
+                    # A dead worker breaks the whole pool: the loops still in flight fail
+                    # with it, and a fresh pool takes the rest.
+                    for fut in cf.as_completed(list(pending)):
+                        src = pending.pop(fut)
+                        exc = fut.exception()
+                        yield fut.result() if exc is None else on_error(src, exc)
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    pool = None
+        finally:
+            if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)
-                pool = None
-    finally:
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def run_dask(
@@ -461,9 +490,10 @@ def run_dask(
         else:
             # The scheduler's HTTP server (health, dashboard) takes a free port: another
             # cluster on the default 8787 must not make the scan fail or warn.
-            cluster = LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
-            )
+            with _one_blas_thread():
+                cluster = LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
+                )
             client = Client(cluster)
     except OSError as exc:
         if cluster is not None:
