@@ -24,7 +24,6 @@ Design:
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
@@ -35,6 +34,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from ._blas import one_blas_thread
 from .errors import DataError, StictionError, UsageError
 
 #: Column names accepted as the loop id of a Parquet dataset (first match wins).
@@ -353,31 +353,6 @@ def rank(rows: list[dict]) -> pd.DataFrame:
     return frame[lead + sorted(c for c in frame.columns if c not in lead)]
 
 
-#: Thread-count settings of the BLAS libraries numpy may be built with.
-BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-@contextlib.contextmanager
-def _one_blas_thread():
-    """Worker processes started inside this block run one BLAS thread each.
-
-    The scan already runs one worker per core; a multi-threaded BLAS in each would
-    put two threads on every core, and on two cores the workers then waited for
-    each other's small matrix products: 100 loops took 206 s with two workers
-    against 79 s with one BLAS thread each (``benchmarks/bench_scan.py``).  The
-    ``stiction`` command sets this for its own process; a value the user set is
-    kept.  Only the workers are concerned: this process's BLAS has started.
-    """
-    added = [v for v in BLAS_THREAD_VARIABLES if v not in os.environ]
-    for v in added:
-        os.environ[v] = "1"
-    try:
-        yield
-    finally:
-        for v in added:
-            os.environ.pop(v, None)
-
-
 def run_local(
     todo,
     fn,
@@ -424,8 +399,10 @@ def run_local(
     pool = None
     pending: dict = {}
     # Workers (this pool's, and a fresh pool's after a worker died) get one BLAS
-    # thread each.
-    with _one_blas_thread():
+    # thread each.  The scan already runs one worker per core; a multi-threaded BLAS
+    # in each put two threads on every core: on two cores 100 loops took 206 s with
+    # two workers against 79-90 s with one BLAS thread each (benchmarks/bench_scan.py).
+    with one_blas_thread():
         try:
             while True:
                 if pool is None:
@@ -490,7 +467,7 @@ def run_dask(
         else:
             # The scheduler's HTTP server (health, dashboard) takes a free port: another
             # cluster on the default 8787 must not make the scan fail or warn.
-            with _one_blas_thread():
+            with one_blas_thread():
                 cluster = LocalCluster(
                     n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
                 )
