@@ -1,6 +1,6 @@
 """Accuracy of ``analyze`` on simulated closed loops; prints a table.
 
-Each case is a PI loop of :func:`stictiondiag.loops.simulate_loop` with the
+Each case is a PI loop of :func:`stictiondiag.models.loops.simulate_loop` with the
 data-driven valve of Choudhury, Thornhill & Shah (2005), Section 5
 (``valve="choudhury"``), drawn with a fixed seed:
 
@@ -29,7 +29,7 @@ record; and measurement noise passed to op by the controller can hold the publis
 flowchart's valve, which re-arms its stuck point at every reversal of its input
 (Fig. 10; Section 5.1 asks for a filter in front of the model), so the cycle
 becomes irregular. Cases whose noisy pv has no regular oscillation with at least
-:data:`MIN_CYCLES_TARGET` cycles (:func:`stictiondiag.oscillation.detect_oscillation`)
+:data:`MIN_CYCLES_TARGET` cycles (:func:`stictiondiag.signals.oscillation.detect_oscillation`)
 are drawn like the others but listed in their own row, outside the targets.
 
 Usage: ``python benchmarks/accuracy_analyze.py [--cases 48] [--seed 1] [--workers 1]
@@ -63,7 +63,12 @@ TARGET_WITH_MV, TARGET_WITHOUT_MV, TARGET_PERIOD_PCT = 0.3, 1.0, 5.0
 
 def templates():
     """Loop templates: name -> (kind, process, controller)."""
-    from stictiondiag.processes import FOPTD, LOOP_PARAMETERS, PI, Integrating
+    from stictiondiag.models.processes import (
+        FOPTD,
+        LOOP_PARAMETERS,
+        PI,
+        Integrating,
+    )
 
     conc = LOOP_PARAMETERS["concentration"]
     return {
@@ -101,8 +106,8 @@ def draw_cases(n_cases: int, seed: int) -> list[dict]:
 
 def simulate_case(case: dict) -> dict:
     """The case's data: a noise-free run to size the record and noise, then the noisy run."""
-    from stictiondiag.loops import simulate_loop
-    from stictiondiag.oscillation import detect_oscillation
+    from stictiondiag.models.loops import simulate_loop
+    from stictiondiag.signals.oscillation import detect_oscillation
 
     kind, process, controller = templates()[case["template"]]
     S, J = case["S"], case["J"]
@@ -152,9 +157,12 @@ def simulate_case(case: dict) -> dict:
 
 def analyse_case(case: dict) -> list[dict]:
     """Both analyses of one case (with mv, without mv); one result row each."""
-    from stictiondiag.analysis import AnalysisConfig, analyze
-    from stictiondiag.errors import StictionError
-    from stictiondiag.tags import Tags
+    from stictiondiag.analysis import (
+        AnalysisConfig,
+        analyze,
+    )
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.io.tags import Tags
 
     data = simulate_case(case)
     rows = []

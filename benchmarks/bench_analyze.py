@@ -83,8 +83,8 @@ def make_loop_csv(folder: Path) -> dict[str, Path]:
     """Write the benchmark loop with and without mv; return variant -> CSV path."""
     import pandas as pd
 
-    from stictiondiag.loops import simulate_loop
-    from stictiondiag.processes import LOOP_PARAMETERS
+    from stictiondiag.models.loops import simulate_loop
+    from stictiondiag.models.processes import LOOP_PARAMETERS
 
     loop = LOOP_PARAMETERS["concentration"]
     warmup = 500
@@ -122,12 +122,12 @@ class StepTimer:
         "setup": [("stictiondiag.analysis", "prepare_analysis")],
         "oscillation": [("stictiondiag.analysis", "detect_oscillation")],
         "fit": [
-            ("stictiondiag.segments", "estimate_from_mv"),
-            ("stictiondiag.hammerstein", "fit_hammerstein"),
+            ("stictiondiag.stiction.segments", "estimate_from_mv"),
+            ("stictiondiag.stiction.hammerstein", "fit_hammerstein"),
         ],
-        "verdict": [("stictiondiag.estimate", "stiction_verdict")],
-        "replay": [("stictiondiag.replay", "replay")],
-        "gap": [("stictiondiag.gap", "diagnose_gap")],
+        "verdict": [("stictiondiag.stiction.valvefit", "stiction_verdict")],
+        "replay": [("stictiondiag.replay.closed_loop", "replay")],
+        "gap": [("stictiondiag.gap.diagnose", "diagnose_gap")],
     }
 
     def __init__(self) -> None:
@@ -162,8 +162,11 @@ class StepTimer:
 
 def run_once(csv: Path, out: Path, gap: bool, timer: StepTimer | None = None) -> dict:
     """One ``stiction analyze`` equivalent; returns total and per-step seconds."""
-    from stictiondiag.analysis import AnalysisConfig, analyze_file
-    from stictiondiag.atomic import write_atomic
+    from stictiondiag.analysis import (
+        AnalysisConfig,
+        analyze_file,
+    )
+    from stictiondiag.core.atomic import write_atomic
     from stictiondiag.plotting.writer import FigureWriter
 
     if timer is not None:

@@ -1,6 +1,6 @@
 """Accuracy and speed of the stiction estimators on simulated closed loops.
 
-Closed PI loops (:func:`stictiondiag.loops.simulate_loop`) with a sticky valve, S drawn
+Closed PI loops (:func:`stictiondiag.models.loops.simulate_loop`) with a sticky valve, S drawn
 from 1-8 % and J from 0-1.4 S, self-regulating (FOPTD) and integrating processes,
 three levels of measurement noise on pv.  Noise-free loops use the published
 flowchart (Fig. 10); noisy loops use Kano's variant, because the published flowchart
@@ -9,12 +9,12 @@ a filter in front of it).  The FOPTD loops get a slow set-point square wave, so 
 loops with a pure deadband (J = 0, no limit cycle in a FOPTD loop, Section 5.3.1)
 still move their valve.
 
-For every loop the script runs :func:`stictiondiag.segments.estimate_from_mv`
-(valve position recorded) and :func:`stictiondiag.hammerstein.fit_hammerstein`
+For every loop the script runs :func:`stictiondiag.stiction.segments.estimate_from_mv`
+(valve position recorded) and :func:`stictiondiag.stiction.hammerstein.fit_hammerstein`
 (op and pv only) and prints one row per loop, then the median absolute errors of S
 and J [% of span] by estimator, process and noise level, the share of loops whose
 reported interval holds the truth, the share called stiction / no stiction by
-:func:`stictiondiag.estimate.stiction_verdict` (every loop has a sticky valve), and the
+:func:`stictiondiag.stiction.valvefit.stiction_verdict` (every loop has a sticky valve), and the
 wall time per fit (the first fit of a fresh install includes numba compilation).
 
 Usage::
@@ -29,12 +29,16 @@ import time
 
 import numpy as np
 
-from stictiondiag.estimate import stiction_verdict
-from stictiondiag.hammerstein import fit_hammerstein
-from stictiondiag.loops import simulate_loop
-from stictiondiag.oscillation import detect_oscillation
-from stictiondiag.processes import FOPTD, PI, Integrating
-from stictiondiag.segments import estimate_from_mv
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import (
+    FOPTD,
+    PI,
+    Integrating,
+)
+from stictiondiag.signals.oscillation import detect_oscillation
+from stictiondiag.stiction.hammerstein import fit_hammerstein
+from stictiondiag.stiction.segments import estimate_from_mv
+from stictiondiag.stiction.verdict import stiction_verdict
 
 #: Measurement noise levels: standard deviation of the noise on pv as a fraction of
 #: the standard deviation of the noise-free pv.

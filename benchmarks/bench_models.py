@@ -2,7 +2,7 @@
 
 Measures
 
-1. the data-driven stiction model (:func:`stictiondiag.valve.choudhury_model`):
+1. the data-driven stiction model (:func:`stictiondiag.models.valve.choudhury_model`):
    throughput compiled by numba against the very same code run as plain Python
    (``NUMBA_DISABLE_JIT=1`` in a child process, so the algorithm is identical);
    target: compiled >= 20 x faster;
@@ -30,7 +30,7 @@ _CHILD_MODEL = textwrap.dedent(
     """
     import json, sys, time
     import numpy as np
-    from stictiondiag.valve import choudhury_model
+    from stictiondiag.models.valve import choudhury_model
     n = int(sys.argv[1])
     rng = np.random.default_rng(0)
     t = np.arange(n) * 0.1
@@ -49,7 +49,7 @@ _CHILD_LOOP = textwrap.dedent(
     """
     import json, time
     t0 = time.perf_counter()
-    from stictiondiag.loops import simulate_paper_loop
+    from stictiondiag.models.loops import simulate_paper_loop
     t1 = time.perf_counter()
     sim = simulate_paper_loop("concentration", valve="physical", duration=3000.0)
     t2 = time.perf_counter()
@@ -99,7 +99,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as empty:
         cold = _child(_CHILD_LOOP, cache_dir=empty)
     first = _child(_CHILD_LOOP)
-    from stictiondiag.loops import simulate_paper_loop
+    from stictiondiag.models.loops import simulate_paper_loop
 
     simulate_paper_loop("concentration", valve="physical", duration=10.0)  # warm
     warm = _best(

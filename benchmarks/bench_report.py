@@ -6,7 +6,7 @@ Measures
    process (imports, numba's on-disk cache, analysis, figures, HTML), timed from the
    outside, with the default workers (one per core) and with ``--workers 1``;
    target: < 30 s with the gap diagnosis;
-2. :func:`stictiondiag.report.build_report` over the same files in this process with
+2. :func:`stictiondiag.apps.report.build_report` over the same files in this process with
    one worker, per loop (analysis + figures + page), with and without the gap
    diagnosis; the first pass pays this process's imports and cache loading.
 
@@ -51,7 +51,7 @@ def time_cli(files: list[str], gap: bool, workers: int | None) -> tuple[float, i
 
 def time_library(files: list[str], gap: bool) -> tuple[float, dict[str, float], list]:
     """Total seconds, seconds per loop, and the index rows of one :func:`build_report`."""
-    from stictiondiag.report import build_report
+    from stictiondiag.apps.report import build_report
 
     marks: list[tuple[float, str]] = []
 
@@ -72,7 +72,7 @@ def time_library(files: list[str], gap: bool) -> tuple[float, dict[str, float], 
 
 
 def main() -> None:
-    from stictiondiag.report import default_workers
+    from stictiondiag.apps.report import default_workers
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--files", default=str(ROOT / "sample_data" / "*.csv"))

@@ -1,7 +1,7 @@
 """Scan throughput: loops per second on the local process pool and on Dask.
 
 Generates a plant (``scripts/make_plant.py``: by default 100 loops of 10 000 samples,
-half with a sticky valve) and scans it with :func:`stictiondiag.scan.scan` on the
+half with a sticky valve) and scans it with :func:`stictiondiag.apps.scan.scan` on the
 local engine with 1, 2 and all cores, and on a Dask LocalCluster with all cores.
 Each run starts from an empty output folder, so the wall time includes starting the
 worker processes (and the cluster). A warm-up scan of a few loops first fills the
@@ -33,7 +33,7 @@ from pathlib import Path
 import pandas as pd
 import psutil
 
-from stictiondiag.scan import scan
+from stictiondiag.apps.scan import scan
 
 ROOT = Path(__file__).resolve().parents[1]
 

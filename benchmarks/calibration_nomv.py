@@ -1,8 +1,8 @@
 """Calibration of the no-mv S intervals and of the verdict on simulated loops; prints a table.
 
 Without the valve position, S and J come from the Hammerstein fit
-(:func:`stictiondiag.hammerstein.fit_hammerstein`) with a nominal 95 % profile-cost
-interval (:func:`stictiondiag.estimate.cost_threshold`).  On simulated loops the
+(:func:`stictiondiag.stiction.hammerstein.fit_hammerstein`) with a nominal 95 % profile-cost
+interval (:func:`stictiondiag.stiction.valvefit.cost_threshold`).  On simulated loops the
 true S is known, so the interval can be checked: a calibrated 95 % interval holds
 the true S in about 95 % of the records.  Much more than that, with wide intervals
 that reach 0, is an over-conservative interval (and an ``inconclusive`` verdict
@@ -10,7 +10,7 @@ that the data do not call for); much less is over-confident.
 
 Cases, drawn with a fixed seed (every combination, ``--reps`` times):
 
-* five PI loops of :func:`stictiondiag.loops.simulate_loop`: the four templates of
+* five PI loops of :func:`stictiondiag.models.loops.simulate_loop`: the four templates of
   ``benchmarks/accuracy_analyze.py`` (the concentration loop of Eq. 3 / Table 3,
   a faster FOPTD loop and two integrating, level-like, loops) and a flow loop
   (1 s dead time, 3 s lag, analysed as loop type ``flow``), sampled at 1 s,
@@ -40,7 +40,7 @@ rate: the share of loops with a linear valve called ``stiction``.
 Usage: ``python benchmarks/calibration_nomv.py [--reps 1] [--seed 7] [--workers 1]
 [--csv rows.csv]``.  One rep is 180 records, about 90 s with two workers on an
 idle two-core machine.  The threshold of the intervals
-(:data:`stictiondiag.hammerstein.MODEL_ERROR_SHARE`) was set on ``--seed 7 --reps
+(:data:`stictiondiag.stiction.hammerstein.MODEL_ERROR_SHARE`) was set on ``--seed 7 --reps
 2``; other seeds check it.
 """
 
@@ -81,7 +81,12 @@ LEVEL = 0.95
 
 def templates():
     """Loop templates: name -> (integrating, process, controller)."""
-    from stictiondiag.processes import FOPTD, LOOP_PARAMETERS, PI, Integrating
+    from stictiondiag.models.processes import (
+        FOPTD,
+        LOOP_PARAMETERS,
+        PI,
+        Integrating,
+    )
 
     conc = LOOP_PARAMETERS["concentration"]
     return {
@@ -125,8 +130,8 @@ def draw_cases(reps: int, seed: int) -> list[dict]:
 
 def _reference(template: str) -> tuple[float, float]:
     """Noise-free pv standard deviation and period [s] of the loop with a 2 % valve."""
-    from stictiondiag.loops import simulate_loop
-    from stictiondiag.oscillation import detect_oscillation
+    from stictiondiag.models.loops import simulate_loop
+    from stictiondiag.signals.oscillation import detect_oscillation
 
     _, process, controller = templates()[template]
     sim = simulate_loop(
@@ -153,10 +158,13 @@ def _ar1(rng: np.random.Generator, n: int, std: float, tau: float) -> np.ndarray
 
 def run_case(case: dict) -> dict:
     """Simulate one case and analyse it without mv; one result row."""
-    from stictiondiag.analysis import AnalysisConfig, analyze
-    from stictiondiag.errors import StictionError
-    from stictiondiag.loops import simulate_loop
-    from stictiondiag.tags import Tags
+    from stictiondiag.analysis import (
+        AnalysisConfig,
+        analyze,
+    )
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.io.tags import Tags
+    from stictiondiag.models.loops import simulate_loop
 
     integrating, process, controller = templates()[case["template"]]
     ref_std, ref_period = _reference(case["template"])

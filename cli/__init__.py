@@ -4,8 +4,8 @@ import gc as _gc
 import os as _os
 
 # One BLAS thread per process, set before numpy is first imported
-# (stictiondiag._blas imports no numpy).
-from stictiondiag._blas import default_to_one_thread as _one_thread
+# (stictiondiag.core.blas imports no numpy).
+from stictiondiag.core.blas import default_to_one_thread as _one_thread
 
 _one_thread()
 del _one_thread

@@ -37,7 +37,7 @@ def check_outputs(out: Path | None, json_path: str | None) -> None:
     UsageError
         ``--out`` is an existing file, or ``--json`` is a directory or lies below a file.
     """
-    from stictiondiag.errors import UsageError
+    from stictiondiag.core.errors import UsageError
 
     if out is not None and out.exists() and not out.is_dir():
         raise UsageError(f"cannot write plots to {out}: it is a file; give a directory for --out")
@@ -137,7 +137,10 @@ def analyze(
     """Diagnose stiction in one loop: verdict, S and J, closed-loop replay, gap."""
     import contextlib
 
-    from stictiondiag.analysis import AnalysisConfig, analyze_file
+    from stictiondiag.analysis import (
+        AnalysisConfig,
+        analyze_file,
+    )
 
     with friendly_errors():
         check_outputs(out, json_path)

@@ -24,8 +24,8 @@ def benchmark(
     Prints top-1 accuracy, median shrink on the correctly named cases, none
     specificity and the confusion matrix; progress goes to stderr.
     """
-    from stictiondiag.benchmark import run_benchmark
-    from stictiondiag.errors import UsageError
+    from stictiondiag.apps.benchmark import run_benchmark
+    from stictiondiag.core.errors import UsageError
 
     with friendly_errors():
         if out.exists() and not out.is_dir():

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 
 import typer
 
-from stictiondiag.errors import StictionError
+from stictiondiag.core.errors import StictionError
 
 
 def fail(message: str, code: int) -> None:
@@ -51,7 +51,7 @@ def emit(d: dict, summary: str, json_path: str | None) -> None:
         return
     typer.echo(summary)
     if json_path:
-        from stictiondiag.atomic import write_atomic
+        from stictiondiag.core.atomic import write_atomic
 
         write_atomic(json_path, text)
         info(f"wrote {json_path}")

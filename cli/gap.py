@@ -82,9 +82,9 @@ def gap(
     ] = None,
 ) -> None:
     """Sim-to-real gap: measure and locate it, and name the unmodelled effect that explains it."""
-    from stictiondiag.atomic import atomic_path
-    from stictiondiag.errors import UsageError
-    from stictiondiag.gap import diagnose_file
+    from stictiondiag.core.atomic import atomic_path
+    from stictiondiag.core.errors import UsageError
+    from stictiondiag.gap.diagnose import diagnose_file
 
     with friendly_errors():
         if plot is not None and plot.is_dir():

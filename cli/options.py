@@ -68,7 +68,7 @@ def read_options(
     loop_type: LoopType,
     integrating: bool | None,
 ) -> dict:
-    """Keyword arguments for :func:`stictiondiag.tags.read_tags` from CLI options."""
+    """Keyword arguments for :func:`stictiondiag.io.tags.read_tags` from CLI options."""
     return {
         "pv": pv,
         "op": op,

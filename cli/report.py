@@ -14,7 +14,10 @@ from typing import Annotated
 
 import typer
 
-from stictiondiag.errors import EXIT_FINDING, EXIT_PARTIAL
+from stictiondiag.core.errors import (
+    EXIT_FINDING,
+    EXIT_PARTIAL,
+)
 
 from .common import fail, friendly_errors, info
 from .main import app
@@ -78,8 +81,11 @@ def report(
     Exit codes: 0 success, 1 stiction found (with --fail-on-stiction), 2 usage error,
     3 no input could be read, 4 some inputs could not be analysed.
     """
-    from stictiondiag.atomic import write_atomic
-    from stictiondiag.report import build_report, render_markdown
+    from stictiondiag.apps.report import (
+        build_report,
+        render_markdown,
+    )
+    from stictiondiag.core.atomic import write_atomic
 
     if fail_on_stiction is not None and not 0.0 <= fail_on_stiction <= 1.0:
         fail(f"--fail-on-stiction threshold must be in [0, 1], got {fail_on_stiction}", 2)

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from stictiondiag.errors import EXIT_PARTIAL
+from stictiondiag.core.errors import EXIT_PARTIAL
 
 from .common import friendly_errors, info
 from .main import app
@@ -50,7 +50,7 @@ def scan(
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from stictiondiag.scan import scan as run_scan
+    from stictiondiag.apps.scan import scan as run_scan
 
     with friendly_errors():
         console = Console(file=sys.stderr)

@@ -14,7 +14,7 @@ from typing import Annotated
 
 import typer
 
-from stictiondiag.errors import UsageError
+from stictiondiag.core.errors import UsageError
 
 from .common import friendly_errors, info
 from .main import app
@@ -43,7 +43,7 @@ def _fmt(x, spec: str = ".3g") -> str:
 
 
 def render_summary(loop: str, summary: dict) -> str:
-    """Readable summary of :meth:`stictiondiag.loops.Simulation.summary` for stderr."""
+    """Readable summary of :meth:`stictiondiag.models.loops.Simulation.summary` for stderr."""
     st = summary["settings"]
     valve = st["valve"]
     if valve in ("choudhury", "kano"):
@@ -103,7 +103,7 @@ def simulate(
             metavar="LOOP",
             help="The paper's loop (Eq. 3, Table 3): concentration (G = 3e^{-10s}/(10s+1), "
             "PI 0.2, 10 s) or level (G = 1/s, PI 0.4, 2 s). Default: concentration "
-            "(stictiondiag.processes.DEFAULT_LOOP).",
+            "(stictiondiag.models.processes.DEFAULT_LOOP).",
         ),
     ] = None,
     valve: Annotated[
@@ -182,8 +182,11 @@ def simulate(
 
     The summary goes to stderr; JSON, CSV and the plot go to the files asked for (JSON to stdout with --json -). Exit codes: 0 done, 2 bad option value or unwritable output.
     """
-    from stictiondiag import loops, physical, processes
-    from stictiondiag.atomic import atomic_path, write_atomic
+    from stictiondiag.core.atomic import (
+        atomic_path,
+        write_atomic,
+    )
+    from stictiondiag.models import loops, physical, processes
 
     with friendly_errors():
         loop_name = processes.DEFAULT_LOOP if loop is None else loop

@@ -32,8 +32,11 @@ def validate(
     gap: Annotated[bool, typer.Option(help="Include the gap diagnosis per loop.")] = True,
 ) -> None:
     """Analyse every ISDB loop; compare verdicts (and baselines) with the published labels."""
-    from stictiondiag.atomic import write_atomic
-    from stictiondiag.validation import render_markdown, validate_isdb
+    from stictiondiag.apps.validation import (
+        render_markdown,
+        validate_isdb,
+    )
+    from stictiondiag.core.atomic import write_atomic
 
     with friendly_errors():
 

@@ -5,7 +5,7 @@ About ``sticky_share`` of the loops have a sticky valve, the others a healthy on
 Sticky loops (``--sticky-model``):
 
 ``synthetic`` (default)
-    Cases of :func:`stictiondiag.synthetic.generate_case` with no further effect:
+    Cases of :func:`stictiondiag.models.synthetic.generate_case` with no further effect:
     self-regulating or integrating process, data-driven or Karnopp valve with S
     0.8-6 % of span, load and set-point changes, noise (Choudhury et al. 2005,
     Sections 4 and 5). Their cycles last up to about 1 500 samples, so records need
@@ -17,7 +17,7 @@ Sticky loops (``--sticky-model``):
     on pv the simulated valve would never slip.)
 
 Healthy loops: a PI-controlled first-order-plus-dead-time process
-(:func:`stictiondiag.loops.simulate_loop`, S = J = 0) moved by a coloured-noise
+(:func:`stictiondiag.models.loops.simulate_loop`, S = J = 0) moved by a coloured-noise
 load, with white measurement noise on pv. Process, tuning and noise differ per loop.
 
 The truth (S, J, process, controller) goes to ``truth.json``, which ``stiction scan``
@@ -44,9 +44,12 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
-from stictiondiag.loops import simulate_loop
-from stictiondiag.processes import FOPTD, PI
-from stictiondiag.synthetic import generate_case
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import (
+    FOPTD,
+    PI,
+)
+from stictiondiag.models.synthetic import generate_case
 
 #: Sample time of the PI loops of :func:`pi_loop` [s] (the synthetic cases draw theirs).
 SAMPLE_TIME_S = 1.0

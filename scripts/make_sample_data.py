@@ -1,7 +1,7 @@
 """Write the bundled sample loops in ``sample_data/`` and their README.
 
 Six closed loops, simulated with the project's data-driven valve
-(:func:`stictiondiag.valve.choudhury_step`, Section 5.1 of Choudhury, Thornhill &
+(:func:`stictiondiag.models.valve.choudhury_step`, Section 5.1 of Choudhury, Thornhill &
 Shah 2005) so that a replay with the true S and J is the generating model. Four
 mirror the industrial examples of Section 3; one is healthy and one has no valve
 position record::
@@ -30,8 +30,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stictiondiag._jit import jit
-from stictiondiag.valve import choudhury_step, valve_state
+from stictiondiag.core.jit import jit
+from stictiondiag.models.valve import (
+    choudhury_step,
+    valve_state,
+)
 
 #: Seed of every random choice below (the paper's year and volume).
 SEED = 2005_13
@@ -415,7 +418,7 @@ LOOPS: tuple[LoopSpec, ...] = (
 def _period(x: np.ndarray, ts: float) -> float | None:
     """Oscillation period [s] of ``x`` by the project's detector, if it finds one."""
     try:
-        from stictiondiag.oscillation import detect_oscillation
+        from stictiondiag.signals.oscillation import detect_oscillation
     except ImportError:  # pragma: no cover - the detector ships with the package
         return None
     found = detect_oscillation(np.asarray(x, dtype=float), ts)
@@ -455,7 +458,7 @@ def _readme(rows: list[tuple[LoopSpec, pd.DataFrame]]) -> str:
         "Four mirror the industrial examples of Section 3 of Choudhury, Thornhill & Shah",
         '(2005), "Modelling valve stiction"; one is a healthy loop and one has no valve',
         "position record. The valve is the data-driven stiction model of Section 5.1",
-        "(`stictiondiag.valve.choudhury_step`), so the true S and J below are exactly the",
+        "(`stictiondiag.models.valve.choudhury_step`), so the true S and J below are exactly the",
         "parameters that generated `mv` from `op`.",
         "",
         "Columns: `time` [s] (timestamps in `level_undershoot.csv`), `sp`, `pv` [units",
@@ -493,7 +496,7 @@ def _readme(rows: list[tuple[LoopSpec, pd.DataFrame]]) -> str:
         "integrating level loops); the controller acts on a first-order filtered pv",
         "(`pv filter` below, backward-Euler discretisation, as a distributed control",
         "system filters its measurement). `pv period` is the oscillation period of the",
-        "recorded pv found by `stictiondiag.oscillation.detect_oscillation`.",
+        "recorded pv found by `stictiondiag.signals.oscillation.detect_oscillation`.",
         "",
         "pv filter time constants [s]: "
         + ", ".join(f"`{spec.file}` {spec.filter_time:g}" for spec, _ in rows)

@@ -15,26 +15,25 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
-    from .atomic import atomic_path, write_atomic
-    from .baselines import (
-        BicoherenceResult,
-        HorchResult,
-        bicoherence_indices,
-        choudhury_hos_diagnosis,
-        horch_cross_correlation,
+    from stictiondiag.core.atomic import (
+        atomic_path,
+        write_atomic,
     )
-    from .describing import (
-        LimitCyclePrediction,
-        describing_function,
-        describing_function_numeric,
-        predict_limit_cycle,
+    from stictiondiag.core.errors import (
+        DataError,
+        StictionError,
+        UsageError,
     )
-    from .effects import EFFECT_MODELS, EFFECTS, valve_replay
-    from .errors import DataError, StictionError, UsageError
-    from .estimate import StictionFit, Verdict, stiction_verdict
-    from .gap import GapDiagnosis, diagnose_gap
-    from .hammerstein import fit_hammerstein
-    from .identify import (
+    from stictiondiag.gap.diagnose import (
+        GapDiagnosis,
+        diagnose_gap,
+    )
+    from stictiondiag.gap.effects import (
+        EFFECT_MODELS,
+        EFFECTS,
+        valve_replay,
+    )
+    from stictiondiag.identification.identify import (
         ControllerFit,
         ProcessFit,
         controller_fit,
@@ -42,13 +41,30 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         identify_process,
         process_fit,
     )
-    from .loops import LimitCycle, Simulation, simulate_loop, simulate_paper_loop
-    from .oscillation import Oscillation, detect_oscillation, dominant_period
-    from .physical import VALVE_PARAMETERS, PhysicalValve, karnopp
-    from .replay import Replay
-    from .segments import Segments, estimate_from_mv, segment_valve
-    from .tags import Tags, read_frame, read_tags, scale
-    from .valve import (
+    from stictiondiag.io.tags import (
+        Tags,
+        read_frame,
+        read_tags,
+        scale,
+    )
+    from stictiondiag.models.describing import (
+        LimitCyclePrediction,
+        describing_function,
+        describing_function_numeric,
+        predict_limit_cycle,
+    )
+    from stictiondiag.models.loops import (
+        LimitCycle,
+        Simulation,
+        simulate_loop,
+        simulate_paper_loop,
+    )
+    from stictiondiag.models.physical import (
+        VALVE_PARAMETERS,
+        PhysicalValve,
+        karnopp,
+    )
+    from stictiondiag.models.valve import (
         STICTION_MODEL_PARAMETERS,
         choudhury_model,
         ewma,
@@ -56,6 +72,30 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         ma_to_percent,
         percent_to_ma,
         valve_characteristic,
+    )
+    from stictiondiag.replay.closed_loop import Replay
+    from stictiondiag.signals.oscillation import (
+        Oscillation,
+        detect_oscillation,
+        dominant_period,
+    )
+    from stictiondiag.stiction.baselines import (
+        BicoherenceResult,
+        HorchResult,
+        bicoherence_indices,
+        choudhury_hos_diagnosis,
+        horch_cross_correlation,
+    )
+    from stictiondiag.stiction.hammerstein import fit_hammerstein
+    from stictiondiag.stiction.segments import (
+        Segments,
+        estimate_from_mv,
+        segment_valve,
+    )
+    from stictiondiag.stiction.valvefit import StictionFit
+    from stictiondiag.stiction.verdict import (
+        Verdict,
+        stiction_verdict,
     )
 
 __version__ = "0.1.0"
@@ -119,60 +159,60 @@ __all__ = [
 
 # public name -> submodule that defines it
 _LAZY: dict[str, str] = {
-    "atomic_path": "atomic",
-    "write_atomic": "atomic",
-    "BicoherenceResult": "baselines",
-    "HorchResult": "baselines",
-    "bicoherence_indices": "baselines",
-    "choudhury_hos_diagnosis": "baselines",
-    "horch_cross_correlation": "baselines",
-    "LimitCyclePrediction": "describing",
-    "describing_function": "describing",
-    "describing_function_numeric": "describing",
-    "predict_limit_cycle": "describing",
-    "EFFECT_MODELS": "effects",
-    "EFFECTS": "effects",
-    "valve_replay": "effects",
-    "DataError": "errors",
-    "StictionError": "errors",
-    "UsageError": "errors",
-    "StictionFit": "estimate",
-    "Verdict": "estimate",
-    "stiction_verdict": "estimate",
-    "GapDiagnosis": "gap",
-    "diagnose_gap": "gap",
-    "fit_hammerstein": "hammerstein",
-    "ControllerFit": "identify",
-    "ProcessFit": "identify",
-    "controller_fit": "identify",
-    "identify_controller": "identify",
-    "identify_process": "identify",
-    "process_fit": "identify",
-    "LimitCycle": "loops",
-    "Simulation": "loops",
-    "simulate_loop": "loops",
-    "simulate_paper_loop": "loops",
-    "Oscillation": "oscillation",
-    "detect_oscillation": "oscillation",
-    "dominant_period": "oscillation",
-    "VALVE_PARAMETERS": "physical",
-    "PhysicalValve": "physical",
-    "karnopp": "physical",
-    "Replay": "replay",
-    "Segments": "segments",
-    "estimate_from_mv": "segments",
-    "segment_valve": "segments",
-    "Tags": "tags",
-    "read_frame": "tags",
-    "read_tags": "tags",
-    "scale": "tags",
-    "STICTION_MODEL_PARAMETERS": "valve",
-    "choudhury_model": "valve",
-    "ewma": "valve",
-    "kano_model": "valve",
-    "ma_to_percent": "valve",
-    "percent_to_ma": "valve",
-    "valve_characteristic": "valve",
+    "atomic_path": "core.atomic",
+    "write_atomic": "core.atomic",
+    "BicoherenceResult": "stiction.baselines",
+    "HorchResult": "stiction.baselines",
+    "bicoherence_indices": "stiction.baselines",
+    "choudhury_hos_diagnosis": "stiction.baselines",
+    "horch_cross_correlation": "stiction.baselines",
+    "LimitCyclePrediction": "models.describing",
+    "describing_function": "models.describing",
+    "describing_function_numeric": "models.describing",
+    "predict_limit_cycle": "models.describing",
+    "EFFECT_MODELS": "gap.effects",
+    "EFFECTS": "gap.effects",
+    "valve_replay": "gap.effects",
+    "DataError": "core.errors",
+    "StictionError": "core.errors",
+    "UsageError": "core.errors",
+    "StictionFit": "stiction.valvefit",
+    "Verdict": "stiction.verdict",
+    "stiction_verdict": "stiction.verdict",
+    "GapDiagnosis": "gap.diagnose",
+    "diagnose_gap": "gap.diagnose",
+    "fit_hammerstein": "stiction.hammerstein",
+    "ControllerFit": "identification.identify",
+    "ProcessFit": "identification.identify",
+    "controller_fit": "identification.identify",
+    "identify_controller": "identification.identify",
+    "identify_process": "identification.identify",
+    "process_fit": "identification.identify",
+    "LimitCycle": "models.loops",
+    "Simulation": "models.loops",
+    "simulate_loop": "models.loops",
+    "simulate_paper_loop": "models.loops",
+    "Oscillation": "signals.oscillation",
+    "detect_oscillation": "signals.oscillation",
+    "dominant_period": "signals.oscillation",
+    "VALVE_PARAMETERS": "models.physical",
+    "PhysicalValve": "models.physical",
+    "karnopp": "models.physical",
+    "Replay": "replay.closed_loop",
+    "Segments": "stiction.segments",
+    "estimate_from_mv": "stiction.segments",
+    "segment_valve": "stiction.segments",
+    "Tags": "io.tags",
+    "read_frame": "io.tags",
+    "read_tags": "io.tags",
+    "scale": "io.tags",
+    "STICTION_MODEL_PARAMETERS": "models.valve",
+    "choudhury_model": "models.valve",
+    "ewma": "models.valve",
+    "kano_model": "models.valve",
+    "ma_to_percent": "models.valve",
+    "percent_to_ma": "models.valve",
+    "valve_characteristic": "models.valve",
 }
 
 

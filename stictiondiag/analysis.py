@@ -31,20 +31,26 @@ from typing import Any
 
 import numpy as np
 
-from .errors import DataError, StictionError
-from .oscillation import (
+from stictiondiag.core.errors import (
+    DataError,
+    StictionError,
+)
+from stictiondiag.io.tags import (
+    Tags,
+    read_tags,
+)
+from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
     Oscillation,
     detect_oscillation,
     dominant_period,
 )
-from .tags import Tags, read_tags
 
 #: Loop types where pv is (nearly) proportional to the valve opening (Section 5.3.1:
 #: "in liquid flow loops ... pv can be taken to be proportional to valve opening").
 #: Without mv the fit records it and uses the self-regulating structure
-#: (:mod:`stictiondiag.hammerstein`, "The linear part").
+#: (:mod:`stictiondiag.stiction.hammerstein`, "The linear part").
 FLOW_LIKE = frozenset({"flow"})
 
 
@@ -191,15 +197,15 @@ class Analysis:
 
 
 def _replay(tags: Tags, fit):
-    """Step 5, the closed-loop replay (:func:`stictiondiag.replay.replay`, looked up
+    """Step 5, the closed-loop replay (:func:`stictiondiag.replay.closed_loop.replay`, looked up
     when called)."""
-    from .replay import replay
+    from stictiondiag.replay.closed_loop import replay
 
     return replay(tags, fit, integrating=tags.integrating)
 
 
 def _phase_figure(analysis: Analysis):
-    from .plotting.analysis import plot_phase
+    from stictiondiag.plotting.analysis import plot_phase
 
     period = analysis.oscillation.period_s or analysis.oscillation_op.period_s
     return plot_phase(analysis.tags, fit=analysis.fit, title=analysis.loop, period_s=period)
@@ -210,7 +216,10 @@ def _reconstruction_figure(analysis: Analysis):
 
 
 def _gap_figure(which: str, gap):
-    from .plotting.gap import plot_gap_breakdown, plot_gap_replay
+    from stictiondiag.plotting.gap import (
+        plot_gap_breakdown,
+        plot_gap_replay,
+    )
 
     return (plot_gap_breakdown if which == "breakdown" else plot_gap_replay)(gap)
 
@@ -220,8 +229,9 @@ def prepare_analysis() -> None:
     (the first call of any compiled kernel: about 0.3 s), before the data arrive."""
     import numpy as np
 
-    from . import effects, estimate, gap, hammerstein, segments  # noqa: F401
-    from ._filters import lfilter1
+    from stictiondiag.core.filters import lfilter1
+    from stictiondiag.gap import diagnose, effects  # noqa: F401
+    from stictiondiag.stiction import hammerstein, segments, valvefit, verdict  # noqa: F401
 
     lfilter1((1.0,), 0.0, np.zeros(1))
 
@@ -233,10 +243,10 @@ def prepare_figure_worker() -> None:
     arrives."""
     import numpy as np  # noqa: F401
 
-    from . import replay  # noqa: F401
-    from ._filters import lfilter1
-    from .plotting import analysis, gap  # noqa: F401
-    from .plotting import replay as _replay_plots  # noqa: F401
+    from stictiondiag.core.filters import lfilter1
+    from stictiondiag.plotting import analysis, gap  # noqa: F401
+    from stictiondiag.plotting import replay as _replay_plots  # noqa: F401
+    from stictiondiag.replay import closed_loop as replay  # noqa: F401
 
     # The first call of any compiled kernel sets up numba's target (about 0.3 s);
     # the replay's own kernels then load in a few ms each.
@@ -264,7 +274,7 @@ def _clean(obj):
 #: Fewest periods of a regular cycle a record must hold to be analysed at all [-].
 #: Seen twice, a pattern repeats (and a sticky valve slips at least four times);
 #: seen once it is an event.  Between this and
-#: :data:`~stictiondiag.oscillation.MIN_CYCLES` the analysis runs but cannot
+#: :data:`~stictiondiag.signals.oscillation.MIN_CYCLES` the analysis runs but cannot
 #: conclude "no oscillation" (see :func:`check_record_length`).
 MIN_ANALYSIS_CYCLES = 2.0
 
@@ -273,17 +283,17 @@ def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) ->
     """Check that the record holds enough periods of a regular cycle.
 
     Stiction shows as a sustained limit cycle (Sections 4.2.2 and 5.3), and the
-    oscillation test needs :data:`~stictiondiag.oscillation.MIN_CYCLES` periods.
+    oscillation test needs :data:`~stictiondiag.signals.oscillation.MIN_CYCLES` periods.
     When pv or op has a regular autocorrelation (regularity above
-    :data:`~stictiondiag.oscillation.REGULARITY_THRESHOLD`) whose period
-    (:func:`~stictiondiag.oscillation.dominant_period`) the record holds fewer than
+    :data:`~stictiondiag.signals.oscillation.REGULARITY_THRESHOLD`) whose period
+    (:func:`~stictiondiag.signals.oscillation.dominant_period`) the record holds fewer than
     ``MIN_CYCLES`` times, "no oscillation" would only mean "not enough data":
 
     * fewer than :data:`MIN_ANALYSIS_CYCLES` periods: the analysis stops and says
       how long a record it needs;
     * from ``MIN_ANALYSIS_CYCLES`` to ``MIN_CYCLES`` periods: the analysis runs, the
       returned message goes into the warnings, and the verdict is told the record is
-      short (:func:`~stictiondiag.estimate.stiction_verdict`, ``short_record``): the
+      short (:func:`~stictiondiag.stiction.valvefit.stiction_verdict`, ``short_record``): the
       valve model's own evidence can still show stiction, but the missing cycle is
       not taken as evidence against it.
 
@@ -333,7 +343,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
     Parameters
     ----------
     tags : Tags
-        Loop data from :func:`stictiondiag.tags.read_tags` or ``Tags.from_arrays``.
+        Loop data from :func:`stictiondiag.io.tags.read_tags` or ``Tags.from_arrays``.
     config : AnalysisConfig, optional
         Which optional steps to run.
     figures : FigureWriter, optional
@@ -358,9 +368,9 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         (:func:`check_record_length`),
         or a step cannot use the data (its message says why).
     """
-    from .estimate import stiction_verdict
-    from .hammerstein import fit_hammerstein
-    from .segments import estimate_from_mv
+    from stictiondiag.stiction.hammerstein import fit_hammerstein
+    from stictiondiag.stiction.segments import estimate_from_mv
+    from stictiondiag.stiction.verdict import stiction_verdict
 
     config = config or AnalysisConfig()
     warnings = list(tags.warnings)
@@ -453,7 +463,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         # figures of the steps so far), this one diagnoses the gap, which needs the
         # replay only at its end (for the feature breakdown) and then waits for it.
         # The outcome is that of the two steps one after the other.
-        from .gap import diagnose_gap
+        from stictiondiag.gap.diagnose import diagnose_gap
 
         # A picklable call: the worker may have been started before the fit.
         pending = figures.compute(functools.partial(_replay, tags, fit))
@@ -480,7 +490,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
 
         # 6. Sim-to-real gap.
         if config.gap and rep is not None:
-            from .gap import diagnose_gap
+            from stictiondiag.gap.diagnose import diagnose_gap
 
             if figures is not None:
                 hand_over(so_far(rep))

@@ -20,11 +20,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stictiondiag.analysis import Analysis, AnalysisConfig, analyze, analyze_file
-from stictiondiag.errors import DataError
-from stictiondiag.loops import simulate_loop
-from stictiondiag.processes import LOOP_PARAMETERS
-from stictiondiag.tags import Tags
+from stictiondiag.analysis import (
+    Analysis,
+    AnalysisConfig,
+    analyze,
+    analyze_file,
+)
+from stictiondiag.core.errors import DataError
+from stictiondiag.io.tags import Tags
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import LOOP_PARAMETERS
 
 SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
 NO_GAP = AnalysisConfig(gap=False)
@@ -91,7 +96,7 @@ def conc_no_mv(conc) -> Analysis:
 #: xfail, so the test fails (XPASS) as soon as the step is fixed and the mark can go.
 KNOWN = {
     ("S_J", "level_no_mv.csv"): "Hammerstein fit on the integrating loop without mv: "
-    "S 2.3 / J 5.8 against 3 / 1.5 (stictiondiag.hammerstein)",
+    "S 2.3 / J 5.8 against 3 / 1.5 (stictiondiag.stiction.hammerstein)",
 }
 
 
@@ -393,8 +398,11 @@ def test_record_under_two_cycles_of_a_regular_cycle_is_refused(conc):
     # Fewer than MIN_ANALYSIS_CYCLES periods of a regular cycle: a pattern seen once
     # is an event, not a cycle.  (detect_oscillation measures regularity only from
     # 2.5 cycles on, so the regular cycle is stated here.)
-    from stictiondiag.analysis import MIN_ANALYSIS_CYCLES, check_record_length
-    from stictiondiag.oscillation import Oscillation
+    from stictiondiag.analysis import (
+        MIN_ANALYSIS_CYCLES,
+        check_record_length,
+    )
+    from stictiondiag.signals.oscillation import Oscillation
 
     assert MIN_ANALYSIS_CYCLES == 2.0
     n = 250  # 1.8 periods of the 136 s cycle

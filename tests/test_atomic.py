@@ -9,8 +9,11 @@ import pandas as pd
 import pytest
 from matplotlib.figure import Figure
 
-from stictiondiag.atomic import atomic_path, write_atomic
-from stictiondiag.errors import UsageError
+from stictiondiag.core.atomic import (
+    atomic_path,
+    write_atomic,
+)
+from stictiondiag.core.errors import UsageError
 
 
 def _leftovers(directory) -> list[str]:

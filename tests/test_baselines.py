@@ -1,7 +1,7 @@
 """Tests of the classic stiction tests (Horch's CCF test, Choudhury's bicoherence test).
 
 The closed loops are simulated here with a small compiled loop around
-:func:`stictiondiag.valve.choudhury_step`, so these tests do not depend on the project's
+:func:`stictiondiag.models.valve.choudhury_step`, so these tests do not depend on the project's
 own loop simulator.  Each scenario is chosen so that the expected outcome follows from
 an argument written beside it, not from a previous run.
 """
@@ -16,10 +16,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stictiondiag import baselines as bl
-from stictiondiag._jit import jit
-from stictiondiag.errors import DataError, UsageError
-from stictiondiag.valve import choudhury_step, valve_state
+from stictiondiag.core.errors import (
+    DataError,
+    UsageError,
+)
+from stictiondiag.core.jit import jit
+from stictiondiag.models.valve import (
+    choudhury_step,
+    valve_state,
+)
+from stictiondiag.stiction import baselines as bl
 
 ISDB = Path(__file__).parents[1].parent / "shared" / "data" / "isdb"
 

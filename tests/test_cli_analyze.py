@@ -18,9 +18,12 @@ import pytest
 from typer.testing import CliRunner
 
 from stiction_cli.main import app
-from stictiondiag.errors import EXIT_DATA, EXIT_USAGE
-from stictiondiag.loops import simulate_loop
-from stictiondiag.processes import LOOP_PARAMETERS
+from stictiondiag.core.errors import (
+    EXIT_DATA,
+    EXIT_USAGE,
+)
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import LOOP_PARAMETERS
 
 runner = CliRunner()
 

@@ -8,8 +8,8 @@ import pytest
 from typer.testing import CliRunner
 
 from stiction_cli.main import app
-from stictiondiag import benchmark as bm
-from stictiondiag.synthetic import generate_case
+from stictiondiag.apps import benchmark as bm
+from stictiondiag.models.synthetic import generate_case
 
 runner = CliRunner()
 
@@ -61,8 +61,8 @@ def test_benchmark_command(tmp_path, monkeypatch):
     # The generator runs for real; the diagnosis is replaced by one that names the
     # hidden effect except for one case, so the test checks the plumbing and scores
     # in seconds (the real benchmark is run by the command itself, see the README).
-    import stictiondiag.synthetic as syn
-    from stictiondiag.gap import GapDiagnosis
+    import stictiondiag.models.synthetic as syn
+    from stictiondiag.gap.diagnose import GapDiagnosis
 
     truths = {}
 

@@ -18,10 +18,16 @@ import pytest
 from typer.testing import CliRunner
 
 import stictiondiag.analysis
-import stictiondiag.atomic
+import stictiondiag.core.atomic
 from stiction_cli.main import app
 from stiction_cli.report import DEFAULT_FAIL_THRESHOLD, normalise_argv
-from stictiondiag.errors import EXIT_DATA, EXIT_FINDING, EXIT_OK, EXIT_PARTIAL, EXIT_USAGE
+from stictiondiag.core.errors import (
+    EXIT_DATA,
+    EXIT_FINDING,
+    EXIT_OK,
+    EXIT_PARTIAL,
+    EXIT_USAGE,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_data"
@@ -303,14 +309,14 @@ def test_interrupted_write_leaves_the_old_file_whole(tmp_path, monkeypatch):
     out = tmp_path / "r"
     assert report(HEALTHY, "--out", out, "--no-gap").exit_code == EXIT_OK
     before = (out / "index.html").read_bytes()
-    commit = stictiondiag.atomic._commit
+    commit = stictiondiag.core.atomic._commit
 
     def disk_full_on_index(temp, target):
         if Path(target).name == "index.html":
             raise OSError(errno.ENOSPC, "No space left on device")
         commit(temp, target)
 
-    monkeypatch.setattr(stictiondiag.atomic, "_commit", disk_full_on_index)
+    monkeypatch.setattr(stictiondiag.core.atomic, "_commit", disk_full_on_index)
     result = report(STICKY, "--out", out, "--no-gap")
     assert result.exit_code != EXIT_OK
     assert "no space left on device" in result.stderr.lower()

@@ -10,7 +10,12 @@ import pytest
 from typer.testing import CliRunner
 
 from stiction_cli.main import app
-from stictiondiag.errors import EXIT_DATA, EXIT_OK, EXIT_PARTIAL, EXIT_USAGE
+from stictiondiag.core.errors import (
+    EXIT_DATA,
+    EXIT_OK,
+    EXIT_PARTIAL,
+    EXIT_USAGE,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 ISDB = ROOT.parent / "shared" / "data" / "isdb"

@@ -9,12 +9,17 @@ import numpy as np
 import pytest
 
 from stictiondiag import UsageError
-from stictiondiag.describing import (
+from stictiondiag.models.describing import (
     describing_function,
     describing_function_numeric,
     predict_limit_cycle,
 )
-from stictiondiag.processes import FOPTD, LOOP_PARAMETERS, PI, Integrating
+from stictiondiag.models.processes import (
+    FOPTD,
+    LOOP_PARAMETERS,
+    PI,
+    Integrating,
+)
 
 # REFERENCE.md, "Describing function": (S, J, Xm, Re N, Im N), printed to 4 decimals.
 N_TABLE = [

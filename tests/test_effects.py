@@ -1,4 +1,4 @@
-"""Tests of the effect catalogue and the driven replays (stictiondiag.effects)."""
+"""Tests of the effect catalogue and the driven replays (stictiondiag.gap.effects)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from stictiondiag import effects as fx
-from stictiondiag.valve import choudhury_model, kano_model
+from stictiondiag.gap import effects as fx
+from stictiondiag.models.valve import (
+    choudhury_model,
+    kano_model,
+)
 
 
 def _noisy_ramp_op(n=3000, seed=0):

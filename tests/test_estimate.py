@@ -7,26 +7,28 @@ import json
 import numpy as np
 import pytest
 
-from stictiondiag.estimate import (
-    RULE_OUT_S,
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import LOOP_PARAMETERS
+from stictiondiag.models.valve import choudhury_model
+from stictiondiag.signals.oscillation import detect_oscillation
+from stictiondiag.stiction.hammerstein import fit_hammerstein
+from stictiondiag.stiction.segments import estimate_from_mv
+from stictiondiag.stiction.valvefit import (
     StictionFit,
-    Verdict,
     cost_threshold,
     cycle_samples,
     effective_samples,
-    improvement_support,
     play,
     profile_interval,
-    stiction_verdict,
     valve_run,
     white_noise_std,
 )
-from stictiondiag.hammerstein import fit_hammerstein
-from stictiondiag.loops import simulate_loop
-from stictiondiag.oscillation import detect_oscillation
-from stictiondiag.processes import LOOP_PARAMETERS
-from stictiondiag.segments import estimate_from_mv
-from stictiondiag.valve import choudhury_model
+from stictiondiag.stiction.verdict import (
+    RULE_OUT_S,
+    Verdict,
+    improvement_support,
+    stiction_verdict,
+)
 
 
 def concentration(S, J, *, valve="choudhury", noise=0.0, load=None, duration=2500.0, dt=0.5):
@@ -317,7 +319,11 @@ def test_no_stiction_needs_S_bounded(upper, status):
 
 def test_valve_sse_many_is_valve_sse_batch():
     # The pairs shared between threads give the very numbers of one kernel call.
-    from stictiondiag.estimate import MIN_PAIRS_PER_THREAD, valve_sse_batch, valve_sse_many
+    from stictiondiag.stiction.valvefit import (
+        MIN_PAIRS_PER_THREAD,
+        valve_sse_batch,
+        valve_sse_many,
+    )
 
     rng = np.random.default_rng(5)
     op = np.ascontiguousarray(50 + 5 * np.sin(np.arange(3000) / 40) + rng.normal(0, 0.05, 3000))

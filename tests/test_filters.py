@@ -1,6 +1,6 @@
 """The scipy-free replacements on the analysis path agree with the scipy functions.
 
-``stictiondiag._filters``, ``_stats`` and ``_optimize`` stand in for
+``stictiondiag.core.filters``, ``_stats`` and ``_optimize`` stand in for
 :mod:`scipy.signal`, :mod:`scipy.ndimage`, :mod:`scipy.stats` and
 :mod:`scipy.optimize`, whose imports cost more than the rest of a ``stiction
 analyze`` run (ndimage: a tenth of a second).  Each replacement performs
@@ -25,7 +25,7 @@ import pytest
 from scipy import ndimage, optimize, signal, special, stats
 
 import stictiondiag
-from stictiondiag._filters import (
+from stictiondiag.core.filters import (
     convolve1d_constant,
     correlate_lags,
     detrend_linear,
@@ -33,8 +33,8 @@ from stictiondiag._filters import (
     median_filter_nearest,
     savgol_smooth,
 )
-from stictiondiag._optimize import minimize_scalar_bounded
-from stictiondiag._stats import mannwhitneyu
+from stictiondiag.core.optimize import minimize_scalar_bounded
+from stictiondiag.core.stats import mannwhitneyu
 
 RTOL = 1e-12
 
@@ -200,7 +200,8 @@ def test_cli_and_package_import_nothing_heavy():
 
 def test_analysis_path_imports_neither_scipy_signal_nor_stats():
     mods = (
-        "analysis tags oscillation segments estimate identify replay loops hammerstein effects gap"
+        "analysis io.tags signals.oscillation stiction.segments stiction.valvefit stiction.verdict "
+        "identification.identify replay models.loops stiction.hammerstein gap.effects gap.diagnose"
     )
     loaded = _imported("\n".join(f"import stictiondiag.{m}" for m in mods.split()))
     assert not loaded & {"scipy.signal", "scipy.stats", "scipy.optimize", "scipy.ndimage"}

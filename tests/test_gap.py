@@ -1,4 +1,4 @@
-"""Tests of the sim-to-real gap diagnosis (stictiondiag.gap) and its scorer."""
+"""Tests of the sim-to-real gap diagnosis (stictiondiag.gap.diagnose) and its scorer."""
 
 from __future__ import annotations
 
@@ -9,11 +9,18 @@ import matplotlib
 import numpy as np
 import pytest
 
-from stictiondiag.benchmark import BenchmarkResult, CaseResult
-from stictiondiag.errors import DataError
-from stictiondiag.gap import GapDiagnosis, diagnose_gap, noise_variance
-from stictiondiag.synthetic import generate_case
-from stictiondiag.tags import Tags
+from stictiondiag.apps.benchmark import (
+    BenchmarkResult,
+    CaseResult,
+)
+from stictiondiag.core.errors import DataError
+from stictiondiag.gap.diagnose import (
+    GapDiagnosis,
+    diagnose_gap,
+    noise_variance,
+)
+from stictiondiag.io.tags import Tags
+from stictiondiag.models.synthetic import generate_case
 
 matplotlib.use("Agg")
 
@@ -194,7 +201,7 @@ def test_effective_samples_of_white_and_correlated_residuals():
     # phi = 0.8 it is (1 + phi) / (1 - phi) = 9, so n_eff is n and n / 9 (within 10 %:
     # the autocorrelation is estimated from 20 000 samples and summed until it first
     # turns negative).
-    from stictiondiag.gap import _effective_samples
+    from stictiondiag.gap.diagnose import _effective_samples
 
     rng = np.random.default_rng(11)
     n = 20000
@@ -212,7 +219,7 @@ def test_bic_gain_is_the_exact_criterion():
     # 100 (1 - 20^(-2/20)) = 25.89: checked by putting it back into the criterion
     # (exact to rounding) and against the first-order k s E0 = 29.96, which the
     # exact form stays below (it never asks for more than E0 itself).
-    from stictiondiag.gap import _bic_gain
+    from stictiondiag.gap.diagnose import _bic_gain
 
     n, k, e0 = 20.0, 2, 100.0
     s = math.log(n) / n
@@ -231,7 +238,7 @@ def test_bic_gain_is_the_exact_criterion():
 def test_blocks_agree_counts_only_blocks_the_effect_changes():
     # A stiction change a third of the way through: three blocks better, the rest as
     # the base has them (below the threshold either way): the blocks agree.
-    from stictiondiag.gap import _blocks_agree
+    from stictiondiag.gap.diagnose import _blocks_agree
 
     thr = np.full(8, 1.0)
     assert _blocks_agree(np.array([270.0, 300.0, 180.0, 0.0, 0.3, -0.2, 0.0, 0.0]), thr)
@@ -265,7 +272,10 @@ def test_quantization_keeps_the_steps_that_pay_for_themselves():
 
 
 def test_restrict_quantization_keeps_one_signal():
-    from stictiondiag.effects import EffectFit, restrict_quantization
+    from stictiondiag.gap.effects import (
+        EffectFit,
+        restrict_quantization,
+    )
 
     pred = np.zeros(3)
     ef = EffectFit(

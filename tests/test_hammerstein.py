@@ -8,11 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from stictiondiag.errors import DataError
-from stictiondiag.estimate import RULE_OUT_S
-from stictiondiag.hammerstein import fit_hammerstein
-from stictiondiag.loops import simulate_loop
-from stictiondiag.processes import FOPTD, LOOP_PARAMETERS, PI
+from stictiondiag.core.errors import DataError
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import (
+    FOPTD,
+    LOOP_PARAMETERS,
+    PI,
+)
+from stictiondiag.stiction.hammerstein import fit_hammerstein
+from stictiondiag.stiction.verdict import RULE_OUT_S
 
 
 def loop(name, S, J, *, valve="choudhury", noise=0.0, duration=None, dt=None, load=None):
@@ -94,8 +98,11 @@ def test_flow_loop_under_external_oscillation_is_not_called_stiction(lag_s):
     # closed loop pv lags op by a phase that a structure with a few samples of lag
     # and dead time cannot give; a deadband supplied it, and such loops were called
     # stiction with confidence 1.
-    from stictiondiag.analysis import AnalysisConfig, analyze
-    from stictiondiag.tags import Tags
+    from stictiondiag.analysis import (
+        AnalysisConfig,
+        analyze,
+    )
+    from stictiondiag.io.tags import Tags
 
     op, pv = _noisy_flow_loop(lag_s)
     tags = Tags.from_arrays(pv=pv, op=op, ts=1.0, loop_type="flow")
@@ -167,7 +174,7 @@ def test_intervals_under_coloured_load():
     assert held >= 5
     assert zero_excluded == 0
     # The healthy valve's band is bounded below the 2 % a "no stiction" verdict needs
-    # (stictiondiag.estimate.RULE_OUT_S); the intervals end at 1.1 to 1.5 % of span.
+    # (stictiondiag.stiction.valvefit.RULE_OUT_S); the intervals end at 1.1 to 1.5 % of span.
     assert max(upper) < RULE_OUT_S
 
 
@@ -237,8 +244,11 @@ def _noisy_flow_loop(lag_s=8.0, seed=3):
 def test_play_variant_band_below_play_width_is_the_raw_flowchart():
     # Behind the play operator every S below its width w is the same deadband of w;
     # the search must see S = J = 0 as the linear valve and S < w as that band.
-    from stictiondiag.estimate import ValveVariant, valve_variants
-    from stictiondiag.hammerstein import _setup
+    from stictiondiag.stiction.hammerstein import _setup
+    from stictiondiag.stiction.valvefit import (
+        ValveVariant,
+        valve_variants,
+    )
 
     op, pv = _noisy_flow_loop()
     prob = _setup(op, pv, 1.0, False, None)["problem"]

@@ -12,17 +12,25 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from stictiondiag.errors import DataError, UsageError
-from stictiondiag.identify import (
+from stictiondiag.core.errors import (
+    DataError,
+    UsageError,
+)
+from stictiondiag.identification.identify import (
     controller_fit,
     identify_controller,
     identify_process,
     process_fit,
     saturated_samples,
 )
-from stictiondiag.loops import simulate_loop
-from stictiondiag.processes import FOPTD, LOOP_PARAMETERS, PI, Integrating
-from stictiondiag.valve import choudhury_model
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import (
+    FOPTD,
+    LOOP_PARAMETERS,
+    PI,
+    Integrating,
+)
+from stictiondiag.models.valve import choudhury_model
 
 N = 10_000
 DT = 0.1
@@ -356,7 +364,7 @@ def test_process_integrating_wandering_load():
     """
     from pathlib import Path
 
-    from stictiondiag.tags import read_tags
+    from stictiondiag.io.tags import read_tags
 
     tags = read_tags(Path(__file__).resolve().parents[1] / "sample_data" / "level_undershoot.csv")
     p = identify_process(tags.mv, tags.pv, tags.ts, integrating=True)

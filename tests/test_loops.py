@@ -9,8 +9,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from stictiondiag.errors import UsageError
-from stictiondiag.loops import (
+from stictiondiag.core.errors import UsageError
+from stictiondiag.models.loops import (
     MAX_SAMPLES,
     LimitCycle,
     Simulation,
@@ -18,8 +18,13 @@ from stictiondiag.loops import (
     simulate_loop,
     simulate_paper_loop,
 )
-from stictiondiag.physical import PhysicalValve
-from stictiondiag.processes import FOPTD, LOOP_PARAMETERS, PI, Integrating
+from stictiondiag.models.physical import PhysicalValve
+from stictiondiag.models.processes import (
+    FOPTD,
+    LOOP_PARAMETERS,
+    PI,
+    Integrating,
+)
 
 # Table 3 with the simulated pv period at dt = 0.1 s from REFERENCE.md.
 #

@@ -10,7 +10,7 @@ import pytest
 from scipy.signal import sawtooth, square
 
 from stictiondiag import UsageError, choudhury_model
-from stictiondiag.oscillation import (
+from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
     autocorrelation,

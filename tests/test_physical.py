@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from stictiondiag.errors import UsageError
-from stictiondiag.physical import (
+from stictiondiag.core.errors import UsageError
+from stictiondiag.models.physical import (
     VALVE_PARAMETERS,
     PhysicalValve,
     karnopp,
     karnopp_step,
 )
-from stictiondiag.valve import choudhury_model
+from stictiondiag.models.valve import choudhury_model
 
 DT = 0.1
 T = np.arange(0.0, 200.0, DT)

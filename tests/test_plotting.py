@@ -126,10 +126,13 @@ def test_pinned_labels_and_titles_sit_where_matplotlib_puts_them():
 
 
 def test_analysis_figures_are_pngs(tmp_path):
-    from stictiondiag.analysis import AnalysisConfig, analyze
-    from stictiondiag.loops import simulate_loop
-    from stictiondiag.processes import LOOP_PARAMETERS
-    from stictiondiag.tags import Tags
+    from stictiondiag.analysis import (
+        AnalysisConfig,
+        analyze,
+    )
+    from stictiondiag.io.tags import Tags
+    from stictiondiag.models.loops import simulate_loop
+    from stictiondiag.models.processes import LOOP_PARAMETERS
 
     loop = LOOP_PARAMETERS["concentration"]
     sim = simulate_loop(

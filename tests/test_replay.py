@@ -16,12 +16,22 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from stictiondiag.errors import DataError
-from stictiondiag.loops import simulate_loop
-from stictiondiag.processes import FOPTD, LOOP_PARAMETERS, PI
-from stictiondiag.replay import Replay, cycle_shape, nrmse, replay, waveform_similarity
-from stictiondiag.tags import Tags
-from stictiondiag.valve import choudhury_model
+from stictiondiag.core.errors import DataError
+from stictiondiag.io.tags import Tags
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import (
+    FOPTD,
+    LOOP_PARAMETERS,
+    PI,
+)
+from stictiondiag.models.valve import choudhury_model
+from stictiondiag.replay.closed_loop import (
+    Replay,
+    cycle_shape,
+    nrmse,
+    replay,
+    waveform_similarity,
+)
 
 N = 10_000
 DT = 0.1
@@ -274,7 +284,7 @@ def test_replay_of_healthy_sample_loop_identifies_the_process():
     the data's spread (measured 91 %)."""
     from pathlib import Path
 
-    from stictiondiag.tags import read_tags
+    from stictiondiag.io.tags import read_tags
 
     tags = read_tags(
         Path(__file__).resolve().parents[1] / "sample_data" / "healthy_flow.csv", loop_type="flow"

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from stictiondiag.report import (
+from stictiondiag.apps.report import (
     build_report,
     md_escape,
     render_index_html,

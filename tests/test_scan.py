@@ -15,8 +15,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from stictiondiag.errors import DataError, UsageError
-from stictiondiag.scan import (
+from stictiondiag.apps.scan import (
     VERDICT_RANK,
     LoopSource,
     analyse_source,
@@ -27,6 +26,10 @@ from stictiondiag.scan import (
     run_local,
     scan,
     severity,
+)
+from stictiondiag.core.errors import (
+    DataError,
+    UsageError,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

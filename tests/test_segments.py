@@ -7,11 +7,15 @@ import json
 import numpy as np
 import pytest
 
-from stictiondiag.errors import DataError
-from stictiondiag.loops import simulate_loop
-from stictiondiag.processes import LOOP_PARAMETERS
-from stictiondiag.segments import estimate_from_mv, quantum, segment_valve
-from stictiondiag.valve import choudhury_model
+from stictiondiag.core.errors import DataError
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import LOOP_PARAMETERS
+from stictiondiag.models.valve import choudhury_model
+from stictiondiag.stiction.segments import (
+    estimate_from_mv,
+    quantum,
+    segment_valve,
+)
 
 DT = 0.1
 
@@ -189,8 +193,8 @@ def test_bad_input_is_a_data_error(op, mv, match):
 def test_play_variant_band_below_play_width_is_the_raw_flowchart():
     # With mv too: behind the play operator every S below its width is a deadband
     # of that width, so S = J = 0 must run on the raw op and be the linear valve.
-    from stictiondiag.estimate import valve_variants
-    from stictiondiag.segments import _grid_search
+    from stictiondiag.stiction.segments import _grid_search
+    from stictiondiag.stiction.valvefit import valve_variants
 
     rng = np.random.default_rng(5)
     t = np.arange(2000)

@@ -1,4 +1,4 @@
-"""Tests of the withheld-effect generator (stictiondiag.synthetic).
+"""Tests of the withheld-effect generator (stictiondiag.models.synthetic).
 
 The generator must produce each hidden effect at a size that shows, and its base
 valve must be the two-parameter stick-slip model when no effect is hidden. Effect
@@ -19,16 +19,19 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stictiondiag.errors import UsageError
-from stictiondiag.oscillation import detect_oscillation
-from stictiondiag.synthetic import (
+from stictiondiag.core.errors import UsageError
+from stictiondiag.models.synthetic import (
     EFFECTS,
     KARNOPP_PARAMETERS,
     _closed_loop,
     generate_case,
     write_benchmark,
 )
-from stictiondiag.valve import choudhury_model, kano_model
+from stictiondiag.models.valve import (
+    choudhury_model,
+    kano_model,
+)
+from stictiondiag.signals.oscillation import detect_oscillation
 
 BASES = [pytest.param(False, id="data_driven"), pytest.param(True, id="karnopp")]
 

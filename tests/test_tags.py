@@ -13,8 +13,11 @@ import pytest
 from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
-from stictiondiag.errors import DataError, UsageError
-from stictiondiag.tags import (
+from stictiondiag.core.errors import (
+    DataError,
+    UsageError,
+)
+from stictiondiag.io.tags import (
     MAX_GAP_SAMPLES,
     MIN_SAMPLES,
     Tags,

@@ -1,4 +1,4 @@
-"""Validation against the International Stiction Database labels (stictiondiag.validation).
+"""Validation against the International Stiction Database labels (stictiondiag.apps.validation).
 
 The labels are read from the manifest's published comments, mechanically; the scores
 count an ``inconclusive`` verdict as "not called stiction".  The ISDB has no open
@@ -15,7 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from stiction_cli.main import app
-from stictiondiag.validation import (
+from stictiondiag.apps.validation import (
     default_isdb_dir,
     expert_label,
     load_manifest,

@@ -17,7 +17,7 @@ from stictiondiag import (
     percent_to_ma,
     valve_characteristic,
 )
-from stictiondiag.valve import EQUAL_PERCENTAGE_RANGEABILITY
+from stictiondiag.models.valve import EQUAL_PERCENTAGE_RANGEABILITY
 
 DT = 0.1  # [s], Section 5.2
 TIME = np.arange(0.0, 500.0, DT)  # ten periods of the Fig. 11 input

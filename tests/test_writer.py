@@ -17,9 +17,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stictiondiag.errors import UsageError
+from stictiondiag.core.errors import UsageError
 from stictiondiag.plotting._fast import new_figure
-from stictiondiag.plotting.writer import FigureWriter, _shares, available_workers
+from stictiondiag.plotting.writer import (
+    FigureWriter,
+    _shares,
+    available_workers,
+)
 
 
 def _figure(k: int):
@@ -84,9 +88,12 @@ _SCRIPT = textwrap.dedent(
 
     import numpy as np
 
-    from stictiondiag.errors import UsageError
+    from stictiondiag.core.errors import UsageError
     from stictiondiag.plotting._fast import new_figure
-    from stictiondiag.plotting.writer import FigureWriter, _single_threaded
+    from stictiondiag.plotting.writer import (
+        FigureWriter,
+        _single_threaded,
+    )
 
     out = Path(sys.argv[1])
     parent = os.getpid()
@@ -240,7 +247,7 @@ _SCRIPT_PENDING = textwrap.dedent(
     import json, os, sys
     from pathlib import Path
 
-    from stictiondiag.errors import DataError
+    from stictiondiag.core.errors import DataError
     from stictiondiag.plotting.writer import FigureWriter
 
     out = Path(sys.argv[1])
@@ -338,8 +345,11 @@ _SCRIPT_SERVING = textwrap.dedent(
 
     import numpy as np
 
-    from stictiondiag.errors import DataError
-    from stictiondiag.plotting.writer import FigureWriter, _single_threaded
+    from stictiondiag.core.errors import DataError
+    from stictiondiag.plotting.writer import (
+        FigureWriter,
+        _single_threaded,
+    )
 
     out = Path(sys.argv[1])
     parent = os.getpid()
@@ -440,13 +450,16 @@ _SCRIPT_ANALYSIS = textwrap.dedent(
     import json, os, sys
     from pathlib import Path
 
-    from stictiondiag import replay as replay_module
+    from stictiondiag.replay import closed_loop as replay_module
     from stictiondiag.analysis import analyze
-    from stictiondiag.errors import DataError
-    from stictiondiag.loops import simulate_loop
-    from stictiondiag.plotting.writer import FigureWriter, _single_threaded
-    from stictiondiag.processes import LOOP_PARAMETERS
-    from stictiondiag.tags import Tags
+    from stictiondiag.core.errors import DataError
+    from stictiondiag.models.loops import simulate_loop
+    from stictiondiag.plotting.writer import (
+        FigureWriter,
+        _single_threaded,
+    )
+    from stictiondiag.models.processes import LOOP_PARAMETERS
+    from stictiondiag.io.tags import Tags
 
     out = Path(sys.argv[1])
     loop = LOOP_PARAMETERS["concentration"]
@@ -475,7 +488,7 @@ _SCRIPT_ANALYSIS = textwrap.dedent(
 
     # From a file: the worker reads it while this process sets up the analysis.
     from stictiondiag.analysis import analyze_file
-    from stictiondiag.errors import StictionError
+    from stictiondiag.core.errors import StictionError
 
     csv = out / "loop.csv"
     tags.to_pandas().to_csv(csv, index=False)

@@ -17,7 +17,10 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from ._fast import new_figure, pin_decorations
+from stictiondiag.plotting._fast import (
+    new_figure,
+    pin_decorations,
+)
 
 #: Cycles shown in the trend window when the loop oscillates.
 WINDOW_CYCLES = 8
@@ -83,7 +86,7 @@ def plot_phase(
     Parameters
     ----------
     tags : Tags
-        Loop data (:class:`stictiondiag.tags.Tags`).
+        Loop data (:class:`stictiondiag.io.tags.Tags`).
     fit : StictionFit, optional
         When given, the fitted valve output (``fit.mv_model``) is drawn against op,
         so the mv-op plot shows the model beside the data (or instead of it, when

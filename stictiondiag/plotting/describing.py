@@ -13,8 +13,11 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from stictiondiag.describing import describing_function, predict_limit_cycle
-from stictiondiag.processes import open_loop_response
+from stictiondiag.models.describing import (
+    describing_function,
+    predict_limit_cycle,
+)
+from stictiondiag.models.processes import open_loop_response
 
 
 def _cases(cases) -> list[tuple[str, float, float]]:
@@ -58,7 +61,7 @@ def plot_nyquist_df(
         Each predicted limit cycle is marked with its period [s] and controller-output
         amplitude ``X_m`` [% of span].
     """
-    from . import pyplot
+    from stictiondiag.plotting import pyplot
 
     plt = pyplot()
     if ax is None:

@@ -1,4 +1,4 @@
-"""Plots of the sim-to-real gap (:mod:`stictiondiag.gap`).
+"""Plots of the sim-to-real gap (:mod:`stictiondiag.gap.diagnose`).
 
 :func:`plot_gap_breakdown` shows where the gap lies (signal, valve phase, frequency,
 time) and how each candidate effect scored; :func:`plot_gap_replay` shows the replay
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from ._fast import (
+from stictiondiag.plotting._fast import (
     decimate,
     new_figure,
     pin_decorations,
@@ -42,7 +42,7 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     Parameters
     ----------
     diagnosis : GapDiagnosis
-        Result of :func:`stictiondiag.gap.diagnose_gap`.
+        Result of :func:`stictiondiag.gap.diagnose.diagnose_gap`.
     title : str, optional
         Figure title.
 
@@ -206,7 +206,7 @@ def plot_gap_replay(diagnosis, *, window: int | None = None, title: str | None =
     Parameters
     ----------
     diagnosis : GapDiagnosis
-        Result of :func:`stictiondiag.gap.diagnose_gap`.
+        Result of :func:`stictiondiag.gap.diagnose.diagnose_gap`.
     window : int, optional
         Samples shown (the last ones of the record); default the last quarter, at
         most 2000.

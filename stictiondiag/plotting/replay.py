@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from ._fast import (
+from stictiondiag.plotting._fast import (
     decimate,
     new_figure,
     pin_decorations,
@@ -39,12 +39,12 @@ def _default_window(replay) -> float:
 
 
 def plot_replay(replay, *, window: float | None = None, title: str | None = None) -> Figure:
-    """Overlay of a :class:`~stictiondiag.replay.Replay` and the recorded data.
+    """Overlay of a :class:`~stictiondiag.replay.closed_loop.Replay` and the recorded data.
 
     Parameters
     ----------
     replay : Replay
-        Result of :func:`stictiondiag.replay.replay`.
+        Result of :func:`stictiondiag.replay.closed_loop.replay`.
     window : float, optional
         Length of record shown in the trends, from the start [s]; default about
         eight oscillation periods (the replay drifts in phase later on).  The maps

@@ -28,12 +28,12 @@ def _title(settings: dict) -> str:
 
 
 def plot_simulation(sim, *, last: float | None = None, title: str | None = None) -> Figure:
-    """Trends and mappings of a :class:`~stictiondiag.loops.Simulation`.
+    """Trends and mappings of a :class:`~stictiondiag.models.loops.Simulation`.
 
     Parameters
     ----------
     sim : Simulation
-        Result of :func:`stictiondiag.loops.simulate_loop`.
+        Result of :func:`stictiondiag.models.loops.simulate_loop`.
     last : float, optional
         Show only the last ``last`` seconds of the trends and mappings (the settled
         cycle); default the last third of the run.
@@ -51,7 +51,7 @@ def plot_simulation(sim, *, last: float | None = None, title: str | None = None)
     t = sim.time[start:]
     sp, pv, op, mv = sim.sp[start:], sim.pv[start:], sim.op[start:], sim.mv[start:]
 
-    from . import pyplot
+    from stictiondiag.plotting import pyplot
 
     fig, axes = pyplot().subplots(2, 2, figsize=(11, 6), gridspec_kw={"width_ratios": [2.2, 1]})
     ax = axes[0, 0]

@@ -5,7 +5,7 @@ compressing the PNG) is Python work inside matplotlib that holds the interpreter
 lock: in a thread it would only take turns with the analysis running beside it,
 not overlap it.  :class:`FigureWriter` therefore renders in forked child processes.
 A child starts in milliseconds with the caller's results already in its memory,
-builds its figures, writes each with :func:`~stictiondiag.atomic.atomic_path` and
+builds its figures, writes each with :func:`~stictiondiag.core.atomic.atomic_path` and
 reports back only which figures it wrote or the exception that stopped it.  Nothing
 computed in a child flows back into a result: the files are the same as those the
 caller would write itself.
@@ -202,7 +202,7 @@ class Pending:
 
 
 def _save(job: _Job, dpi: int) -> None:
-    from stictiondiag.atomic import atomic_path
+    from stictiondiag.core.atomic import atomic_path
 
     fig = job.build()
     with atomic_path(job.target) as tmp:

@@ -1,7 +1,7 @@
 """Withheld-effect benchmark of the gap diagnosis: generate, diagnose from files, score.
 
-The cases come from :mod:`stictiondiag.synthetic`, a simulator written apart from the
-diagnosis (it shares none of :mod:`stictiondiag.effects`' models).  Each case is
+The cases come from :mod:`stictiondiag.models.synthetic`, a simulator written apart from the
+diagnosis (it shares none of :mod:`stictiondiag.gap.effects`' models).  Each case is
 written to a CSV file with the columns ``time, sp, pv, op, mv``; the diagnosis reads
 the file through :func:`stictiondiag.analysis.analyze_file`, the code path of
 ``stiction analyze FILE``, and never sees the truth.  The scorer then compares the
@@ -28,9 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import write_atomic
-from .effects import EFFECTS
-from .errors import StictionError, UsageError
+from stictiondiag.core.atomic import write_atomic
+from stictiondiag.core.errors import (
+    StictionError,
+    UsageError,
+)
+from stictiondiag.gap.effects import EFFECTS
 
 
 @dataclass(frozen=True)
@@ -218,12 +221,15 @@ class BenchmarkResult:
 def _diagnose_path(path: Path):
     """Diagnose one file the way ``stiction analyze FILE`` does; returns (gap, how)."""
     try:
-        from .analysis import AnalysisConfig, analyze_file
+        from stictiondiag.analysis import (
+            AnalysisConfig,
+            analyze_file,
+        )
 
         analysis = analyze_file(path, config=AnalysisConfig())
     except ImportError:
         # The orchestrator is not available in this build: the gap command's path.
-        from .gap import diagnose_file
+        from stictiondiag.gap.diagnose import diagnose_file
 
         return diagnose_file(path), "diagnose_file"
     if analysis.gap is None:
@@ -260,7 +266,7 @@ def run_benchmark(
     -------
     BenchmarkResult
     """
-    from .synthetic import write_benchmark
+    from stictiondiag.models.synthetic import write_benchmark
 
     if int(n_cases) < 1:
         raise UsageError(f"--cases must be at least 1, got {n_cases}")

@@ -1,4 +1,4 @@
-"""Stiction parameters S and J from plant data, and the stiction verdict.
+"""Stiction parameters S and J from plant data: the shared toolbox of the two estimators.
 
 The data-driven valve model of Choudhury, Thornhill & Shah (2005), Section 5.1 and
 Fig. 10, has two parameters, both in % of span: ``S`` (deadband plus stickband, on
@@ -6,16 +6,15 @@ the input axis) and ``J`` (slip jump, on the output axis).  They are estimated i
 of two ways:
 
 * from the valve's own position ``mv`` when it is recorded
-  (:func:`stictiondiag.segments.estimate_from_mv`): the stick and slip segments of the
+  (:func:`stictiondiag.stiction.segments.estimate_from_mv`): the stick and slip segments of the
   mv-op plot (Figs. 2-3 and 6), refined by a least-squares fit of the model to ``mv``;
-* from ``op`` and ``pv`` alone (:func:`stictiondiag.hammerstein.fit_hammerstein`): the
+* from ``op`` and ``pv`` alone (:func:`stictiondiag.stiction.hammerstein.fit_hammerstein`): the
   valve model in series with a linear process (a Hammerstein model), fitted together.
 
-Both return a :class:`StictionFit`.  :func:`stiction_verdict` then asks the question of
-Section 5.3: is there an oscillation, and does the stiction model explain it better
-than a linear valve, by how much, and how consistently over the cycles.
+Both return a :class:`StictionFit`; :func:`stictiondiag.stiction.verdict.stiction_verdict`
+then asks the question of Section 5.3.
 
-This module also holds what the two estimators share: the compiled batch evaluation
+This module holds what the two estimators share: the compiled batch evaluation
 of the valve model over many (S, J) pairs, the effective number of independent
 samples of a residual, and the profile-cost intervals.
 """
@@ -25,12 +24,16 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
-from ._jit import jit
-from .valve import choudhury_step, kano_step, valve_state
+from stictiondiag.core.jit import jit
+from stictiondiag.core.serialize import to_plain as _plain
+from stictiondiag.models.valve import (
+    choudhury_step,
+    kano_step,
+    valve_state,
+)
 
 #: Width of the play operator that keeps noise reversals of op away from the valve
 #: model, in robust noise standard deviations of op (see :func:`valve_variants`).
@@ -45,22 +48,6 @@ INTERVAL_LEVEL = 0.95
 # --------------------------------------------------------------------------------------
 
 
-def _plain(v: Any) -> Any:
-    """JSON-able copy: numpy scalars -> float/int, NaN/inf -> None, arrays -> lists."""
-    if isinstance(v, dict):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return [_plain(x) for x in v.tolist()]
-    if isinstance(v, (bool, np.bool_)):
-        return bool(v)
-    if isinstance(v, (int, np.integer)):
-        return int(v)
-    if isinstance(v, (float, np.floating)):
-        f = float(v)
-        return f if math.isfinite(f) else None
-    return v
 
 
 @dataclass(frozen=True)
@@ -131,45 +118,6 @@ class StictionFit:
                 "linear_cost": self.linear_cost,
                 "improvement": self.improvement,
                 "details": self.details,
-            }
-        )
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """Is the oscillation caused by valve stiction?
-
-    Attributes
-    ----------
-    status : str
-        ``"stiction"``, ``"no_stiction"`` or ``"inconclusive"``.
-    detected : bool or None
-        True for stiction, False for no stiction, None when inconclusive.
-    confidence : float
-        Support for ``status`` in [0, 1], measured from the data (see
-        :func:`stiction_verdict` for the formula); for ``"inconclusive"`` it is the
-        support for stiction, which fell between the decision levels.
-    reasons : tuple of str
-        Human-readable reasons, most important first.
-    evidence : dict
-        The measured quantities behind the decision (JSON-able).
-    """
-
-    status: str
-    detected: bool | None
-    confidence: float
-    reasons: tuple[str, ...]
-    evidence: dict = field(default_factory=dict, repr=False)
-
-    def to_dict(self) -> dict:
-        return _plain(
-            {
-                "status": self.status,
-                "verdict": self.status,
-                "detected": self.detected,
-                "confidence": self.confidence,
-                "reasons": list(self.reasons),
-                "evidence": self.evidence,
             }
         )
 
@@ -333,7 +281,7 @@ def valve_run(op, S, J, kano, k_start, d_start, offset):
     that slipped on the way to the extreme and stuck).  Output before ``k_start`` is
     held at the starting value; fits leave those samples out.
 
-    Unlike :func:`stictiondiag.valve.choudhury_model` the input is not clipped to
+    Unlike :func:`stictiondiag.models.valve.choudhury_model` the input is not clipped to
     [0, 100]: a recorded op is already what the valve saw, and no clipping keeps the
     fit invariant to the units of op.
 
@@ -478,9 +426,9 @@ def cycle_samples(x: np.ndarray) -> int:
     robust standard deviation (a Schmitt trigger, so noise does not add crossings);
     the window and the period are iterated to agreement.  Falls back to a tenth of
     the record.  The result sets time scales of the fits, not a reported period
-    (that is :func:`stictiondiag.oscillation.detect_oscillation`'s job).
+    (that is :func:`stictiondiag.signals.oscillation.detect_oscillation`'s job).
     """
-    from ._filters import median_filter_nearest
+    from stictiondiag.core.filters import median_filter_nearest
 
     x = np.asarray(x, dtype=float)
     n = x.size
@@ -544,7 +492,7 @@ def cost_threshold(cost_min: float, n_eff: float, n_params: int, model_error: fl
     ``model_error`` (a share of ``C_min``) is the smallest increase allowed:
     ``C <= C_min (1 + max(F_{0.95}(1, nu) / nu, model_error))``.  The Hammerstein
     fit measures its share on simulated loops
-    (:data:`stictiondiag.hammerstein.MODEL_ERROR_SHARE`).
+    (:data:`stictiondiag.stiction.hammerstein.MODEL_ERROR_SHARE`).
     """
     from scipy.special import fdtri  # = scipy.stats.f.ppf, without importing scipy.stats
 
@@ -616,364 +564,3 @@ def block_sse(residual: np.ndarray, block: int, start: int = 0) -> np.ndarray:
     if nb == 0:
         return np.array([float(np.sum(r * r))])
     return (r[: nb * block] ** 2).reshape(nb, block).sum(axis=1)
-
-
-# --------------------------------------------------------------------------------------
-# The verdict
-# --------------------------------------------------------------------------------------
-
-#: Smallest share of the linear valve's residual the stiction model must remove for
-#: the improvement to count as material [-].
-MIN_IMPROVEMENT = 0.1
-
-#: Bootstrap support needed to call stiction (and 1 minus it to call no stiction).
-DECISION_LEVEL = 0.95
-
-#: "No stiction" is said only when the record bounds S below this [% of span]: a
-#: linear valve that explains the data as well as a sticky one is no evidence of a
-#: healthy valve when the fit leaves S anywhere up to several % (a record without
-#: clear cycles, disturbed by loads and set-point changes).  Stiction of a few % of
-#: span is what the paper's industrial loops show (Section 3).
-RULE_OUT_S = 2.0
-
-#: Bootstrap resamples of the per-cycle costs.
-N_BOOTSTRAP = 2000
-
-
-def improvement_support(
-    block_stiction: np.ndarray,
-    block_linear: np.ndarray,
-    min_improvement: float = MIN_IMPROVEMENT,
-    n_boot: int = N_BOOTSTRAP,
-    seed: int = 0,
-) -> tuple[float, float, tuple[float, float]]:
-    """Bootstrap support that the stiction model beats the linear valve materially.
-
-    The residual sums of squares of both models are cut into blocks about one cycle
-    long; blocks are resampled with replacement (a block bootstrap, so the
-    correlation within a cycle is kept) and for each resample the improvement
-    ``1 - sum(SSE_stiction) / sum(SSE_linear)`` is recomputed.
-
-    Returns
-    -------
-    support : float
-        Share of resamples with an improvement above ``min_improvement`` [-].
-    improvement : float
-        Improvement on the whole record [-].
-    interval : (float, float)
-        2.5 and 97.5 percentiles of the resampled improvement [-].
-    """
-    bs = np.asarray(block_stiction, dtype=float)
-    bl = np.asarray(block_linear, dtype=float)
-    tot = float(bl.sum())
-    if bs.size == 0 or bs.size != bl.size or not tot > 0:
-        return 0.0, 0.0, (0.0, 0.0)
-    f = 1.0 - float(bs.sum()) / tot
-    if bs.size < 2:
-        return float(f > min_improvement), f, (f, f)
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, bs.size, size=(n_boot, bs.size))
-    num = bs[idx].sum(axis=1)
-    den = bl[idx].sum(axis=1)
-    fb = 1.0 - num / np.where(den > 0, den, np.inf)
-    lo, hi = np.percentile(fb, [2.5, 97.5])
-    return float(np.mean(fb > min_improvement)), f, (float(lo), float(hi))
-
-
-def _osc_text(name: str, osc) -> str:
-    if osc is None:
-        return f"{name}: not analysed"
-    if getattr(osc, "present", False):
-        per = getattr(osc, "period_s", None)
-        reg = getattr(osc, "regularity", None)
-        per_s = f"period {per:.4g} s" if per is not None else "period unknown"
-        reg_s = f", regularity {reg:.2g}" if reg is not None else ""
-        return f"{name} oscillates ({per_s}{reg_s})"
-    why = getattr(osc, "reason", None)
-    return f"no oscillation in {name}" + (f" ({why})" if why else "")
-
-
-def stiction_verdict(
-    fit: StictionFit,
-    oscillation,
-    *,
-    oscillation_op=None,
-    has_mv: bool | None = None,
-    short_record: bool = False,
-    min_improvement: float = MIN_IMPROVEMENT,
-    decision_level: float = DECISION_LEVEL,
-    seed: int = 0,
-) -> Verdict:
-    """Does valve stiction explain the loop's oscillation?
-
-    The question of Section 5.3 of Choudhury, Thornhill & Shah (2005), asked of
-    the data: is there an oscillation at all (Sections 4.2.2 and 5.3: stiction shows
-    as a limit cycle), does the stiction model explain the data better than a linear
-    valve, by how much, consistently over the cycles, and are S and J determined.
-
-    Parameters
-    ----------
-    fit : StictionFit
-        From :func:`stictiondiag.segments.estimate_from_mv` or
-        :func:`stictiondiag.hammerstein.fit_hammerstein`.
-    oscillation : Oscillation
-        :func:`stictiondiag.oscillation.detect_oscillation` of pv.
-    oscillation_op : Oscillation, optional
-        The same for op; an oscillation in either counts.
-    has_mv : bool, optional
-        Whether the valve position was recorded; default from ``fit.method``.
-    short_record : bool
-        The record shows a regular cycle but holds fewer periods of it than the
-        oscillation test needs (:func:`stictiondiag.analysis.check_record_length`):
-        the missing oscillation is then no evidence against stiction.
-    min_improvement : float
-        Share of the linear valve's residual the stiction model must remove to count
-        as a material improvement [-].
-    decision_level : float
-        Support needed for a decision [-].
-    seed : int
-        Seed of the bootstrap.
-
-    Returns
-    -------
-    Verdict
-
-    Notes
-    -----
-    The evidence is the bootstrap support ``P`` of :func:`improvement_support`: the
-    share of block resamples (blocks about one cycle long) in which the stiction
-    model removes more than ``min_improvement`` of the residual the linear valve
-    leaves.  It measures at once *how much* (the threshold) and *how consistently*
-    (the resampling over cycles) the stiction model does better.
-
-    * An oscillation, ``P >= decision_level`` and S determined (its interval excludes
-      0 and stays inside the search range): **stiction**, confidence ``P``.
-    * An oscillation and ``P <= 1 - decision_level``, or ``P < 0.5`` with a linear
-      valve (S = 0) inside the S interval: **no stiction**, confidence ``1 - P``.
-    * No regular oscillation in pv or op: **no stiction**, confidence ``1 - P``,
-      unless the valve evidence itself shows repeated stick-slip
-      (``P >= decision_level``, at least three slips, S determined; on a short
-      record the support over at least three blocks): then
-      **stiction**, confidence ``P`` (or **inconclusive** when ``P`` is that high
-      but S is not determined).  With mv recorded that is the valve seen
-      sticking; without, a valve model that explains pv by its slips.  When the
-      record is merely too short to confirm its cycle (``short_record``), the
-      missing oscillation proves nothing: **no stiction** then needs
-      ``P <= 1 - decision_level`` (a linear valve explains pv as well), and
-      anything between is **inconclusive**.  Plant
-      stiction cycles are often too irregular for the regularity test of
-      :func:`stictiondiag.oscillation.detect_oscillation` (its r > 1), and a fit
-      whose band excludes zero and beats a linear valve in 95 % of the cycle
-      resamples is evidence of its own.
-    * Otherwise **inconclusive** (weak or inconsistent improvement, or S poorly
-      determined), confidence ``P`` (the support for stiction).
-    * Every **no stiction** above also needs the S interval to end below
-      :data:`RULE_OUT_S`; where the record leaves a larger S open the verdict is
-      **inconclusive** and says how much stiction is not ruled out.
-
-    The confidence is therefore never set by hand: it is a bootstrap share computed
-    from the fit's residuals.
-    """
-    if has_mv is None:
-        has_mv = fit.method == "mv_segments"
-    d = fit.details or {}
-    blocks = d.get("block_sse") or {}
-    bs = np.asarray(blocks.get("stiction", []), dtype=float)
-    bl = np.asarray(blocks.get("linear", []), dtype=float)
-    if bs.size == 0:
-        bs, bl = np.array([fit.cost]), np.array([fit.linear_cost])
-    P, f, f_iv = improvement_support(bs, bl, min_improvement, seed=seed)
-
-    osc_pv = bool(getattr(oscillation, "present", False))
-    osc_op = bool(getattr(oscillation_op, "present", False)) if oscillation_op else False
-    oscillating = osc_pv or osc_op
-
-    S_iv = fit.S_interval
-    S_open = "reaches the search limit" in str((d.get("determinacy") or {}).get("S", ""))
-    S_excludes_zero = S_iv is not None and S_iv[0] > 0.0
-    S_determined = S_excludes_zero and not S_open
-    n_slips = int((d.get("segments") or {}).get("n_slips", fit.n_slips))
-
-    fit_text = (
-        f"S = {fit.S:.3g} %"
-        + (f" [{S_iv[0]:.3g}, {S_iv[1]:.3g}]" if S_iv else "")
-        + f", J = {fit.J:.3g} %"
-        + (f" [{fit.J_interval[0]:.3g}, {fit.J_interval[1]:.3g}]" if fit.J_interval else "")
-        + f" of span ({'valve position' if has_mv else 'op and pv'})"
-    )
-    improve_text = (
-        f"the stiction model removes {100 * f:.0f} % of the linear valve's residual "
-        f"(95 % interval over cycles {100 * f_iv[0]:.0f} to {100 * f_iv[1]:.0f} %; "
-        f"support {P:.2f} for more than {100 * min_improvement:.0f} %"
-        + (
-            f"; only {bs.size} cycle block(s), too few to measure consistency"
-            if bs.size < 3
-            else ""
-        )
-        + ")"
-    )
-    osc_texts = [_osc_text("pv", oscillation)]
-    if oscillation_op is not None:
-        osc_texts.append(_osc_text("op", oscillation_op))
-    det_texts = []
-    if not S_excludes_zero:
-        det_texts.append("S cannot be told apart from 0 (no stick band)")
-    elif S_open:
-        det_texts.append("S poorly determined: its interval reaches the search limit")
-    if d.get("J_confounded_with_gain"):
-        det_texts.append(
-            "J not determined without mv: the fitted valve never moves smoothly, so its "
-            "jump trades off against the process gain"
-        )
-
-    evidence = {
-        "oscillation_pv": osc_pv,
-        "oscillation_op": osc_op,
-        "improvement": f,
-        "improvement_interval": list(f_iv),
-        "support": P,
-        "min_improvement": min_improvement,
-        "decision_level": decision_level,
-        "n_blocks": int(bs.size),
-        "S_determined": bool(S_determined),
-        "n_slips": n_slips,
-        "has_mv": bool(has_mv),
-        "short_record": bool(short_record),
-        "confidence_formula": (
-            "support = share of block-bootstrap resamples (one-cycle blocks) in which the "
-            "stiction model removes more than min_improvement of the linear valve's "
-            "residual; confidence = support (stiction, inconclusive) or 1 - support "
-            "(no stiction)"
-        ),
-    }
-
-    if not oscillating:
-        # A record too short to confirm its cycle must show the improvement over at
-        # least three blocks: a bootstrap over fewer measures no consistency.
-        enough_blocks = bs.size >= 3 or not short_record
-        if P >= decision_level and n_slips >= 3 and S_determined and enough_blocks:
-            source = (
-                "the recorded valve position sticks and slips"
-                if has_mv
-                else "the valve model explains pv by repeated slips"
-            )
-            return Verdict(
-                "stiction",
-                True,
-                P,
-                (
-                    f"{source} ({n_slips} slips) although the cycle is not regular",
-                    *osc_texts,
-                    improve_text,
-                    fit_text,
-                ),
-                evidence,
-            )
-        if P >= decision_level:
-            return Verdict(
-                "inconclusive",
-                None,
-                P,
-                (
-                    "no regular oscillation, but the valve model fits better than a linear "
-                    "valve: " + improve_text,
-                    *det_texts,
-                    *osc_texts,
-                    fit_text,
-                ),
-                evidence,
-            )
-        if short_record and P > 1.0 - decision_level:
-            return Verdict(
-                "inconclusive",
-                None,
-                P,
-                (
-                    "the record is too short to confirm or rule out a limit cycle, and the "
-                    "valve model's evidence is not decisive: " + improve_text,
-                    *det_texts,
-                    *osc_texts,
-                    fit_text,
-                ),
-                evidence,
-            )
-        if short_record:
-            reasons = (
-                "a linear valve explains pv as well (the record is too short to confirm "
-                "its cycle): " + improve_text,
-                *osc_texts,
-                fit_text,
-            )
-        else:
-            reasons = (*osc_texts, "nothing for stiction to explain", improve_text)
-        return _no_stiction_unless_open(P, reasons, S_iv, fit_text, evidence)
-
-    if P >= decision_level and S_determined:
-        return Verdict(
-            "stiction", True, P, (improve_text, fit_text, *osc_texts, *det_texts), evidence
-        )
-    if P <= 1.0 - decision_level or (not S_excludes_zero and P < 0.5):
-        return _no_stiction_unless_open(
-            P,
-            ("a linear valve explains the oscillation as well: " + improve_text, *osc_texts),
-            S_iv,
-            fit_text,
-            evidence,
-        )
-    why = (
-        "the improvement over a linear valve is weak or not consistent over the cycles"
-        if P < decision_level
-        else "the stiction parameters are poorly determined"
-    )
-    return Verdict(
-        "inconclusive", None, P, (why, improve_text, *det_texts, fit_text, *osc_texts), evidence
-    )
-
-
-def _no_stiction_unless_open(P, reasons, S_iv, fit_text, evidence) -> Verdict:
-    """**No stiction** (confidence ``1 - P``) when the S interval's upper end is below
-    :data:`RULE_OUT_S`; otherwise **inconclusive** (confidence ``P``): the record does
-    not rule out a sticky valve of that size."""
-    upper = None if S_iv is None else float(S_iv[1])
-    evidence = {**evidence, "S_upper": upper, "rule_out_S": RULE_OUT_S}
-    if upper is not None and upper >= RULE_OUT_S:
-        return Verdict(
-            "inconclusive",
-            None,
-            P,
-            (
-                f"stiction up to S = {upper:.3g} % of span is not ruled out by the record "
-                f"(no stiction needs S bounded below {RULE_OUT_S:g} %)",
-                *reasons,
-                fit_text,
-            ),
-            evidence,
-        )
-    return Verdict("no_stiction", False, 1.0 - P, (*reasons, fit_text), evidence)
-
-
-# --------------------------------------------------------------------------------------
-# The two estimators (implemented in their own modules)
-# --------------------------------------------------------------------------------------
-
-
-def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
-    """S and J from the recorded valve position: see :func:`stictiondiag.segments.estimate_from_mv`."""
-    from .segments import estimate_from_mv as _impl
-
-    return _impl(op, mv, dt)
-
-
-def fit_hammerstein(
-    op: np.ndarray,
-    pv: np.ndarray,
-    dt: float,
-    *,
-    integrating: bool,
-    flow_loop: bool,
-    period_s: float | None = None,
-) -> StictionFit:
-    """S and J from op and pv: see :func:`stictiondiag.hammerstein.fit_hammerstein`."""
-    from .hammerstein import fit_hammerstein as _impl
-
-    return _impl(op, pv, dt, integrating=integrating, flow_loop=flow_loop, period_s=period_s)

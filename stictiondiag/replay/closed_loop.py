@@ -6,13 +6,13 @@ reproduces the limit cycles seen in plant data (Figs. 3-6 against Figs. 12-15).
 :func:`replay` makes that check for one recorded loop:
 
 1. identify the PI controller from ``sp``, ``pv``, ``op``
-   (:func:`stictiondiag.identify.identify_controller`);
+   (:func:`stictiondiag.identification.identify.identify_controller`);
 2. identify the process from the valve position to ``pv``: the recorded ``mv`` when
    there is one, otherwise the fitted valve output ``mv_model`` of the stiction fit
-   (:func:`stictiondiag.identify.identify_process`);
+   (:func:`stictiondiag.identification.identify.identify_process`);
 3. simulate the closed loop with the data-driven valve (S, J of the fit) from the
    recorded setpoint and the recorded initial state
-   (:func:`stictiondiag.loops.simulate_loop`);
+   (:func:`stictiondiag.models.loops.simulate_loop`);
 4. compare replay and data, signal by signal.
 
 Start-up
@@ -52,7 +52,7 @@ alone would then call a right model wrong, so two kinds of measure are reported:
     which are reported separately.
 ``period_s``, ``amplitude``
     Oscillation period [s] and half peak-to-peak amplitude of each signal from
-    :func:`stictiondiag.oscillation.detect_oscillation` (ACF zero crossings,
+    :func:`stictiondiag.signals.oscillation.detect_oscillation` (ACF zero crossings,
     Thornhill et al. 2003).  When a signal does not oscillate the amplitude is half
     the range between its 2nd and 98th percentiles, and its period is None.
 """
@@ -65,10 +65,13 @@ from typing import Any
 
 import numpy as np
 
-from ._filters import lfilter1
-from ._jit import jit
-from .errors import DataError, UsageError
-from .identify import (
+from stictiondiag.core.errors import (
+    DataError,
+    UsageError,
+)
+from stictiondiag.core.filters import lfilter1
+from stictiondiag.core.jit import jit
+from stictiondiag.identification.identify import (
     ControllerFit,
     ProcessFit,
     controller_fit,
@@ -76,7 +79,11 @@ from .identify import (
     identify_process,
     process_fit,
 )
-from .processes import FOPTD, PI, Integrating
+from stictiondiag.models.processes import (
+    FOPTD,
+    PI,
+    Integrating,
+)
 
 #: Points of phase per cycle in the average cycle shape.
 CYCLE_BINS = 256
@@ -235,7 +242,7 @@ class Replay:
 
         Keyword arguments go to :func:`stictiondiag.plotting.replay.plot_replay`.
         """
-        from .plotting.replay import plot_replay
+        from stictiondiag.plotting.replay import plot_replay
 
         return plot_replay(self, **kwargs)
 
@@ -428,8 +435,8 @@ def replay(
     UsageError
         Bad arguments.
     """
-    from .loops import simulate_loop
-    from .oscillation import detect_oscillation
+    from stictiondiag.models.loops import simulate_loop
+    from stictiondiag.signals.oscillation import detect_oscillation
 
     if valve not in ("choudhury", "kano"):
         raise UsageError(f"replay valve must be choudhury or kano, got {valve!r}")
@@ -461,7 +468,7 @@ def replay(
         if isinstance(details, dict):
             start = int(details.get("start_sample") or 0)
     elif S > 0.0:
-        from .hammerstein import first_extreme
+        from stictiondiag.stiction.hammerstein import first_extreme
 
         osc_op = detect_oscillation(op, dt)
         if osc_op.present and osc_op.period_s:
@@ -495,7 +502,7 @@ def replay(
         drift = None
         ti_c = cf.controller.integral_time
         if math.isfinite(ti_c):
-            from .identify import _drift_pole
+            from stictiondiag.identification.identify import _drift_pole
 
             _, default_T = _drift_pole(pv, dt, None)
             if default_T is not None and DRIFT_INTEGRAL_TIMES * ti_c < default_T:

@@ -13,7 +13,7 @@ Both write into a temporary file *in the destination directory* (so the final
 ``os.replace`` is a rename on one file system, atomic on POSIX and Windows), commit
 only on success and remove the temporary file on failure. Missing parent
 directories are created. An output location that cannot be written raises
-:class:`~stictiondiag.errors.UsageError` with one line naming the path and the fix.
+:class:`~stictiondiag.core.errors.UsageError` with one line naming the path and the fix.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from .errors import UsageError
+from stictiondiag.core.errors import UsageError
 
 __all__ = ["atomic_path", "write_atomic"]
 

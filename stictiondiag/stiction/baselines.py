@@ -29,7 +29,7 @@ with :mod:`stictiondiag.analysis` on the same loops:
   (:func:`choudhury_hos_diagnosis`).
 
 Both tests return a verdict ``"stiction"``, ``"no_stiction"`` or ``"inconclusive"``
-in the same vocabulary as :class:`stictiondiag.estimate.Verdict`.
+in the same vocabulary as :class:`stictiondiag.stiction.valvefit.Verdict`.
 
 Decisions this implementation makes (documented per function, tested in
 ``tests/test_baselines.py``):
@@ -59,9 +59,12 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from ._filters import detrend_linear
-from .errors import DataError, UsageError
-from .oscillation import detect_oscillation
+from stictiondiag.core.errors import (
+    DataError,
+    UsageError,
+)
+from stictiondiag.core.filters import detrend_linear
+from stictiondiag.signals.oscillation import detect_oscillation
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -385,7 +388,7 @@ def horch_cross_correlation(
     difference is taken.
 
     Both tests presuppose an oscillating loop: when neither pv nor op oscillates
-    (:func:`stictiondiag.oscillation.detect_oscillation`) the verdict is
+    (:func:`stictiondiag.signals.oscillation.detect_oscillation`) the verdict is
     "inconclusive"; the CCF index is still reported for the self-regulating test.
     """
     dt = _check_dt(dt)

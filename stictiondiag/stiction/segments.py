@@ -34,9 +34,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._jit import jit
-from .errors import DataError
-from .estimate import (
+from stictiondiag.core.errors import DataError
+from stictiondiag.core.jit import jit
+from stictiondiag.stiction.valvefit import (
     StictionFit,
     _plain,
     block_sse,
@@ -512,7 +512,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     2. *least squares*: the model of Fig. 10 fitted to mv (``mv = valve(op; S, J) +
        bias``) by a compiled coarse-to-fine grid search over (S, J) seeded with the
        segment estimate, for the valve variants of
-       :func:`stictiondiag.estimate.valve_variants` (the published flowchart and
+       :func:`stictiondiag.stiction.valvefit.valve_variants` (the published flowchart and
        Kano's on a clean op; Kano's, raw and behind a play operator, on a noisy one;
        the best is kept), with a 95 % profile-cost interval (F test with the
        residual's effective sample size).

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import jit
+from stictiondiag.core.jit import jit
 
 
 @jit

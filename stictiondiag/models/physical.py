@@ -54,7 +54,7 @@ exact but cannot be compiled into the closed-loop kernel.  The Stribeck friction
 used, is held at its value at the start of each sub-step (first-order accurate).
 
 The per-sub-step function :func:`karnopp_step` is compiled (numba) and is called by
-:func:`karnopp` here and by the closed-loop kernel of :mod:`stictiondiag.loops`.
+:func:`karnopp` here and by the closed-loop kernel of :mod:`stictiondiag.models.loops`.
 
 Quasi-static correspondence
 ---------------------------
@@ -74,8 +74,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from ._jit import jit
-from .errors import UsageError
+from stictiondiag.core.errors import UsageError
+from stictiondiag.core.jit import jit
 
 #: Stem travel of 1 % of span [m] (1 % = 1 cm, Section 4.2.1 and Fig. 8).
 STEM_TRAVEL_PER_PERCENT = 0.01
@@ -400,7 +400,7 @@ def karnopp(
         Valve position mv [% of span], one per sample of ``op``.
     """
     if not isinstance(valve, PhysicalValve):
-        raise UsageError("valve must be a PhysicalValve (see stictiondiag.physical)")
+        raise UsageError("valve must be a PhysicalValve (see stictiondiag.models.physical)")
     try:
         dt_ = float(dt)
     except (TypeError, ValueError):

@@ -37,9 +37,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
-from .errors import UsageError
-from .processes import FOPTD, PI, Integrating, open_loop_response
-from .valve import choudhury_model
+from stictiondiag.core.errors import UsageError
+from stictiondiag.models.processes import (
+    FOPTD,
+    PI,
+    Integrating,
+    open_loop_response,
+)
+from stictiondiag.models.valve import choudhury_model
 
 
 def _check_sj(S: float, J: float) -> tuple[float, float]:
@@ -380,7 +385,7 @@ def predict_limit_cycle(
     """
     S, J = _check_sj(S, J)
     if not isinstance(controller, PI):
-        raise UsageError("controller must be a PI (stictiondiag.processes.PI)")
+        raise UsageError("controller must be a PI (stictiondiag.models.processes.PI)")
     if S == 0.0 and J == 0.0:
         # A linear valve, N = 1: no amplitude-dependent intersection.
         return LimitCyclePrediction(False, None, None, None, None, S, J, ())

@@ -35,7 +35,7 @@ time   first token is ``time``, ``timestamp``, ``datetime`` or ``date``, or the 
 
 Matching is case-insensitive. A column named exactly like the role (``pv``) wins
 over other candidates. Two or more remaining candidates for a role are ambiguous
-and raise :class:`~stictiondiag.errors.DataError` asking to name the column
+and raise :class:`~stictiondiag.core.errors.DataError` asking to name the column
 (``pv="FIC101.PV"``, on the command line ``--pv FIC101.PV``). Columns given
 explicitly are taken first and are never candidates for another role. Note that
 ``.MV`` is read as valve position, as in the paper; on systems where ``MV`` is the
@@ -60,7 +60,7 @@ numeric column) of at most :data:`MAX_GAP_SAMPLES` samples inside the record are
 linearly interpolated. Longer gaps, and gaps at the start or end of the record,
 cannot be filled honestly: the longest contiguous stretch without them is kept.
 Both are reported in :attr:`Tags.warnings`. Fewer than :data:`MIN_SAMPLES`
-remaining samples raise :class:`~stictiondiag.errors.DataError`.
+remaining samples raise :class:`~stictiondiag.core.errors.DataError`.
 
 Warnings are collected in :attr:`Tags.warnings` (one line each) rather than issued
 through :mod:`warnings`, so the caller decides how to show them (the CLI prints
@@ -82,7 +82,10 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from .errors import DataError, UsageError
+from stictiondiag.core.errors import (
+    DataError,
+    UsageError,
+)
 
 if TYPE_CHECKING:
     import pandas as pd

@@ -3,7 +3,7 @@
 The two-parameter model of Choudhury, Thornhill & Shah (2005) (Section 5.1, Fig. 10,
 Eq. 4) never matches a real valve exactly.  Each entry of :data:`EFFECT_MODELS` adds
 one named effect to the replay, with its own parameters fitted by least squares, so
-:mod:`stictiondiag.gap` can ask which effect explains the departure of the replay from
+:mod:`stictiondiag.gap.diagnose` can ask which effect explains the departure of the replay from
 the data.
 
 The *driven replay* feeds every element of the loop with its recorded input, so a
@@ -49,7 +49,7 @@ time_varying_stiction  mv      S and J changing during the record: a step, a ram
 =====================  ======  =====================================================
 
 Every fitter takes per-sample weights (0 or 1) so the same code fits on a training
-part of the record and is validated on the held-back part (:mod:`stictiondiag.gap`).
+part of the record and is validated on the held-back part (:mod:`stictiondiag.gap.diagnose`).
 
 Searching the thresholds
 ------------------------
@@ -74,9 +74,9 @@ from dataclasses import dataclass, field, replace
 import numba
 import numpy as np
 
-from ._filters import lfilter1
-from ._jit import jit
-from .errors import UsageError
+from stictiondiag.core.errors import UsageError
+from stictiondiag.core.filters import lfilter1
+from stictiondiag.core.jit import jit
 
 #: Effect names in the order they are reported; ``none`` is the base two-parameter model.
 EFFECTS: tuple[str, ...] = (
@@ -180,8 +180,8 @@ def _valve_step(
 ):  # pragma: no cover - compiled
     """One sample of the data-driven valve with direction-dependent S and J.
 
-    The state machine of :func:`stictiondiag.valve.choudhury_step` (Fig. 10) or,
-    with ``kano``, of :func:`stictiondiag.valve.kano_step`; the breakaway threshold
+    The state machine of :func:`stictiondiag.models.valve.choudhury_step` (Fig. 10) or,
+    with ``kano``, of :func:`stictiondiag.models.valve.kano_step`; the breakaway threshold
     and the moving-phase offset of Eq. 4 use the values of the direction of travel.
     ``vnew`` is the sign of ``x - xprev``; the state is held in scalars (kept in
     registers by the compiler: an array state costs a memory round trip per field and
@@ -638,7 +638,7 @@ def valve_replay(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Valve position from the demand with direction- and time-dependent S and J.
 
-    Generalises :func:`stictiondiag.valve.choudhury_model` (Section 5.1, Fig. 10,
+    Generalises :func:`stictiondiag.models.valve.choudhury_model` (Section 5.1, Fig. 10,
     Eq. 4) for the effects of the catalogue: ``S`` and ``J`` apply to opening
     (rising mv), ``S_down`` and ``J_down`` to closing, each may be one value per
     sample, and a first-order actuator lag may follow the friction element.
@@ -1087,11 +1087,11 @@ class ReplayContext:
 def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float) -> dict | None:
     """S and J of every slip read off the data (the stick and slip segments of Fig. 2).
 
-    Uses :func:`stictiondiag.segments.segment_valve`; the values only seed the
+    Uses :func:`stictiondiag.stiction.segments.segment_valve`; the values only seed the
     least-squares searches, so a failure there is not an error (None).
     """
     try:
-        from .segments import segment_valve
+        from stictiondiag.stiction.segments import segment_valve
 
         seg = segment_valve(op, mv, dt)
     except Exception:  # noqa: BLE001 - seeds are optional; the searches have grids too
@@ -1137,7 +1137,7 @@ def build_context(
     load_spacing : float, optional
         Knot spacing of the slow load [samples]; default a sixteenth of the record
         (at least 40 samples), so the eight validation blocks of
-        :mod:`stictiondiag.gap` hold two knots each.
+        :mod:`stictiondiag.gap.diagnose` hold two knots each.
 
     Notes
     -----
@@ -2540,7 +2540,7 @@ def fit_asymmetry(
 
     if init is not None:
         # Thresholds only: kept from the whole record (judged there with a penalty per
-        # parameter and the block consistency of :mod:`stictiondiag.gap`).
+        # parameter and the block consistency of :mod:`stictiondiag.gap.diagnose`).
         x = np.array(init.x)
     else:
         c = cost(S4, np.inf)
@@ -2694,7 +2694,9 @@ def _slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
     can fall in step with a few more slips by chance; the slips measured one by one
     (:func:`measure_slips`) must show the difference too.
     """
-    from ._stats import mannwhitneyu  # scipy.stats.mannwhitneyu, without importing scipy.stats
+    from stictiondiag.core.stats import (
+        mannwhitneyu,  # scipy.stats.mannwhitneyu, without importing scipy.stats
+    )
 
     if slips is None:
         return 0.0
@@ -3152,7 +3154,7 @@ def restrict_quantization(ef: EffectFit, signals: tuple[str, ...]) -> EffectFit:
     on the controller replay, ``op_from_pv_rounding``), so a loop whose mv is rounded
     and whose pv is rounded too finely to matter is explained by mv's step alone; the
     gap diagnosis keeps the subset that pays for its parameters
-    (:func:`stictiondiag.gap.diagnose_gap`).
+    (:func:`stictiondiag.gap.diagnose.diagnose_gap`).
     """
     params, explained, preds = {}, {}, {}
     for name in ("op", "mv", "pv"):

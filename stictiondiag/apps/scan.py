@@ -34,8 +34,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from ._blas import one_blas_thread
-from .errors import DataError, StictionError, UsageError
+from stictiondiag.core.blas import one_blas_thread
+from stictiondiag.core.errors import (
+    DataError,
+    StictionError,
+    UsageError,
+)
 
 #: Column names accepted as the loop id of a Parquet dataset (first match wins).
 LOOP_ID_COLUMNS = ("loop_id", "loop", "loop_name", "tag", "loopid")
@@ -211,7 +215,7 @@ def discover(path: str | os.PathLike, *, loop_column: str | None = None) -> list
 
 
 def load_source(source: LoopSource, **read_options):
-    """Read one loop as :class:`~stictiondiag.tags.Tags` (one loop in memory).
+    """Read one loop as :class:`~stictiondiag.io.tags.Tags` (one loop in memory).
 
     A loop of a dataset is read with a row filter on the loop-id column, so only
     its own rows are read (row groups whose statistics exclude the loop are
@@ -219,7 +223,10 @@ def load_source(source: LoopSource, **read_options):
     (``<column>=<loop>/``) is opened, so reading one loop does not list the whole
     plant.
     """
-    from .tags import read_frame, read_tags
+    from stictiondiag.io.tags import (
+        read_frame,
+        read_tags,
+    )
 
     if source.loop_column is None:
         return read_tags(source.path, **read_options)
@@ -246,7 +253,10 @@ def load_source(source: LoopSource, **read_options):
 
 def analyse_source(source: LoopSource, read_options: dict, gap: bool) -> dict:
     """Analyse one loop and return its table row plus the full JSON (never raises)."""
-    from .analysis import AnalysisConfig, analyze
+    from stictiondiag.analysis import (
+        AnalysisConfig,
+        analyze,
+    )
 
     row: dict = {"loop": source.loop, "source": source.path, "error": None}
     try:
@@ -541,7 +551,7 @@ def scan(
     loop_column : str, optional
         Loop-id column of a Parquet dataset (see :func:`discover`).
     read_options : dict, optional
-        Options of :func:`stictiondiag.tags.read_tags` for every loop (e.g. ``ts``).
+        Options of :func:`stictiondiag.io.tags.read_tags` for every loop (e.g. ``ts``).
     progress : callable, optional
         Called as ``progress(done, total, loop)`` at the start and after each loop.
 
@@ -558,7 +568,7 @@ def scan(
         ``path`` holds no loops (see :func:`discover`).  A loop that cannot be read
         or analysed is not an exception: it is a row with verdict ``error``.
     """
-    from .atomic import write_atomic
+    from stictiondiag.core.atomic import write_atomic
 
     if engine not in ("local", "dask"):
         raise UsageError(f"unknown engine {engine!r}: use local or dask")
@@ -645,7 +655,10 @@ def loop_html(row: dict, analysis: dict | None) -> str:
     """
     from html import escape
 
-    from .report import _page, render_loop_html
+    from stictiondiag.apps.report import (
+        _page,
+        render_loop_html,
+    )
 
     if analysis is not None:
         page = render_loop_html(analysis, {}, json_name=f"{_safe_name(row['loop'])}.json")
@@ -670,7 +683,10 @@ def _json_default(o):
 
 def write_table(table: pd.DataFrame, out: Path) -> dict:
     """Write the ranked table as Parquet, CSV and an HTML page (each atomically)."""
-    from .atomic import atomic_path, write_atomic
+    from stictiondiag.core.atomic import (
+        atomic_path,
+        write_atomic,
+    )
 
     paths = {"parquet": out / "scan.parquet", "csv": out / "scan.csv", "html": out / "index.html"}
     clean = table.copy()

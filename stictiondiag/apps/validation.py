@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .errors import DataError
+from stictiondiag.core.errors import DataError
 
 #: ISDB loop types that behave as the paper's loop types.
 LOOP_TYPE_MAP = {
@@ -91,7 +91,7 @@ def load_manifest(isdb_dir: str | os.PathLike | None = None) -> pd.DataFrame:
 
 
 def _baselines(path: str, ts: float, integrating: bool) -> dict:
-    from . import baselines
+    from stictiondiag.stiction import baselines
 
     frame = pd.read_csv(path)
     pv = frame["pv"].to_numpy(float)
@@ -116,7 +116,7 @@ def _baselines(path: str, ts: float, integrating: bool) -> dict:
 
 def validate_one(source, gap: bool) -> dict:
     """Analyse one ISDB loop and run the baselines (for a worker process)."""
-    from .scan import analyse_source
+    from stictiondiag.apps.scan import analyse_source
 
     res = analyse_source(source, {}, gap)
     opts = source.read_options or {}
@@ -183,7 +183,10 @@ def validate_isdb(
     progress: Callable[[int, int, str], None] | None = None,
 ) -> ValidationResult:
     """Analyse every ISDB loop and compare verdicts with the published labels."""
-    from .scan import LoopSource, run_local
+    from stictiondiag.apps.scan import (
+        LoopSource,
+        run_local,
+    )
 
     m = load_manifest(isdb_dir)
     if loops:

@@ -59,10 +59,20 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ._filters import correlate_lags, lfilter1
-from ._optimize import minimize_scalar_bounded
-from .errors import DataError, UsageError
-from .processes import FOPTD, PI, Integrating
+from stictiondiag.core.errors import (
+    DataError,
+    UsageError,
+)
+from stictiondiag.core.filters import (
+    correlate_lags,
+    lfilter1,
+)
+from stictiondiag.core.optimize import minimize_scalar_bounded
+from stictiondiag.models.processes import (
+    FOPTD,
+    PI,
+    Integrating,
+)
 
 #: Outlier trimming of the velocity-form fit: residuals beyond this many robust
 #: standard deviations are left out [-], for at most TRIM_ROUNDS refits.
@@ -474,7 +484,7 @@ def controller_fit(
     estimated.
     """
     if not isinstance(controller, PI):
-        raise UsageError("controller must be a PI model (stictiondiag.processes.PI)")
+        raise UsageError("controller must be a PI model (stictiondiag.models.processes.PI)")
     kc, ti = float(controller.gain), float(controller.integral_time)
     if kc == 0.0 or not math.isfinite(kc) or not ti > 0.0:
         raise UsageError(f"controller needs a non-zero gain and Ti > 0, got Kc={kc}, Ti={ti}")
@@ -813,7 +823,7 @@ def _fit_integrating_differenced(u, pv, dt, b, d_max, smooth):
 
 def _oscillation_samples(pv: np.ndarray, dt: float) -> float | None:
     """pv's dominant period in samples, or None."""
-    from .oscillation import dominant_period
+    from stictiondiag.signals.oscillation import dominant_period
 
     period = dominant_period(pv, dt)
     return None if period is None else period / dt
@@ -822,7 +832,7 @@ def _oscillation_samples(pv: np.ndarray, dt: float) -> float | None:
 def _drift_pole(pv: np.ndarray, dt: float, drift_time_constant: float | None):
     """Pole ``b`` of the drift high-pass and its time constant [s] (None: no filter)."""
     if drift_time_constant is None:
-        from .oscillation import dominant_period
+        from stictiondiag.signals.oscillation import dominant_period
 
         period = dominant_period(pv, dt)
         if period is not None:
@@ -1018,7 +1028,7 @@ def process_fit(
     ``u_bias = mean(u)``; integrating: the initial pv and the balance input.
     """
     if not isinstance(process, FOPTD | Integrating):
-        raise UsageError("process must be a FOPTD or Integrating model (stictiondiag.processes)")
+        raise UsageError("process must be a FOPTD or Integrating model (stictiondiag.models.processes)")
     dt = _check_dt(dt)
     u = _as_signal(u, "u")
     pv = _as_signal(pv, "pv")

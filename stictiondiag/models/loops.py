@@ -17,9 +17,9 @@ valve and process -- runs in one compiled kernel:
   fractional part by the modified z-transform), so the only discretisation error is
   that of the controller (rectangular integration) and the sampling of the valve;
 * the data-driven valves call the same compiled per-sample functions as the
-  open-loop models (:func:`stictiondiag.valve.choudhury_step`, ``kano_step``);
+  open-loop models (:func:`stictiondiag.models.valve.choudhury_step`, ``kano_step``);
 * with the physical valve (Section 4) the whole loop runs at the valve's integration
-  sub-step (about 1e-4 s, see :mod:`stictiondiag.physical`): the controller and
+  sub-step (about 1e-4 s, see :mod:`stictiondiag.models.physical`): the controller and
   process of Eq. 3 are continuous-time, and a controller output held for 0.1 s would
   make a valve with ``Fs > Fc`` stick after every step of the staircase.  Signals are
   recorded every ``dt``.
@@ -42,11 +42,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._jit import jit
-from .errors import UsageError
-from .physical import PhysicalValve, karnopp_step
-from .processes import FOPTD, LOOP_PARAMETERS, PI, Integrating
-from .valve import EQUAL_PERCENTAGE_RANGEABILITY, _check_sj, choudhury_step, kano_step, valve_state
+from stictiondiag.core.errors import UsageError
+from stictiondiag.core.jit import jit
+from stictiondiag.models.physical import (
+    PhysicalValve,
+    karnopp_step,
+)
+from stictiondiag.models.processes import (
+    FOPTD,
+    LOOP_PARAMETERS,
+    PI,
+    Integrating,
+)
+from stictiondiag.models.valve import (
+    EQUAL_PERCENTAGE_RANGEABILITY,
+    _check_sj,
+    choudhury_step,
+    kano_step,
+    valve_state,
+)
 
 #: Valve models :func:`simulate_loop` accepts.
 VALVES = ("linear", "choudhury", "kano", "physical")
@@ -78,7 +92,7 @@ class LimitCycle:
         Half peak-to-peak amplitude of the cycle of ``pv`` [pv units], ``op`` and
         ``mv`` [% of span]; None for a signal without a cycle.
     oscillations : dict
-        The :class:`~stictiondiag.oscillation.Oscillation` of pv, op and mv.
+        The :class:`~stictiondiag.signals.oscillation.Oscillation` of pv, op and mv.
     transient_s : float
         Length of the start of the run left out of the analysis [s].
     """
@@ -168,14 +182,14 @@ class Simulation:
 
         Keyword arguments go to :func:`stictiondiag.plotting.simulation.plot_simulation`.
         """
-        from .plotting.simulation import plot_simulation
+        from stictiondiag.plotting.simulation import plot_simulation
 
         return plot_simulation(self, **kwargs)
 
     def describing_function(self):
         """Limit cycle predicted by the describing function for this loop (Section 6).
 
-        :func:`stictiondiag.describing.predict_limit_cycle` with the run's process,
+        :func:`stictiondiag.models.describing.predict_limit_cycle` with the run's process,
         controller and stiction parameters.  For the physical valve the quasi-static
         data-driven equivalent is used (:meth:`PhysicalValve.data_driven_equivalent`):
         with calibration ``c`` the valve output is ``c`` times that of a data-driven
@@ -191,7 +205,7 @@ class Simulation:
         """
         import dataclasses
 
-        from .describing import predict_limit_cycle
+        from stictiondiag.models.describing import predict_limit_cycle
 
         if self.process is None or self.controller is None:
             raise UsageError("this simulation does not carry its process and controller")
@@ -253,9 +267,9 @@ class Simulation:
         Returns
         -------
         LimitCycle
-            Uses :func:`stictiondiag.oscillation.detect_oscillation` on each signal.
+            Uses :func:`stictiondiag.signals.oscillation.detect_oscillation` on each signal.
         """
-        from .oscillation import detect_oscillation
+        from stictiondiag.signals.oscillation import detect_oscillation
 
         duration = self.n * self.dt
         if transient is None:
@@ -482,9 +496,9 @@ def _band_setting(band: np.ndarray):
 
 def _check_loop(process, controller) -> None:
     if not isinstance(process, FOPTD | Integrating):
-        raise UsageError("process must be a FOPTD or Integrating model (stictiondiag.processes)")
+        raise UsageError("process must be a FOPTD or Integrating model (stictiondiag.models.processes)")
     if not isinstance(controller, PI):
-        raise UsageError("controller must be a PI model (stictiondiag.processes)")
+        raise UsageError("controller must be a PI model (stictiondiag.models.processes)")
     _number("process gain", process.gain)
     _number("process dead time", process.dead_time, minimum=0.0)
     if isinstance(process, FOPTD):
@@ -620,7 +634,7 @@ def simulate_loop(
         if physical is None:
             physical = PhysicalValve.from_case("nominal")
         if not isinstance(physical, PhysicalValve):
-            raise UsageError("physical must be a PhysicalValve (see stictiondiag.physical)")
+            raise UsageError("physical must be a PhysicalValve (see stictiondiag.models.physical)")
         n_sub, h = physical.substeps(dt)
         if n * n_sub > MAX_VALVE_STEPS:
             raise UsageError(
@@ -742,7 +756,7 @@ def simulate_paper_loop(
     Parameters
     ----------
     name : {"concentration", "level"}
-        Loop of :data:`stictiondiag.processes.LOOP_PARAMETERS`.
+        Loop of :data:`stictiondiag.models.processes.LOOP_PARAMETERS`.
     S, J : float
         Data-driven stiction parameters [% of span].
     duration : float

@@ -86,9 +86,9 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.csv as pa_csv
 
-from ._jit import jit
-from .atomic import write_atomic
-from .errors import UsageError
+from stictiondiag.core.atomic import write_atomic
+from stictiondiag.core.errors import UsageError
+from stictiondiag.core.jit import jit
 
 #: Names of the hidden effects, in the order used for balancing a benchmark.
 EFFECTS: tuple[str, ...] = (

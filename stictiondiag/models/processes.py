@@ -1,8 +1,8 @@
 """Linear process and controller models of the closed loops (Section 4.2.2, Table 3).
 
 Transfer functions are kept as small frozen dataclasses with their frequency
-response, so the time-domain simulator (:mod:`stictiondiag.loops`) and the
-describing-function analysis (:mod:`stictiondiag.describing`) share one definition.
+response, so the time-domain simulator (:mod:`stictiondiag.models.loops`) and the
+describing-function analysis (:mod:`stictiondiag.models.describing`) share one definition.
 Times are in seconds; gains in (units of pv) per (% of valve span).
 """
 

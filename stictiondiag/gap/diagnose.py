@@ -4,13 +4,13 @@ The two-parameter model of Choudhury, Thornhill & Shah (2005) (Section 5.1, Fig.
 Eq. 4) never matches a real valve exactly.  :func:`diagnose_gap` measures the gap
 between the replay and the data, locates it (by signal, valve phase, frequency, time
 and feature), adds each unmodelled effect of the catalogue
-(:mod:`stictiondiag.effects`) with its own fitted parameters, and names the effect
+(:mod:`stictiondiag.gap.effects`) with its own fitted parameters, and names the effect
 that explains the gap, with the runner-up and how clearly it won.
 
 The gap measure
 ---------------
 The replay is *driven*: every element of the loop is fed with its recorded input, so
-a departure shows in the element that causes it (:mod:`stictiondiag.effects`):
+a departure shows in the element that causes it (:mod:`stictiondiag.gap.effects`):
 
 * mv: the valve model replayed from the recorded op (Section 5.1);
 * pv: the process (Eq. 3) driven by the recorded mv, predicted ``h`` samples ahead
@@ -30,7 +30,7 @@ so ``gap`` is the part of the replay error that is not noise, in % of the RMS of
 signals' cycle-scale movement; 0 means "within its noise".  For pv the floor is what a
 correct replay still misses at its horizon: measurement noise plus the load it could
 not foresee, from the noise model of the best process replay
-(:func:`stictiondiag.effects.process_noise_floor`), and never below the best pv
+(:func:`stictiondiag.gap.effects.process_noise_floor`), and never below the best pv
 replay's error on held-out data.  A quantised signal's rounding error (``q^2/12``)
 counts as explained once quantization is added.
 
@@ -64,8 +64,8 @@ record; an asymmetric or time-varying valve has slips that differ by direction o
 time; a miscalibrated positioner puts the valve after each slip on a line of slope
 other than 1 against the demand at the breakaway; an installed characteristic
 makes the loop's gain change with the operating point, which no linear process does
-(:func:`stictiondiag.effects.slip_slope_test`,
-:func:`stictiondiag.effects.gain_change_test`).  A signature with a direction is
+(:func:`stictiondiag.gap.effects.slip_slope_test`,
+:func:`stictiondiag.gap.effects.gain_change_test`).  A signature with a direction is
 tested one-sided, in the direction of the fitted effect.  ``none`` wins when no
 candidate is accepted.  The accepted candidates are ranked by their held-out evidence
 in the units of the Bayesian information criterion: for each signal the effect
@@ -78,7 +78,7 @@ it lowers the gap on the record; a gap of 0 (the replay within its noise) is
 generator: the penalties come from the data's own block-to-block scatter and
 residual correlation, and the signature checks are tests at 1 % (Rayleigh, rank,
 and t tests whose standard errors come from the scatter between blocks of the
-record, :func:`stictiondiag.effects.signature_test`).
+record, :func:`stictiondiag.gap.effects.signature_test`).
 """
 
 from __future__ import annotations
@@ -89,8 +89,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import effects as fx
-from .errors import DataError
+from stictiondiag.core.errors import DataError
+from stictiondiag.gap import effects as fx
 
 #: Blocks of the record for validation (even blocks against odd ones).
 N_BLOCKS = 8
@@ -124,7 +124,7 @@ class Candidate:
     Attributes
     ----------
     effect : str
-        Effect name (see :data:`stictiondiag.effects.EFFECTS`).
+        Effect name (see :data:`stictiondiag.gap.effects.EFFECTS`).
     variant : str
         Form that fitted best (e.g. ``step`` for a time-varying stiction).
     after : float
@@ -259,13 +259,16 @@ class GapDiagnosis:
 
     def plot(self):
         """Where the gap lies (:func:`stictiondiag.plotting.gap.plot_gap_breakdown`)."""
-        from .plotting.gap import plot_gap_breakdown
+        from stictiondiag.plotting.gap import plot_gap_breakdown
 
         return plot_gap_breakdown(self)
 
     def figures(self) -> dict:
         """Figures by name: ``gap_breakdown`` and ``gap_replay``."""
-        from .plotting.gap import plot_gap_breakdown, plot_gap_replay
+        from stictiondiag.plotting.gap import (
+            plot_gap_breakdown,
+            plot_gap_replay,
+        )
 
         return {"gap_breakdown": plot_gap_breakdown(self), "gap_replay": plot_gap_replay(self)}
 
@@ -472,19 +475,19 @@ def diagnose_gap(
     Parameters
     ----------
     tags : Tags
-        Loop data (:class:`stictiondiag.tags.Tags` or any object with ``op``, ``pv``,
+        Loop data (:class:`stictiondiag.io.tags.Tags` or any object with ``op``, ``pv``,
         ``mv``, ``sp`` arrays and ``ts``): op and mv in % of span, uniformly sampled.
     fit : StictionFit, optional
-        Stiction estimate (:func:`stictiondiag.segments.estimate_from_mv` or
-        :func:`stictiondiag.hammerstein.fit_hammerstein`): S and J start the
+        Stiction estimate (:func:`stictiondiag.stiction.segments.estimate_from_mv` or
+        :func:`stictiondiag.stiction.hammerstein.fit_hammerstein`): S and J start the
         searches; without mv its ``mv_model`` drives the process replay.
     replay : Replay, optional
-        Closed-loop replay (:func:`stictiondiag.replay.replay`): its period and
+        Closed-loop replay (:func:`stictiondiag.replay.closed_loop.replay`): its period and
         amplitudes join the feature breakdown.
     n_blocks : int
         Validation blocks (even against odd), >= 4.
     effects : tuple of str, optional
-        Effects to assess (default: all of :data:`stictiondiag.effects.EFFECTS`
+        Effects to assess (default: all of :data:`stictiondiag.gap.effects.EFFECTS`
         that the data allow).
 
     Returns
@@ -1027,11 +1030,11 @@ def diagnose_file(path, **read_options) -> GapDiagnosis:
     Parameters
     ----------
     path : str or Path
-        CSV or Parquet file (:func:`stictiondiag.tags.read_tags`).
+        CSV or Parquet file (:func:`stictiondiag.io.tags.read_tags`).
     **read_options
         Column names and sampling options passed to :func:`read_tags`.
     """
-    from .tags import read_tags
+    from stictiondiag.io.tags import read_tags
 
     tags = read_tags(path, **read_options)
     return diagnose_tags(tags)
@@ -1042,11 +1045,11 @@ def diagnose_tags(tags) -> GapDiagnosis:
     fit = None
     try:
         if tags.mv is not None:
-            from .segments import estimate_from_mv
+            from stictiondiag.stiction.segments import estimate_from_mv
 
             fit = estimate_from_mv(tags.op, tags.mv, tags.ts)
         else:
-            from .hammerstein import fit_hammerstein
+            from stictiondiag.stiction.hammerstein import fit_hammerstein
 
             fit = fit_hammerstein(
                 tags.op,

@@ -4,7 +4,7 @@ A report folder holds, per loop, ``<loop>.html`` (plots embedded as base64 PNG, 
 external assets: it opens offline) and ``<loop>.json`` (the full
 :meth:`Analysis.to_dict`); over all loops an ``index.html``, ``summary.md`` (for a CI
 job summary) and ``rows.json`` (the index rows, read back by the next run).  Every file
-is written whole or not at all (:mod:`stictiondiag.atomic`).  An existing folder is
+is written whole or not at all (:mod:`stictiondiag.core.atomic`).  An existing folder is
 updated: loops of earlier runs stay listed in the index unless ``clean`` is asked for.
 
 Everything that comes from the data (tag names, file names, comments, warnings) is
@@ -29,7 +29,11 @@ from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
 
-from .errors import DataError, StictionError, UsageError
+from stictiondiag.core.errors import (
+    DataError,
+    StictionError,
+    UsageError,
+)
 
 __all__ = [
     "ReportResult",
@@ -702,13 +706,16 @@ def analyse_for_report(path: str, read_options: dict, gap: bool) -> dict:
     loop could not be analysed (one line: the data error, or the internal error and
     where it arose).
     """
-    from .analysis import AnalysisConfig, analyze_file
+    from stictiondiag.analysis import (
+        AnalysisConfig,
+        analyze_file,
+    )
 
     name = Path(path).stem
     try:
         result = analyze_file(path, config=AnalysisConfig(gap=gap), **read_options)
         d = result.to_dict()
-        from .plotting import figure_png
+        from stictiondiag.plotting import figure_png
 
         images = {k: figure_png(fig) for k, fig in result.figures().items()}
         base = safe_name(result.loop)
@@ -770,7 +777,7 @@ def build_report(
     Parameters
     ----------
     files : sequence of path
-        One loop per file (CSV or Parquet, see :func:`stictiondiag.tags.read_tags`).
+        One loop per file (CSV or Parquet, see :func:`stictiondiag.io.tags.read_tags`).
         The loop's name is the file's stem.
     out : path
         Report folder; created if missing. Loops of earlier runs stay in the index.
@@ -799,8 +806,8 @@ def build_report(
     DataError
         No input could be analysed (the index is written all the same).
     """
-    from .atomic import write_atomic
-    from .scan import run_local
+    from stictiondiag.apps.scan import run_local
+    from stictiondiag.core.atomic import write_atomic
 
     out = Path(out)
     files = [str(f) for f in files]

@@ -14,7 +14,7 @@ Section 5.1 and Fig. 11: deadband (``J = 0``), undershoot (``J < S``), no offset
 (``J = S``) and overshoot (``J > S``).
 
 The per-sample state machine is a compiled function (:func:`choudhury_step`,
-:func:`kano_step`) so the closed-loop simulators in :mod:`stictiondiag.loops` call
+:func:`kano_step`) so the closed-loop simulators in :mod:`stictiondiag.models.loops` call
 exactly the same code as the open-loop models here.
 """
 
@@ -25,8 +25,8 @@ from typing import Literal
 
 import numpy as np
 
-from ._jit import jit
-from .errors import UsageError
+from stictiondiag.core.errors import UsageError
+from stictiondiag.core.jit import jit
 
 Characteristic = Literal["linear", "equal_percentage", "quick_opening"]
 OpUnits = Literal["percent", "mA"]

@@ -39,8 +39,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._filters import detrend_linear, savgol_smooth
-from .errors import UsageError
+from stictiondiag.core.errors import UsageError
+from stictiondiag.core.filters import (
+    detrend_linear,
+    savgol_smooth,
+)
 
 #: Regularity above which a signal is called oscillating (Thornhill et al. 2003).
 REGULARITY_THRESHOLD = 1.0

@@ -55,7 +55,7 @@ The valve model
 ---------------
 Each fit tries the published flowchart and Kano's variant, on op itself and, when op
 carries white noise, behind a play operator of four noise deviations
-(:class:`stictiondiag.estimate.ValveVariant`).  A record starts at an arbitrary point
+(:class:`stictiondiag.stiction.valvefit.ValveVariant`).  A record starts at an arbitrary point
 of the valve's history, so the model is started stuck at the first clear extreme of
 op with its stop point a searched offset back from it (:data:`START_OFFSETS`).
 
@@ -65,7 +65,7 @@ From the cost profile: the 95 % interval holds the values whose best cost (other
 parameters free) is within an F-test threshold of the minimum, counting as many
 independent observations as the fitted valve has slips, and never less than
 :data:`MODEL_ERROR_SHARE` of the best cost, for the model's own error
-(:func:`stictiondiag.estimate.cost_threshold`).  That share is measured, not
+(:func:`stictiondiag.stiction.valvefit.cost_threshold`).  That share is measured, not
 assumed: ``benchmarks/calibration_nomv.py`` simulates loops with known S (white
 noise, coloured loads, healthy valves under external oscillations) and prints how
 often the interval holds the true S.
@@ -75,7 +75,7 @@ unbounded); ``details["determinacy"]`` says "poorly determined" when the interva
 wide or reaches the search limit.
 
 Known limit: a noisy op fed to a valve that sticks at every noise reversal (Kano's
-flowchart on raw noisy op, as in :func:`stictiondiag.loops.simulate_loop` with noise)
+flowchart on raw noisy op, as in :func:`stictiondiag.models.loops.simulate_loop` with noise)
 makes the valve's sequence of stop points depend on every noise sample; a model
 started from a slightly different point never falls back in step, the cost has a
 needle at the true (S, J), and the grid search can miss it.  Such fits show as weak
@@ -96,9 +96,10 @@ import math
 
 import numpy as np
 
-from ._jit import jit
-from .errors import DataError
-from .estimate import (
+from stictiondiag.core.errors import DataError
+from stictiondiag.core.jit import jit
+from stictiondiag.stiction.segments import _determinacy
+from stictiondiag.stiction.valvefit import (
     StictionFit,
     ValveVariant,
     block_sse,
@@ -110,7 +111,6 @@ from .estimate import (
     valve_variants,
     white_noise_std,
 )
-from .segments import _determinacy
 
 #: Range of the process time constant searched, in oscillation periods, and the
 #: number of (log-spaced) values on the coarse grid.
@@ -125,7 +125,7 @@ ROWS_PER_PERIOD = 60
 
 #: Share of the best cost by which a parameter value's profile cost may exceed it
 #: and still be inside the S, J and dead-time intervals, whatever the record length
-#: (:func:`stictiondiag.estimate.cost_threshold`).  The F test alone assumes the
+#: (:func:`stictiondiag.stiction.valvefit.cost_threshold`).  The F test alone assumes the
 #: model is right; here the valve model and the first-order linear part meet a
 #: real loop only approximately, and a band a little wider or narrower moves whole
 #: slips by a sample, so the cost at the true S exceeds the best one by a share of
@@ -578,7 +578,7 @@ class _Problem:
         """Cost, best delay, start offset and time constant for every (S, J) pair.
 
         Pairs with a band narrower than the play operator are run without it
-        (:meth:`stictiondiag.estimate.ValveVariant.for_band`).
+        (:meth:`stictiondiag.stiction.valvefit.ValveVariant.for_band`).
         """
         S = np.atleast_1d(np.asarray(S, dtype=float))
         J = np.atleast_1d(np.asarray(J, dtype=float))
@@ -659,7 +659,7 @@ def cycle_travel(x: np.ndarray, period: int) -> float:
     that slips every cycle, without the load moves of op that a range of the whole
     record would include.
     """
-    from ._filters import median_filter_nearest
+    from stictiondiag.core.filters import median_filter_nearest
 
     xd = x - median_filter_nearest(x, max(3, int(3 * period) | 1))
     m = max(2, int(2 * period))
@@ -800,7 +800,7 @@ def fit_hammerstein(
         (see "The linear part" in the module docstring); recorded in ``details``.
     period_s : float, optional
         Cycle period [s] that sets the time scales of the linear basis and the row
-        stride; by default measured on op (:func:`stictiondiag.estimate.cycle_samples`).
+        stride; by default measured on op (:func:`stictiondiag.stiction.valvefit.cycle_samples`).
 
     Returns
     -------

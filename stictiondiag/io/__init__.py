@@ -1,0 +1,2 @@
+"""Reading control-loop tags (pv, op, mv, sp) from historian exports.
+"""
