@@ -77,9 +77,9 @@ from stictiondiag.stiction.classic.bicoherence import (
 )
 from stictiondiag.stiction.classic.ellipse import EllipseResult, pv_op_ellipse
 from stictiondiag.stiction.classic.he import HeResult, he_curve_fit
-from stictiondiag.stiction.classic.horch import HorchResult, horch
-from stictiondiag.stiction.classic.kano import KanoResult, kano
-from stictiondiag.stiction.classic.rossi_scali import RossiScaliResult, rossi_scali
+from stictiondiag.stiction.classic.horch import HorchResult, horch_cross_correlation
+from stictiondiag.stiction.classic.kano import KanoResult, kano_stick_sections
+from stictiondiag.stiction.classic.rossi_scali import RossiScaliResult, rossi_scali_relay
 
 #: Names of :func:`classic_features`, in order (stable: a model is trained on them).
 FEATURE_NAMES = (
@@ -222,8 +222,12 @@ def run_classic(
 
     res = {
         "choudhury": attempt("choudhury", lambda: choudhury_hos(op, pv, sp, dt)),
-        "horch": attempt("horch", lambda: horch(op, pv, dt, integrating=integ, period_s=period)),
-        "kano": attempt("kano", lambda: kano(op, pv, dt, mv=mv, loop_type=loop_type)),
+        "horch": attempt(
+            "horch", lambda: horch_cross_correlation(op, pv, dt, integrating=integ, period_s=period)
+        ),
+        "kano": attempt(
+            "kano", lambda: kano_stick_sections(op, pv, dt, mv=mv, loop_type=loop_type)
+        ),
     }
     if period is None:
         errors.extend((t, "no oscillation: the shape fit needs one") for t in ("he", "rossi_scali"))
@@ -233,7 +237,7 @@ def run_classic(
         res["he"] = attempt(
             "he", lambda: he_curve_fit(op, pv, dt, integrating=integ, period_s=period)
         )
-        res["rossi_scali"] = attempt("rossi_scali", lambda: rossi_scali(pv, dt, period))
+        res["rossi_scali"] = attempt("rossi_scali", lambda: rossi_scali_relay(pv, dt, period))
         ellipse = pv_op_ellipse(op, pv, dt, period)
     return ClassicResults(
         loop_type=loop_type,
@@ -324,9 +328,9 @@ __all__ = [
     "classic_features",
     "features_of",
     "he_curve_fit",
-    "horch",
-    "kano",
+    "horch_cross_correlation",
+    "kano_stick_sections",
     "pv_op_ellipse",
-    "rossi_scali",
+    "rossi_scali_relay",
     "run_classic",
 ]

@@ -59,6 +59,9 @@ from stictiondiag.stiction.classic.ellipse import EllipseResult, pv_op_ellipse
 if TYPE_CHECKING:
     import pandas as pd
 
+Correction = Literal["bonferroni", "fdr", "none"]
+CORRECTIONS = ("bonferroni", "fdr", "none")
+
 #: NGI above which the signal is non-Gaussian (Choudhury et al. 2004; the small
 #: positive margin is theirs, to absorb estimation error).
 NGI_THRESHOLD = 0.001
@@ -89,7 +92,7 @@ MIN_NFFT = 32
 CYCLES_PER_SEGMENT = 4.0
 
 #: Largest critical squared bicoherence at which a Gaussian finding still counts as
-#: evidence of a linear loop in :func:`choudhury_hos_diagnosis`.  Above it the record
+#: evidence of a linear loop in :func:`choudhury_hos`.  Above it the record
 #: has too few segments for the test to see anything but near-perfect phase coupling
 #: (with the family-wise test about K < 20 segments), and "Gaussian" only means "too
 #: short to tell".
@@ -202,6 +205,27 @@ class BicoherenceResult:
         return float(self.bic2[k])
 
 
+def _point_level(bic2: np.ndarray, k_seg: int, alpha: float, correction: str) -> float:
+    """Per-bifrequency significance level for the chosen multiple-test correction.
+
+    Under zero bicoherence ``P(bic^2 > b) = exp(-K b)`` (chi-square, 2 dof, of
+    ``2 K bic^2``).  ``"fdr"`` is the step-up rule of Benjamini & Hochberg (1995): the
+    largest ``j`` with ``p_(j) <= j alpha / L``; it keeps the family-wise level
+    ``alpha`` when no bifrequency is coupled (a Gaussian record) and rejects more
+    than Bonferroni when many are (the harmonics of a limit cycle).  With no
+    rejection it falls back to the Bonferroni level.
+    """
+    n_bif = bic2.size
+    if correction == "none":
+        return alpha
+    if correction == "fdr" and n_bif:
+        p = np.sort(np.exp(-k_seg * bic2))
+        ok = np.flatnonzero(p <= alpha * np.arange(1, n_bif + 1) / n_bif)
+        if ok.size:
+            return float(alpha * (ok[-1] + 1) / n_bif)
+    return alpha / max(n_bif, 1)
+
+
 def _segments_count(n: int, nfft: int, overlap: float) -> int:
     step = max(1, int(round(nfft * (1.0 - overlap))))
     return 0 if n < nfft else 1 + (n - nfft) // step
@@ -216,7 +240,7 @@ def bicoherence_indices(
     window: str = "hann",
     decimation: int = 1,
     alpha: float = BICOHERENCE_ALPHA,
-    correction: Literal["bonferroni", "none"] = "bonferroni",
+    correction: Correction = "bonferroni",
     conditioning_percentile: float | None = BICOHERENCE_CONDITIONING_PERCENTILE,
 ) -> BicoherenceResult:
     """Squared bicoherence and the NGI, NLI and TNLI of Choudhury et al. (2004, 2006).
@@ -297,8 +321,8 @@ def bicoherence_indices(
         raise UsageError(f"overlap must be a fraction in [0, 0.9], got {overlap}")
     if not 0.0 < alpha < 1.0:
         raise UsageError(f"alpha must be in (0, 1), got {alpha}")
-    if correction not in ("bonferroni", "none"):
-        raise UsageError(f"correction must be 'bonferroni' or 'none', got {correction!r}")
+    if correction not in CORRECTIONS:
+        raise UsageError(f"correction must be one of {', '.join(CORRECTIONS)}, got {correction!r}")
     try:
         nfft = int(nfft)
         decimation = int(decimation)
@@ -359,7 +383,7 @@ def bicoherence_indices(
     bic2 = np.clip(bic2, 0.0, 1.0)  # Cauchy-Schwarz bound, guards round-off
 
     n_bif = int(bic2.size)
-    alpha_point = alpha / n_bif if correction == "bonferroni" else alpha
+    alpha_point = _point_level(bic2, k_seg, alpha, correction)
     threshold = float(chdtri(2, alpha_point) / (2.0 * k_seg))  # = scipy.stats.chi2.isf
     significant = bic2 > threshold
     n_sig = int(np.count_nonzero(significant))
@@ -511,7 +535,7 @@ def choudhury_hos(
     dt: float = 1.0,
     *,
     nfft: int = BICOHERENCE_NFFT,
-    correction: Literal["bonferroni", "none"] = "bonferroni",
+    correction: Correction = "bonferroni",
     oscillation: Oscillation | None = None,
 ) -> ChoudhuryResult:
     """Choudhury, Shah & Thornhill (2004)'s higher-order-statistics stiction diagnosis.

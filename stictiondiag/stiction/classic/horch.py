@@ -15,7 +15,7 @@ Section 2 of Choudhury, Thornhill & Shah (2005).
   misfires.  Horch's remedy looks at the *second derivative* of pv instead: a sticky
   valve makes pv triangular and its second derivative a spike train (a peaked,
   heavy-tailed distribution), a linear oscillation keeps it sinusoidal (a bimodal
-  distribution).  :func:`horch` runs this test when ``integrating=True``; the CCF
+  distribution).  :func:`horch_cross_correlation` runs this test when ``integrating=True``; the CCF
   index is never used for an integrating loop.
 
 What was verified and what was not
@@ -127,7 +127,7 @@ def cross_correlation(op: np.ndarray, pv: np.ndarray, max_lag: int) -> np.ndarra
 
 @dataclass(frozen=True)
 class HorchResult:
-    """Result of :func:`horch`.
+    """Result of :func:`horch_cross_correlation`.
 
     Attributes
     ----------
@@ -216,7 +216,7 @@ def _oscillation_of(pv: np.ndarray, op: np.ndarray, dt: float):
     return False, None
 
 
-def horch(
+def horch_cross_correlation(
     op: np.ndarray,
     pv: np.ndarray,
     dt: float,

@@ -63,7 +63,7 @@ KANO_PROXY_LOOP_TYPES = ("flow",)
 
 @dataclass(frozen=True)
 class KanoResult:
-    """Result of :func:`kano`.
+    """Result of :func:`kano_stick_sections`.
 
     Attributes
     ----------
@@ -127,7 +127,7 @@ def stick_sections(mv: np.ndarray, op: np.ndarray) -> tuple[list[tuple[int, int]
     return out, band
 
 
-def kano(
+def kano_stick_sections(
     op,
     pv,
     dt: float,

@@ -67,7 +67,7 @@ RS_MAX_SAMPLES = 200
 
 @dataclass(frozen=True)
 class RossiScaliResult:
-    """Result of :func:`rossi_scali`.
+    """Result of :func:`rossi_scali_relay`.
 
     Attributes
     ----------
@@ -122,7 +122,7 @@ def _fit_stretch(y: np.ndarray) -> tuple[float, float]:
     return e_sin, e_relay
 
 
-def rossi_scali(pv, dt: float, period_s: float) -> RossiScaliResult:
+def rossi_scali_relay(pv, dt: float, period_s: float) -> RossiScaliResult:
     """Rossi & Scali (2005) relay-fit test on pv.
 
     Parameters
