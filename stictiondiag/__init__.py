@@ -79,11 +79,11 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         detect_oscillation,
         dominant_period,
     )
-    from stictiondiag.stiction.baselines import (
+    from stictiondiag.stiction.classic import (
         BicoherenceResult,
         HorchResult,
         bicoherence_indices,
-        choudhury_hos_diagnosis,
+        choudhury_hos,
         horch_cross_correlation,
     )
     from stictiondiag.stiction.hammerstein import fit_hammerstein
@@ -128,7 +128,7 @@ __all__ = [
     "BicoherenceResult",
     "horch_cross_correlation",
     "bicoherence_indices",
-    "choudhury_hos_diagnosis",
+    "choudhury_hos",
     "LimitCycle",
     "Simulation",
     "simulate_loop",
@@ -161,11 +161,11 @@ __all__ = [
 _LAZY: dict[str, str] = {
     "atomic_path": "core.atomic",
     "write_atomic": "core.atomic",
-    "BicoherenceResult": "stiction.baselines",
-    "HorchResult": "stiction.baselines",
-    "bicoherence_indices": "stiction.baselines",
-    "choudhury_hos_diagnosis": "stiction.baselines",
-    "horch_cross_correlation": "stiction.baselines",
+    "BicoherenceResult": "stiction.classic",
+    "HorchResult": "stiction.classic",
+    "bicoherence_indices": "stiction.classic",
+    "choudhury_hos": "stiction.classic",
+    "horch_cross_correlation": "stiction.classic",
     "LimitCyclePrediction": "models.describing",
     "describing_function": "models.describing",
     "describing_function_numeric": "models.describing",
