@@ -91,7 +91,7 @@ def load_manifest(isdb_dir: str | os.PathLike | None = None) -> pd.DataFrame:
 
 
 def _baselines(path: str, ts: float, integrating: bool) -> dict:
-    from stictiondiag.stiction import baselines
+    from stictiondiag.stiction import classic
 
     frame = pd.read_csv(path)
     pv = frame["pv"].to_numpy(float)
@@ -102,13 +102,13 @@ def _baselines(path: str, ts: float, integrating: bool) -> dict:
     sp = sp[ok] if sp is not None else None
     out: dict = {}
     try:
-        h = baselines.horch_cross_correlation(op, pv, ts, integrating=integrating)
+        h = classic.horch_cross_correlation(op, pv, ts, integrating=integrating)
         out["horch"] = h.verdict
     except Exception as exc:  # a baseline failing must not hide ours
         out["horch"] = f"error: {type(exc).__name__}"
     try:
-        hos = baselines.choudhury_hos_diagnosis(op, pv, sp, ts)
-        out["bicoherence"] = hos["verdict"]
+        hos = classic.choudhury_hos(op, pv, sp, ts)
+        out["bicoherence"] = hos.verdict
     except Exception as exc:
         out["bicoherence"] = f"error: {type(exc).__name__}"
     return out
