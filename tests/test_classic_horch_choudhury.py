@@ -590,3 +590,15 @@ def test_isdb_loops_run(loop):
     # Plain JSON, no NaN.
     text = json.dumps({"horch": h.to_dict(), "hos": d.to_dict()}, allow_nan=False)
     assert loop and text
+
+
+def test_fdr_keeps_gaussian_records_gaussian():
+    # Benjamini-Hochberg keeps the family-wise level alpha under the complete null
+    # (no coupled bifrequency): white noise is rarely non-Gaussian, whatever K.  Ten
+    # records at alpha = 0.05: at most two flagged allows a chance exceedance.
+    rng = np.random.default_rng(11)
+    flagged = sum(
+        bic.bicoherence_indices(rng.standard_normal(2000), correction="fdr").non_gaussian
+        for _ in range(10)
+    )
+    assert flagged <= 2

@@ -17,7 +17,7 @@ semi-axes and ``a`` the major axis' angle (Choudhury et al. 2006, Eq. 13).
 
 What was verified and what was not
 ----------------------------------
-* Verified: the chord formula (re-derived; ``tests/test_classic_choudhury.py`` checks
+* Verified: the chord formula (re-derived; ``tests/test_classic_horch_choudhury.py`` checks
   the fitted width against the closed form for two sinusoids, and against the
   apparent stiction of a simulated limit cycle).
 * Not from the paper: the axis-ratio threshold :data:`ELLIPSE_MIN_AXIS_RATIO` that

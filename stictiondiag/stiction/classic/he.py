@@ -22,7 +22,7 @@ What was verified and what was not
 ----------------------------------
 * Verified from the method as published (and re-derived): the signal choice by loop
   type, the index's definition and its limits (a pure triangle gives SI = 1, a pure
-  sine SI = 0), the thresholds 0.4 and 0.6.  ``tests/test_classic_he.py``
+  sine SI = 0), the thresholds 0.4 and 0.6.  ``tests/test_classic_shape.py``
   reproduces the paper's synthetic argument (triangle -> SI near 1, sine -> SI near
   0) and its closed-loop claim on the paper loops of Choudhury et al. (2005): a
   stiction cycle gives a triangular op (self-regulating) / pv (integrating) with

@@ -20,7 +20,7 @@ Section 2 of Choudhury, Thornhill & Shah (2005).
 
 What was verified and what was not
 ----------------------------------
-* Verified (re-derived, and reproduced in ``tests/test_classic_horch.py`` on the
+* Verified (re-derived, and reproduced in ``tests/test_classic_horch_choudhury.py`` on the
   paper loops of Choudhury et al. 2005): a stiction cycle in the self-regulating
   concentration loop gives an odd CCF, aggressive tuning and a fast sinusoidal load
   an even one; the level loop's CCF is odd with and without stiction (the misfire),

@@ -20,7 +20,7 @@ stuck.
 
 What was verified and what was not
 ----------------------------------
-* Verified by simulation (``tests/test_classic_kano.py``): the data-driven valve of
+* Verified by simulation (``tests/test_classic_shape.py``): the data-driven valve of
   Choudhury et al. (2005) in its limit cycle sticks for most of each cycle (rho well
   above the threshold), a linear valve in a loop with a load gives rho near 0.
 * Not verified (the paper was not available here): Kano et al.'s exact definition of

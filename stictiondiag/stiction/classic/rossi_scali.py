@@ -22,7 +22,7 @@ between is undecided.
 
 What was verified and what was not
 ----------------------------------
-* Verified (``tests/test_classic_rossi_scali.py``): an exact first-order relay
+* Verified (``tests/test_classic_shape.py``): an exact first-order relay
   response gives Delta_E near 1 and a sine near -1; on the paper loops of Choudhury
   et al. (2005) a stiction limit cycle gives Delta_E >= 0.4 in the self-regulating
   and in the integrating loop, a sinusoidal load Delta_E <= -0.4.
