@@ -251,7 +251,7 @@ def test_play_variant_band_below_play_width_is_the_raw_flowchart():
     )
 
     op, pv = _noisy_flow_loop()
-    prob = _setup(op, pv, 1.0, False, None)["problem"]
+    prob = _setup(op, pv, 1.0, False, None).problem
     played = [v for v in valve_variants(prob.x) if v.name == "kano+play"]
     assert played, "the noisy op should bring in the play variant"
     v = played[0]

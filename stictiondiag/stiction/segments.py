@@ -36,12 +36,13 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
+from stictiondiag.core.serialize import to_plain
 from stictiondiag.stiction.valvefit import (
     StictionFit,
-    _plain,
     block_sse,
     cost_threshold,
     cycle_samples,
+    determinacy,
     effective_samples,
     noise_std,
     profile_interval,
@@ -215,7 +216,7 @@ class Segments:
 
     def to_dict(self) -> dict:
         """JSON-able summary: intervals as [start, end) sample pairs, per-slip values."""
-        return _plain(
+        return to_plain(
             {
                 "n_slips": self.n_slips,
                 "stuck": self.stuck,
@@ -667,7 +668,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
             "noise_op": segs.noise_op,
             "quantum_mv": segs.quantum_mv,
         },
-        "determinacy": _determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge),
+        "determinacy": determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge),
         "interval_method": (
             "hull of the 95 % profile-cost interval of the least-squares fit (F test, "
             "effective samples) and the 95 % bootstrap interval of the median over slips"
@@ -697,19 +698,3 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
         linear_cost=linear_cost,
         details=details,
     )
-
-
-def _determinacy(S, S_iv, S_open, J, J_iv, J_open) -> dict:
-    """How well S and J are determined: interval width relative to the estimate."""
-
-    def one(v, iv, open_hi):
-        width = iv[1] - iv[0]
-        if open_hi:
-            return "poorly determined (interval reaches the search limit)"
-        if v > 0 and width <= 0.5 * v:
-            return "well determined"
-        if v > 0 and width <= 1.5 * v:
-            return "moderately determined"
-        return "poorly determined"
-
-    return {"S": one(S, S_iv, S_open), "J": one(J, J_iv, J_open)}

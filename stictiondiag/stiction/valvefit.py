@@ -48,8 +48,6 @@ INTERVAL_LEVEL = 0.95
 # --------------------------------------------------------------------------------------
 
 
-
-
 @dataclass(frozen=True)
 class StictionFit:
     """Estimated stiction parameters of the data-driven model (Section 5.1).
@@ -564,3 +562,19 @@ def block_sse(residual: np.ndarray, block: int, start: int = 0) -> np.ndarray:
     if nb == 0:
         return np.array([float(np.sum(r * r))])
     return (r[: nb * block] ** 2).reshape(nb, block).sum(axis=1)
+
+
+def determinacy(S, S_iv, S_open, J, J_iv, J_open) -> dict:
+    """How well S and J are determined: interval width relative to the estimate."""
+
+    def one(v, iv, open_hi):
+        width = iv[1] - iv[0]
+        if open_hi:
+            return "poorly determined (interval reaches the search limit)"
+        if v > 0 and width <= 0.5 * v:
+            return "well determined"
+        if v > 0 and width <= 1.5 * v:
+            return "moderately determined"
+        return "poorly determined"
+
+    return {"S": one(S, S_iv, S_open), "J": one(J, J_iv, J_open)}
