@@ -81,7 +81,7 @@ def regressors(u, tau, a_hp, k0):
 
 
 @jit
-def normal_equations(u, taus, a_hp, k0, j0, j1, stride, keep, Y):
+def normal_equations(u, taus, a_hp, k0, j0, j1, stride, keep, Y, D):
     """Normal equations of the linear part for every time constant and delay, in one pass.
 
     The columns are those of :func:`regressors`, computed on the fly and kept only at
@@ -133,6 +133,10 @@ def normal_equations(u, taus, a_hp, k0, j0, j1, stride, keep, Y):
     for t in range(nt):
         P = phi[t]
         At = P.T @ P
+        if D.shape[1] > 0:
+            # Drift states projected out (Frisch-Waugh): Y is already orthogonal to D.
+            DP = D.T @ P
+            At -= DP.T @ DP
         tr = 0.0
         for p in range(NCOL):
             tr += At[p, p]
@@ -235,6 +239,7 @@ def batch_cost(
     Y,
     yy,
     pre_lag,
+    D,
 ):
     """Best cost over start offsets, process time constants and delays for every (S, J).
 
@@ -257,7 +262,7 @@ def batch_cost(
             u, _ = valve_run(x, S_arr[i], J_arr[i], kano, k_start, d_start, offsets[io])
             if pre_lag > 0.0:
                 u = lag(u, pre_lag, k_start)
-            A, B = normal_equations(u, taus, a_hp, k_start, j0, j1, stride, keep, Y)
+            A, B = normal_equations(u, taus, a_hp, k_start, j0, j1, stride, keep, Y, D)
             for t in range(nt):
                 for k in range(nd):
                     sse = same_sign_fit(A[t], B[t, :, k], yy[k], 2)
@@ -307,6 +312,8 @@ class Problem:
         self.rows = self.all_rows
         self.inputs: dict[str, np.ndarray] = {}
         self.pre_lag = float(pre_lag)
+        self.n_drift = 0
+        self.D = np.zeros((self.rows.size, 0))
         self.set_delays(delays)
 
     def coarser(self, taus, stride) -> Problem:
@@ -323,17 +330,49 @@ class Problem:
             stride,
             self.delays,
             self.pre_lag,
-        )
+        ).with_drift(self.n_drift)
+
+    def with_drift(self, n_drift: int) -> Problem:
+        """Estimate ``n_drift`` drift states alongside (see :meth:`drift_basis`); returns self."""
+        self.n_drift = int(n_drift)
+        self.D = self.drift_basis()
+        self.set_delays(self.delays)
+        return self
+
+    def drift_basis(self) -> np.ndarray:
+        """Orthonormal basis of the drift on the regression rows kept.
+
+        The cosines ``cos(pi m (j - j0 + 1/2) / (j1 - j0))``, ``m = 1 .. n_drift``, of
+        a discrete cosine transform over the fitted span: every slow signal whose
+        frequency is below ``n_drift / (2 (j1 - j0))`` cycles per sample (a load
+        drift, a set-point or operating-point move) is a combination of them.  At
+        most an eighth of the rows, so that the valve keeps most of the degrees of
+        freedom.
+        """
+        m = min(self.n_drift, self.rows.size // 8)
+        if m <= 0:
+            return np.zeros((self.rows.size, 0))
+        t = (self.rows - self.j0 + 0.5) / max(1, self.j1 - self.j0)
+        C = np.cos(np.pi * t[:, None] * np.arange(1, m + 1)[None, :])
+        # Orthonormalised through the Cholesky factor of the Gram matrix: cosines of
+        # distinct frequencies below the row rate are nearly orthogonal already, so
+        # it is well conditioned, and much cheaper than a QR of the tall matrix.
+        L = np.linalg.cholesky(C.T @ C)
+        return np.ascontiguousarray(np.linalg.solve(L, C.T).T)
 
     def set_delays(self, delays):
         self.delays = np.asarray(delays, dtype=np.int64)
-        self.Y = np.ascontiguousarray(self.yf[self.rows[:, None] + self.delays[None, :]])
+        Y = self.yf[self.rows[:, None] + self.delays[None, :]]
+        if self.D.shape[1]:
+            Y = Y - self.D @ (self.D.T @ Y)
+        self.Y = np.ascontiguousarray(Y)
         self.yy = np.sum(self.Y**2, axis=0)
 
     def set_keep(self, keep):
         """Leave out the regression rows whose flag is False."""
         self.keep = np.asarray(keep, dtype=np.bool_)
         self.rows = self.all_rows[self.keep]
+        self.D = self.drift_basis()
         self.set_delays(self.delays)
 
     def cost(self, S, J, variant: ValveVariant, offsets):
@@ -381,6 +420,7 @@ class Problem:
             self.Y,
             self.yy,
             self.pre_lag,
+            self.D,
         )
         return c, self.delays[bd], off[bo], self.taus[bt]
 
@@ -401,5 +441,8 @@ class Problem:
         phi = regressors(uf, float(tau), self.a_hp, self.k_start)
         X = phi[self.rows]
         y = self.yf[self.rows + int(delay)]
+        if self.D.shape[1]:
+            X = X - self.D @ (self.D.T @ X)
+            y = y - self.D @ (self.D.T @ y)
         theta = same_sign_lstsq(X, y, 2)
         return y - X @ theta, theta, u, n_slips

@@ -100,6 +100,19 @@ class StictionFit:
             return None
         return 1.0 - self.cost / self.linear_cost
 
+    @property
+    def improvement_drift(self) -> float | None:
+        """The improvement with drift states estimated alongside both valves [-].
+
+        Hammerstein fit only (``details["drift_model"]``, see "The disturbance
+        model" in :mod:`stictiondiag.stiction.hammerstein`): the share of the linear
+        valve's residual the stiction model removes once slow load, set-point and
+        operating-point drifts are fitted too.  None without it.
+        """
+        dm = (self.details or {}).get("drift_model") or {}
+        value = dm.get("improvement")
+        return None if value is None else float(value)
+
     def to_dict(self) -> dict:
         """JSON-able summary (no time series; ``mv_model`` is left out)."""
         return _plain(
