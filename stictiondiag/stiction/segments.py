@@ -502,6 +502,99 @@ def _grid_search(op, mv, sync, variant, S_max, J_max, seeds=(), n_grid=31, n_zoo
     return S_all, J_all, C_all, float(S_all[i]), float(J_all[i]), float(C_all[i])
 
 
+@dataclass(frozen=True)
+class _SlipEvents:
+    """Per-slip estimates used for the event statistics [% of span].
+
+    Slips during which op travelled monotonically agree between the flowcharts;
+    they are used when there are enough, else every slip.
+    """
+
+    use: np.ndarray
+    band: np.ndarray
+    jump: np.ndarray
+    S: float | None
+    J: float | None
+
+
+def _slip_events(segs: Segments) -> _SlipEvents:
+    use = (
+        segs.monotone
+        if segs.monotone.sum() >= MIN_EVENTS_FOR_INTERVAL
+        else np.ones(segs.n_slips, dtype=bool)
+    )
+    band_ev = segs.band[use]
+    jump_ev = segs.jump[use]
+    S_seg = float(np.median(band_ev)) if band_ev.size else None
+    J_seg = float(np.median(jump_ev)) if jump_ev.size else None
+    return _SlipEvents(use, band_ev, jump_ev, S_seg, J_seg)
+
+
+def _least_squares(op, mv, sync, S_max, seeds) -> dict:
+    """The grid search of every valve variant worth trying: name -> (variant, result)."""
+    k0, k_start, d_start = sync
+    variants = valve_variants(op)
+    if any(v.play_width > 0 for v in variants):
+        # On a noisy op the published flowchart re-arms at every noise reversal and
+        # never slips, and behind the play operator it differs from Kano's variant
+        # only in rare partial reversals: not worth their evaluations.
+        variants = [v for v in variants if v.kano]
+    searches = {}
+    for variant in variants:
+        res = _grid_search(op, mv, (k0, k_start, d_start, -1.0), variant, S_max, S_max, seeds=seeds)
+        searches[variant.name] = (variant, res)
+    return searches
+
+
+def _hull(a, b):
+    """The interval spanning both ``a`` and ``b`` (``a`` alone when ``b`` is None)."""
+    if b is None:
+        return a
+    return (max(0.0, min(a[0], b[0])), max(a[1], b[1]))
+
+
+def _segments_details(segs: Segments, ev: _SlipEvents, S_ci, J_ci, seg_cost) -> dict:
+    """The event statistics of ``details["segments"]``."""
+    travel_rev = segs.travel[segs.reversal & ev.use]
+    return {
+        "S": ev.S,
+        "J": ev.J,
+        "S_interval": None if S_ci is None else list(S_ci),
+        "J_interval": None if J_ci is None else list(J_ci),
+        "S_iqr": None if ev.band.size < 2 else [float(v) for v in np.percentile(ev.band, [25, 75])],
+        "J_iqr": None if ev.jump.size < 2 else [float(v) for v in np.percentile(ev.jump, [25, 75])],
+        "S_travel_at_reversals": None if travel_rev.size == 0 else float(np.median(travel_rev)),
+        "n_slips": segs.n_slips,
+        "n_used": int(ev.use.sum()),
+        "n_reversals": int(segs.reversal.sum()),
+        "cost": seg_cost,
+        "noise_mv": segs.noise_mv,
+        "noise_op": segs.noise_op,
+        "quantum_mv": segs.quantum_mv,
+    }
+
+
+def _segment_cost(op, mv, variant, ev: _SlipEvents, sync) -> float | None:
+    """Cost [% of span]^2 of the model with the event estimates of S and J."""
+    if ev.S is None or ev.J is None:
+        return None
+    k0, k_start, d_start = sync
+    v_seg = variant.for_band(max(ev.S, 0.0))
+    return float(
+        valve_sse_batch(
+            v_seg.prepare(op),
+            mv,
+            v_seg.model_S(np.array([max(ev.S, 0.0)])),
+            np.array([max(ev.J, 0.0)]),
+            v_seg.kano,
+            k0,
+            k_start,
+            d_start,
+            -1.0,
+        )[0]
+    )
+
+
 def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     """S and J from the valve's recorded position (Sections 2.3 and 3, Fig. 2).
 
@@ -558,29 +651,9 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
         k_start, d_start = 0, 0.0
     k0 = k_start + 1
 
-    # Event statistics: slips during which op travelled monotonically agree between
-    # the flowcharts; use them when there are enough.
-    use = (
-        segs.monotone
-        if segs.monotone.sum() >= MIN_EVENTS_FOR_INTERVAL
-        else np.ones(segs.n_slips, dtype=bool)
-    )
-    band_ev = segs.band[use]
-    jump_ev = segs.jump[use]
-    S_seg = float(np.median(band_ev)) if band_ev.size else None
-    J_seg = float(np.median(jump_ev)) if jump_ev.size else None
-    seeds = [] if S_seg is None else [(S_seg, J_seg)]
-
-    variants = valve_variants(op)
-    if any(v.play_width > 0 for v in variants):
-        # On a noisy op the published flowchart re-arms at every noise reversal and
-        # never slips, and behind the play operator it differs from Kano's variant
-        # only in rare partial reversals: not worth their evaluations.
-        variants = [v for v in variants if v.kano]
-    searches = {}
-    for variant in variants:
-        res = _grid_search(op, mv, (k0, k_start, d_start, -1.0), variant, S_max, J_max, seeds=seeds)
-        searches[variant.name] = (variant, res)
+    ev = _slip_events(segs)
+    seeds = [] if ev.S is None else [(ev.S, ev.J)]
+    searches = _least_squares(op, mv, (k0, k_start, d_start), S_max, seeds)
     best = min(searches, key=lambda k: searches[k][1][5])
     variant, (S_all, J_all, C_all, S_ls, J_ls, cost) = searches[best]
     variant = variant.for_band(S_ls)
@@ -603,34 +676,11 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     S_iv, S_lo_edge, S_hi_edge = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, J_lo_edge, J_hi_edge = profile_interval(J_all, C_all, thr, 0.0, J_max)
 
-    S_ci = _median_ci(band_ev)
-    J_ci = _median_ci(jump_ev)
-    rev = segs.reversal & use
-    travel_rev = segs.travel[rev]
-
-    def hull(a, b):
-        if b is None:
-            return a
-        return (max(0.0, min(a[0], b[0])), max(a[1], b[1]))
-
-    S_interval = hull(S_iv, S_ci)
-    J_interval = hull(J_iv, J_ci)
-    seg_cost = None
-    if S_seg is not None and J_seg is not None:
-        v_seg = searches[best][0].for_band(max(S_seg, 0.0))
-        seg_cost = float(
-            valve_sse_batch(
-                v_seg.prepare(op),
-                mv,
-                v_seg.model_S(np.array([max(S_seg, 0.0)])),
-                np.array([max(J_seg, 0.0)]),
-                v_seg.kano,
-                k0,
-                k_start,
-                d_start,
-                -1.0,
-            )[0]
-        )
+    S_ci = _median_ci(ev.band)
+    J_ci = _median_ci(ev.jump)
+    S_interval = _hull(S_iv, S_ci)
+    J_interval = _hull(J_iv, J_ci)
+    seg_cost = _segment_cost(op, mv, searches[best][0], ev, (k0, k_start, d_start))
 
     period = cycle_samples(op)
     details = {
@@ -648,26 +698,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
             "S_bounded": not S_hi_edge,
             "J_bounded": not J_hi_edge,
         },
-        "segments": {
-            "S": S_seg,
-            "J": J_seg,
-            "S_interval": None if S_ci is None else list(S_ci),
-            "J_interval": None if J_ci is None else list(J_ci),
-            "S_iqr": None
-            if band_ev.size < 2
-            else [float(v) for v in np.percentile(band_ev, [25, 75])],
-            "J_iqr": None
-            if jump_ev.size < 2
-            else [float(v) for v in np.percentile(jump_ev, [25, 75])],
-            "S_travel_at_reversals": None if travel_rev.size == 0 else float(np.median(travel_rev)),
-            "n_slips": segs.n_slips,
-            "n_used": int(use.sum()),
-            "n_reversals": int(segs.reversal.sum()),
-            "cost": seg_cost,
-            "noise_mv": segs.noise_mv,
-            "noise_op": segs.noise_op,
-            "quantum_mv": segs.quantum_mv,
-        },
+        "segments": _segments_details(segs, ev, S_ci, J_ci, seg_cost),
         "determinacy": determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge),
         "interval_method": (
             "hull of the 95 % profile-cost interval of the least-squares fit (F test, "
