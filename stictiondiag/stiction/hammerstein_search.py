@@ -145,7 +145,8 @@ def coarse_search(setup: FitSetup) -> Start:
     n_eval = len(coarse) * SS.size * offsets_all.size
     # 1b. The five best cells of each variant with every time constant.
     prob1.taus = prob.taus
-    best1 = (np.inf, None, 0, 0.0, 0.0, 0.0, 0.0)
+    best1: tuple[float, str, int, float, float, float, float]
+    best1 = (np.inf, next(iter(variants)), 0, 0.0, 0.0, 0.0, 0.0)
     for name, (c1, _, o1, _) in coarse.items():
         top = np.argsort(c1)[:5]
         for k in top:
