@@ -266,43 +266,10 @@ def _intervals(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2).astype(np.int64)
 
 
-def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
-    """Find the stuck, slip and moving phases of a valve and measure every slip.
-
-    Parameters
-    ----------
-    op : ndarray
-        Valve demand (controller output) [% of span].
-    mv : ndarray
-        Valve position [% of span], same length as ``op``.  Noise and a quantised
-        signal are tolerated: mv counts as still within a band of
-        ``max(4 sigma_mv, 1.01 q)`` around its mean, with ``sigma_mv`` the robust noise
-        level and ``q`` the resolution step.
-    dt : float
-        Sampling time [s].
-
-    Returns
-    -------
-    Segments
-        Phases and per-slip measurements (module docstring: how a slip gives S and J).
-
-    Notes
-    -----
-    A run of still mv is a *stuck* interval only if op travels more than twice the
-    band width and more than six op noise levels meanwhile (otherwise the valve is
-    at rest with op, or the run is a slow part of a moving phase).  The slip is the
-    first sample after the run, extended while mv keeps moving faster than op.
-    """
-    op, mv, dt = _check_pair(op, mv, dt)
+def _stuck_runs(op, mv, h, op_tol):
+    """Runs of still mv (within ``h``) and which of them are stuck intervals (op
+    travels more than ``op_tol`` meanwhile); labels the stuck samples."""
     n = op.size
-    span = float(max(np.ptp(op), np.ptp(mv)))
-    sig_mv = noise_std(mv)
-    sig_op = noise_std(op)
-    q_mv = quantum(mv)
-    h = max(STILL_BAND_SIGMAS * sig_mv, 1.01 * q_mv, 1e-9 * span)
-    op_tol = max(4.0 * h, 6.0 * sig_op, 1e-9 * span)
-    pull_tol = max(6.0 * sig_op, 1e-9 * span)
-
     starts, ends = _flat_runs(mv, h)
     labels = np.zeros(n, dtype=np.int8)
     run_stuck = np.zeros(starts.size, dtype=bool)
@@ -318,7 +285,15 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
         if e - a >= 2 and np.ptp(op[a:e]) > op_tol:
             run_stuck[i] = True
             labels[a:e] = LABEL_STUCK
+    return starts, ends, labels, run_stuck, run_level
 
+
+def _measure_slips(op, mv, h, pull_tol, runs, labels) -> dict[str, list]:
+    """Every slip after a stuck run: where it starts and ends, its direction, the
+    direction before, and the op and mv levels that give S and J; labels the slip
+    samples."""
+    n = op.size
+    starts, ends, run_stuck, run_level = runs
     # Slips: the sample after each stuck run, extended while mv outruns op.
     ev: dict[str, list] = {
         k: []
@@ -385,6 +360,59 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
         ev["op_break"].append(float(op[e]))
         last_dir = d
         last_end = slip_end
+    return ev
+
+
+def _mark_moving(op, mv, h, op_tol, runs, labels) -> None:
+    """Label the moving phases: mv changes with op outside the stuck and slip phases."""
+    starts, ends, run_stuck = runs
+    dmv = np.abs(np.diff(mv, prepend=mv[0]))
+    moving_mask = (labels == LABEL_REST) & (dmv > 0)
+    for i in range(starts.size):
+        a, e = int(starts[i]), int(ends[i])
+        if not run_stuck[i] and np.ptp(mv[a:e]) <= h and np.ptp(op[a:e]) <= op_tol:
+            moving_mask[a:e] = False  # valve and demand both at rest
+    labels[moving_mask] = LABEL_MOVING
+
+
+def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
+    """Find the stuck, slip and moving phases of a valve and measure every slip.
+
+    Parameters
+    ----------
+    op : ndarray
+        Valve demand (controller output) [% of span].
+    mv : ndarray
+        Valve position [% of span], same length as ``op``.  Noise and a quantised
+        signal are tolerated: mv counts as still within a band of
+        ``max(4 sigma_mv, 1.01 q)`` around its mean, with ``sigma_mv`` the robust noise
+        level and ``q`` the resolution step.
+    dt : float
+        Sampling time [s].
+
+    Returns
+    -------
+    Segments
+        Phases and per-slip measurements (module docstring: how a slip gives S and J).
+
+    Notes
+    -----
+    A run of still mv is a *stuck* interval only if op travels more than twice the
+    band width and more than six op noise levels meanwhile (otherwise the valve is
+    at rest with op, or the run is a slow part of a moving phase).  The slip is the
+    first sample after the run, extended while mv keeps moving faster than op.
+    """
+    op, mv, dt = _check_pair(op, mv, dt)
+    span = float(max(np.ptp(op), np.ptp(mv)))
+    sig_mv = noise_std(mv)
+    sig_op = noise_std(op)
+    q_mv = quantum(mv)
+    h = max(STILL_BAND_SIGMAS * sig_mv, 1.01 * q_mv, 1e-9 * span)
+    op_tol = max(4.0 * h, 6.0 * sig_op, 1e-9 * span)
+    pull_tol = max(6.0 * sig_op, 1e-9 * span)
+
+    starts, ends, labels, run_stuck, run_level = _stuck_runs(op, mv, h, op_tol)
+    ev = _measure_slips(op, mv, h, pull_tol, (starts, ends, run_stuck, run_level), labels)
 
     d = np.asarray(ev["d"], dtype=np.int8)
     prev = np.asarray(ev["prev"], dtype=np.int8)
@@ -402,14 +430,7 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
     band = 2.0 * (d * (op_break - mv_stuck) - excess) - jump
     travel = d * (op_break - op_stop) - excess
 
-    # Moving phases: mv changes with op outside the stuck and slip phases.
-    dmv = np.abs(np.diff(mv, prepend=mv[0]))
-    moving_mask = (labels == LABEL_REST) & (dmv > 0)
-    for i in range(starts.size):
-        a, e = int(starts[i]), int(ends[i])
-        if not run_stuck[i] and np.ptp(mv[a:e]) <= h and np.ptp(op[a:e]) <= op_tol:
-            moving_mask[a:e] = False  # valve and demand both at rest
-    labels[moving_mask] = LABEL_MOVING
+    _mark_moving(op, mv, h, op_tol, (starts, ends, run_stuck), labels)
 
     return Segments(
         stuck=np.asarray(ev["stuck"], dtype=np.int64).reshape(-1, 2),
