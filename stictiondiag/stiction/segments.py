@@ -36,12 +36,13 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
+from stictiondiag.core.serialize import to_plain
 from stictiondiag.stiction.valvefit import (
     StictionFit,
-    _plain,
     block_sse,
     cost_threshold,
     cycle_samples,
+    determinacy,
     effective_samples,
     noise_std,
     profile_interval,
@@ -215,7 +216,7 @@ class Segments:
 
     def to_dict(self) -> dict:
         """JSON-able summary: intervals as [start, end) sample pairs, per-slip values."""
-        return _plain(
+        return to_plain(
             {
                 "n_slips": self.n_slips,
                 "stuck": self.stuck,
@@ -265,43 +266,10 @@ def _intervals(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2).astype(np.int64)
 
 
-def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
-    """Find the stuck, slip and moving phases of a valve and measure every slip.
-
-    Parameters
-    ----------
-    op : ndarray
-        Valve demand (controller output) [% of span].
-    mv : ndarray
-        Valve position [% of span], same length as ``op``.  Noise and a quantised
-        signal are tolerated: mv counts as still within a band of
-        ``max(4 sigma_mv, 1.01 q)`` around its mean, with ``sigma_mv`` the robust noise
-        level and ``q`` the resolution step.
-    dt : float
-        Sampling time [s].
-
-    Returns
-    -------
-    Segments
-        Phases and per-slip measurements (module docstring: how a slip gives S and J).
-
-    Notes
-    -----
-    A run of still mv is a *stuck* interval only if op travels more than twice the
-    band width and more than six op noise levels meanwhile (otherwise the valve is
-    at rest with op, or the run is a slow part of a moving phase).  The slip is the
-    first sample after the run, extended while mv keeps moving faster than op.
-    """
-    op, mv, dt = _check_pair(op, mv, dt)
+def _stuck_runs(op, mv, h, op_tol):
+    """Runs of still mv (within ``h``) and which of them are stuck intervals (op
+    travels more than ``op_tol`` meanwhile); labels the stuck samples."""
     n = op.size
-    span = float(max(np.ptp(op), np.ptp(mv)))
-    sig_mv = noise_std(mv)
-    sig_op = noise_std(op)
-    q_mv = quantum(mv)
-    h = max(STILL_BAND_SIGMAS * sig_mv, 1.01 * q_mv, 1e-9 * span)
-    op_tol = max(4.0 * h, 6.0 * sig_op, 1e-9 * span)
-    pull_tol = max(6.0 * sig_op, 1e-9 * span)
-
     starts, ends = _flat_runs(mv, h)
     labels = np.zeros(n, dtype=np.int8)
     run_stuck = np.zeros(starts.size, dtype=bool)
@@ -317,7 +285,15 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
         if e - a >= 2 and np.ptp(op[a:e]) > op_tol:
             run_stuck[i] = True
             labels[a:e] = LABEL_STUCK
+    return starts, ends, labels, run_stuck, run_level
 
+
+def _measure_slips(op, mv, h, pull_tol, runs, labels) -> dict[str, list]:
+    """Every slip after a stuck run: where it starts and ends, its direction, the
+    direction before, and the op and mv levels that give S and J; labels the slip
+    samples."""
+    n = op.size
+    starts, ends, run_stuck, run_level = runs
     # Slips: the sample after each stuck run, extended while mv outruns op.
     ev: dict[str, list] = {
         k: []
@@ -384,6 +360,59 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
         ev["op_break"].append(float(op[e]))
         last_dir = d
         last_end = slip_end
+    return ev
+
+
+def _mark_moving(op, mv, h, op_tol, runs, labels) -> None:
+    """Label the moving phases: mv changes with op outside the stuck and slip phases."""
+    starts, ends, run_stuck = runs
+    dmv = np.abs(np.diff(mv, prepend=mv[0]))
+    moving_mask = (labels == LABEL_REST) & (dmv > 0)
+    for i in range(starts.size):
+        a, e = int(starts[i]), int(ends[i])
+        if not run_stuck[i] and np.ptp(mv[a:e]) <= h and np.ptp(op[a:e]) <= op_tol:
+            moving_mask[a:e] = False  # valve and demand both at rest
+    labels[moving_mask] = LABEL_MOVING
+
+
+def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
+    """Find the stuck, slip and moving phases of a valve and measure every slip.
+
+    Parameters
+    ----------
+    op : ndarray
+        Valve demand (controller output) [% of span].
+    mv : ndarray
+        Valve position [% of span], same length as ``op``.  Noise and a quantised
+        signal are tolerated: mv counts as still within a band of
+        ``max(4 sigma_mv, 1.01 q)`` around its mean, with ``sigma_mv`` the robust noise
+        level and ``q`` the resolution step.
+    dt : float
+        Sampling time [s].
+
+    Returns
+    -------
+    Segments
+        Phases and per-slip measurements (module docstring: how a slip gives S and J).
+
+    Notes
+    -----
+    A run of still mv is a *stuck* interval only if op travels more than twice the
+    band width and more than six op noise levels meanwhile (otherwise the valve is
+    at rest with op, or the run is a slow part of a moving phase).  The slip is the
+    first sample after the run, extended while mv keeps moving faster than op.
+    """
+    op, mv, dt = _check_pair(op, mv, dt)
+    span = float(max(np.ptp(op), np.ptp(mv)))
+    sig_mv = noise_std(mv)
+    sig_op = noise_std(op)
+    q_mv = quantum(mv)
+    h = max(STILL_BAND_SIGMAS * sig_mv, 1.01 * q_mv, 1e-9 * span)
+    op_tol = max(4.0 * h, 6.0 * sig_op, 1e-9 * span)
+    pull_tol = max(6.0 * sig_op, 1e-9 * span)
+
+    starts, ends, labels, run_stuck, run_level = _stuck_runs(op, mv, h, op_tol)
+    ev = _measure_slips(op, mv, h, pull_tol, (starts, ends, run_stuck, run_level), labels)
 
     d = np.asarray(ev["d"], dtype=np.int8)
     prev = np.asarray(ev["prev"], dtype=np.int8)
@@ -401,14 +430,7 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
     band = 2.0 * (d * (op_break - mv_stuck) - excess) - jump
     travel = d * (op_break - op_stop) - excess
 
-    # Moving phases: mv changes with op outside the stuck and slip phases.
-    dmv = np.abs(np.diff(mv, prepend=mv[0]))
-    moving_mask = (labels == LABEL_REST) & (dmv > 0)
-    for i in range(starts.size):
-        a, e = int(starts[i]), int(ends[i])
-        if not run_stuck[i] and np.ptp(mv[a:e]) <= h and np.ptp(op[a:e]) <= op_tol:
-            moving_mask[a:e] = False  # valve and demand both at rest
-    labels[moving_mask] = LABEL_MOVING
+    _mark_moving(op, mv, h, op_tol, (starts, ends, run_stuck), labels)
 
     return Segments(
         stuck=np.asarray(ev["stuck"], dtype=np.int64).reshape(-1, 2),
@@ -501,6 +523,99 @@ def _grid_search(op, mv, sync, variant, S_max, J_max, seeds=(), n_grid=31, n_zoo
     return S_all, J_all, C_all, float(S_all[i]), float(J_all[i]), float(C_all[i])
 
 
+@dataclass(frozen=True)
+class _SlipEvents:
+    """Per-slip estimates used for the event statistics [% of span].
+
+    Slips during which op travelled monotonically agree between the flowcharts;
+    they are used when there are enough, else every slip.
+    """
+
+    use: np.ndarray
+    band: np.ndarray
+    jump: np.ndarray
+    S: float | None
+    J: float | None
+
+
+def _slip_events(segs: Segments) -> _SlipEvents:
+    use = (
+        segs.monotone
+        if segs.monotone.sum() >= MIN_EVENTS_FOR_INTERVAL
+        else np.ones(segs.n_slips, dtype=bool)
+    )
+    band_ev = segs.band[use]
+    jump_ev = segs.jump[use]
+    S_seg = float(np.median(band_ev)) if band_ev.size else None
+    J_seg = float(np.median(jump_ev)) if jump_ev.size else None
+    return _SlipEvents(use, band_ev, jump_ev, S_seg, J_seg)
+
+
+def _least_squares(op, mv, sync, S_max, seeds) -> dict:
+    """The grid search of every valve variant worth trying: name -> (variant, result)."""
+    k0, k_start, d_start = sync
+    variants = valve_variants(op)
+    if any(v.play_width > 0 for v in variants):
+        # On a noisy op the published flowchart re-arms at every noise reversal and
+        # never slips, and behind the play operator it differs from Kano's variant
+        # only in rare partial reversals: not worth their evaluations.
+        variants = [v for v in variants if v.kano]
+    searches = {}
+    for variant in variants:
+        res = _grid_search(op, mv, (k0, k_start, d_start, -1.0), variant, S_max, S_max, seeds=seeds)
+        searches[variant.name] = (variant, res)
+    return searches
+
+
+def _hull(a, b):
+    """The interval spanning both ``a`` and ``b`` (``a`` alone when ``b`` is None)."""
+    if b is None:
+        return a
+    return (max(0.0, min(a[0], b[0])), max(a[1], b[1]))
+
+
+def _segments_details(segs: Segments, ev: _SlipEvents, S_ci, J_ci, seg_cost) -> dict:
+    """The event statistics of ``details["segments"]``."""
+    travel_rev = segs.travel[segs.reversal & ev.use]
+    return {
+        "S": ev.S,
+        "J": ev.J,
+        "S_interval": None if S_ci is None else list(S_ci),
+        "J_interval": None if J_ci is None else list(J_ci),
+        "S_iqr": None if ev.band.size < 2 else [float(v) for v in np.percentile(ev.band, [25, 75])],
+        "J_iqr": None if ev.jump.size < 2 else [float(v) for v in np.percentile(ev.jump, [25, 75])],
+        "S_travel_at_reversals": None if travel_rev.size == 0 else float(np.median(travel_rev)),
+        "n_slips": segs.n_slips,
+        "n_used": int(ev.use.sum()),
+        "n_reversals": int(segs.reversal.sum()),
+        "cost": seg_cost,
+        "noise_mv": segs.noise_mv,
+        "noise_op": segs.noise_op,
+        "quantum_mv": segs.quantum_mv,
+    }
+
+
+def _segment_cost(op, mv, variant, ev: _SlipEvents, sync) -> float | None:
+    """Cost [% of span]^2 of the model with the event estimates of S and J."""
+    if ev.S is None or ev.J is None:
+        return None
+    k0, k_start, d_start = sync
+    v_seg = variant.for_band(max(ev.S, 0.0))
+    return float(
+        valve_sse_batch(
+            v_seg.prepare(op),
+            mv,
+            v_seg.model_S(np.array([max(ev.S, 0.0)])),
+            np.array([max(ev.J, 0.0)]),
+            v_seg.kano,
+            k0,
+            k_start,
+            d_start,
+            -1.0,
+        )[0]
+    )
+
+
 def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     """S and J from the valve's recorded position (Sections 2.3 and 3, Fig. 2).
 
@@ -557,29 +672,9 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
         k_start, d_start = 0, 0.0
     k0 = k_start + 1
 
-    # Event statistics: slips during which op travelled monotonically agree between
-    # the flowcharts; use them when there are enough.
-    use = (
-        segs.monotone
-        if segs.monotone.sum() >= MIN_EVENTS_FOR_INTERVAL
-        else np.ones(segs.n_slips, dtype=bool)
-    )
-    band_ev = segs.band[use]
-    jump_ev = segs.jump[use]
-    S_seg = float(np.median(band_ev)) if band_ev.size else None
-    J_seg = float(np.median(jump_ev)) if jump_ev.size else None
-    seeds = [] if S_seg is None else [(S_seg, J_seg)]
-
-    variants = valve_variants(op)
-    if any(v.play_width > 0 for v in variants):
-        # On a noisy op the published flowchart re-arms at every noise reversal and
-        # never slips, and behind the play operator it differs from Kano's variant
-        # only in rare partial reversals: not worth their evaluations.
-        variants = [v for v in variants if v.kano]
-    searches = {}
-    for variant in variants:
-        res = _grid_search(op, mv, (k0, k_start, d_start, -1.0), variant, S_max, J_max, seeds=seeds)
-        searches[variant.name] = (variant, res)
+    ev = _slip_events(segs)
+    seeds = [] if ev.S is None else [(ev.S, ev.J)]
+    searches = _least_squares(op, mv, (k0, k_start, d_start), S_max, seeds)
     best = min(searches, key=lambda k: searches[k][1][5])
     variant, (S_all, J_all, C_all, S_ls, J_ls, cost) = searches[best]
     variant = variant.for_band(S_ls)
@@ -602,34 +697,11 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     S_iv, S_lo_edge, S_hi_edge = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, J_lo_edge, J_hi_edge = profile_interval(J_all, C_all, thr, 0.0, J_max)
 
-    S_ci = _median_ci(band_ev)
-    J_ci = _median_ci(jump_ev)
-    rev = segs.reversal & use
-    travel_rev = segs.travel[rev]
-
-    def hull(a, b):
-        if b is None:
-            return a
-        return (max(0.0, min(a[0], b[0])), max(a[1], b[1]))
-
-    S_interval = hull(S_iv, S_ci)
-    J_interval = hull(J_iv, J_ci)
-    seg_cost = None
-    if S_seg is not None and J_seg is not None:
-        v_seg = searches[best][0].for_band(max(S_seg, 0.0))
-        seg_cost = float(
-            valve_sse_batch(
-                v_seg.prepare(op),
-                mv,
-                v_seg.model_S(np.array([max(S_seg, 0.0)])),
-                np.array([max(J_seg, 0.0)]),
-                v_seg.kano,
-                k0,
-                k_start,
-                d_start,
-                -1.0,
-            )[0]
-        )
+    S_ci = _median_ci(ev.band)
+    J_ci = _median_ci(ev.jump)
+    S_interval = _hull(S_iv, S_ci)
+    J_interval = _hull(J_iv, J_ci)
+    seg_cost = _segment_cost(op, mv, searches[best][0], ev, (k0, k_start, d_start))
 
     period = cycle_samples(op)
     details = {
@@ -647,27 +719,8 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
             "S_bounded": not S_hi_edge,
             "J_bounded": not J_hi_edge,
         },
-        "segments": {
-            "S": S_seg,
-            "J": J_seg,
-            "S_interval": None if S_ci is None else list(S_ci),
-            "J_interval": None if J_ci is None else list(J_ci),
-            "S_iqr": None
-            if band_ev.size < 2
-            else [float(v) for v in np.percentile(band_ev, [25, 75])],
-            "J_iqr": None
-            if jump_ev.size < 2
-            else [float(v) for v in np.percentile(jump_ev, [25, 75])],
-            "S_travel_at_reversals": None if travel_rev.size == 0 else float(np.median(travel_rev)),
-            "n_slips": segs.n_slips,
-            "n_used": int(use.sum()),
-            "n_reversals": int(segs.reversal.sum()),
-            "cost": seg_cost,
-            "noise_mv": segs.noise_mv,
-            "noise_op": segs.noise_op,
-            "quantum_mv": segs.quantum_mv,
-        },
-        "determinacy": _determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge),
+        "segments": _segments_details(segs, ev, S_ci, J_ci, seg_cost),
+        "determinacy": determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge),
         "interval_method": (
             "hull of the 95 % profile-cost interval of the least-squares fit (F test, "
             "effective samples) and the 95 % bootstrap interval of the median over slips"
@@ -697,19 +750,3 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
         linear_cost=linear_cost,
         details=details,
     )
-
-
-def _determinacy(S, S_iv, S_open, J, J_iv, J_open) -> dict:
-    """How well S and J are determined: interval width relative to the estimate."""
-
-    def one(v, iv, open_hi):
-        width = iv[1] - iv[0]
-        if open_hi:
-            return "poorly determined (interval reaches the search limit)"
-        if v > 0 and width <= 0.5 * v:
-            return "well determined"
-        if v > 0 and width <= 1.5 * v:
-            return "moderately determined"
-        return "poorly determined"
-
-    return {"S": one(S, S_iv, S_open), "J": one(J, J_iv, J_open)}

@@ -48,8 +48,6 @@ INTERVAL_LEVEL = 0.95
 # --------------------------------------------------------------------------------------
 
 
-
-
 @dataclass(frozen=True)
 class StictionFit:
     """Estimated stiction parameters of the data-driven model (Section 5.1).
@@ -101,6 +99,19 @@ class StictionFit:
         if not (self.linear_cost > 0 and math.isfinite(self.linear_cost)):
             return None
         return 1.0 - self.cost / self.linear_cost
+
+    @property
+    def improvement_drift(self) -> float | None:
+        """The improvement with drift states estimated alongside both valves [-].
+
+        Hammerstein fit only (``details["drift_model"]``, see "The disturbance
+        model" in :mod:`stictiondiag.stiction.hammerstein`): the share of the linear
+        valve's residual the stiction model removes once slow load, set-point and
+        operating-point drifts are fitted too.  None without it.
+        """
+        dm = (self.details or {}).get("drift_model") or {}
+        value = dm.get("improvement")
+        return None if value is None else float(value)
 
     def to_dict(self) -> dict:
         """JSON-able summary (no time series; ``mv_model`` is left out)."""
@@ -564,3 +575,19 @@ def block_sse(residual: np.ndarray, block: int, start: int = 0) -> np.ndarray:
     if nb == 0:
         return np.array([float(np.sum(r * r))])
     return (r[: nb * block] ** 2).reshape(nb, block).sum(axis=1)
+
+
+def determinacy(S, S_iv, S_open, J, J_iv, J_open) -> dict:
+    """How well S and J are determined: interval width relative to the estimate."""
+
+    def one(v, iv, open_hi):
+        width = iv[1] - iv[0]
+        if open_hi:
+            return "poorly determined (interval reaches the search limit)"
+        if v > 0 and width <= 0.5 * v:
+            return "well determined"
+        if v > 0 and width <= 1.5 * v:
+            return "moderately determined"
+        return "poorly determined"
+
+    return {"S": one(S, S_iv, S_open), "J": one(J, J_iv, J_open)}

@@ -1,0 +1,448 @@
+"""Compiled least-squares kernels of the Hammerstein fit, and the problem they solve.
+
+For a fixed valve output ``u`` (the valve model of Fig. 10 of Choudhury, Thornhill &
+Shah (2005) run on op) the linear part of :mod:`stictiondiag.stiction.hammerstein` is
+linear in its parameters: the columns of :func:`regressors` (a first-order process
+with dead time and a direct part, Eq. 3 / Table 3, seen through a high-pass), two of
+them gains of one sign.  :func:`batch_cost` evaluates many (S, J) pairs in one
+compiled call; :class:`Problem` holds what those costs need for one fit.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stictiondiag.core.jit import jit
+from stictiondiag.stiction.valvefit import ValveVariant, valve_run
+
+
+@jit
+def lag(x, T, k0):
+    """First-order lag, unit gain, time constant ``T`` [samples] (T <= 0: a copy),
+    started in steady state at sample ``k0``; zero before ``k0``."""
+    n = x.shape[0]
+    y = np.zeros(n)
+    if T <= 0.0:
+        for k in range(k0, n):
+            y[k] = x[k]
+        return y
+    a = math.exp(-1.0 / T)
+    y[k0] = x[k0]
+    for k in range(k0 + 1, n):
+        y[k] = a * y[k - 1] + (1.0 - a) * x[k]
+    return y
+
+
+@jit
+def highpass(x, a, k0):
+    """``(1 - q^-1) / (1 - a q^-1)`` started at rest at sample ``k0``; zero before."""
+    n = x.shape[0]
+    y = np.zeros(n)
+    for k in range(k0 + 1, n):
+        y[k] = a * y[k - 1] + x[k] - x[k - 1]
+    return y
+
+
+#: Columns of the linear part (see :func:`regressors`).
+NCOL = 5
+
+
+@jit
+def regressors(u, tau, a_hp, k0):
+    """Columns of the linear part for one process time constant ``tau`` [samples].
+
+    ``[F u, F lag(u, tau), 1, a^(k - k0), b^(k - k0)]`` with ``F`` the high-pass,
+    ``a`` the high-pass pole and ``b = exp(-1/tau)`` the process pole.  The first two
+    are the process (a direct part and a first-order lag, gains of one sign); the
+    last three are free: a constant, the high-pass response to a step at the start,
+    and the process's own response to its unknown state at the start (together they
+    also carry an integrating process's unknown inflow imbalance).  Everything starts
+    at sample ``k0``, so no history from before the start (where the valve state is
+    unknown) enters.
+    """
+    n = u.shape[0]
+    phi = np.zeros((n, NCOL))
+    g0 = highpass(u, a_hp, k0)
+    g1 = highpass(lag(u, tau, k0), a_hp, k0)
+    b = math.exp(-1.0 / tau) if tau > 0.0 else 0.0
+    e = 1.0
+    f = 1.0
+    for k in range(k0, n):
+        phi[k, 0] = g0[k]
+        phi[k, 1] = g1[k]
+        phi[k, 2] = 1.0
+        phi[k, 3] = e
+        phi[k, 4] = f
+        e *= a_hp
+        f *= b
+    return phi
+
+
+@jit
+def normal_equations(u, taus, a_hp, k0, j0, j1, stride, keep, Y, D):
+    """Normal equations of the linear part for every time constant and delay, in one pass.
+
+    The columns are those of :func:`regressors`, computed on the fly and kept only at
+    the regression rows ``j = j0, j0 + stride, ... < j1`` whose ``keep`` flag is set;
+    ``Y[r, i]`` is the target ``yf[j_r + delays[i]]`` of the r-th kept row.  Returns
+    ``A[t]`` (5 x 5) and ``B[t]`` (5 x delays).
+    """
+    nt = taus.shape[0]
+    n = u.shape[0]
+    nr = Y.shape[0]
+    phi = np.empty((nt, nr, NCOL))
+    bl = np.empty(nt)
+    for t in range(nt):
+        bl[t] = math.exp(-1.0 / taus[t]) if taus[t] > 0.0 else 0.0
+    lag = np.full(nt, u[k0])
+    g1 = np.zeros(nt)
+    free = np.ones(nt)
+    g0 = 0.0
+    e = 1.0
+    r = 0
+    row = 0
+    next_row = j0
+    for k in range(k0, n):
+        if k > k0:
+            uk = u[k]
+            g0 = a_hp * g0 + uk - u[k - 1]
+            for t in range(nt):
+                prev = lag[t]
+                lag[t] = bl[t] * prev + (1.0 - bl[t]) * uk
+                g1[t] = a_hp * g1[t] + lag[t] - prev
+                free[t] *= bl[t]
+            e *= a_hp
+        if k == next_row:
+            if r >= nr or k >= j1:
+                break
+            next_row += stride
+            row += 1
+            if not keep[row - 1]:
+                continue
+            for t in range(nt):
+                phi[t, r, 0] = g0
+                phi[t, r, 1] = g1[t]
+                phi[t, r, 2] = 1.0
+                phi[t, r, 3] = e
+                phi[t, r, 4] = free[t]
+            r += 1
+    A = np.empty((nt, NCOL, NCOL))
+    B = np.empty((nt, NCOL, Y.shape[1]))
+    for t in range(nt):
+        P = phi[t]
+        At = P.T @ P
+        if D.shape[1] > 0:
+            # Drift states projected out (Frisch-Waugh): Y is already orthogonal to D.
+            DP = D.T @ P
+            At -= DP.T @ DP
+        tr = 0.0
+        for p in range(NCOL):
+            tr += At[p, p]
+        ridge = 1e-10 * tr / NCOL + 1e-300
+        for p in range(NCOL):
+            At[p, p] += ridge
+        A[t] = At
+        B[t] = P.T @ Y
+    return A, B
+
+
+@jit
+def _solve_subset(A, b, idx, k, theta):
+    """Solve ``A[idx, idx] theta = b[idx]`` (symmetric positive definite, k <= 8) by
+    Cholesky; returns ``theta . b[idx]`` (the explained sum of squares) or -1.0 when
+    the subsystem is singular."""
+    L = np.zeros((8, 8))
+    for i in range(k):
+        for j in range(i + 1):
+            s = A[idx[i], idx[j]]
+            for p in range(j):
+                s -= L[i, p] * L[j, p]
+            if i == j:
+                if s <= 0.0:
+                    return -1.0
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    z = np.empty(8)
+    for i in range(k):
+        s = b[idx[i]]
+        for p in range(i):
+            s -= L[i, p] * z[p]
+        z[i] = s / L[i, i]
+    for i in range(k - 1, -1, -1):
+        s = z[i]
+        for p in range(i + 1, k):
+            s -= L[p, i] * theta[p]
+        theta[i] = s / L[i, i]
+    e = 0.0
+    for i in range(k):
+        e += theta[i] * b[idx[i]]
+    return e
+
+
+@jit
+def same_sign_fit(A, b, yy, nb):
+    """Least squares with the first ``nb`` (basis) gains of one common sign.
+
+    The remaining columns are free.  A combination of first-order lags with gains of
+    one sign has a monotone step response: a process, and not the inverse of the
+    controller, which an unconstrained fit to closed-loop data finds instead (through
+    the PI law of Eq. 3, pv is a high-pass of op).  Solved exactly by enumerating the
+    active sets (at most 2^4 small systems).  Returns the sum of squared residuals.
+    """
+    m = A.shape[0]
+    idx = np.empty(8, dtype=np.int64)
+    theta = np.empty(8)
+    best = yy
+    for mask in range(0, 1 << nb):
+        k = 0
+        for i in range(nb):
+            if mask & (1 << i):
+                idx[k] = i
+                k += 1
+        kb = k
+        for i in range(nb, m):
+            idx[k] = i
+            k += 1
+        e = _solve_subset(A, b, idx, k, theta)
+        if e < 0.0:
+            continue
+        pos = True
+        neg = True
+        for i in range(kb):
+            if theta[i] < 0.0:
+                pos = False
+            if theta[i] > 0.0:
+                neg = False
+        if (pos or neg) and yy - e < best:
+            best = yy - e
+    return max(best, 0.0)
+
+
+@jit
+def batch_cost(
+    x,
+    S_arr,
+    J_arr,
+    offsets,
+    taus,
+    kano,
+    k_start,
+    d_start,
+    a_hp,
+    j0,
+    j1,
+    stride,
+    keep,
+    Y,
+    yy,
+    pre_lag,
+    D,
+):
+    """Best cost over start offsets, process time constants and delays for every (S, J).
+
+    ``Y[r, i]`` is the high-passed pv at regression row ``r`` shifted by delay ``i``
+    and ``yy[i]`` its sum of squares; ``pre_lag`` [samples] a lag applied to the valve
+    output first (the same lag the target went through; 0: none).  Returns the cost
+    and, for each pair, the indices of the best delay, start offset and time
+    constant.
+    """
+    m = S_arr.shape[0]
+    cost = np.empty(m)
+    best_d = np.zeros(m, dtype=np.int64)
+    best_o = np.zeros(m, dtype=np.int64)
+    best_t = np.zeros(m, dtype=np.int64)
+    nt = taus.shape[0]
+    nd = Y.shape[1]
+    for i in range(m):
+        cost[i] = np.inf
+        for io in range(offsets.shape[0]):
+            u, _ = valve_run(x, S_arr[i], J_arr[i], kano, k_start, d_start, offsets[io])
+            if pre_lag > 0.0:
+                u = lag(u, pre_lag, k_start)
+            A, B = normal_equations(u, taus, a_hp, k_start, j0, j1, stride, keep, Y, D)
+            for t in range(nt):
+                for k in range(nd):
+                    sse = same_sign_fit(A[t], B[t, :, k], yy[k], 2)
+                    if sse < cost[i]:
+                        cost[i] = sse
+                        best_d[i] = k
+                        best_o[i] = io
+                        best_t[i] = t
+            if S_arr[i] == 0.0:
+                break  # a linear valve has no stuck state to start from
+    return cost, best_d, best_o, best_t
+
+
+def same_sign_lstsq(X: np.ndarray, y: np.ndarray, nb: int) -> np.ndarray:
+    """Parameters of :func:`same_sign_fit` (first ``nb`` gains of one sign)."""
+    m = X.shape[1]
+    best, best_theta = np.inf, np.zeros(m)
+    for mask in range(0, 1 << nb):
+        cols = [i for i in range(nb) if mask & (1 << i)] + list(range(nb, m))
+        th, *_ = np.linalg.lstsq(X[:, cols], y, rcond=None)
+        g = th[: len(cols) - (m - nb)]
+        if g.size and not (np.all(g >= 0) or np.all(g <= 0)):
+            continue
+        sse = float(np.sum((y - X[:, cols] @ th) ** 2))
+        if sse < best:
+            best = sse
+            best_theta = np.zeros(m)
+            best_theta[cols] = th
+    return best_theta
+
+
+class Problem:
+    """Everything the cost of one (S, J) needs, fixed for one fit.
+
+    Regression rows are ``j0, j0 + stride, ... < j1``; ``j1`` leaves room for the
+    longest dead time, so every delay uses the same rows.
+    """
+
+    def __init__(self, x, yf, taus, a_hp, k_start, d_start, j0, j1, stride, delays, pre_lag=0.0):
+        self.x, self.yf = x, yf
+        self.taus = np.asarray(taus, dtype=float)
+        self.a_hp = float(a_hp)
+        self.k_start, self.d_start = int(k_start), float(d_start)
+        self.j0, self.j1, self.stride = int(j0), int(j1), int(stride)
+        self.all_rows = np.arange(self.j0, self.j1, self.stride, dtype=np.int64)
+        self.keep = np.ones(self.all_rows.size, dtype=np.bool_)
+        self.rows = self.all_rows
+        self.inputs: dict[str, np.ndarray] = {}
+        self.pre_lag = float(pre_lag)
+        self.n_drift = 0
+        self.D = np.zeros((self.rows.size, 0))
+        self.set_delays(delays)
+
+    def coarser(self, taus, stride) -> Problem:
+        """The same problem with other time constants and row stride, every row kept."""
+        return Problem(
+            self.x,
+            self.yf,
+            taus,
+            self.a_hp,
+            self.k_start,
+            self.d_start,
+            self.j0,
+            self.j1,
+            stride,
+            self.delays,
+            self.pre_lag,
+        ).with_drift(self.n_drift)
+
+    def with_drift(self, n_drift: int) -> Problem:
+        """Estimate ``n_drift`` drift states alongside (see :meth:`drift_basis`); returns self."""
+        self.n_drift = int(n_drift)
+        self.D = self.drift_basis()
+        self.set_delays(self.delays)
+        return self
+
+    def drift_basis(self) -> np.ndarray:
+        """Orthonormal basis of the drift on the regression rows kept.
+
+        The cosines ``cos(pi m (j - j0 + 1/2) / (j1 - j0))``, ``m = 1 .. n_drift``, of
+        a discrete cosine transform over the fitted span: every slow signal whose
+        frequency is below ``n_drift / (2 (j1 - j0))`` cycles per sample (a load
+        drift, a set-point or operating-point move) is a combination of them.  At
+        most an eighth of the rows, so that the valve keeps most of the degrees of
+        freedom.
+        """
+        m = min(self.n_drift, self.rows.size // 8)
+        if m <= 0:
+            return np.zeros((self.rows.size, 0))
+        t = (self.rows - self.j0 + 0.5) / max(1, self.j1 - self.j0)
+        C = np.cos(np.pi * t[:, None] * np.arange(1, m + 1)[None, :])
+        # Orthonormalised through the Cholesky factor of the Gram matrix: cosines of
+        # distinct frequencies below the row rate are nearly orthogonal already, so
+        # it is well conditioned, and much cheaper than a QR of the tall matrix.
+        L = np.linalg.cholesky(C.T @ C)
+        return np.ascontiguousarray(np.linalg.solve(L, C.T).T)
+
+    def set_delays(self, delays):
+        self.delays = np.asarray(delays, dtype=np.int64)
+        Y = self.yf[self.rows[:, None] + self.delays[None, :]]
+        if self.D.shape[1]:
+            Y = Y - self.D @ (self.D.T @ Y)
+        self.Y = np.ascontiguousarray(Y)
+        self.yy = np.sum(self.Y**2, axis=0)
+
+    def set_keep(self, keep):
+        """Leave out the regression rows whose flag is False."""
+        self.keep = np.asarray(keep, dtype=np.bool_)
+        self.rows = self.all_rows[self.keep]
+        self.D = self.drift_basis()
+        self.set_delays(self.delays)
+
+    def cost(self, S, J, variant: ValveVariant, offsets):
+        """Cost, best delay, start offset and time constant for every (S, J) pair.
+
+        Pairs with a band narrower than the play operator are run without it
+        (:meth:`stictiondiag.stiction.valvefit.ValveVariant.for_band`).
+        """
+        S = np.atleast_1d(np.asarray(S, dtype=float))
+        J = np.atleast_1d(np.asarray(J, dtype=float))
+        off = np.atleast_1d(np.asarray(offsets, dtype=float))
+        parts = variant.band_parts(S)
+        if len(parts) == 1:
+            return self._cost(S, J, parts[0][1], off)
+        out = [np.empty(S.size), np.empty(S.size, np.int64), np.empty(S.size), np.empty(S.size)]
+        for mask, v in parts:
+            part = self._cost(S[mask], J[mask], v, off)
+            for o, p in zip(out, part, strict=True):
+                o[mask] = p
+        return out[0], out[1], out[2], out[3]
+
+    def _input(self, variant: ValveVariant) -> np.ndarray:
+        """The op that ``variant`` runs on (prepared once per variant)."""
+        x = self.inputs.get(variant.name)
+        if x is None:
+            x = self.inputs[variant.name] = variant.prepare(self.x)
+        return x
+
+    def _cost(self, S, J, variant: ValveVariant, off):
+        x = self._input(variant)
+        c, bd, bo, bt = batch_cost(
+            x,
+            variant.model_S(S),
+            J,
+            off,
+            self.taus,
+            variant.kano,
+            self.k_start,
+            self.d_start,
+            self.a_hp,
+            self.j0,
+            self.j1,
+            self.stride,
+            self.keep,
+            self.Y,
+            self.yy,
+            self.pre_lag,
+            self.D,
+        )
+        return c, self.delays[bd], off[bo], self.taus[bt]
+
+    def residual(self, S, J, variant: ValveVariant, delay, offset, tau):
+        """Residual on the regression rows, fitted parameters and valve output."""
+        variant = variant.for_band(float(S))
+        x = self._input(variant)
+        u, n_slips = valve_run(
+            x,
+            float(variant.model_S(S)),
+            float(J),
+            variant.kano,
+            self.k_start,
+            self.d_start,
+            float(offset),
+        )
+        uf = lag(u, self.pre_lag, self.k_start) if self.pre_lag > 0 else u
+        phi = regressors(uf, float(tau), self.a_hp, self.k_start)
+        X = phi[self.rows]
+        y = self.yf[self.rows + int(delay)]
+        if self.D.shape[1]:
+            X = X - self.D @ (self.D.T @ X)
+            y = y - self.D @ (self.D.T @ y)
+        theta = same_sign_lstsq(X, y, 2)
+        return y - X @ theta, theta, u, n_slips
