@@ -106,6 +106,7 @@ from stictiondiag.gap.selection import (
     combined_predictions,
     effective_samples_of,
     evidence,
+    evidence_floors,
     heldout_errors,
     margin,
     rank_key,
@@ -344,9 +345,10 @@ def diagnose_gap(
     base_total = float(sum(v for v in errors["none"].values()).sum())
     scores = {"none": Score(base_total, True, 0.0, np.zeros(n_blocks))}
     evidences = {"none": 0.0}
+    floors = evidence_floors(ctx, held.blocks, n_blocks)
     for name, ef in fits.items():
         scores[name] = score_candidate(name, ef, errors, ctx, base, share)
-        evidences[name] = evidence(ef, name, errors, n_eff, scores[name].gain_by_block)
+        evidences[name] = evidence(ef, name, errors, n_eff, scores[name].gain_by_block, floors)
 
     sel = select_winner(ctx, base, fits, errors, scores, evidences)
     winner = sel.winner

@@ -27,7 +27,11 @@ from stictiondiag.gap.effects.base import (
     process_input,
     pv_noise_floor,
 )
-from stictiondiag.gap.effects.quantization import quantized_signals, restrict_quantization
+from stictiondiag.gap.effects.quantization import (
+    detect_quantization,
+    quantized_signals,
+    restrict_quantization,
+)
 
 #: Blocks of the record for validation (even blocks against odd ones).
 N_BLOCKS = 8
@@ -387,7 +391,30 @@ def score_candidate(
     return Score(score, accepted, score - float(total1.sum()), d)
 
 
-def evidence(ef: EffectFit, name: str, held: dict, n_eff: dict, d: np.ndarray) -> float:
+def evidence_floors(ctx: ReplayContext, blocks: np.ndarray, n_blocks: int) -> dict:
+    """Least held-out error each signal's replay can be judged to reach, per block [-].
+
+    A replay cannot be told to be better than the data resolve: per sample, the larger
+    of the signal's white measurement noise (:func:`noise_variance`) and its rounding
+    variance ``q^2/12`` (``q`` the step of a quantised signal,
+    :func:`stictiondiag.gap.effects.quantization.detect_quantization`, else the
+    spacing of double-precision numbers at the signal's size), normalised like the
+    held-out errors and summed over each block's judged samples.
+    """
+    judged = np.bincount(blocks, ctx.w_eval, minlength=n_blocks)
+    floors = {}
+    for s, norm in ctx.norm.items():
+        x = np.asarray(getattr(ctx.sig, s), dtype=float)
+        q = detect_quantization(x)
+        step = q[0] if q is not None else np.finfo(float).eps * float(np.max(np.abs(x)))
+        per_sample = max(noise_variance(x), step * step / 12.0)
+        floors[s] = judged * per_sample / norm
+    return floors
+
+
+def evidence(
+    ef: EffectFit, name: str, held: dict, n_eff: dict, d: np.ndarray, floors: dict
+) -> float:
     """Held-out evidence for a candidate in the units of the Bayesian information
     criterion.
 
@@ -395,14 +422,18 @@ def evidence(ef: EffectFit, name: str, held: dict, n_eff: dict, d: np.ndarray) -
     times the log ratio of the base's squared error to the effect's, less ``log n_eff``
     per extra parameter.  Signals differ in how much of their error a replay can ever
     explain (pv carries load no replay foresees): the accepted candidates are ranked
-    by this ratio, not by the raw sum.
+    by this ratio, not by the raw sum.  Both errors are taken at least at the signal's
+    floor (:func:`evidence_floors`): an effect that brings a signal's held-out error
+    to its noise floor (a quantised signal's rounding explained) gains the whole
+    ratio of the base's error to the floor, instead of dropping out of the sum.
     """
     kept = _kept_blocks(ef, d)
     sigs = [s for s in ef.predictions if s in held["none"]]
     ev = 0.0
     for s in sigs:
-        e0 = float(held["none"][s][kept].sum())
-        e1 = float(held[name][s][kept].sum())
+        floor = float(floors[s][kept].sum())
+        e0 = max(float(held["none"][s][kept].sum()), floor)
+        e1 = max(float(held[name][s][kept].sum()), floor)
         if e0 > 0.0 and e1 > 0.0:
             ev += n_eff[s] * math.log(e0 / e1)
     if sigs:
