@@ -33,11 +33,13 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         EFFECTS,
         valve_replay,
     )
-    from stictiondiag.identification.identify import (
+    from stictiondiag.identification.controller import (
         ControllerFit,
-        ProcessFit,
         controller_fit,
         identify_controller,
+    )
+    from stictiondiag.identification.process import (
+        ProcessFit,
         identify_process,
         process_fit,
     )
@@ -182,12 +184,12 @@ _LAZY: dict[str, str] = {
     "GapDiagnosis": "gap.diagnose",
     "diagnose_gap": "gap.diagnose",
     "fit_hammerstein": "stiction.hammerstein",
-    "ControllerFit": "identification.identify",
-    "ProcessFit": "identification.identify",
-    "controller_fit": "identification.identify",
-    "identify_controller": "identification.identify",
-    "identify_process": "identification.identify",
-    "process_fit": "identification.identify",
+    "ControllerFit": "identification.controller",
+    "ProcessFit": "identification.process",
+    "controller_fit": "identification.controller",
+    "identify_controller": "identification.controller",
+    "identify_process": "identification.process",
+    "process_fit": "identification.process",
     "LimitCycle": "models.loops",
     "Simulation": "models.loops",
     "simulate_loop": "models.loops",

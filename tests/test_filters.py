@@ -201,7 +201,8 @@ def test_cli_and_package_import_nothing_heavy():
 def test_analysis_path_imports_neither_scipy_signal_nor_stats():
     mods = (
         "analysis io.tags signals.oscillation stiction.segments stiction.valvefit stiction.verdict "
-        "identification.identify replay models.loops stiction.hammerstein gap.effects gap.diagnose"
+        "identification.controller identification.process replay models.loops stiction.hammerstein "
+        "gap.effects gap.diagnose"
     )
     loaded = _imported("\n".join(f"import stictiondiag.{m}" for m in mods.split()))
     assert not loaded & {"scipy.signal", "scipy.stats", "scipy.optimize", "scipy.ndimage"}

@@ -16,13 +16,12 @@ from stictiondiag.core.errors import (
     DataError,
     UsageError,
 )
-from stictiondiag.identification.identify import (
+from stictiondiag.identification.controller import (
     controller_fit,
     identify_controller,
-    identify_process,
-    process_fit,
     saturated_samples,
 )
+from stictiondiag.identification.process import identify_process, process_fit
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import (
     FOPTD,

@@ -6,10 +6,10 @@ reproduces the limit cycles seen in plant data (Figs. 3-6 against Figs. 12-15).
 :func:`replay` makes that check for one recorded loop:
 
 1. identify the PI controller from ``sp``, ``pv``, ``op``
-   (:func:`stictiondiag.identification.identify.identify_controller`);
+   (:func:`stictiondiag.identification.controller.identify_controller`);
 2. identify the process from the valve position to ``pv``: the recorded ``mv`` when
    there is one, otherwise the fitted valve output ``mv_model`` of the stiction fit
-   (:func:`stictiondiag.identification.identify.identify_process`);
+   (:func:`stictiondiag.identification.process.identify_process`);
 3. simulate the closed loop with the data-driven valve (S, J of the fit) from the
    recorded setpoint and the recorded initial state
    (:func:`stictiondiag.models.loops.simulate_loop`);
@@ -71,11 +71,14 @@ from stictiondiag.core.errors import (
 )
 from stictiondiag.core.filters import lfilter1
 from stictiondiag.core.jit import jit
-from stictiondiag.identification.identify import (
+from stictiondiag.identification.controller import (
     ControllerFit,
-    ProcessFit,
     controller_fit,
     identify_controller,
+)
+from stictiondiag.identification.process import (
+    ProcessFit,
+    drift_pole,
     identify_process,
     process_fit,
 )
@@ -497,14 +500,12 @@ def replay(
     # 2. Process.
     if process is None:
         # The loop rejects disturbances slower than some integral times; pv drifts
-        # on that scale are the load's, not the process's (identify.py, drift
+        # on that scale are the load's, not the process's (identification/process.py, drift
         # high-pass), so the high-pass is no slower than that.
         drift = None
         ti_c = cf.controller.integral_time
         if math.isfinite(ti_c):
-            from stictiondiag.identification.identify import _drift_pole
-
-            _, default_T = _drift_pole(pv, dt, None)
+            _, default_T = drift_pole(pv, dt, None)
             if default_T is not None and DRIFT_INTEGRAL_TIMES * ti_c < default_T:
                 drift = max(DRIFT_INTEGRAL_TIMES * ti_c, MIN_DRIFT_SAMPLES * dt)
         pf = identify_process(u, pv, dt, integrating=integrating, drift_time_constant=drift)

@@ -1,185 +1,100 @@
-"""Identification of the linear parts of a control loop from closed-loop data.
+"""Identification of the process of a loop from closed-loop data (Eq. 3, Table 3).
 
 The replay of a sticky loop (Choudhury, Thornhill & Shah 2005, Sections 4.2.2 and
-5.3) needs the two linear blocks of Eq. 3 besides the valve: the PI controller
-``C(s) = Kc (Ti s + 1) / (Ti s)`` that maps the control error ``e = sp - pv`` to the
-valve demand ``op``, and the process ``G(s)`` that maps the valve position ``mv`` to
-``pv``: first order plus dead time ``K e^{-theta s} / (tau s + 1)`` (the
-concentration loop) or integrating ``K e^{-theta s} / s`` (the level loop, Table 3).
+5.3) needs the process ``G(s)`` that maps the valve position ``mv`` to ``pv``: first
+order plus dead time ``K e^{-theta s} / (tau s + 1)`` (the concentration loop) or
+integrating ``K e^{-theta s} / s`` (the level loop, Table 3).
 
-Controller (:func:`identify_controller`)
-    Velocity form of the discrete PI law (backward-Euler integral),
-    ``op[k] - op[k-1] = Kc (e[k] - e[k-1]) + Kc dt / Ti e[k]``, fitted by least
-    squares.  Differencing removes the unknown bias (manual reset or integral state),
-    so the fit needs no initial condition.  ``Kc`` may be negative (a reverse-acting
-    controller in the paper's sign convention ``e = sp - pv``).  When the integral
-    term is not significant the controller is proportional only (``Ti = inf``).
-    Differences that touch a saturated ``op`` (held at its recorded minimum or
-    maximum, see :func:`saturated_samples`) are excluded: there the controller's law
-    does not hold.  Differences the law does not explain elsewhere (anti-windup acting
-    next to a limit, manual mode, historian glitches) are trimmed as outliers:
-    residuals beyond :data:`TRIM_SIGMAS` robust standard deviations are left out and
-    the fit repeated.
-    Without a recorded setpoint the setpoint is taken as constant at the mean of pv
-    (an integrating controller holds pv at its setpoint on average).
+Output-error fit (:func:`identify_process`): the model is *simulated* from ``u`` and
+the squared simulation error minimised.  Gain, initial state and balance input enter
+linearly and are solved by least squares; the dead time (whole samples) is scanned
+over all delays at once (normal equations from prefix sums and correlations), on a
+coarse grid of time constants for the FOPTD, followed by a scalar search of the time
+constant and a local walk along the dead time.  A one-step ARX fit would be biased by
+measurement noise on pv (the regressor ``pv[k]`` is noisy); the output-error fit is
+not, and it is the simulated response that the replay needs (the ARX R^2 is reported
+for reference).
 
-Process (:func:`identify_process`)
-    Output-error fit: the model is *simulated* from ``u`` and the squared
-    simulation error minimised.  Gain, initial state and balance input enter
-    linearly and are solved by least squares; the dead time (whole samples) is
-    scanned over all delays at once (normal equations from prefix sums and
-    correlations), on a coarse grid of time constants for the FOPTD, followed by a
-    scalar search of the time constant and a local walk along the dead time.  A
-    one-step ARX fit would be biased by measurement noise on pv (the regressor
-    ``pv[k]`` is noisy); the output-error fit is not, and it is the simulated
-    response that the replay needs (the ARX R^2 is reported for reference).
+Model and data are compared after a first-order high-pass (time constant a few
+oscillation periods, :func:`drift_pole`): plant pv drifts with unmeasured
+disturbances, which an integrator or a slow lag would otherwise chase.  The samples
+within the first dead time are left out (pv there answers to inputs from before the
+record); free-response regressors absorb what those unknown inputs leave behind, so
+the fit is exact on noise-free data from the model.  Operating point and initial
+state are then fitted on the raw data with the dynamics fixed.
 
-    Model and data are compared after a first-order high-pass (time constant a few
-    oscillation periods): plant pv drifts with unmeasured disturbances, which an
-    integrator or a slow lag would otherwise chase.  The samples within the first
-    dead time are left out (pv there answers to inputs from before the record);
-    free-response regressors absorb what those unknown inputs leave behind, so the
-    fit is exact on noise-free data from the model.  Operating point and initial
-    state are then fitted on the raw data with the dynamics fixed.
-
-    With ``integrating=None`` the integrating model is chosen when its fit is
-    within :data:`INTEGRATING_R2_MARGIN` of the FOPTD's: an integrator is the limit
-    of an FOPTD with a long time constant, so the FOPTD always fits at least about
-    as well and the simpler model wins ties.
+With ``integrating=None`` the integrating model is chosen when its fit is within
+:data:`INTEGRATING_R2_MARGIN` of the FOPTD's: an integrator is the limit of an FOPTD
+with a long time constant, so the FOPTD always fits at least about as well and the
+simpler model wins ties.
 
 A limit cycle is (nearly) periodic, so a dead time ``d`` and ``d + P`` (``P`` the
 period in samples) explain the data about equally well; the scan takes the shortest
 dead time whose fit is close to the best (:data:`DEAD_TIME_TOLERANCE`).
+
+The prediction-error fit of the same process structures, with the unmeasured load
+tracked by a Kalman filter and pv predicted ``h`` samples ahead, is
+:func:`stictiondiag.identification.predictor.fit_predictor` (the gap diagnosis).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from stictiondiag.core.errors import (
-    DataError,
-    UsageError,
-)
-from stictiondiag.core.filters import (
-    correlate_lags,
-    lfilter1,
-)
+from stictiondiag.core.errors import DataError, UsageError
+from stictiondiag.core.filters import correlate_lags, lfilter1
 from stictiondiag.core.optimize import minimize_scalar_bounded
-from stictiondiag.models.processes import (
-    FOPTD,
-    PI,
-    Integrating,
+from stictiondiag.core.serialize import to_plain
+from stictiondiag.identification.numerics import (
+    MIN_SAMPLES,
+    as_signal,
+    check_dt,
+    delayed,
+    r_squared,
 )
+from stictiondiag.models.processes import FOPTD, Integrating
 
-#: Outlier trimming of the velocity-form fit: residuals beyond this many robust
-#: standard deviations are left out [-], for at most TRIM_ROUNDS refits.
-TRIM_SIGMAS = 5.0
-TRIM_ROUNDS = 4
-#: t-statistic of the integral term below which the controller is called P-only [-].
-INTEGRAL_T_THRESHOLD = 3.0
-#: op within this fraction of its recorded range of the recorded minimum or maximum
-#: counts as at the limit [-] (rounding of a clamped value).
-SATURATION_TOLERANCE = 1e-6
-#: op held at a limit this long or longer counts as saturated [samples].
-SATURATION_PLATEAU = 3
 #: Integrating model chosen when its simulation R^2 is at most this much below the FOPTD's.
 INTEGRATING_R2_MARGIN = 0.01
+
+
 #: Dead-time scan: shortest delay whose cost is within this fraction of the range
 #: between the best and the median cost (periodic data make d and d + P ambiguous).
 DEAD_TIME_TOLERANCE = 0.02
+
+
 #: Drift high-pass of the process fit: time constant in periods of pv's dominant
 #: oscillation, or as a fraction of the record when pv has no dominant period.
 DRIFT_PERIODS = 1.0
+
+
 DRIFT_RECORD_FRACTION = 0.2
+
+
 #: Longest dead time searched, as a fraction of the record [-].
 MAX_DEAD_TIME_FRACTION = 0.25
+
+
 #: The integrator's differenced fit smooths pv's differences with a first-order lag of
 #: a period over this number (at least one sample) [-], and high-passes them with a
 #: time constant of this many periods [-]: in closed loop the controller moves the
 #: valve's mean with the wandering load, so the slow part of the valve position is
 #: confounded with the disturbance; the slips and jumps within a cycle are not.
 SMOOTH_PER_PERIOD = 100.0
+
+
 #: Below this filtered R^2 of the integrator's level fit the differenced fit is used [-].
 LEVEL_FIT_R2_MIN = 0.5
+
+
 DIFFERENCED_DRIFT_PERIODS = 0.25
+
+
 #: ... and the operating point is then fitted on the first this many periods [-].
 START_WINDOW_PERIODS = 2.0
-#: pv filters tried by the controller identification [samples], and the share of the
-#: unfiltered law's residual variance a filter must at most leave to be kept [-].
-PV_FILTER_GRID = (0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.7, 8.0, 11.0, 16.0)
-PV_FILTER_GAIN = 0.5
-#: Fewest usable samples for an identification.
-MIN_SAMPLES = 20
-
-
-@dataclass(frozen=True)
-class ControllerFit:
-    """PI controller identified from ``sp``, ``pv`` and ``op`` (Eq. 3 form).
-
-    Attributes
-    ----------
-    controller : PI
-        ``Kc`` [% of span / pv units] and ``Ti`` [s]; ``Ti = inf`` for a P-only law.
-    op_bias : float
-        op at zero error with the integral started at zero on the first sample
-        [% of span]: ``op[k] = op_bias + Kc (e[k] + dt/Ti sum_{j<=k} e[j])``, the sum
-        frozen while op is saturated.  For P-only, the manual reset.
-    fit_r2 : float
-        R^2 of the velocity-form regression on ``op`` differences [-].
-    op_fit_r2 : float
-        R^2 of the reconstructed op level on unsaturated samples [-].
-    p_only : bool
-        The integral term was not significant.
-    reverse_acting : bool
-        ``Kc < 0`` in the convention ``e = sp - pv``.
-    sp_assumed : bool
-        No setpoint was given; it was taken as constant at mean(pv).
-    n_used, n_saturated, n_outliers : int
-        Differences used in the fit; samples flagged as saturated; differences left
-        out as outliers of the PI law.
-    integral_t_stat : float
-        t-statistic of the integral coefficient [-].
-    pv_filter_time : float
-        Time constant of the first-order filter the controller applies to pv before
-        forming the error [s]; 0 for none.  Distributed control systems filter the
-        measurement; the PI law then holds for the filtered pv only.
-    """
-
-    controller: PI
-    op_bias: float
-    fit_r2: float
-    op_fit_r2: float
-    p_only: bool
-    reverse_acting: bool
-    sp_assumed: bool
-    n_used: int
-    n_saturated: int
-    integral_t_stat: float
-    n_outliers: int = 0
-    pv_filter_time: float = 0.0
-
-    def to_dict(self) -> dict:
-        """JSON-able dict (``integral_time_s`` is None for a P-only controller)."""
-        ti = self.controller.integral_time
-        return {
-            "type": "p" if self.p_only else "pi",
-            "gain": _plain(self.controller.gain),
-            "integral_time_s": _plain(ti),
-            "op_bias": _plain(self.op_bias),
-            "fit_r2": _plain(self.fit_r2),
-            "op_fit_r2": _plain(self.op_fit_r2),
-            "p_only": bool(self.p_only),
-            "reverse_acting": bool(self.reverse_acting),
-            "sp_assumed": bool(self.sp_assumed),
-            "n_used": int(self.n_used),
-            "n_saturated": int(self.n_saturated),
-            "n_outliers": int(self.n_outliers),
-            "pv_filter_time_s": _plain(self.pv_filter_time),
-            "integral_t_stat": _plain(self.integral_t_stat),
-        }
 
 
 @dataclass(frozen=True)
@@ -246,375 +161,33 @@ class ProcessFit:
     def to_dict(self) -> dict:
         """JSON-able dict: the process parameters plus biases and fit measures."""
         out = {
-            k: _plain(v) if isinstance(v, float) else v for k, v in self.process.to_dict().items()
+            k: to_plain(v) if isinstance(v, float) else v for k, v in self.process.to_dict().items()
         }
         out.update(
             {
-                "u_bias": _plain(self.u_bias),
-                "pv_bias": _plain(self.pv_bias),
-                "fit_r2": _plain(self.fit_r2),
-                "arx_r2": _plain(self.arx_r2),
+                "u_bias": to_plain(self.u_bias),
+                "pv_bias": to_plain(self.pv_bias),
+                "fit_r2": to_plain(self.fit_r2),
+                "arx_r2": to_plain(self.arx_r2),
                 "dead_time_samples": int(self.dead_time_samples),
-                "candidates": {k: _plain(v) for k, v in self.candidates.items()},
-                "unfiltered_r2": _plain(self.unfiltered_r2),
-                "drift_time_constant_s": _plain(self.drift_time_constant),
+                "candidates": {k: to_plain(v) for k, v in self.candidates.items()},
+                "unfiltered_r2": to_plain(self.unfiltered_r2),
+                "drift_time_constant_s": to_plain(self.drift_time_constant),
             }
         )
         return out
 
 
-def _plain(v) -> float | None:
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
-def _as_signal(x, name: str) -> np.ndarray:
-    a = np.asarray(x, dtype=float)
-    if a.ndim != 1:
-        raise UsageError(f"{name} must be a one-dimensional signal")
-    return a
-
-
-def _check_dt(dt) -> float:
-    try:
-        dt_ = float(dt)
-    except (TypeError, ValueError):
-        raise UsageError(f"sample time dt must be a number of seconds, got {dt!r}") from None
-    if not (math.isfinite(dt_) and dt_ > 0):
-        raise UsageError(f"sample time dt must be a positive number of seconds, got {dt_}")
-    return dt_
-
-
-def _r2(y: np.ndarray, y_hat: np.ndarray) -> float:
-    sst = float(np.sum((y - y.mean()) ** 2))
-    if sst <= 0.0:
-        return 0.0
-    return 1.0 - float(np.sum((y - y_hat) ** 2)) / sst
-
-
-# --------------------------------------------------------------------------- controller
-
-
-def saturated_samples(op: np.ndarray) -> np.ndarray:
-    """Boolean mask of samples where op is pinned at a limit.
-
-    op held for at least :data:`SATURATION_PLATEAU` samples at its recorded minimum
-    or maximum (within :data:`SATURATION_TOLERANCE` of the op range): a clamp, at 0 or
-    100 % or at other output limits.  The units of op are not assumed (plant data are
-    often scaled), so the limits are taken from the record.  Other stretches where
-    the PI law does not hold (anti-windup acting next to a limit, manual mode) are
-    left to the outlier trimming of :func:`identify_controller`.
-    """
-    op = np.asarray(op, dtype=float)
-    sat = np.zeros(op.size, dtype=bool)
-    if op.size < SATURATION_PLATEAU:
-        return sat
-    lo, hi = float(np.nanmin(op)), float(np.nanmax(op))
-    tol = SATURATION_TOLERANCE * (hi - lo)
-    if hi - lo <= 0.0:
-        return sat
-    for at in (op <= lo + tol, op >= hi - tol):
-        edges = np.diff(np.concatenate(([0], at.astype(np.int8), [0])))
-        starts = np.flatnonzero(edges == 1)
-        ends = np.flatnonzero(edges == -1)
-        for s0, e0 in zip(starts, ends, strict=True):
-            # Held, not passing through: the run must be flat, not a turning peak.
-            if e0 - s0 >= SATURATION_PLATEAU and np.ptp(op[s0:e0]) <= tol:
-                sat[s0:e0] = True
-    return sat
-
-
-def filtered_pv(pv: np.ndarray, time_constant: float, dt: float) -> np.ndarray:
-    """First-order filter of pv as a controller applies it, ``f[k] = a f[k-1] + (1 - a)
-    pv[k]`` with ``a = exp(-dt / T)``, started at ``pv[0]``; ``T = 0`` returns pv."""
-    pv = np.asarray(pv, dtype=float)
-    if not time_constant > 0.0:
-        return pv
-    a = math.exp(-dt / float(time_constant))
-    return lfilter1((1.0 - a,), -a, pv, zi=a * pv[0])
-
-
-def identify_controller(
-    sp: np.ndarray | None,
-    pv: np.ndarray,
-    op: np.ndarray,
-    dt: float,
-    *,
-    pv_filter: str | float | None = "auto",
-) -> ControllerFit:
-    """Identify the PI controller, with the pv filter in front of it (Eq. 3).
-
-    ``pv_filter="auto"`` tries first-order pv filters of :data:`PV_FILTER_GRID`
-    samples and keeps the one whose PI law fits op best, if it leaves at most
-    :data:`PV_FILTER_GAIN` of the unfiltered law's residual variance; a number is
-    the filter's time constant [s]; None or 0 means no filter.  A filter the
-    controller applies and the fit ignores biases ``Kc`` and ``Ti`` badly (the
-    filtered error lags the recorded one).  See :func:`_identify_pi` for the law.
-    """
-    dt = _check_dt(dt)
-    pv = _as_signal(pv, "pv")
-    if pv_filter is None or (not isinstance(pv_filter, str) and not pv_filter > 0.0):
-        return _identify_pi(sp, pv, op, dt)
-    if not isinstance(pv_filter, str):
-        if not math.isfinite(float(pv_filter)):
-            raise UsageError(f"pv_filter must be 'auto', None or a time in s, got {pv_filter}")
-        fit = _identify_pi(sp, filtered_pv(pv, float(pv_filter), dt), op, dt)
-        return replace(fit, pv_filter_time=float(pv_filter))
-    if pv_filter != "auto":
-        raise UsageError(f"pv_filter must be 'auto', None or a time in s, got {pv_filter!r}")
-    best = plain = _identify_pi(sp, pv, op, dt)
-    plain_unexplained = 1.0 - best.fit_r2
-    for samples in PV_FILTER_GRID:
-        T = samples * dt
-        try:
-            fit = _identify_pi(sp, filtered_pv(pv, T, dt), op, dt)
-        except DataError:
-            continue
-        # The law is judged on the samples it keeps; a filter must also not worsen
-        # the reconstruction of op over the whole record.  On a quantised pv a long
-        # filter fits the stretches between pv's steps exactly and leaves the steps
-        # out as outliers (Kc and Ti a tenth of the truth).
-        if (
-            fit.fit_r2 > best.fit_r2
-            and fit.n_used >= best.n_used * (1.0 - PV_FILTER_GAIN)
-            and fit.op_fit_r2 >= plain.op_fit_r2
-        ):
-            best = replace(fit, pv_filter_time=T)
-    if best.pv_filter_time > 0.0 and 1.0 - best.fit_r2 > PV_FILTER_GAIN * plain_unexplained:
-        return _identify_pi(sp, pv, op, dt)
-    return best
-
-
-#: Trimming stops before it keeps less than this share of the rows where a
-#: regressor is not zero.
-TRIM_KEEP_REGRESSOR = 0.1
-
-
-def _loses_regressor(X: np.ndarray, keep: np.ndarray, inlier: np.ndarray) -> bool:
-    """Whether going from the rows ``keep`` to ``inlier`` keeps less than
-    :data:`TRIM_KEEP_REGRESSOR` of the rows where a column of ``X`` is not zero
-    (a quantised pv: the error changes at its steps only)."""
-    active = np.abs(X) > 1e-12 * np.max(np.abs(X), axis=0)
-    total = active[keep].sum(axis=0)
-    kept = active[inlier].sum(axis=0)
-    return bool(np.any((total > 0) & (kept < TRIM_KEEP_REGRESSOR * total)))
-
-
-def _identify_pi(sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: float) -> ControllerFit:
-    """Identify the PI controller ``C(s) = Kc (Ti s + 1) / (Ti s)`` (Eq. 3).
-
-    Parameters
-    ----------
-    sp : ndarray or None
-        Setpoint [pv units]; None means constant at mean(pv).
-    pv : ndarray
-        Controlled variable [pv units].
-    op : ndarray
-        Controller output [% of span].
-    dt : float
-        Sample time [s].
-
-    Returns
-    -------
-    ControllerFit
-        ``Kc`` [% of span / pv units] (negative for a reverse-acting controller),
-        ``Ti`` [s] (inf for P-only), op bias and fit measures.
-
-    Notes
-    -----
-    Least squares on the velocity form
-    ``op[k] - op[k-1] = Kc (e[k] - e[k-1]) + (Kc dt / Ti) e[k]``, which is free of
-    the unknown bias.  The discretisation of the integral (backward or forward
-    Euler) changes ``Kc`` by ``Kc dt / Ti`` (relative error ``dt / Ti``).
-    """
-    data = _ControllerData.build(sp, pv, op, dt)
-    de, ek, dop = data.de, data.ek, data.dop
-    if np.ptp(ek) == 0.0 and np.ptp(de) == 0.0:
-        raise DataError("the control error is constant: pv and sp carry no information")
-    X = np.column_stack([de, ek])
-    keep = np.ones(dop.size, dtype=bool)
-    floor = 1e-9 * max(float(np.std(dop)), 1e-300)
-    for _ in range(TRIM_ROUNDS):
-        coef, *_ = np.linalg.lstsq(X[keep], dop[keep], rcond=None)
-        resid = dop - X @ coef
-        r_in = resid[keep]
-        sigma = 1.4826 * float(np.median(np.abs(r_in - np.median(r_in))))
-        inlier = np.abs(resid) <= max(TRIM_SIGMAS * sigma, floor)
-        if inlier.sum() < max(MIN_SAMPLES, dop.size // 2) or np.array_equal(inlier, keep):
-            break
-        # A quantised pv changes at a few samples only, where a small pv filter of
-        # the controller leaves the largest residuals: trimming them would leave
-        # the proportional term nothing to be fitted on (Kc = 0, no PI law).
-        if _loses_regressor(X, keep, inlier):
-            break
-        keep = inlier
-    coef, t_int, _ = _lstsq_t(X[keep], dop[keep])
-    kc, ki_dt = float(coef[0]), float(coef[1])
-    record = data.e.size * data.dt
-    ti = math.inf
-    if abs(t_int) >= INTEGRAL_T_THRESHOLD and kc != 0.0 and ki_dt != 0.0:
-        ti_candidate = kc * data.dt / ki_dt
-        # A negative Ti means the "integral" has the wrong sign for a PI law: the
-        # differences are explained by something else (noise, a P-only law with drift).
-        if 0.0 < ti_candidate < 100.0 * record:
-            ti = ti_candidate
-    if math.isinf(ti):
-        coef1, *_ = np.linalg.lstsq(de[keep, None], dop[keep], rcond=None)
-        kc = float(coef1[0])
-    if kc == 0.0 or not math.isfinite(kc):
-        raise DataError("op does not respond to the control error: no PI law found")
-    return data.result(kc, ti, float(t_int), keep)
-
-
-def controller_fit(
-    controller: PI,
-    sp: np.ndarray | None,
-    pv: np.ndarray,
-    op: np.ndarray,
-    dt: float,
-    *,
-    pv_filter_time: float = 0.0,
-) -> ControllerFit:
-    """Fit measures and op bias of a *given* PI controller on recorded data.
-
-    Same conventions as :func:`identify_controller` (``integral_time = inf`` for a
-    P-only law); ``Kc``, ``Ti`` and the pv filter [s] are kept, only ``op_bias`` is
-    estimated.
-    """
-    if not isinstance(controller, PI):
-        raise UsageError("controller must be a PI model (stictiondiag.models.processes.PI)")
-    kc, ti = float(controller.gain), float(controller.integral_time)
-    if kc == 0.0 or not math.isfinite(kc) or not ti > 0.0:
-        raise UsageError(f"controller needs a non-zero gain and Ti > 0, got Kc={kc}, Ti={ti}")
-    pv_f = filtered_pv(_as_signal(pv, "pv"), pv_filter_time, _check_dt(dt))
-    fit = _ControllerData.build(sp, pv_f, op, dt).result(kc, ti, math.nan)
-    return replace(fit, pv_filter_time=float(pv_filter_time))
-
-
-@dataclass(frozen=True, eq=False)
-class _ControllerData:
-    """Error, saturation mask and velocity-form regressors shared by the fits."""
-
-    dt: float
-    e: np.ndarray
-    op: np.ndarray
-    good: np.ndarray
-    use: np.ndarray
-    sp_assumed: bool
-    n_saturated: int
-
-    @classmethod
-    def build(cls, sp, pv, op, dt) -> _ControllerData:
-        dt = _check_dt(dt)
-        pv = _as_signal(pv, "pv")
-        op = _as_signal(op, "op")
-        if pv.size != op.size:
-            raise UsageError(f"pv and op must have the same length, got {pv.size} and {op.size}")
-        sp_assumed = sp is None
-        if sp_assumed:
-            sp_arr = np.full(pv.size, float(np.nanmean(pv)))
-        else:
-            sp_arr = _as_signal(sp, "sp")
-            if sp_arr.size != pv.size:
-                raise UsageError(
-                    f"sp and pv must have the same length, got {sp_arr.size} and {pv.size}"
-                )
-        e = sp_arr - pv
-        sat = saturated_samples(op)
-        good = np.isfinite(e) & np.isfinite(op) & ~sat
-        use = good[1:] & good[:-1]
-        n_used = int(use.sum())
-        if n_used < MIN_SAMPLES:
-            raise DataError(
-                f"only {n_used} unsaturated samples for controller identification: "
-                "use a record where op moves inside its range"
-            )
-        return cls(dt, e, op, good, use, sp_assumed, int(sat.sum()))
-
-    @property
-    def dop(self) -> np.ndarray:
-        return np.diff(self.op)[self.use]
-
-    @property
-    def de(self) -> np.ndarray:
-        return np.diff(self.e)[self.use]
-
-    @property
-    def ek(self) -> np.ndarray:
-        return self.e[1:][self.use]
-
-    def result(
-        self, kc: float, ti: float, t_int: float, keep: np.ndarray | None = None
-    ) -> ControllerFit:
-        dop = self.dop
-        if keep is None:
-            keep = np.ones(dop.size, dtype=bool)
-        p_only = math.isinf(ti)
-        ki_dt = 0.0 if p_only else kc * self.dt / ti
-        resid = (dop - kc * self.de - ki_dt * self.ek)[keep]
-        dop = dop[keep]
-        fit_r2 = 1.0 - float(resid @ resid) / max(float(np.sum((dop - dop.mean()) ** 2)), 1e-300)
-        # op level: integral frozen while saturated (conditional-integration anti-windup).
-        e, good = self.e, self.good
-        law = kc * e
-        if not p_only:
-            law = law + ki_dt * np.cumsum(np.where(good, e, 0.0))
-        op_bias = float(np.mean((self.op - law)[good]))
-        return ControllerFit(
-            controller=PI(gain=kc, integral_time=ti),
-            op_bias=op_bias,
-            fit_r2=fit_r2,
-            op_fit_r2=_r2(self.op[good], law[good] + op_bias),
-            p_only=p_only,
-            reverse_acting=kc < 0.0,
-            sp_assumed=self.sp_assumed,
-            n_used=int(keep.sum()),
-            n_saturated=self.n_saturated,
-            n_outliers=int(keep.size - keep.sum()),
-            integral_t_stat=t_int,
-        )
-
-
-def _lstsq_t(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """Least squares with the t-statistic of the last coefficient."""
-    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
-    resid = y - X @ coef
-    dof = max(y.size - X.shape[1], 1)
-    s2 = float(resid @ resid) / dof
-    try:
-        cov = s2 * np.linalg.inv(X.T @ X)
-        se = math.sqrt(max(float(cov[-1, -1]), 0.0))
-    except np.linalg.LinAlgError:
-        se = math.inf
-    t = abs(float(coef[-1])) / se if se > 0 else math.inf
-    return coef, t, resid
-
-
-# --------------------------------------------------------------------------- process
-
-
-def _delayed(u: np.ndarray, shift: int) -> np.ndarray:
-    """``u[k - shift]``, held at ``u[0]`` before the record starts."""
-    if shift <= 0:
-        return u
-    out = np.empty_like(u)
-    out[:shift] = u[0]
-    out[shift:] = u[: u.size - shift]
-    return out
-
-
 def _lag_response(u: np.ndarray, d: int, a: float) -> np.ndarray:
     """``z[k+1] = a z[k] + (1 - a) u[k - d]``, ``z[0] = u[0]``: first-order lag with
     dead time ``d`` samples (exact zero-order-hold discretisation of the FOPTD)."""
-    x = _delayed(u, d + 1)
+    x = delayed(u, d + 1)
     return lfilter1((1.0 - a,), -a, x, zi=a * u[0])
 
 
 def _integrating_regressors(u: np.ndarray, d: int, dt: float) -> np.ndarray:
     """Columns [1, dt sum_{j<k} u[j-d], dt k] of the simulated integrator response."""
-    x = _delayed(u, d + 1)
+    x = delayed(u, d + 1)
     x[0] = 0.0
     k = np.arange(u.size)
     return np.column_stack([np.ones(u.size), dt * np.cumsum(x), dt * k])
@@ -829,7 +402,7 @@ def _oscillation_samples(pv: np.ndarray, dt: float) -> float | None:
     return None if period is None else period / dt
 
 
-def _drift_pole(pv: np.ndarray, dt: float, drift_time_constant: float | None):
+def drift_pole(pv: np.ndarray, dt: float, drift_time_constant: float | None):
     """Pole ``b`` of the drift high-pass and its time constant [s] (None: no filter)."""
     if drift_time_constant is None:
         from stictiondiag.signals.oscillation import dominant_period
@@ -885,9 +458,9 @@ def identify_process(
         The process, biases and fit measures.  Dead time is a whole number of
         samples; the FOPTD time constant is searched in [0.2 dt, 20 x record].
     """
-    dt = _check_dt(dt)
-    u = _as_signal(u, "u")
-    pv = _as_signal(pv, "pv")
+    dt = check_dt(dt)
+    u = as_signal(u, "u")
+    pv = as_signal(pv, "pv")
     if u.size != pv.size:
         raise UsageError(f"u and pv must have the same length, got {u.size} and {pv.size}")
     if not (np.all(np.isfinite(u)) and np.all(np.isfinite(pv))):
@@ -905,7 +478,7 @@ def identify_process(
             raise UsageError(f"max_dead_time must be >= 0 s, got {max_dead_time}")
         d_max = min(d_max, int(max_dead_time / dt))
     d_max = max(d_max, 0)
-    b, drift_T = _drift_pole(pv, dt, drift_time_constant)
+    b, drift_T = drift_pole(pv, dt, drift_time_constant)
     # Centre the signals: the normal equations are then well conditioned.
     uc = u - u.mean()
     pc = pv - pv.mean()
@@ -973,7 +546,7 @@ def identify_process(
         integrating=chosen == "integrating",
         dead_time_samples=d,
         candidates={k: v["r2"] for k, v in results.items()},
-        unfiltered_r2=_r2(pv[d + 1 :], fit.simulate(u, dt)[d + 1 :]),
+        unfiltered_r2=r_squared(pv[d + 1 :], fit.simulate(u, dt)[d + 1 :]),
         drift_time_constant=drift_T,
     )
 
@@ -1005,7 +578,7 @@ def _biases(process, u, pv, dt, d, *, u_bias=None) -> ProcessFit:
 
 def _arx_r2_at(u, pv, d, integrating, sst_dy) -> float:
     """R^2 of the one-step ARX prediction at dead time d, on pv differences."""
-    x = _delayed(u, d)[:-1]
+    x = delayed(u, d)[:-1]
     y_now, y_next = pv[:-1], pv[1:]
     if integrating:
         X = np.column_stack([x, np.ones(x.size)])
@@ -1028,10 +601,12 @@ def process_fit(
     ``u_bias = mean(u)``; integrating: the initial pv and the balance input.
     """
     if not isinstance(process, FOPTD | Integrating):
-        raise UsageError("process must be a FOPTD or Integrating model (stictiondiag.models.processes)")
-    dt = _check_dt(dt)
-    u = _as_signal(u, "u")
-    pv = _as_signal(pv, "pv")
+        raise UsageError(
+            "process must be a FOPTD or Integrating model (stictiondiag.models.processes)"
+        )
+    dt = check_dt(dt)
+    u = as_signal(u, "u")
+    pv = as_signal(pv, "pv")
     if u.size != pv.size or u.size < 2:
         raise UsageError(f"u and pv must be equally long signals, got {u.size} and {pv.size}")
     gain = float(process.gain)
@@ -1044,7 +619,7 @@ def process_fit(
         )
     fit = _biases(process, u, pv, dt, d)
     # Rows within the first dead time are left out, as in identify_process.
-    r2 = _r2(pv[d + 1 :], fit.simulate(u, dt)[d + 1 :])
+    r2 = r_squared(pv[d + 1 :], fit.simulate(u, dt)[d + 1 :])
     kind = "integrating" if fit.integrating else "foptd"
     return ProcessFit(
         process=process,

@@ -1,0 +1,118 @@
+"""Small numerical tools shared by the process and controller fits and the gap searches.
+
+Signal checks, delayed copies of a signal, weighted linear least squares (with the
+one-signed pair of columns of a fractional dead time) and golden-section search, for
+the identification of the loop's linear blocks (Eq. 3 of Choudhury, Thornhill & Shah
+2005) and the parameter searches of the gap diagnosis.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from stictiondiag.core.errors import UsageError
+
+#: Fewest usable samples for an identification.
+MIN_SAMPLES = 20
+
+
+def as_signal(x, name: str) -> np.ndarray:
+    a = np.asarray(x, dtype=float)
+    if a.ndim != 1:
+        raise UsageError(f"{name} must be a one-dimensional signal")
+    return a
+
+
+def check_dt(dt) -> float:
+    try:
+        dt_ = float(dt)
+    except (TypeError, ValueError):
+        raise UsageError(f"sample time dt must be a number of seconds, got {dt!r}") from None
+    if not (math.isfinite(dt_) and dt_ > 0):
+        raise UsageError(f"sample time dt must be a positive number of seconds, got {dt_}")
+    return dt_
+
+
+def r_squared(y: np.ndarray, y_hat: np.ndarray) -> float:
+    sst = float(np.sum((y - y.mean()) ** 2))
+    if sst <= 0.0:
+        return 0.0
+    return 1.0 - float(np.sum((y - y_hat) ** 2)) / sst
+
+
+def delayed(u: np.ndarray, shift: int) -> np.ndarray:
+    """``u[k - shift]``, held at ``u[0]`` before the record starts."""
+    if shift <= 0:
+        return u
+    out = np.empty_like(u)
+    out[:shift] = u[0]
+    out[shift:] = u[: u.size - shift]
+    return out
+
+
+def golden_section(cost: Callable[[float], float], lo: float, hi: float, n_iter: int = 30) -> float:
+    """Minimise a unimodal scalar function on [lo, hi] by golden-section search."""
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = cost(c), cost(d)
+    for _ in range(n_iter):
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = cost(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = cost(d)
+    return c if fc < fd else d
+
+
+def wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted linear least squares (weights 0/1) by the normal equations.
+
+    Columns are scaled to unit norm and a tiny ridge keeps collinear columns
+    solvable; far faster than an SVD for the few columns used here.
+    """
+    Xw = X * w[:, None]
+    A = Xw.T @ X
+    b = Xw.T @ y
+    d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    As = A / np.outer(d, d)
+    As[np.diag_indices_from(As)] += 1e-10
+    try:
+        return np.linalg.solve(As, b / d) / d
+    except np.linalg.LinAlgError:
+        sw = np.sqrt(w)
+        coef, *_ = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)
+        return coef
+
+
+def fractional_delay_wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """:func:`wls` with the first two columns (the input at dead times d and d + 1)
+    weighted with one sign.
+
+    The two columns stand for one gain and a dead time between d and d + 1 samples:
+    ``b ((1 - f) u(t - d) + f u(t - d - 1))`` with ``0 <= f <= 1``.  Unconstrained,
+    the pair can take large weights of opposite sign, ``b (u(t - d) - u(t - d - 1))``:
+    a differentiator that answers the valve's slips instead of its position, fits a
+    part of the record and fails elsewhere.  When the free solution has opposite
+    signs, the constrained optimum lies on the boundary ``f = 0`` or ``f = 1``: the
+    better fit with one of the two columns alone.
+    """
+    coef = wls(X, y, w)
+    if X.shape[1] < 2 or coef[0] * coef[1] >= 0.0:
+        return coef
+    best = None
+    for drop in (1, 0):
+        keep = [j for j in range(X.shape[1]) if j != drop]
+        c = np.zeros(X.shape[1])
+        c[keep] = wls(X[:, keep], y, w)
+        r = y - X @ c
+        sse = float(np.dot(w, r * r))
+        if best is None or sse < best[0]:
+            best = (sse, c)
+    return best[1]

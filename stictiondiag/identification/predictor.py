@@ -1,0 +1,605 @@
+"""Prediction-error fit of the process with the unmeasured load tracked (Section 4.2.2, Eq. 3).
+
+The process is a first-order lag with dead time (or an integrator, pole 1), as in
+Eq. 3 and Table 3 of Choudhury, Thornhill & Shah (2005).  Plant loops carry load
+changes that the controller answers with the valve: a replay that drives the process
+with the recorded mv alone departs from pv by the whole load, which is as large as
+the cycle itself.  :func:`fit_predictor` therefore tracks the load with a steady-state
+Kalman filter (a random-walk load entering with the valve, white measurement noise)
+and predicts pv ``h`` samples ahead (``h`` = dead time + time constant); the
+innovations are linear in the gain (and in a fractional dead time), solved by least
+squares on a grid of poles, dead times and load-to-noise ratios.
+
+This is the process fit of the gap diagnosis (:mod:`stictiondiag.gap`), which fits on
+some blocks of the record and judges on others (per-sample weights).  The closed-loop
+replay uses the output-error fit of the same structures
+(:func:`stictiondiag.identification.process.identify_process`): it simulates the
+loop freely, without a filter to track the load.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stictiondiag.core.jit import jit
+from stictiondiag.identification.numerics import delayed, fractional_delay_wls, golden_section
+
+
+@jit
+def _riccati_gains(pole, load_ratio):  # pragma: no cover - compiled
+    p11, p12, p22 = 1.0 + load_ratio, 0.0, 1.0 + load_ratio
+    k1 = k2 = 0.0
+    for _ in range(2000):
+        s = p11 + 1.0
+        n1, n2 = p11 / s, p12 / s
+        f11 = p11 - n1 * p11
+        f12 = p12 - n1 * p12
+        f22 = p22 - n2 * p12
+        # P = F Pf F' + Q with F = [[a, 1], [0, 1]].
+        q11 = pole * pole * f11 + 2.0 * pole * f12 + f22
+        q12 = pole * f12 + f22
+        q22 = f22 + load_ratio
+        done = abs(n1 - k1) < 1e-13 and abs(n2 - k2) < 1e-13
+        k1, k2 = n1, n2
+        p11, p12, p22 = q11, q12, q22
+        if done:
+            break
+    return k1, k2, p11, p12, p22
+
+
+def kalman_gains(pole: float, load_ratio: float) -> tuple[float, float]:
+    """Steady-state Kalman gains of the process-with-load model.
+
+    States: the process output ``y`` and an unmeasured load ``l`` (a random walk)
+    entering with the valve: ``y[k+1] = a y[k] + b u[k-d] + l[k]``, ``l[k+1] = l[k] +
+    v[k]``, measured ``pv = y + e``; ``load_ratio`` is var(v)/var(e).  Returns the
+    gains of the filtered estimates of ``y`` and ``l`` on the innovation.
+    """
+    k1, k2, *_ = _riccati_gains(float(pole), float(load_ratio))
+    return float(k1), float(k2)
+
+
+def prediction_variance_ratio(pole: float, load_ratio: float, horizon: int) -> tuple[float, float]:
+    """Variances of the one-step innovation and of the ``horizon``-step prediction error,
+    in units of the measurement-noise variance, for the process-with-load model.
+
+    A correct model's ``horizon``-step error variance is the second value times the
+    measurement noise variance: measurement noise plus the load the filter could not
+    foresee.
+    """
+    k1, k2, p11, p12, p22 = _riccati_gains(float(pole), float(load_ratio))
+    s1 = p11 + 1.0
+    # Filtered covariance.
+    f11, f12, f22 = p11 - k1 * p11, p12 - k1 * p12, p22 - k2 * p12
+    P = np.array([[f11, f12], [f12, f22]])
+    F = np.array([[pole, 1.0], [0.0, 1.0]])
+    Q = np.array([[0.0, 0.0], [0.0, load_ratio]])
+    acc = np.zeros((2, 2))
+    Fj = np.eye(2)
+    for _ in range(max(int(horizon), 1)):
+        acc += Fj @ Q @ Fj.T
+        Fj = F @ Fj
+    Pm = Fj @ P @ Fj.T + acc
+    return float(s1), float(Pm[0, 0] + 1.0)
+
+
+@jit
+def _prediction_errors(z, drive, pole, k1, k2, y0, horizon):  # pragma: no cover - compiled
+    """Errors of the ``horizon``-step-ahead predictions of the steady-state filter.
+
+    ``z`` are the measurements, ``drive`` the known input term added to the next
+    process output.  The filter runs on every sample; the prediction of ``z[k]`` is
+    made at ``k - horizon`` from the filtered state then, with the known inputs in
+    between and the load held (samples before the horizon get the one-step error).
+    """
+    n = z.shape[0]
+    yf = np.empty(n)
+    lf = np.empty(n)
+    err = np.empty(n)
+    yh = y0
+    lh = 0.0
+    for k in range(n):
+        e = z[k] - yh
+        err[k] = e
+        yf[k] = yh + k1 * e
+        lf[k] = lh + k2 * e
+        yh = pole * yf[k] + lf[k] + drive[k]
+        lh = lf[k]
+    if horizon > 1 and n > horizon:
+        # The prediction of z[j0 + horizon] made at j0, for every j0 at once: the same
+        # operations per prediction as a loop over it, but the inner loop runs over
+        # contiguous samples and is vectorised by the compiler.
+        m = n - horizon
+        y = yf[:m].copy()
+        for i in range(horizon):
+            for j0 in range(m):
+                y[j0] = pole * y[j0] + lf[j0] + drive[j0 + i]
+        for j0 in range(m):
+            err[j0 + horizon] = z[j0 + horizon] - y[j0]
+    return err
+
+
+@jit
+def _prediction_errors_many(Z, D, y0, pole, k1, k2, horizon):  # pragma: no cover - compiled
+    """:func:`_prediction_errors` of every row of ``Z`` (driven by the row of ``D``,
+    started at ``y0``) with one filter: the same operations per row, but the rows'
+    filters run side by side, so one's latency hides behind the others'."""
+    m, n = Z.shape
+    yf = np.empty((m, n))
+    lf = np.empty((m, n))
+    err = np.empty((m, n))
+    yh = y0.copy()
+    lh = np.zeros(m)
+    for k in range(n):
+        for c in range(m):
+            e = Z[c, k] - yh[c]
+            err[c, k] = e
+            yf[c, k] = yh[c] + k1 * e
+            lf[c, k] = lh[c] + k2 * e
+            yh[c] = pole * yf[c, k] + lf[c, k] + D[c, k]
+            lh[c] = lf[c, k]
+    if horizon > 1 and n > horizon:
+        q = n - horizon
+        y = np.empty(q)
+        for c in range(m):
+            for j0 in range(q):
+                y[j0] = yf[c, j0]
+            for i in range(horizon):
+                for j0 in range(q):
+                    y[j0] = pole * y[j0] + lf[c, j0] + D[c, j0 + i]
+            for j0 in range(q):
+                err[c, j0 + horizon] = Z[c, j0 + horizon] - y[j0]
+    return err
+
+
+@dataclass(frozen=True)
+class ProcessModel:
+    """Structure of the process replay.
+
+    Attributes
+    ----------
+    pole : float
+        Discrete pole of the lag (1: integrating).
+    delay : int
+        Dead time [samples].
+    load_ratio : float
+        Load-to-noise variance ratio of the load tracking.
+    horizon : int
+        Prediction horizon [samples]: pv is predicted this far ahead.
+    """
+
+    pole: float
+    delay: int
+    load_ratio: float
+    horizon: int = 1
+
+    @property
+    def gains(self) -> tuple[float, float]:
+        return kalman_gains(self.pole, self.load_ratio)
+
+
+@dataclass(frozen=True)
+class PredictorFit:
+    """A fitted process replay: pv predicted one sample ahead (Section 4.2.2, Eq. 3).
+
+    Attributes
+    ----------
+    pv : ndarray
+        One-step-ahead prediction of pv [pv units].
+    model : ProcessModel
+        Pole (1 for an integrating process), dead time [samples] and the load-to-noise
+        variance ratio of the load tracking.
+    coef : ndarray
+        Linear coefficients (input gains at two adjacent dead times, then any extra
+        columns).
+    params : dict
+        Readable parameters: gain, time constant [s], dead time [s], integrating.
+    """
+
+    pv: np.ndarray
+    model: ProcessModel
+    coef: np.ndarray
+    params: dict = field(default_factory=dict)
+
+
+def _input_response(u: np.ndarray, model: ProcessModel, k1: float, k2: float) -> np.ndarray:
+    """Innovation response to a unit gain on the input without dead time."""
+    u0 = u - u[0]
+    return _prediction_errors(
+        np.zeros(u.size), np.ascontiguousarray(u0), model.pole, k1, k2, 0.0, model.horizon
+    )
+
+
+def _shifted_pair(base: np.ndarray, delay: int) -> np.ndarray:
+    """``base`` delayed by ``delay`` and ``delay + 1`` samples, as two columns."""
+    X = np.empty((base.size, 2))
+    X[:, 0] = delayed(base, delay)
+    X[:, 1] = delayed(base, delay + 1)
+    return X
+
+
+def process_regressors(u: np.ndarray, model: ProcessModel, k1: float, k2: float) -> np.ndarray:
+    """Innovation responses to a unit gain on the input at two adjacent dead times."""
+    return _shifted_pair(_input_response(u, model, k1, k2), model.delay)
+
+
+#: Entries kept per kind in a cache of process terms (:func:`fit_predictor`).
+_CACHE_ENTRIES = 24
+
+
+def _cache_get(cache: dict | None, kind: str, key):
+    """The value remembered under ``key`` (see :func:`_cached`), or None."""
+    if cache is None:
+        return None
+    hit = cache.get(kind, {}).get(key)
+    return None if hit is None else hit[-1]
+
+
+def _cache_put(cache: dict | None, kind: str, key, value: tuple) -> None:
+    """Remember ``value`` (the arrays the key names, then the value) under ``key``."""
+    if cache is None:
+        return
+    store = cache.setdefault(kind, {})
+    if len(store) >= _CACHE_ENTRIES:
+        try:
+            del store[next(iter(store))]
+        except (KeyError, StopIteration, RuntimeError):  # pragma: no cover - a race
+            pass
+    store[key] = value
+
+
+def _cached(cache: dict | None, kind: str, key, compute):
+    """The last item of ``compute()`` (the arrays its key names, then the value),
+    remembered in ``cache[kind]`` under ``key`` (bounded, oldest out)."""
+    if cache is None:
+        return compute()[-1]
+    store = cache.setdefault(kind, {})
+    hit = store.get(key)
+    if hit is not None:
+        return hit[-1]
+    value = compute()
+    if len(store) >= _CACHE_ENTRIES:
+        try:
+            del store[next(iter(store))]
+        except (KeyError, StopIteration, RuntimeError):  # pragma: no cover - a race
+            pass
+    store[key] = value
+    return value[-1]
+
+
+def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
+    """The one-step prediction-error fit on a grid of poles, dead times and load ratios.
+
+    Returns the best ``(sse, ProcessModel)``, the best per pole and the dead-time grid
+    (see :func:`fit_predictor`).
+    """
+    n = u.size
+    zeros = np.zeros(n)
+    taus = np.geomspace(0.5, max(n / 8.0, 2.0), 14)
+    pole_grid = np.concatenate([np.exp(-1.0 / taus), [1.0]])
+    ratios = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1)
+    d_max = int(min(max(n // 10, 5), 200))
+    d_grid = np.unique(
+        np.concatenate(
+            [np.arange(0, min(d_max, 8)), np.geomspace(8, max(d_max, 9), 10).astype(int)]
+        )
+    )
+    best = None
+    per_pole: dict = {}
+    shifts = np.unique(np.concatenate([d_grid, d_grid + 1]))
+    where = {int(d): i for i, d in enumerate(shifts)}
+    for pole in pole_grid:
+        for lr in ratios:
+            k1, k2 = kalman_gains(pole, lr)
+            e0 = _prediction_errors(pv, zeros, pole, k1, k2, float(pv[0]), 1)
+            base_reg = _prediction_errors(
+                zeros, np.ascontiguousarray(u - u[0]), pole, k1, k2, 0.0, 1
+            )
+            # All dead times at once: Gram matrix of the shifted regressors.
+            Xs = np.stack([delayed(base_reg, int(d)) for d in shifts])
+            Xw = Xs * w
+            G = Xw @ Xs.T
+            g = Xw @ e0
+            ee = float(np.dot(w * e0, e0))
+            for d in d_grid:
+                i, j = where[int(d)], where[int(d) + 1]
+                A = np.array([[G[i, i], G[i, j]], [G[j, i], G[j, j]]])
+                rhs = -np.array([g[i], g[j]])
+                A[0, 0] += 1e-12 * (A[0, 0] + 1e-300)
+                A[1, 1] += 1e-12 * (A[1, 1] + 1e-300)
+                try:
+                    coef = np.linalg.solve(A, rhs)
+                except np.linalg.LinAlgError:
+                    continue
+                if coef[0] * coef[1] < 0.0:
+                    # A dead time between d and d + 1 weighs both with one sign: on
+                    # the boundary, the better single column (see fractional_delay_wls).
+                    coef = max(
+                        (np.array([rhs[0] / A[0, 0], 0.0]), np.array([0.0, rhs[1] / A[1, 1]])),
+                        key=lambda c: float(rhs @ c),
+                    )
+                sse = ee + float(rhs @ coef) * -1.0
+                if best is None or sse < best[0]:
+                    best = (sse, ProcessModel(float(pole), int(d), float(lr)))
+                if pole not in per_pole or sse < per_pole[pole][0]:
+                    per_pole[pole] = (sse, ProcessModel(float(pole), int(d), float(lr)))
+    return best, per_pole, d_grid
+
+
+def fit_predictor(
+    u: np.ndarray,
+    pv: np.ndarray,
+    dt: float,
+    w: np.ndarray,
+    *,
+    extra: np.ndarray | None = None,
+    model: ProcessModel | None = None,
+    retune: bool = False,
+    cache: dict | None = None,
+) -> PredictorFit:
+    """One-step-ahead process replay with the unmeasured load tracked (Section 4.2.2, Eq. 3).
+
+    The process is a first-order lag with dead time (or an integrator, pole 1), as
+    in Eq. 3 and Table 3.  Plant loops carry load changes that the controller
+    answers with the valve: a replay that drives the process with the recorded mv
+    alone departs from pv by the whole load, which is as large as the cycle itself.
+    The replay therefore tracks the load with a steady-state Kalman filter (a
+    random-walk load entering with the valve, white measurement noise) and predicts
+    pv one sample ahead; what it cannot predict is the pv gap.  The innovations are
+    linear in the gain (and in a fractional dead time), solved by least squares on a
+    grid of poles, dead times and load-to-noise ratios (the prediction-error fit,
+    which unlike a plain output-error fit is not biased by the load the controller
+    answers).
+
+    Parameters
+    ----------
+    u : ndarray
+        Process input (valve position or flow) [% of span].
+    pv : ndarray
+        Process variable [pv units].
+    dt : float
+        Sample time [s].
+    w : ndarray
+        Weights of the samples the process is fitted on (0 or 1).
+    extra : ndarray, optional
+        Extra columns (n x m) added to pv (an output disturbance), fitted with the
+        process.
+    model : ProcessModel, optional
+        Keep this structure and fit only the linear coefficients.
+    retune : bool
+        With ``model``: search the load-to-noise ratio again (an effect in the model
+        leaves less for the load tracking to follow).
+    cache : dict, optional
+        Terms that depend on the structure only (the innovations of pv, the input's
+        response), shared by the fits of one record: keyed by the identity of the
+        arrays they come from, which the cache holds (see :func:`_cached`).
+    """
+    n = u.size
+    u = np.ascontiguousarray(u, dtype=float)
+    pv = np.ascontiguousarray(pv, dtype=float)
+    zeros = np.zeros(n)
+    extra_cols = None if extra is None else np.atleast_2d(extra.T).T
+    # Terms that depend on the structure only (the innovations of pv, the input's
+    # response) are shared with the other fits of this context: the searches over an
+    # effect's parameter refit the linear coefficients many times with one structure.
+    # Keys hold the arrays they name (an identity stays unique while it is held).
+    u_key = (id(u), id(pv))
+    memo: dict = {}
+
+    extra_rows = None if extra_cols is None else np.ascontiguousarray(extra_cols.T)
+    u0 = np.ascontiguousarray(u - u[0])
+
+    def terms(m: ProcessModel):
+        """Innovations of pv, the input's response and the extra columns' responses
+        for the filter of ``m``: whatever is not shared yet, in one compiled call."""
+        k1, k2 = kalman_gains(m.pole, m.load_ratio)
+        fkey = (m.pole, m.load_ratio, m.horizon)
+        e_key, b_key = (id(pv), *fkey), (*u_key, *fkey)
+        e0 = _cache_get(cache, "innovations", e_key)
+        base = _cache_get(cache, "input_response", b_key)
+        rows, drives, starts = [], [], []
+        if e0 is None:
+            rows.append(pv)
+            drives.append(zeros)
+            starts.append(float(pv[0]))
+        if base is None:
+            rows.append(zeros)
+            drives.append(u0)
+            starts.append(0.0)
+        n_extra = 0 if extra_rows is None else extra_rows.shape[0]
+        E = None
+        if rows or n_extra:
+            Z = np.empty((len(rows) + n_extra, n))
+            D = np.zeros((len(rows) + n_extra, n))
+            for i, (z_, d_) in enumerate(zip(rows, drives, strict=True)):
+                Z[i] = z_
+                D[i] = d_
+            if n_extra:
+                Z[len(rows) :] = extra_rows
+            y0 = np.zeros(Z.shape[0])
+            y0[: len(starts)] = starts
+            R = _prediction_errors_many(Z, D, y0, m.pole, k1, k2, m.horizon)
+            i = 0
+            if e0 is None:
+                e0 = R[i].copy()
+                _cache_put(cache, "innovations", e_key, (pv, e0))
+                i += 1
+            if base is None:
+                base = R[i].copy()
+                _cache_put(cache, "input_response", b_key, (u, pv, base))
+                i += 1
+            E = R[i:]
+        X = np.empty((n, 2 + n_extra))
+        X[:, 0] = delayed(base, m.delay)
+        X[:, 1] = delayed(base, m.delay + 1)
+        if n_extra:
+            # pv = y + d + e: the disturbance enters like a measurement offset.
+            X[:, 2:] = -E.T
+        return e0, X
+
+    def solve(m: ProcessModel):
+        # The searches come back to points already solved (a golden section's last
+        # point, the chosen structure): the same model, the same numbers.
+        hit = memo.get(m)
+        if hit is None:
+            hit = memo[m] = _solve(m)
+        return hit
+
+    def _solve(m: ProcessModel):
+        e0, X = terms(m)
+        coef = fractional_delay_wls(X, -e0, w)
+        r = e0 + X @ coef
+        return float(np.dot(w, r * r)), coef, r
+
+    if model is None:
+        # The grid of structures fits the input alone: shared by every fit of this
+        # context with the same input and weights (the extra columns come after).
+        best, per_pole, d_grid = _cached(
+            cache,
+            "structure_grid",
+            (*u_key, id(w)),
+            lambda: (u, pv, w, _structure_grid(u, pv, w)),
+        )
+        per_pole = dict(per_pole)
+        m = best[1]
+        # Refine the dead time to the sample, then the pole and the load ratio.
+        i = int(np.searchsorted(d_grid, m.delay))
+        for d in range(int(d_grid[max(i - 1, 0)]), int(d_grid[min(i + 1, d_grid.size - 1)]) + 1):
+            cand = ProcessModel(m.pole, d, m.load_ratio)
+            sse = solve(cand)[0]
+            if sse < best[0]:
+                best = (sse, cand)
+        m = best[1]
+        if m.pole < 1.0:
+            lt0 = math.log(-1.0 / math.log(m.pole))
+            lt = golden_section(
+                lambda v: solve(ProcessModel(math.exp(-1.0 / math.exp(v)), m.delay, m.load_ratio))[
+                    0
+                ],
+                lt0 - 0.6,
+                lt0 + 0.6,
+                12,
+            )
+            cand = ProcessModel(math.exp(-1.0 / math.exp(lt)), m.delay, m.load_ratio)
+            sse = solve(cand)[0]
+            if sse < best[0]:
+                best = (sse, cand)
+        m = best[1]
+        # Predict as far ahead as the process takes to answer a valve step (dead time
+        # plus one time constant): one step ahead, the load tracking hides most of a
+        # wrong gain or a slow disturbance.
+        # Predict as far ahead as the process takes to answer a valve step: dead time
+        # plus one time constant (an integrator answers with a ramp at once; a few
+        # samples show its slope).
+        tau = 5.0 if m.pole >= 1.0 else min(-1.0 / math.log(max(m.pole, 1e-12)), 40.0)
+        horizon = int(min(max(round(m.delay + tau), 2), 60, max(n // 20, 2)))
+
+        def tune(cm: ProcessModel) -> tuple[float, ProcessModel]:
+            """Load ratio (coarse grid, then golden) and dead time (+-2) at the horizon."""
+            grid = [ProcessModel(cm.pole, cm.delay, 10.0**e, horizon) for e in range(-9, 1)]
+            sse, cm = min(((solve(g)[0], g) for g in grid), key=lambda v: v[0])
+            c0 = math.log10(cm.load_ratio)
+            ll = golden_section(
+                lambda v: solve(ProcessModel(cm.pole, cm.delay, 10.0**v, horizon))[0],
+                c0 - 1.0,
+                c0 + 1.0,
+                10,
+            )
+            cand = ProcessModel(cm.pole, cm.delay, 10.0**ll, horizon)
+            c = solve(cand)[0]
+            if c < sse:
+                sse, cm = c, cand
+            for dd in (-2, -1, 1, 2):
+                if cm.delay + dd < 0:
+                    continue
+                cand = ProcessModel(cm.pole, cm.delay + dd, cm.load_ratio, horizon)
+                c = solve(cand)[0]
+                if c < sse:
+                    sse, cm = c, cand
+            return sse, cm
+
+        # The structure is judged where the replay is: the best lags of the one-step
+        # grid and the integrator, each tuned at the horizon (a lag and an integrator
+        # can predict one step ahead equally well, not further).
+        best_h = tune(m)
+        others = sorted(per_pole.values(), key=lambda v: v[0])[:3]
+        if 1.0 in per_pole:
+            others.append(per_pole[1.0])
+        for _, cm in others:
+            if cm.pole == m.pole:
+                continue
+            cand = tune(cm)
+            if cand[0] < best_h[0]:
+                best_h = cand
+        model = best_h[1]
+    elif retune:
+        m0 = model
+        lo, hi = math.log10(m0.load_ratio) - 2.0, math.log10(m0.load_ratio) + 1.0
+        ll = golden_section(
+            lambda v: solve(ProcessModel(m0.pole, m0.delay, 10.0**v, m0.horizon))[0], lo, hi, 12
+        )
+        cand = ProcessModel(m0.pole, m0.delay, 10.0**ll, m0.horizon)
+        if solve(cand)[0] < solve(m0)[0]:
+            model = cand
+    _, coef, r = solve(model)
+    params = _process_params(model, coef, dt)
+    return PredictorFit(pv=pv - r, model=model, coef=coef, params=params)
+
+
+def _process_params(model: ProcessModel, coef: np.ndarray, dt: float) -> dict:
+    pole = model.pole
+    integrating = pole >= 1.0
+    b = float(coef[0] + coef[1])
+    frac = float(coef[1] / b) if abs(b) > 1e-12 else 0.0
+    frac = min(max(frac, 0.0), 1.0)
+    if integrating:
+        gain, tau = b / dt, None
+    else:
+        gain = b / (1.0 - pole)
+        tau = -dt / math.log(pole) if pole > 0.0 else 0.0
+    return {
+        "integrating": integrating,
+        "gain": gain,
+        "time_constant_s": tau,
+        "dead_time_s": (model.delay + frac) * dt,
+        "load_to_noise_ratio": model.load_ratio,
+    }
+
+
+def process_noise_floor(
+    u: np.ndarray,
+    pv: np.ndarray,
+    w: np.ndarray,
+    fit: PredictorFit,
+    extra: np.ndarray | None = None,
+) -> float:
+    """Variance of the pv prediction error that a correct process replay still makes [pv^2].
+
+    The measurement-noise variance is read from the one-step innovations of the fitted
+    replay (their variance is a known multiple of it for the fitted load-to-noise
+    ratio), and the horizon's error is that multiple of it again
+    (:func:`prediction_variance_ratio`): measurement noise plus the load the filter
+    could not foresee.
+    """
+    m = fit.model
+    k1, k2 = kalman_gains(m.pole, m.load_ratio)
+    pv = np.ascontiguousarray(pv, dtype=float)
+    zeros = np.zeros(pv.size)
+    one = ProcessModel(m.pole, m.delay, m.load_ratio, 1)
+    e0 = _prediction_errors(pv, zeros, m.pole, k1, k2, float(pv[0]), 1)
+    X = process_regressors(np.ascontiguousarray(u, dtype=float), one, k1, k2)
+    if extra is not None and fit.coef.size > 2:
+        E = np.column_stack(
+            [
+                -_prediction_errors(np.ascontiguousarray(c), zeros, m.pole, k1, k2, 0.0, 1)
+                for c in np.atleast_2d(extra.T)
+            ]
+        )
+        X = np.column_stack([X, E])
+    e1 = e0 + X @ fit.coef[: X.shape[1]]
+    s1 = float(np.dot(w, e1 * e1)) / max(float(w.sum()), 1.0)
+    r1, rm = prediction_variance_ratio(m.pole, m.load_ratio, m.horizon)
+    return s1 / r1 * rm
