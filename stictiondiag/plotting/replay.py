@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from stictiondiag.plotting._fast import (
+from stictiondiag.plotting.canvas import (
     decimate,
     new_figure,
     pin_decorations,
