@@ -170,8 +170,8 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
             ("moving_slope", "moving slope"),
             ("corner_rise_samples", "slip rise [samples]"),
         ):
-            vals = [valve[w].get(key) for w in ("data", "before", "after")]
-            txt = " / ".join("-" if v is None else f"{v:.2f}" for v in vals)
+            cells = [valve[w].get(key) for w in ("data", "before", "after")]
+            txt = " / ".join("-" if v is None else f"{v:.2f}" for v in cells)
             lines.append(f"{label} (data/before/after): {txt}")
     if diagnosis.not_assessed:
         lines.append("not assessed: " + ", ".join(diagnosis.not_assessed))
