@@ -5,17 +5,12 @@ J = 2 %, measurement noise 0.05, small enough that the published flowchart's val
 keeps its limit cycle: it re-arms at every reversal of op, Section 5.1) is written to a CSV and analysed the way
 ``stiction analyze FILE --out DIR --json PATH`` does it: read the file, analyse
 (oscillation, S and J, verdict, closed-loop replay, sim-to-real gap), write the
-JSON, build the figures and save them as PNG.  As in the command (whose package
-sets the environment: one BLAS thread, the garbage collector's threshold), the
-figures go to a :class:`~stictiondiag.plotting.writer.FigureWriter`: a worker
-process starts as the analysis does, reads the file and imports matplotlib while
-this process sets up the analysis steps, then replays the loop and draws the phase
-and reconstruction plots while this process diagnoses the gap, and at the end draws
-the two gap plots side by side with a fork of itself (everything in this process
-where workers are not available).  Two variants:
+JSON, build the figures and save them as PNG, one after the other in one process
+(:meth:`~stictiondiag.analysis.Analysis.save_figures`), as the command does (whose
+package sets one BLAS thread).  Two variants:
 
-* with mv: S and J from the stick and slip segments of the mv-op plot;
-  target < 3 s;
+* with mv: S and J from the stick and slip segments of the mv-op plot (its
+  former target of 3 s is withdrawn);
 * without mv (the column dropped): S and J from the Hammerstein fit of op to pv;
   target < 10 s.
 
@@ -29,11 +24,8 @@ For each variant:
   numba's on-disk cache included; not the interpreter's start-up and shutdown);
 * ``warm``: the best of ``--repeat`` runs in one process (the machine is shared,
   so the best run is the one least disturbed by other work);
-* the breakdown per step in this process: read (``-`` when the worker read the
-  file), set-up of the analysis steps while the worker reads, oscillation, fit,
-  verdict, replay (``-`` when a worker replayed the loop), gap, JSON, figures
-  (the PNGs not done when the analysis ends, waiting for the workers), and the CPU
-  time of the worker processes (beside the wall time, not in the total).
+* the breakdown per step: read, oscillation, fit, verdict, replay, gap, JSON,
+  figures (the PNGs).
 
 The steps are timed by wrapping the library functions that
 :func:`stictiondiag.analysis.analyze` calls, so the orchestrator itself is timed
@@ -57,18 +49,16 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-# The ``stiction`` command's process environment (one BLAS thread, no allocator
-# background thread, the collector's threshold), set by its package before numpy
-# is imported.
+# The ``stiction`` command's process environment (one BLAS thread), set by its
+# package before numpy is imported.
 import stiction_cli  # noqa: E402,F401
 
 #: Samples of the benchmark loop.
 N_SAMPLES = 10_000
 #: Targets [s] from the issue: with mv, without mv.
-TARGET_S = {"with mv": 3.0, "without mv": 10.0}
+TARGET_S = {"without mv": 10.0}
 STEPS = (
     "read",
-    "setup",
     "oscillation",
     "fit",
     "verdict",
@@ -119,15 +109,11 @@ class StepTimer:
 
     TARGETS = {
         "read": [("stictiondiag.analysis", "read_tags")],
-        "setup": [("stictiondiag.analysis", "prepare_analysis")],
         "oscillation": [("stictiondiag.analysis", "detect_oscillation")],
-        "fit": [
-            ("stictiondiag.stiction.segments", "estimate_from_mv"),
-            ("stictiondiag.stiction.hammerstein", "fit_hammerstein"),
-        ],
-        "verdict": [("stictiondiag.stiction.valvefit", "stiction_verdict")],
-        "replay": [("stictiondiag.replay.closed_loop", "replay")],
-        "gap": [("stictiondiag.gap.diagnose", "diagnose_gap")],
+        "fit": [("stictiondiag.analysis", "estimate_stiction")],
+        "verdict": [("stictiondiag.analysis", "stiction_verdict")],
+        "replay": [("stictiondiag.analysis", "replay")],
+        "gap": [("stictiondiag.analysis", "diagnose_gap")],
     }
 
     def __init__(self) -> None:
@@ -167,28 +153,22 @@ def run_once(csv: Path, out: Path, gap: bool, timer: StepTimer | None = None) ->
         analyze_file,
     )
     from stictiondiag.core.atomic import write_atomic
-    from stictiondiag.plotting.writer import FigureWriter
 
     if timer is not None:
         timer.reset()
-    cpu0 = os.times()
     t0 = time.perf_counter()
-    with FigureWriter(out, dpi=110) as figures:
-        result = analyze_file(csv, config=AnalysisConfig(gap=gap), figures=figures)
-        t1 = time.perf_counter()
-        write_atomic(out / f"{result.loop}.json", json.dumps(result.to_dict(), indent=2) + "\n")
-        t2 = time.perf_counter()
-        written = figures.finish()
-        t3 = time.perf_counter()
-    cpu1 = os.times()
+    result = analyze_file(csv, config=AnalysisConfig(gap=gap))
+    t1 = time.perf_counter()
+    write_atomic(out / f"{result.loop}.json", json.dumps(result.to_dict(), indent=2) + "\n")
+    t2 = time.perf_counter()
+    written = result.save_figures(out)
+    t3 = time.perf_counter()
     steps = dict(timer.seconds) if timer is not None else {}
     steps.update({"json": t2 - t1, "figures": t3 - t2})
     return {
         "total": t3 - t0,
         "analyze": t1 - t0,
         "steps": steps,
-        "worker_cpu": (cpu1.children_user + cpu1.children_system)
-        - (cpu0.children_user + cpu0.children_system),
         "n_figures": len(written),
         "S": result.fit.S,
         "J": result.fit.J,
@@ -303,27 +283,27 @@ def main() -> None:
     for step in STEPS:
         line(step, [rows[v][k]["steps"].get(step) for v, k in cols])
     line("total", [rows[v][k]["total"] for v, k in cols])
-    line("workers (cpu)", [rows[v][k]["worker_cpu"] for v, k in cols])
     line(
         "command",
         [None if k == "warm" else statistics.median(rows[v]["command"]) for v, k in cols],
     )
     print()
-    if any(rows[v][k]["steps"].get("read") is None for v, k in cols):
-        print("read '-': read by the worker process while this one set up the analysis")
-    if any(rows[v][k]["steps"].get("replay") is None for v, k in cols):
-        print("replay '-': replayed by a worker process beside the gap diagnosis")
     print("command: the stiction command in a fresh process, start to exit (median)")
     print()
     for variant, row in rows.items():
-        target = TARGET_S[variant]
+        target = TARGET_S.get(variant)
         warm, runs = row["warm"]["total"], row["command"]
-        met = sum(t < target for t in runs)
+        verdict = "no target"
+        if target is not None:
+            met = sum(t < target for t in runs)
+            verdict = (
+                f"target < {target:g} s -> warm {'MET' if warm < target else 'NOT MET'}, "
+                f"command met in {met} of {len(runs)} runs"
+            )
         print(
             f"{variant:<10}: warm {warm:.2f} s; command "
             + ", ".join(f"{t:.2f}" for t in runs)
-            + f" s; target < {target:g} s -> warm {'MET' if warm < target else 'NOT MET'}, "
-            f"command met in {met} of {len(runs)} runs  "
+            + f" s; {verdict}  "
             f"(S={row['warm']['S']:.2f} J={row['warm']['J']:.2f} {row['warm']['verdict']}, "
             f"{row['warm']['n_figures']} figures)"
         )

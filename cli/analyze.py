@@ -135,28 +135,15 @@ def analyze(
     gap: Annotated[bool, typer.Option(help="Run the sim-to-real gap diagnosis.")] = True,
 ) -> None:
     """Diagnose stiction in one loop: verdict, S and J, closed-loop replay, gap."""
-    import contextlib
-
-    from stictiondiag.analysis import (
-        AnalysisConfig,
-        analyze_file,
-    )
+    from stictiondiag.analysis import AnalysisConfig, analyze_file
 
     with friendly_errors():
         check_outputs(out, json_path)
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
         info(f"analysing {file} ...")
-        if out is None:
-            figures = None
-        else:
-            # The figures are drawn in worker processes while the analysis goes on.
-            from stictiondiag.plotting.writer import FigureWriter
-
-            figures = FigureWriter(out, dpi=110)
-        with figures if figures is not None else contextlib.nullcontext():
-            result = analyze_file(file, config=AnalysisConfig(gap=gap), figures=figures, **options)
-            d = result.to_dict()
-            emit(d, render_summary(d), json_path)
-            if figures is not None:
-                for target in figures.finish():
-                    info(f"wrote {target}")
+        result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
+        d = result.to_dict()
+        emit(d, render_summary(d), json_path)
+        if out is not None:
+            for target in result.save_figures(out):
+                info(f"wrote {target}")

@@ -36,20 +36,11 @@ from . import _commands  # noqa: E402,F401
 
 def main() -> None:
     """Console-script entry point (``stiction``)."""
-    import gc
     import sys
 
     from .report import normalise_argv
 
-    try:
-        app(args=normalise_argv(sys.argv[1:]), prog_name="stiction")
-    finally:
-        # Python's shutdown runs the garbage collector over every object left, more
-        # than once: about 1 s after an analysis (numba, scipy, matplotlib and
-        # pandas loaded) against 0.15 s with the objects frozen.  Nothing is left
-        # for it to do: the outputs are written and closed, and the exit frees the
-        # memory.
-        gc.freeze()
+    app(args=normalise_argv(sys.argv[1:]), prog_name="stiction")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -3,10 +3,13 @@
 The science is Choudhury, Thornhill & Shah (2005), "Modelling valve stiction",
 Control Engineering Practice 13, 641-658.
 
-Public names are loaded lazily (PEP 562): ``import stictiondiag`` costs almost
-nothing, and the first access to a name imports only the submodule that defines it,
-so the ``stiction`` command does not pay for numpy, pandas, numba or scipy before it
-needs them.
+Start with :func:`analyze` (or :func:`analyze_file`): one loop's tags in, an
+:class:`Analysis` out.
+
+Public names are loaded lazily (PEP 562): ``import stictiondiag`` imports no numpy,
+so a program (the ``stiction`` command among them) can set numpy's thread settings
+(:mod:`stictiondiag.core.blas`) after importing this package and before numpy loads;
+the first access to a name imports only the submodule that defines it.
 """
 
 from __future__ import annotations
@@ -15,6 +18,12 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
+    from stictiondiag.analysis import (
+        Analysis,
+        AnalysisConfig,
+        analyze,
+        analyze_file,
+    )
     from stictiondiag.core.atomic import (
         atomic_path,
         write_atomic,
@@ -103,6 +112,10 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
 __version__ = "0.1.0"
 
 __all__ = [
+    "Analysis",
+    "AnalysisConfig",
+    "analyze",
+    "analyze_file",
     "DataError",
     "StictionError",
     "UsageError",
@@ -161,6 +174,10 @@ __all__ = [
 
 # public name -> submodule that defines it
 _LAZY: dict[str, str] = {
+    "Analysis": "analysis",
+    "AnalysisConfig": "analysis",
+    "analyze": "analysis",
+    "analyze_file": "analysis",
     "atomic_path": "core.atomic",
     "write_atomic": "core.atomic",
     "BicoherenceResult": "stiction.classic",

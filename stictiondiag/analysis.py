@@ -3,8 +3,8 @@
 :func:`analyze` follows the paper's procedure for plant data (Choudhury, Thornhill &
 Shah 2005):
 
-1. the tags, scaled to mean-centred unit variance for plots and comparisons
-   (Section 3);
+1. the tags, in % of span for op and mv (Section 5.1), shown mean-centred with unit
+   variance in plots and comparisons (Section 3);
 2. is there an oscillation at all (the limit cycles of Sections 4.2.2 and 5.3);
 3. S and J of the data-driven model (Section 5.1): from the stick and slip segments
    of the mv-op plot when mv is recorded, otherwise by fitting the valve model and a
@@ -17,28 +17,26 @@ Shah 2005):
    effect explains the departure.
 
 Every step is a pure function of its own module; this module only calls them in
-order and gathers their results in :class:`Analysis`.
+order and gathers their results in :class:`Analysis`.  Nothing here starts a
+process or a thread: the parallelism of many loops is ``stiction scan``'s.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from stictiondiag.core.errors import (
-    DataError,
-    StictionError,
-)
-from stictiondiag.io.tags import (
-    Tags,
-    read_tags,
-)
+from stictiondiag.core.errors import DataError, StictionError
+from stictiondiag.core.serialize import to_plain
+from stictiondiag.gap.diagnose import GapDiagnosis, diagnose_gap
+from stictiondiag.io.tags import Tags, read_tags
+from stictiondiag.replay import Replay, replay
 from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
@@ -46,12 +44,25 @@ from stictiondiag.signals.oscillation import (
     detect_oscillation,
     dominant_period,
 )
+from stictiondiag.stiction.hammerstein import fit_hammerstein
+from stictiondiag.stiction.segments import estimate_from_mv
+from stictiondiag.stiction.valvefit import StictionFit
+from stictiondiag.stiction.verdict import Verdict, stiction_verdict
+
+if TYPE_CHECKING:
+    import pandas as pd
+    from matplotlib.figure import Figure
 
 #: Loop types where pv is (nearly) proportional to the valve opening (Section 5.3.1:
 #: "in liquid flow loops ... pv can be taken to be proportional to valve opening").
 #: Without mv the fit records it and uses the self-regulating structure
 #: (:mod:`stictiondiag.stiction.hammerstein`, "The linear part").
 FLOW_LIKE = frozenset({"flow"})
+
+#: Resolution of the PNG files of :meth:`Analysis.save_figures` [dots per inch].
+FIGURE_DPI = 110
+
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -83,15 +94,17 @@ class Analysis:
         control error ``sp - pv`` when only that shows it (a set-point change hides
         the cycle of pv; noted in ``warnings``).
     oscillation_op : Oscillation
-        Oscillation of op (amplitude in % of span).
+        Oscillation of op (period [s], amplitude [% of span]).
     fit : StictionFit
         S and J [% of op span] with intervals and method.
     verdict : Verdict
-        stiction / no_stiction / inconclusive, with confidence and reasons.
+        stiction / no_stiction / inconclusive, with confidence [0-1] and reasons.
     replay : Replay or None
-        Closed-loop reconstruction, None when it could not be built (see warnings).
+        Closed-loop reconstruction (pv in pv units, op and mv in % of span), None
+        when not run or not possible (see ``warnings``).
     gap : GapDiagnosis or None
-        Sim-to-real gap diagnosis, None when not run or not possible.
+        Sim-to-real gap diagnosis (errors in % of the data's spread), None when not
+        run or not possible.
     warnings : tuple of str
         Data-quality and analysis warnings, in the order they arose.
     """
@@ -99,10 +112,10 @@ class Analysis:
     tags: Tags
     oscillation: Oscillation
     oscillation_op: Oscillation
-    fit: Any
-    verdict: Any
-    replay: Any = None
-    gap: Any = None
+    fit: StictionFit
+    verdict: Verdict
+    replay: Replay | None = None
+    gap: GapDiagnosis | None = None
     warnings: tuple[str, ...] = field(default_factory=tuple)
 
     @property
@@ -110,12 +123,12 @@ class Analysis:
         """Loop name: the source file's stem."""
         return Path(str(self.tags.source)).stem or "loop"
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-able summary (the ``--json`` output of ``stiction analyze``)."""
         tags = self.tags
-        stiction = _clean(self.fit.to_dict())
+        stiction = to_plain(self.fit.to_dict())
         stiction["units"] = "% of op span"
-        stiction.update(_clean(self.verdict.to_dict()))
+        stiction.update(to_plain(self.verdict.to_dict()))
         return {
             "source": str(tags.source),
             "loop": self.loop,
@@ -130,21 +143,23 @@ class Analysis:
                 "has_sp": tags.sp is not None,
             },
             "oscillation": {
-                "pv": _clean(self.oscillation.to_dict()),
-                "op": _clean(self.oscillation_op.to_dict()),
+                "pv": to_plain(self.oscillation.to_dict()),
+                "op": to_plain(self.oscillation_op.to_dict()),
             },
             "stiction": stiction,
-            "replay": None if self.replay is None else _clean(self.replay.to_dict()),
-            "gap": None if self.gap is None else _clean(self.gap.to_dict()),
+            "replay": None if self.replay is None else to_plain(self.replay.to_dict()),
+            "gap": None if self.gap is None else to_plain(self.gap.to_dict()),
             "warnings": list(self.warnings),
         }
 
-    def summary_row(self) -> dict:
+    def summary_row(self) -> dict[str, Any]:
         """One flat row for plant-wide tables (``stiction scan``)."""
         d = self.to_dict()
         st = d["stiction"]
         gap = d["gap"] or {}
         rep = d["replay"] or {}
+        s_int = st.get("S_interval") or [None, None]
+        j_int = st.get("J_interval") or [None, None]
         return {
             "loop": self.loop,
             "source": d["source"],
@@ -158,10 +173,10 @@ class Analysis:
             "confidence": st.get("confidence"),
             "S": st.get("S"),
             "J": st.get("J"),
-            "S_lo": (st.get("S_interval") or [None, None])[0],
-            "S_hi": (st.get("S_interval") or [None, None])[1],
-            "J_lo": (st.get("J_interval") or [None, None])[0],
-            "J_hi": (st.get("J_interval") or [None, None])[1],
+            "S_lo": s_int[0],
+            "S_hi": s_int[1],
+            "J_lo": j_int[0],
+            "J_hi": j_int[1],
             "method": st.get("method"),
             "replay_fit_pv": (rep.get("fit") or {}).get("pv"),
             "gap_effect": gap.get("effect"),
@@ -170,105 +185,79 @@ class Analysis:
             "flags": "; ".join(self.warnings),
         }
 
-    def figures(self) -> dict:
-        """Figures by name: ``phase`` (Figs. 3-6 style), ``reconstruction``, gap plots."""
-        return {name: build() for name, build in self.figure_builders().items()}
+    def to_pandas(self) -> pd.DataFrame:
+        """The loop's time series, one row per sample.
 
-    def figure_builders(self) -> dict:
-        """The functions that build :meth:`figures`, by name, without building them.
-
-        Each is a module-level function bound to its data (picklable, so that a
-        worker process started before the analysis can draw it); none imports
-        matplotlib before it is called.
+        Columns: ``time`` [s], the recorded ``sp``, ``pv`` [pv units], ``op``, ``mv``
+        [% of span] (those present), ``mv_model`` (the fitted valve's output for the
+        recorded op [% of span]) and, with a replay, ``pv_replay``, ``op_replay``,
+        ``mv_replay`` (NaN on the samples before the replay starts).
         """
-        builders = {"phase": functools.partial(_phase_figure, self)}
+        frame = self.tags.to_pandas()
+        if np.size(self.fit.mv_model) == self.tags.n:
+            frame["mv_model"] = np.asarray(self.fit.mv_model, dtype=float)
         if self.replay is not None:
-            # Looked up when drawn: the replay may still be on its way from a worker.
-            builders["reconstruction"] = functools.partial(_reconstruction_figure, self)
-        if self.gap is not None and hasattr(self.gap, "figures"):
-            # The figures of GapDiagnosis.figures(), one at a time.
-            builders["gap_breakdown"] = functools.partial(_gap_figure, "breakdown", self.gap)
-            builders["gap_replay"] = functools.partial(_gap_figure, "replay", self.gap)
+            start = int(round(float(self.replay.time[0]) / float(self.replay.dt)))
+            for name in ("pv", "op", "mv"):
+                column = np.full(self.tags.n, np.nan)
+                values = np.asarray(getattr(self.replay, name), dtype=float)
+                stop = min(self.tags.n, start + values.size)
+                column[start:stop] = values[: stop - start]
+                frame[f"{name}_replay"] = column
+        return frame
+
+    def plot(self, **kwargs: Any) -> Figure:
+        """Time trends and phase plots of the loop with the fitted valve (Figs. 3-6).
+
+        Keyword arguments go to :func:`stictiondiag.plotting.analysis.plot_phase`.
+        """
+        from stictiondiag.plotting.analysis import plot_phase
+
+        options: dict[str, Any] = {
+            "fit": self.fit,
+            "title": self.loop,
+            "period_s": self.oscillation.period_s or self.oscillation_op.period_s,
+        }
+        return plot_phase(self.tags, **{**options, **kwargs})
+
+    def figure_builders(self) -> dict[str, Callable[[], Figure]]:
+        """The functions that draw :meth:`figures`, by name, without drawing them:
+        ``phase`` (Figs. 3-6 style), ``reconstruction`` (with a replay),
+        ``gap_breakdown`` and ``gap_replay`` (with a gap diagnosis)."""
+        builders: dict[str, Callable[[], Figure]] = {"phase": self.plot}
+        if self.replay is not None:
+            builders["reconstruction"] = self.replay.plot
+        if self.gap is not None:
+            from stictiondiag.plotting.gap import plot_gap_breakdown, plot_gap_replay
+
+            gap = self.gap
+            builders["gap_breakdown"] = lambda: plot_gap_breakdown(gap)
+            builders["gap_replay"] = lambda: plot_gap_replay(gap)
         return builders
+
+    def figures(self) -> dict[str, Figure]:
+        """Figures by name (see :meth:`figure_builders`)."""
+        return {name: build() for name, build in self.figure_builders().items()}
 
     def figure_file(self, name: str) -> str:
         """File name of the figure ``name``: ``<loop>_<name>.png``."""
         return f"{self.loop}_{name}.png"
 
+    def save_figures(self, folder: str | os.PathLike[str], *, dpi: int = FIGURE_DPI) -> list[Path]:
+        """Write every figure as ``folder/<loop>_<name>.png``, one at a time, each
+        file whole or not at all; return the files in the order of :meth:`figures`.
 
-def _replay(tags: Tags, fit):
-    """Step 5, the closed-loop replay (:func:`stictiondiag.replay.closed_loop.replay`, looked up
-    when called)."""
-    from stictiondiag.replay.closed_loop import replay
+        Raises
+        ------
+        UsageError
+            ``folder`` cannot be written.
+        """
+        from stictiondiag.plotting import save_png
 
-    return replay(tags, fit, integrating=tags.integrating)
-
-
-def _phase_figure(analysis: Analysis):
-    from stictiondiag.plotting.analysis import plot_phase
-
-    period = analysis.oscillation.period_s or analysis.oscillation_op.period_s
-    return plot_phase(analysis.tags, fit=analysis.fit, title=analysis.loop, period_s=period)
-
-
-def _reconstruction_figure(analysis: Analysis):
-    return analysis.replay.plot()
-
-
-def _gap_figure(which: str, gap):
-    from stictiondiag.plotting.gap import (
-        plot_gap_breakdown,
-        plot_gap_replay,
-    )
-
-    return (plot_gap_breakdown if which == "breakdown" else plot_gap_replay)(gap)
-
-
-def prepare_analysis() -> None:
-    """Import the modules of the analysis steps and set up numba's compiler state
-    (the first call of any compiled kernel: about 0.3 s), before the data arrive."""
-    import numpy as np
-
-    from stictiondiag.core.filters import lfilter1
-    from stictiondiag.gap import diagnose, effects  # noqa: F401
-    from stictiondiag.stiction import hammerstein, segments, valvefit, verdict  # noqa: F401
-
-    lfilter1((1.0,), 0.0, np.zeros(1))
-
-
-def prepare_figure_worker() -> None:
-    """Warm-up of a worker process that will draw this module's figures and replay
-    the loop (:meth:`~stictiondiag.plotting.writer.FigureWriter.warm_up`): the
-    plotting modules imported and numba's compiler state set up, before the work
-    arrives."""
-    import numpy as np  # noqa: F401
-
-    from stictiondiag.core.filters import lfilter1
-    from stictiondiag.plotting import analysis, gap  # noqa: F401
-    from stictiondiag.plotting import replay as _replay_plots  # noqa: F401
-    from stictiondiag.replay import closed_loop as replay  # noqa: F401
-
-    # The first call of any compiled kernel sets up numba's target (about 0.3 s);
-    # the replay's own kernels then load in a few ms each.
-    lfilter1((1.0,), 0.0, np.zeros(1))
-
-
-def _clean(obj):
-    """Make a nested structure strictly JSON-able: numpy scalars to Python, NaN to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [_clean(v) for v in obj.tolist()]
-    if isinstance(obj, np.bool_ | bool):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.floating | float):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    return obj
+        return [
+            save_png(build(), Path(folder) / self.figure_file(name), dpi=dpi)
+            for name, build in self.figure_builders().items()
+        ]
 
 
 #: Fewest periods of a regular cycle a record must hold to be analysed at all [-].
@@ -337,25 +326,16 @@ def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) ->
     return None
 
 
-def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = None) -> Analysis:
-    """Diagnose stiction in one loop.
+def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
+    """Diagnose stiction in one loop, in the paper's order (see the module docstring).
 
     Parameters
     ----------
     tags : Tags
-        Loop data from :func:`stictiondiag.io.tags.read_tags` or ``Tags.from_arrays``.
+        Loop data from :func:`stictiondiag.io.tags.read_tags` or ``Tags.from_arrays``
+        (op and mv already in % of span: step 1).
     config : AnalysisConfig, optional
         Which optional steps to run.
-    figures : FigureWriter, optional
-        Receives every figure of the result, named by :meth:`Analysis.figure_file`
-        (:class:`stictiondiag.plotting.writer.FigureWriter`); the caller writes them
-        with ``figures.finish()``.  A worker process starts at once and imports
-        and sets up what drawing and replaying need (:func:`prepare_figure_worker`)
-        while this process finds the oscillation and fits S and J; the figures
-        that do not need the gap diagnosis, and the closed-loop replay, are then
-        handed to it while this process diagnoses the gap, and the gap's figures
-        at the end: the result is the same as without ``figures``, and this
-        process never imports matplotlib.
 
     Returns
     -------
@@ -365,49 +345,21 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
     ------
     DataError
         The record holds fewer than two periods of a regular cycle
-        (:func:`check_record_length`),
-        or a step cannot use the data (its message says why).
+        (:func:`check_record_length`), or a step cannot use the data (its message
+        says why).  The replay and the gap diagnosis do not raise: when they cannot
+        use the data the reason goes into the warnings and their field is None.
     """
-    from stictiondiag.stiction.hammerstein import fit_hammerstein
-    from stictiondiag.stiction.segments import estimate_from_mv
-    from stictiondiag.stiction.verdict import stiction_verdict
-
     config = config or AnalysisConfig()
     warnings = list(tags.warnings)
-    dt = float(tags.ts)
-    if figures is not None and hasattr(figures, "warm_up"):
-        # A worker process gets ready to draw and replay (imports, compiler set-up)
-        # on the other core while this one finds the oscillation and fits S and J.
-        figures.warm_up(prepare_figure_worker)
 
     # 2. Is there an oscillation at all?
-    osc_pv = detect_oscillation(tags.pv, dt)
-    if not osc_pv.present and tags.sp is not None and float(np.ptp(tags.sp)) > 0:
-        # A set-point change puts a step into pv that can hide the cycle from the
-        # autocorrelation; the control error sp - pv, on which Thornhill et al.
-        # (2003) detect oscillations, has the cycle without the step.
-        osc_error = detect_oscillation(tags.sp - tags.pv, dt)
-        if osc_error.present:
-            osc_pv = osc_error
-            warnings.append(
-                "the set point moves: the oscillation was found in the control error sp - pv"
-            )
-    osc_op = detect_oscillation(tags.op, dt)
+    osc_pv, osc_op = find_oscillations(tags, warnings)
     short = check_record_length(tags, osc_pv, osc_op)
     if short:
         warnings.append(short)
 
     # 3. S and J: from the valve's own signal when recorded, else the Hammerstein fit.
-    if tags.mv is not None:
-        fit = estimate_from_mv(tags.op, tags.mv, dt)
-    else:
-        fit = fit_hammerstein(
-            tags.op,
-            tags.pv,
-            dt,
-            integrating=bool(tags.integrating),
-            flow_loop=tags.loop_type in FLOW_LIKE,
-        )
+    fit = estimate_stiction(tags)
 
     # 4. Verdict.
     verdict = stiction_verdict(
@@ -418,119 +370,92 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         short_record=bool(short),
     )
 
-    def so_far(replay_value, gap_value=None) -> Analysis:
-        return Analysis(
-            tags=tags,
-            oscillation=osc_pv,
-            oscillation_op=osc_op,
-            fit=fit,
-            verdict=verdict,
-            replay=replay_value,
-            gap=gap_value,
-            warnings=tuple(warnings),
+    # 5. Closed-loop replay; its own notes (a poor identification, a replay without
+    # a cycle) say how far the reconstruction can be trusted.
+    rep = None
+    if config.replay:
+        rep = _or_warn(
+            "replay not possible",
+            warnings,
+            lambda: replay(tags, fit, integrating=tags.integrating),
+        )
+        if rep is not None:
+            warnings.extend(f"replay: {w}" for w in rep.warnings)
+
+    # 6. Sim-to-real gap (it needs the replay).
+    gap = None
+    if config.gap and rep is not None:
+        replayed = rep
+        gap = _or_warn(
+            "gap diagnosis not possible", warnings, lambda: diagnose_gap(tags, fit, replayed)
         )
 
-    def take_replay(get):
-        # The replay's outcome, or None with the reason among the warnings.
-        try:
-            value = get()
-        except StictionError as exc:
-            warnings.append(f"replay not possible: {exc}")
-            return None
-        # A poor identification or a replay without a cycle changes how far the
-        # reconstruction can be trusted: the user sees it with the verdict.
-        warnings.extend(f"replay: {w}" for w in getattr(value, "warnings", ()))
-        return value
+    return Analysis(
+        tags=tags,
+        oscillation=osc_pv,
+        oscillation_op=osc_op,
+        fit=fit,
+        verdict=verdict,
+        replay=rep,
+        gap=gap,
+        warnings=tuple(warnings),
+    )
 
-    sent: set[str] = set()
 
-    def hand_over(partial: Analysis) -> None:
-        # The figures of the steps so far are drawn while the gap is diagnosed.
-        for name, build in partial.figure_builders().items():
-            figures.add(partial.figure_file(name), build)
-            sent.add(name)
-        figures.start()
+def find_oscillations(tags: Tags, warnings: list[str]) -> tuple[Oscillation, Oscillation]:
+    """Step 2: the oscillation of pv (or of the control error) and of op.
 
-    rep = gap = None
-    if (
-        figures is not None
-        and config.replay
-        and config.gap
-        and hasattr(figures, "compute")
-        and figures.can_start()
-    ):
-        # 5 and 6 side by side: a worker process replays the loop (and draws the
-        # figures of the steps so far), this one diagnoses the gap, which needs the
-        # replay only at its end (for the feature breakdown) and then waits for it.
-        # The outcome is that of the two steps one after the other.
-        from stictiondiag.gap.diagnose import diagnose_gap
+    A set-point change puts a step into pv that can hide the cycle from the
+    autocorrelation; the control error ``sp - pv``, on which Thornhill et al. (2003)
+    detect oscillations, has the cycle without the step.  When only the error shows
+    it, its oscillation stands for pv's and a note goes into ``warnings``.
+    """
+    dt = float(tags.ts)
+    osc_pv = detect_oscillation(tags.pv, dt)
+    if not osc_pv.present and tags.sp is not None and float(np.ptp(tags.sp)) > 0:
+        osc_error = detect_oscillation(tags.sp - tags.pv, dt)
+        if osc_error.present:
+            osc_pv = osc_error
+            warnings.append(
+                "the set point moves: the oscillation was found in the control error sp - pv"
+            )
+    return osc_pv, detect_oscillation(tags.op, dt)
 
-        # A picklable call: the worker may have been started before the fit.
-        pending = figures.compute(functools.partial(_replay, tags, fit))
-        hand_over(so_far(pending.stand_in()))
-        gap_error = None
-        try:
-            gap = diagnose_gap(tags, fit, pending.stand_in())
-        except Exception as exc:  # judged once the replay's outcome is known
-            gap_error = exc
-        rep = take_replay(pending.get)
-        if rep is None:
-            gap = gap_error = None  # without a replay there is no gap diagnosis
-        if gap_error is not None:
-            if not isinstance(gap_error, StictionError):
-                raise gap_error
-            warnings.append(f"gap diagnosis not possible: {gap_error}")
-    else:
-        # 5. Closed-loop replay; a worker, when there is one, draws the phase plot
-        # meanwhile.
-        if figures is not None and config.replay and not config.gap:
-            hand_over(so_far(None))
-        if config.replay:
-            rep = take_replay(functools.partial(_replay, tags, fit))
 
-        # 6. Sim-to-real gap.
-        if config.gap and rep is not None:
-            from stictiondiag.gap.diagnose import diagnose_gap
+def estimate_stiction(tags: Tags) -> StictionFit:
+    """Step 3: S and J [% of op span] of the data-driven model (Section 5.1).
 
-            if figures is not None:
-                hand_over(so_far(rep))
-            try:
-                gap = diagnose_gap(tags, fit, rep)
-            except StictionError as exc:
-                warnings.append(f"gap diagnosis not possible: {exc}")
+    From the stick and slip segments of the mv-op plot when mv is recorded (Figs. 3
+    and 6), otherwise from the valve model and a linear process fitted together to
+    op and pv (Section 5.3.1).
+    """
+    if tags.mv is not None:
+        return estimate_from_mv(tags.op, tags.mv, float(tags.ts))
+    return fit_hammerstein(
+        tags.op,
+        tags.pv,
+        float(tags.ts),
+        integrating=bool(tags.integrating),
+        flow_loop=tags.loop_type in FLOW_LIKE,
+    )
 
-    result = so_far(rep, gap)
-    if figures is not None:
-        for name, build in result.figure_builders().items():
-            if name not in sent:
-                figures.add(result.figure_file(name), build)
-    return result
+
+def _or_warn(what: str, warnings: list[str], step: Callable[[], _T]) -> _T | None:
+    """``step()``, or None with ``"<what>: <reason>"`` among the warnings when the
+    step cannot use the data (a :class:`StictionError`; other errors propagate)."""
+    try:
+        return step()
+    except StictionError as exc:
+        warnings.append(f"{what}: {exc}")
+        return None
 
 
 def analyze_file(
-    path: str | os.PathLike,
+    path: str | os.PathLike[str],
     *,
     config: AnalysisConfig | None = None,
-    figures: Any = None,
-    **read_options,
+    **read_options: Any,
 ) -> Analysis:
-    """Read one loop's file with :func:`read_tags` and :func:`analyze` it.
-
-    With ``figures`` (a :class:`~stictiondiag.plotting.writer.FigureWriter`) the
-    file is read by the figure worker as it starts, while this process sets up the
-    steps that follow (:func:`prepare_analysis`): pandas and the compiled kernels'
-    set-up, each about half a second, then load side by side.  A file that cannot
-    be read is read again here, so its error is the one :func:`read_tags` raises.
-    """
-    tags = None
-    if figures is not None and hasattr(figures, "warm_up") and figures.can_start():
-        reading = figures.compute(functools.partial(read_tags, path, **read_options))
-        if figures.warm_up(prepare_figure_worker):
-            prepare_analysis()
-        try:
-            tags = reading.get()
-        except Exception:
-            pass  # read again here: the error as read_tags raises it
-    if tags is None:
-        tags = read_tags(path, **read_options)
-    return analyze(tags, config=config, figures=figures)
+    """Read one loop's file with :func:`~stictiondiag.io.tags.read_tags` and
+    :func:`analyze` it."""
+    return analyze(read_tags(path, **read_options), config=config)

@@ -337,20 +337,16 @@ def test_no_sp_and_no_replay(conc, conc_mv):
 
 
 def test_gap_diagnosis_is_reported(conc, tmp_path):
-    # The one test with the gap on: its result lands in the JSON with its keys.
-    # Its figures, given to a writer, are the figures of the result, as files (those
-    # that do not need the gap handed over before it runs).
-    from stictiondiag.plotting.writer import FigureWriter
-
+    # The one test with the gap on: its result lands in the JSON with its keys, and
+    # its figures, saved as files, are the figures of the result.
     tags = Tags.from_arrays(conc["pv"], conc["op"], mv=conc["mv"], sp=conc["sp"], ts=1.0)
-    with FigureWriter(tmp_path / "figures") as writer:
-        a = analyze(tags, figures=writer)
-        written = writer.finish()
+    a = analyze(tags)
     gap = a.to_dict()["gap"]
     assert gap is not None, a.warnings
     for key in ("metric", "before", "after", "shrink_pct", "effect", "candidates"):
         assert key in gap
     assert a.summary_row()["gap_effect"] == gap["effect"]
+    written = a.save_figures(tmp_path / "figures")
     figs = a.figures()
     assert list(figs) == ["phase", "reconstruction", "gap_breakdown", "gap_replay"]
     assert written == [tmp_path / "figures" / a.figure_file(name) for name in figs]
@@ -359,6 +355,41 @@ def test_gap_diagnosis_is_reported(conc, tmp_path):
         assert (tmp_path / "figures" / a.figure_file(name)).read_bytes() == (
             tmp_path / "direct.png"
         ).read_bytes(), name
+
+
+def test_to_pandas_holds_the_data_the_model_and_the_replay(conc_mv):
+    # One row per sample; the recorded columns are the tags' own, the fitted valve's
+    # output is mv_model, and the replay's columns sit on the samples it covers
+    # (exact: the frame only copies the arrays).
+    a = conc_mv
+    frame = a.to_pandas()
+    assert len(frame) == a.tags.n
+    for role in ("time", "pv", "op", "mv", "sp"):
+        assert np.array_equal(frame[role].to_numpy(), getattr(a.tags, role)), role
+    assert np.array_equal(frame["mv_model"].to_numpy(), a.fit.mv_model)
+    start = int(round(a.replay.time[0] / a.replay.dt))
+    covered = slice(start, start + a.replay.n)
+    for name in ("pv", "op", "mv"):
+        column = frame[f"{name}_replay"].to_numpy()
+        assert np.array_equal(column[covered], getattr(a.replay, name)), name
+        assert np.isnan(column[:start]).all()
+
+
+def test_to_pandas_without_a_replay(conc):
+    tags = Tags.from_arrays(conc["pv"], conc["op"], ts=1.0)
+    a = analyze(tags, config=AnalysisConfig(gap=False, replay=False))
+    assert list(a.to_pandas().columns) == ["time", "pv", "op", "mv_model"]
+
+
+def test_plot_is_the_phase_figure(conc_mv):
+    from matplotlib.figure import Figure
+
+    fig = conc_mv.plot()
+    # Trends and phase plots of pv-op and mv-op (sp is constant: no pv-sp row).
+    assert isinstance(fig, Figure)
+    assert len(fig.axes) == 4
+    assert fig.get_suptitle() == conc_mv.loop
+    assert conc_mv.plot(title="other").get_suptitle() == "other"
 
 
 def test_noise_free_constant_loop_is_not_stiction():

@@ -1,4 +1,4 @@
-"""The cheap figure helpers of :mod:`stictiondiag.plotting._fast`: same pictures."""
+"""The cheap figure helpers of :mod:`stictiondiag.plotting.canvas`: same pictures."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from matplotlib.font_manager import FontProperties
 from PIL import Image
 
-from stictiondiag.plotting._fast import (
+from stictiondiag.plotting.canvas import (
     decimate,
     new_figure,
     pin_decorations,

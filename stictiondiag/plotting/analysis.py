@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from stictiondiag.plotting._fast import (
+from stictiondiag.plotting.canvas import (
     new_figure,
     pin_decorations,
 )

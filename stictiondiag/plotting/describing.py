@@ -86,7 +86,7 @@ def plot_nyquist_df(
         ax.plot(c.real, c.imag, ls=":", lw=1.8, color=color, label=f"-1/N, {label}")
         pred = predict_limit_cycle(process, controller, S, J)
         for sol in pred.solutions:
-            g = open_loop_response(process, controller, sol.frequency_rad_s)
+            g = complex(open_loop_response(process, controller, np.asarray(sol.frequency_rad_s)))
             ax.plot(
                 g.real,
                 g.imag,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from stictiondiag.plotting._fast import (
+from stictiondiag.plotting.canvas import (
     decimate,
     new_figure,
     pin_decorations,
@@ -52,8 +52,22 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     """
     b = diagnosis.breakdown
     fig, axes = new_figure(2, 3, (14, 7.5))
-    ax = axes[0, 0]
-    sig = b.get("signal", {})
+    _signal_panel(axes[0, 0], b.get("signal", {}))
+    _phase_panel(axes[0, 1], b.get("phase"))
+    _frequency_panel(axes[0, 2], b.get("frequency", {}))
+    _time_panel(axes[1, 0], b.get("time", {}))
+    _candidates_panel(axes[1, 1], diagnosis)
+    ax = axes[1, 2]
+    ax.set_axis_off()
+    summary = _summary(diagnosis)
+    ax.text(0.0, 1.0, summary, va="top", family="monospace", fontsize=8, transform=ax.transAxes)
+    fig.suptitle(title or "Sim-to-real gap: where the replay departs from the data")
+    _breakdown_layout(fig, axes, text_width(summary, 8, "monospace"))
+    return fig
+
+
+def _signal_panel(ax, sig: dict) -> None:
+    """Gap per signal before and after, with each signal's noise floor."""
     names = list(sig)
     _bars(
         ax,
@@ -72,8 +86,9 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     )
     ax.legend(fontsize=8)
 
-    ax = axes[0, 1]
-    ph = b.get("phase")
+
+def _phase_panel(ax, ph: dict | None) -> None:
+    """Share of the mv error per valve phase (stuck, slip, moving, reversal)."""
     if ph:
         labels = list(ph)
         _bars(
@@ -97,8 +112,9 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
         ax.text(0.5, 0.5, "no valve position recorded", ha="center", transform=ax.transAxes)
         ax.set_axis_off()
 
-    ax = axes[0, 2]
-    fr = b.get("frequency", {})
+
+def _frequency_panel(ax, fr: dict) -> None:
+    """Error energy at the fundamental, its harmonics and elsewhere, per signal."""
     sigs = [s for s in ("mv", "pv", "op") if s in fr]
     if sigs:
         parts = ("fundamental", "harmonics", "other")
@@ -120,8 +136,9 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     else:
         ax.set_axis_off()
 
-    ax = axes[1, 0]
-    tm = b.get("time", {})
+
+def _time_panel(ax, tm: dict) -> None:
+    """Gap in the first and second half of the record, per signal."""
     labels, before, after = [], [], []
     for s, v in tm.items():
         for half in ("early", "late"):
@@ -133,7 +150,9 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     else:
         ax.set_axis_off()
 
-    ax = axes[1, 1]
+
+def _candidates_panel(ax, diagnosis) -> None:
+    """Held-out gap and penalised score of every candidate effect."""
     cands = list(diagnosis.candidates)
     if cands:
         y = np.arange(len(cands))
@@ -154,8 +173,10 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     else:
         ax.set_axis_off()
 
-    ax = axes[1, 2]
-    ax.set_axis_off()
+
+def _summary(diagnosis) -> str:
+    """The text of the last panel: gap, effect, runner-up and the valve features."""
+    b = diagnosis.breakdown
     lines = [
         f"gap before: {diagnosis.before:.1f} %",
         f"effect: {diagnosis.effect}",
@@ -170,16 +191,12 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
             ("moving_slope", "moving slope"),
             ("corner_rise_samples", "slip rise [samples]"),
         ):
-            vals = [valve[w].get(key) for w in ("data", "before", "after")]
-            txt = " / ".join("-" if v is None else f"{v:.2f}" for v in vals)
+            cells = [valve[w].get(key) for w in ("data", "before", "after")]
+            txt = " / ".join("-" if v is None else f"{v:.2f}" for v in cells)
             lines.append(f"{label} (data/before/after): {txt}")
     if diagnosis.not_assessed:
         lines.append("not assessed: " + ", ".join(diagnosis.not_assessed))
-    summary = "\n".join(lines)
-    ax.text(0.0, 1.0, summary, va="top", family="monospace", fontsize=8, transform=ax.transAxes)
-    fig.suptitle(title or "Sim-to-real gap: where the replay departs from the data")
-    _breakdown_layout(fig, axes, text_width(summary, 8, "monospace"))
-    return fig
+    return "\n".join(lines)
 
 
 def _breakdown_layout(fig: Figure, axes, summary_width: float) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from stictiondiag.plotting._fast import (
+from stictiondiag.plotting.canvas import (
     decimate,
     new_figure,
     pin_decorations,
@@ -131,6 +131,18 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
 
     ax = axes[2, 1]
     ax.axis("off")
+    summary = _summary(replay)
+    ax.text(0.0, 1.0, summary, va="top", ha="left", fontsize=8, family="monospace")
+
+    if title is None:
+        title = "Closed-loop replay with the fitted valve"
+    fig.suptitle(title, fontsize=10)
+    _layout(fig, axes, text_width(summary, 8, "monospace"))
+    return fig
+
+
+def _summary(replay) -> str:
+    """The text of the last panel: valve, controller, process, periods, amplitudes."""
     proc, ctrl = replay.process, replay.controller
     lines = [
         f"valve: S = {replay.S:.3g} %, J = {replay.J:.3g} %",
@@ -156,14 +168,7 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
         lines.append(
             f"amplitude {name}: data {_fmt(amp.get('data'))}, replay {_fmt(amp.get('replay'))}"
         )
-    summary = "\n".join(lines)
-    ax.text(0.0, 1.0, summary, va="top", ha="left", fontsize=8, family="monospace")
-
-    if title is None:
-        title = "Closed-loop replay with the fitted valve"
-    fig.suptitle(title, fontsize=10)
-    _layout(fig, axes, text_width(summary, 8, "monospace"))
-    return fig
+    return "\n".join(lines)
 
 
 def _layout(fig: Figure, axes, summary_width: float) -> None:

@@ -18,12 +18,14 @@ tick label glyph by glyph), so the plots avoid anything that draws a figure twic
 from __future__ import annotations
 
 import functools
+from typing import Literal
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.font_manager import FontProperties, findfont
 from matplotlib.ft2font import FT2Font, LoadFlags
+from matplotlib.text import Text
 
 #: zlib level of saved PNGs (PIL's default is 6).
 PNG_COMPRESS_LEVEL = 1
@@ -68,7 +70,9 @@ def place_axes(
 ) -> None:
     """Margins and gaps between the axes of the figure's grid, in inches."""
     w, h = fig.get_size_inches()
-    nrows, ncols = fig.axes[0].get_subplotspec().get_gridspec().get_geometry()
+    spec = fig.axes[0].get_subplotspec()
+    assert spec is not None, "place_axes needs axes on a grid (new_figure)"
+    nrows, ncols = spec.get_gridspec().get_geometry()
     cell_w = (w - left - right - (ncols - 1) * wspace) / ncols  # mean axes width
     cell_h = (h - top - bottom - (nrows - 1) * hspace) / nrows
     fig.subplots_adjust(
@@ -176,13 +180,14 @@ def pin_decorations(fig: Figure) -> None:
             continue
         # The left and right titles have no public accessor; without them, leave
         # the titles to matplotlib.
-        titles = {
-            "left": getattr(ax, "_left_title", None),
-            "center": ax.title,
-            "right": getattr(ax, "_right_title", None),
-        }
-        if any(t is None for t in titles.values()):
+        left, right = getattr(ax, "_left_title", None), getattr(ax, "_right_title", None)
+        if left is None or right is None:
             continue
+        titles: dict[Literal["left", "center", "right"], Text] = {
+            "left": left,
+            "center": ax.title,
+            "right": right,
+        }
         if not any(t.get_text() for t in titles.values()):
             continue
         _tick_labels(ax.yaxis)
