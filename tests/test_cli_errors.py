@@ -81,7 +81,7 @@ FREE_TEXT = {
 }
 
 
-def _commands() -> dict[str, click.Command]:
+def _commands() -> dict:
     group = typer.main.get_command(app)
     return dict(group.commands)  # type: ignore[attr-defined]
 
