@@ -119,6 +119,8 @@ def report(
         elif markdown:
             write_atomic(markdown, md)
         info(f"wrote {result.outputs['index']} and {result.outputs['markdown']}")
+        for f, name in result.renamed.items():
+            info(f"note: two inputs share a name: {f} -> {name}")
         for f, msg in result.failed:
             info(f"failed: {f}: {msg}")
     worst = result.max_stiction_confidence()
