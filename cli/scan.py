@@ -95,6 +95,8 @@ def scan(
         finally:
             if bar.live.is_started:
                 bar.stop()
+        for f, name in result.renamed.items():
+            info(f"note: two files share a name: {f} -> {name}")
         t = result.table
         n_st = int((t["verdict"] == "stiction").sum()) if len(t) else 0
         info(

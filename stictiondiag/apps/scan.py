@@ -242,8 +242,9 @@ def discover(path: str | os.PathLike, *, loop_column: str | None = None) -> list
         )
     # One loop per file, in subfolders too; files with one stem get distinct names.
     names = unique_names([f.stem for f in files], [f.name for f in files])
+    loops = [f.stem if safe_name(f.stem) == n else n for f, n in zip(files, names, strict=True)]
     return sorted(
-        (LoopSource(name, str(f)) for name, f in zip(names, files, strict=True)),
+        (LoopSource(loop, str(f)) for loop, f in zip(loops, files, strict=True)),
         key=lambda s: s.loop,
     )
 
