@@ -17,12 +17,19 @@ from . import _commands  # noqa: E402,F401
 def main() -> None:
     """Console-script entry point (``stiction``)."""
     import gc
+    import signal
     import sys
 
     from .report import normalise_argv
 
+    # From here on Ctrl-C raises KeyboardInterrupt: the command stops its workers on
+    # the way out and StictionGroup prints the one line.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         app(args=normalise_argv(sys.argv[1:]), prog_name="stiction")
+    except KeyboardInterrupt:
+        sys.stderr.write("stiction: interrupted\n")
+        sys.exit(EXIT_INTERRUPTED)
     finally:
         # Python's shutdown runs the garbage collector over every object left, more
         # than once: about 1 s after an analysis (numba, scipy, matplotlib and

@@ -241,8 +241,12 @@ def run_dask(
     finally:
         if interrupted:
             with _quiet_dask_logs():
-                with contextlib.suppress(Exception):
-                    client.cancel(list(pending), force=True)
+                if cluster is None:
+                    # A remote cluster keeps running: take this scan's tasks off it.
+                    # (A LocalCluster is closed with its workers; cancelling there
+                    # only makes each worker log the cancelled task.)
+                    with contextlib.suppress(Exception):
+                        client.cancel(list(pending), force=True)
                 with contextlib.suppress(Exception):
                     client.close(timeout=5)
                 if cluster is not None:
