@@ -344,15 +344,18 @@ def fuzz_interrupts(work: Path, quick: bool) -> list[Outcome]:
         scenarios.append(("report_workers", d, ["--workers", "2"]))
     for d in delays[:3]:
         scenarios.append(("analyze", d, []))
-    for d in delays[:2]:
+    for d in delays[:3]:
         scenarios.append(("simulate", d, []))
+    for d in delays[:2]:
+        scenarios.append(("scan_local_gap", d, ["--workers", "2", "--gap"]))
     for k, (kind, delay, extra) in enumerate(scenarios):
         case_dir = work / f"int{k:02d}_{kind}"
         shutil.rmtree(case_dir, ignore_errors=True)
         inputs = _plant(case_dir / "plant", 4)
         hashes = {p: sha(p) for p in inputs}
         if kind.startswith("scan"):
-            argv = ["scan", "plant", "--out", "out", "--no-gap", *extra]
+            gap = "--gap" if "--gap" in extra else "--no-gap"
+            argv = ["scan", "plant", "--out", "out", gap, *[e for e in extra if e != "--gap"]]
             rerun = argv
         elif kind.startswith("report"):
             argv = [
