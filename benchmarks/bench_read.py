@@ -17,10 +17,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
 
 _CHILD = r"""
 import json, resource, sys, time
@@ -72,9 +75,16 @@ def main() -> None:
             t0 = time.perf_counter()
             write_csv(path, rows)
             print(f"(wrote {path} in {time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+        # This checkout's package, whatever is installed.
+        env = {
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+        }
         out = subprocess.run(
-            [sys.executable, "-c", _CHILD, str(path)], capture_output=True, text=True, check=True
+            [sys.executable, "-c", _CHILD, str(path)], capture_output=True, text=True, env=env
         )
+        if out.returncode:
+            sys.exit(f"reading {path} failed: {out.stderr.strip().splitlines()[-1:]}")
         r = json.loads(out.stdout)
         above = (r["peak_kb"] - r["base_kb"]) / 1024
         print(

@@ -161,8 +161,7 @@ def _read_csv(file: Path, compression: str | None, select: Select | None) -> pd.
                 options["usecols"] = sorted({positions[n] for n in chosen if n in positions})
         with open(file, "rb") as handle:
             if chunked:
-                with pd.read_csv(handle, chunksize=CHUNK_ROWS, **options) as reader:
-                    frame = pd.concat(list(reader), ignore_index=True)
+                frame = _read_chunks(handle, options)
             else:
                 frame = pd.read_csv(handle, low_memory=False, **options)
     except StictionError:
@@ -182,6 +181,31 @@ def _read_csv(file: Path, compression: str | None, select: Select | None) -> pd.
         ) from None
     frame.columns = [str(column).strip() for column in frame.columns]
     return frame
+
+
+def _read_chunks(handle, options: dict) -> pd.DataFrame:
+    """A CSV read :data:`CHUNK_ROWS` rows at a time, each column kept as one array.
+
+    Each chunk's columns are appended to per-column lists and the chunk is let go, so
+    the peak is the columns read plus one chunk, not the parser's buffers for the
+    whole file.
+    """
+    import numpy as np
+    import pandas as pd
+
+    parts: dict[str, list] = {}
+    with pd.read_csv(handle, chunksize=CHUNK_ROWS, **options) as reader:
+        for chunk in reader:
+            for column in chunk.columns:
+                parts.setdefault(column, []).append(chunk[column].to_numpy())
+    columns = {}
+    for column in list(parts):
+        arrays = parts.pop(column)
+        if len({a.dtype.kind for a in arrays}) > 1:  # numbers in one chunk, text in another
+            arrays = [a.astype(object) for a in arrays]
+        columns[column] = np.concatenate(arrays)
+        del arrays
+    return pd.DataFrame(columns, copy=False)
 
 
 def _encoding(head: bytes) -> str:
