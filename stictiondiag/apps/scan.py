@@ -468,14 +468,7 @@ def scan(
     renamed = {
         s.path: s.loop for s in sources if s.loop_column is None and s.loop != Path(s.path).stem
     }
-    loops_dir = out / "loops"
-    try:
-        loops_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(
-            f"cannot create the scan folder {loops_dir}: {(exc.strerror or str(exc)).lower()}; "
-            "choose a writable --out"
-        ) from None
+    loops_dir = _make_loops_dir(out)
     settings = {"gap": bool(gap), "read_options": read_options}
 
     rows: list[dict] = []
@@ -524,6 +517,18 @@ def scan(
     outputs = write_table(table, out, file_names)
     n_failed = int((table["verdict"] == "error").sum()) if not table.empty else 0
     return ScanResult(table, total, n_failed, n_skipped, outputs, renamed)
+
+
+def _make_loops_dir(out: Path) -> Path:
+    loops_dir = out / "loops"
+    try:
+        loops_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(
+            f"cannot create the scan folder {loops_dir}: {(exc.strerror or str(exc)).lower()}; "
+            "choose a writable --out"
+        ) from None
+    return loops_dir
 
 
 def _check_out(out: Path) -> None:
