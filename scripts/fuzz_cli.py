@@ -389,6 +389,9 @@ def fuzz_interrupts(work: Path, quick: bool) -> list[Outcome]:
         if code == 130 and len(interrupted_lines) != 1:
             note += f" {len(interrupted_lines)} interrupt lines"
         rcode, rtext, rseconds = run(rerun, case_dir)
+        if "Traceback" in text or "Traceback" in rtext:
+            (case_dir / "stderr.txt").write_text(text + "\n---- rerun ----\n" + rtext)
+            note += f" (output in {case_dir / 'stderr.txt'})"
         partial += partial_files(case_dir / "out") if (case_dir / "out").exists() else 0
         changed = sum(sha(p) != h for p, h in hashes.items())
         outcomes.append(
@@ -413,12 +416,13 @@ def main() -> None:
     parser.add_argument("--dir", type=Path, default=Path("/tmp/stiction_fuzz"))
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--skip-interrupts", action="store_true")
+    parser.add_argument("--skip-inputs", action="store_true")
     args = parser.parse_args()
     work = args.dir.resolve()
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     t0 = time.perf_counter()
-    outcomes = fuzz_inputs(work)
+    outcomes = [] if args.skip_inputs else fuzz_inputs(work)
     if not args.skip_interrupts:
         outcomes += fuzz_interrupts(work, args.quick)
     print(
