@@ -31,6 +31,9 @@ def main() -> None:
         sys.stderr.write("stiction: interrupted\n")
         sys.exit(EXIT_INTERRUPTED)
     finally:
+        # The work is done (or has stopped): a Ctrl-C from here on would only
+        # interrupt Python's shutdown (its exit handlers) with a traceback.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         # Python's shutdown runs the garbage collector over every object left, more
         # than once: about 1 s after an analysis (numba, scipy, matplotlib and
         # pandas loaded) against 0.15 s with the objects frozen.  Nothing is left
