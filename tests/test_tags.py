@@ -752,7 +752,7 @@ def test_values_near_the_float_limit_are_a_data_error(tmp_path, factor):
 
 def test_wide_export_reads_only_the_loop_columns(tmp_path):
     frame = loop_frame(n=200)
-    extra = pd.DataFrame(np.zeros((200, 3000)), columns=[f"c{i}" for i in range(3000)])
+    extra = pd.DataFrame(np.zeros((200, 1000)), columns=[f"c{i}" for i in range(1000)])
     path = write_csv(pd.concat([frame, extra], axis=1), tmp_path / "wide.csv")
     from stictiondiag.io.readers import read_table
 
@@ -763,5 +763,5 @@ def test_wide_export_reads_only_the_loop_columns(tmp_path):
         return ["time", "pv", "op"]
 
     table = read_table(path, select)
-    assert seen["n"] == 3005 and list(table.columns) == ["time", "pv", "op"]
+    assert seen["n"] == 1005 and list(table.columns) == ["time", "pv", "op"]
     assert read_tags(path).n == 200
