@@ -7,8 +7,8 @@ from typing import Annotated
 
 import typer
 
-from .common import emit, friendly_errors, info
-from .main import app
+from .app import app
+from .common import check_output_dir, check_output_file, emit, friendly_errors, info
 from .options import (
     IntegratingOption,
     JsonOption,
@@ -27,33 +27,21 @@ from .options import (
 )
 
 
-def check_outputs(out: Path | None, json_path: str | None) -> None:
+def check_outputs(out: Path | None, json_path: str | None, file: Path | None = None) -> None:
     """Refuse output locations that cannot be written before the analysis runs.
 
-    The analysis takes seconds; a typo in ``--out`` or ``--json`` should cost none.
+    The analysis takes seconds; a typo in ``--out`` or ``--json`` should cost none,
+    and the input is never overwritten.
 
     Raises
     ------
     UsageError
-        ``--out`` is an existing file, or ``--json`` is a directory or lies below a file.
+        ``--out`` is an existing file, or ``--json`` is a directory, lies below a
+        file, or is the input file.
     """
-    from stictiondiag.core.errors import UsageError
-
-    if out is not None and out.exists() and not out.is_dir():
-        raise UsageError(f"cannot write plots to {out}: it is a file; give a directory for --out")
-    if json_path in (None, "-"):
-        return
-    target = Path(json_path)
-    if target.is_dir():
-        raise UsageError(f"cannot write {target}: it is a directory; give a file name for --json")
-    for parent in target.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise UsageError(
-                    f"cannot write {target}: {parent} is a file, not a directory; "
-                    "choose another --json path"
-                )
-            break
+    inputs = [file] if file is not None else []
+    check_output_dir("--out", out, inputs)
+    check_output_file("--json", json_path, inputs)
 
 
 def _fmt(x, spec=".2f", none="n/a") -> str:
@@ -138,7 +126,7 @@ def analyze(
     from stictiondiag.analysis import AnalysisConfig, analyze_file
 
     with friendly_errors():
-        check_outputs(out, json_path)
+        check_outputs(out, json_path, file)
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
         info(f"analysing {file} ...")
         result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)

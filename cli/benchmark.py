@@ -7,8 +7,8 @@ from typing import Annotated
 
 import typer
 
+from .app import app
 from .common import friendly_errors, info
-from .main import app
 
 
 @app.command()

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
+from pathlib import Path
 
 import typer
 
@@ -55,3 +56,99 @@ def emit(d: dict, summary: str, json_path: str | None) -> None:
 
         write_atomic(json_path, text)
         info(f"wrote {json_path}")
+
+
+#: Figure formats the plots can be written in (by the file's extension).
+FIGURE_SUFFIXES = (
+    ".png",
+    ".svg",
+    ".svgz",
+    ".pdf",
+    ".eps",
+    ".ps",
+    ".jpg",
+    ".jpeg",
+    ".tif",
+    ".tiff",
+    ".webp",
+)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and a.samefile(b))
+    except OSError:
+        return False
+
+
+def check_output_file(
+    option: str,
+    path: str | Path | None,
+    inputs: Sequence[str | Path] = (),
+    *,
+    figure: bool = False,
+) -> None:
+    """Refuse an output file that cannot be written, or that is one of the inputs.
+
+    Run before any work, so a typo costs nothing and no input is ever overwritten.
+
+    Raises
+    ------
+    UsageError
+        ``path`` is a directory, lies below a file, is an input file, or (``figure``)
+        has an extension no figure can be written in.
+    """
+    from stictiondiag.core.errors import UsageError
+
+    if path in (None, "-"):
+        return
+    target = Path(path)
+    if target.is_dir():
+        raise UsageError(f"cannot write {target}: it is a directory; give a file name for {option}")
+    for parent in target.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(
+                    f"cannot write {target}: {parent} is a file, not a directory; "
+                    f"choose another {option} path"
+                )
+            break
+    for given in inputs:
+        if _same_file(target, Path(given)):
+            raise UsageError(
+                f"{option} {target} is an input file: it would be overwritten; "
+                f"give another {option} path"
+            )
+    if figure and target.suffix and target.suffix.lower() not in FIGURE_SUFFIXES:
+        raise UsageError(
+            f"cannot write a figure as {target.suffix!r} ({target}): use one of "
+            f"{', '.join(FIGURE_SUFFIXES)}"
+        )
+
+
+def check_output_dir(
+    option: str, path: str | Path | None, inputs: Sequence[str | Path] = ()
+) -> None:
+    """Refuse an output folder that is a file, lies below a file, or is an input file.
+
+    Raises
+    ------
+    UsageError
+        As described.
+    """
+    from stictiondiag.core.errors import UsageError
+
+    if path is None:
+        return
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        what = "an input file" if any(_same_file(target, Path(i)) for i in inputs) else "a file"
+        raise UsageError(f"cannot write to {target}: it is {what}; give a folder for {option}")
+    for parent in target.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(
+                    f"cannot write to {target}: {parent} is a file, not a folder; "
+                    f"choose another {option}"
+                )
+            break

@@ -7,8 +7,8 @@ from typing import Annotated
 
 import typer
 
-from .common import emit, friendly_errors, info
-from .main import app
+from .app import app
+from .common import check_output_file, emit, friendly_errors, info
 from .options import (
     IntegratingOption,
     JsonOption,
@@ -83,16 +83,15 @@ def gap(
 ) -> None:
     """Sim-to-real gap: measure and locate it, and name the unmodelled effect that explains it."""
     from stictiondiag.core.atomic import atomic_path
-    from stictiondiag.core.errors import UsageError
     from stictiondiag.gap.diagnose import diagnose_file
 
     with friendly_errors():
-        if plot is not None and plot.is_dir():
-            raise UsageError(f"cannot write {plot}: it is a directory; give a file name for --plot")
-        if json_path not in (None, "-") and Path(json_path).is_dir():
-            raise UsageError(
-                f"cannot write {json_path}: it is a directory; give a file name for --json"
+        check_output_file("--plot", plot, [file], figure=True)
+        if plot is not None:
+            check_output_file(
+                "--plot", plot.with_name(f"{plot.stem}_replay{plot.suffix or '.png'}"), [file]
             )
+        check_output_file("--json", json_path, [file])
         info(f"diagnosing the gap of {file} ...")
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
         result = diagnose_file(file, **options)

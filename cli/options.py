@@ -5,6 +5,7 @@ One definition each, so every command names its columns, units and loop type ali
 
 from __future__ import annotations
 
+import math
 from enum import Enum
 from typing import Annotated
 
@@ -34,14 +35,40 @@ SpOption = Annotated[str | None, typer.Option("--sp", help="Column holding sp (s
 TimeOption = Annotated[
     str | None, typer.Option("--time", help="Time column (seconds or timestamps).")
 ]
+
+
+def positive_seconds(value: float | None) -> float | None:
+    """Option callback: a sample time must be a finite number of seconds above zero."""
+    if value is not None and not (math.isfinite(value) and value > 0.0):
+        raise typer.BadParameter(f"must be a positive number of seconds, got {value:g}")
+    return value
+
+
+def op_range_check(value: tuple[float, float] | None) -> tuple[float, float] | None:
+    """Option callback: LO HI finite with LO < HI."""
+    if value is not None:
+        low, high = value
+        if not (math.isfinite(low) and math.isfinite(high) and low < high):
+            raise typer.BadParameter(f"must be LO HI with finite LO < HI, got {low:g} {high:g}")
+    return value
+
+
 TsOption = Annotated[
     float | None,
-    typer.Option("--ts", help="Sampling time in seconds, for files without a time column."),
+    typer.Option(
+        "--ts",
+        help="Sampling time in seconds, for files without a time column.",
+        callback=positive_seconds,
+    ),
 ]
 OpUnitsOption = Annotated[OpUnits, typer.Option("--op-units", help="Units of op and mv.")]
 OpRangeOption = Annotated[
     tuple[float, float] | None,
-    typer.Option("--op-range", help="LO HI of op in its own units, mapped to 0-100 % of span."),
+    typer.Option(
+        "--op-range",
+        help="LO HI of op in its own units, mapped to 0-100 % of span.",
+        callback=op_range_check,
+    ),
 ]
 LoopTypeOption = Annotated[
     LoopType,

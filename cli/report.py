@@ -19,8 +19,8 @@ from stictiondiag.core.errors import (
     EXIT_PARTIAL,
 )
 
-from .common import fail, friendly_errors, info
-from .main import app
+from .app import app
+from .common import check_output_dir, check_output_file, fail, friendly_errors, info
 from .options import (
     IntegratingOption,
     LoopType,
@@ -53,7 +53,13 @@ def report(
             metavar="[THRESHOLD]",
         ),
     ] = None,
-    clean: Annotated[bool, typer.Option(help="Empty the report folder first.")] = False,
+    clean: Annotated[
+        bool,
+        typer.Option(
+            help="First remove what earlier runs of the report wrote in the folder "
+            "(as listed in its manifest; nothing else, never an input)."
+        ),
+    ] = False,
     markdown: Annotated[
         str | None, typer.Option(help="Also write the Markdown summary to PATH ('-' = stdout).")
     ] = None,
@@ -90,6 +96,8 @@ def report(
     if fail_on_stiction is not None and not 0.0 <= fail_on_stiction <= 1.0:
         fail(f"--fail-on-stiction threshold must be in [0, 1], got {fail_on_stiction}", 2)
     with friendly_errors():
+        check_output_dir("--out", out, files)
+        check_output_file("--markdown", markdown, files)
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
 
         def progress(done: int, n: int, name: str) -> None:
@@ -111,6 +119,8 @@ def report(
         elif markdown:
             write_atomic(markdown, md)
         info(f"wrote {result.outputs['index']} and {result.outputs['markdown']}")
+        for f, name in result.renamed.items():
+            info(f"note: two inputs share a name: {f} -> {name}")
         for f, msg in result.failed:
             info(f"failed: {f}: {msg}")
     worst = result.max_stiction_confidence()

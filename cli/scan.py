@@ -11,8 +11,9 @@ import typer
 
 from stictiondiag.core.errors import EXIT_PARTIAL
 
-from .common import friendly_errors, info
-from .main import app
+from .app import app
+from .common import check_output_dir, friendly_errors, info
+from .options import positive_seconds
 
 
 class Engine(str, Enum):
@@ -43,7 +44,10 @@ def scan(
         str | None, typer.Option(help="Loop-id column of a Parquet dataset.")
     ] = None,
     ts: Annotated[
-        float | None, typer.Option(help="Sampling time [s] for files without a time column.")
+        float | None,
+        typer.Option(
+            help="Sampling time [s] for files without a time column.", callback=positive_seconds
+        ),
     ] = None,
 ) -> None:
     """Scan many loops; write a ranked table (Parquet, CSV, HTML). Exit 4 if some loops failed."""
@@ -51,8 +55,12 @@ def scan(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from stictiondiag.apps.scan import scan as run_scan
+    from stictiondiag.core.errors import UsageError
 
     with friendly_errors():
+        check_output_dir("--out", out, [path])
+        if scheduler is not None and engine is not Engine.dask:
+            raise UsageError("--scheduler applies to --engine dask; add --engine dask")
         console = Console(file=sys.stderr)
         bar = Progress(
             TextColumn("[bold]scan"),
@@ -81,12 +89,14 @@ def scan(
                 force=force,
                 gap=gap,
                 loop_column=loop_column,
-                read_options={"ts": ts} if ts else {},
+                read_options={"ts": ts} if ts is not None else {},
                 progress=progress,
             )
         finally:
             if bar.live.is_started:
                 bar.stop()
+        for f, name in result.renamed.items():
+            info(f"note: two files share a name: {f} -> {name}")
         t = result.table
         n_st = int((t["verdict"] == "stiction").sum()) if len(t) else 0
         info(

@@ -16,8 +16,8 @@ import typer
 
 from stictiondiag.core.errors import UsageError
 
-from .common import friendly_errors, info
-from .main import app
+from .app import app
+from .common import check_output_file, friendly_errors, info
 
 _VALVES = {"datadriven": "choudhury", "kano": "kano", "physical": "physical", "linear": "linear"}
 
@@ -157,7 +157,7 @@ def simulate(
     noise: Annotated[
         str, typer.Option(metavar="PV_UNITS", help="Measurement noise standard deviation on pv.")
     ] = "0",
-    seed: Annotated[int | None, typer.Option(help="Seed of the noise.")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, help="Seed of the noise (>= 0).")] = None,
     kick: Annotated[
         str,
         typer.Option(
@@ -189,6 +189,9 @@ def simulate(
     from stictiondiag.models import loops, physical, processes
 
     with friendly_errors():
+        check_output_file("--plot", plot, figure=True)
+        check_output_file("--csv", csv)
+        check_output_file("--json", json_out)
         loop_name = processes.DEFAULT_LOOP if loop is None else loop
         if loop_name not in processes.LOOP_PARAMETERS:
             raise UsageError(

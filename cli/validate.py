@@ -9,8 +9,8 @@ from typing import Annotated
 
 import typer
 
-from .common import friendly_errors, info
-from .main import app
+from .app import app
+from .common import check_output_file, friendly_errors, info
 
 
 @app.command()
@@ -39,6 +39,8 @@ def validate(
     from stictiondiag.core.atomic import write_atomic
 
     with friendly_errors():
+        check_output_file("--out", out)
+        check_output_file("--json", json_path)
 
         def progress(i: int, n: int, loop: str) -> None:
             info(f"[{i}/{n}] {loop}")

@@ -286,11 +286,11 @@ def test_same_column_for_two_roles(loop_csv):
 @pytest.mark.parametrize(
     "args,words",
     [
-        (["--ts", "-1"], "ts must be a positive"),
-        (["--ts", "0"], "ts must be a positive"),
-        (["--op-range", "5", "5"], "op_range must be"),
-        (["--op-range", "100", "0"], "op_range must be"),
-        (["--op-range", "0", "inf"], "op_range must be"),
+        (["--ts", "-1"], "--ts': must be a positive"),
+        (["--ts", "0"], "--ts': must be a positive"),
+        (["--op-range", "5", "5"], "--op-range': must be LO HI"),
+        (["--op-range", "100", "0"], "--op-range': must be LO HI"),
+        (["--op-range", "0", "inf"], "--op-range': must be LO HI"),
     ],
 )
 def test_bad_option_values_exit_2(args, words, loop_csv):

@@ -9,6 +9,7 @@ stick-slip valve, Loop 3 of Section 3) and ``healthy_flow`` (a linear valve).
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import re
 from pathlib import Path
@@ -77,7 +78,7 @@ def temp_files(folder: Path) -> list[str]:
 
 
 def loop_json(out: Path, loop: str) -> dict:
-    return json.loads((out / f"{loop}.json").read_text())
+    return json.loads((out / "loops" / f"{loop}.json").read_text())
 
 
 def index_loops(out: Path) -> list[str]:
@@ -123,15 +124,22 @@ def test_clean_run_exits_0_and_writes_the_report(tmp_path):
     assert temp_files(md.parent) == []
     assert f"[1/1] {HEALTHY.stem}" in result.stderr
     loop = HEALTHY.stem
-    for name in (f"{loop}.html", f"{loop}.json", "index.html", "summary.md", "rows.json"):
+    for name in (
+        f"loops/{loop}.html",
+        f"loops/{loop}.json",
+        "index.html",
+        "summary.md",
+        "rows.json",
+        "manifest.json",
+    ):
         assert (out / name).is_file(), name
     d = loop_json(out, loop)
     assert d["loop"] == loop and d["stiction"]["status"] in ("no_stiction", "inconclusive")
-    page = (out / f"{loop}.html").read_text()
+    page = (out / "loops" / f"{loop}.html").read_text()
     # Self-contained: figures are embedded, nothing is fetched.
     assert page.count('src="data:image/png;base64,') >= 2  # phase plots + reconstruction
     assert not re.search(r'(src|href)="(https?:)?//', page)
-    assert f'href="{loop}.html"' in (out / "index.html").read_text()
+    assert f'href="loops/{loop}.html"' in (out / "index.html").read_text()
     assert temp_files(out) == []
 
 
@@ -144,7 +152,7 @@ def test_bare_fail_on_stiction_exits_1_on_a_sticky_loop(sticky_run):
     assert result.exit_code == EXIT_FINDING, result.stderr
     assert "stiction found" in result.stderr and result.stdout == ""
     # The report is complete although the job fails.
-    assert (out / "index.html").is_file() and (out / f"{STICKY.stem}.html").is_file()
+    assert (out / "index.html").is_file() and (out / "loops" / f"{STICKY.stem}.html").is_file()
 
 
 @pytest.mark.parametrize(
@@ -252,7 +260,8 @@ def test_one_good_one_corrupt_file_exits_4(tmp_path, corrupt_csv):
     assert result.exit_code == EXIT_PARTIAL, result.stderr
     assert "[1/2]" in result.stderr and "[2/2]" in result.stderr
     assert f"failed: {corrupt_csv}" in result.stderr
-    assert (out / f"{HEALTHY.stem}.html").is_file() and not (out / "corrupt.html").exists()
+    assert (out / "loops" / f"{HEALTHY.stem}.html").is_file()
+    assert not (out / "loops" / "corrupt.html").exists()
     rows = {r["loop"]: r for r in json.loads((out / "rows.json").read_text())}
     assert rows["corrupt"]["verdict"] == "error" and rows[HEALTHY.stem]["verdict"] != "error"
     assert "corrupt" in (out / "summary.md").read_text()
@@ -284,25 +293,88 @@ def test_existing_report_is_updated_not_wiped(tmp_path):
     assert report(STICKY, "--out", out, "--no-gap").exit_code == EXIT_OK
     assert sorted(index_loops(out)) == sorted([HEALTHY.stem, STICKY.stem])
     index = (out / "index.html").read_text()
-    assert f'href="{HEALTHY.stem}.html"' in index and f'href="{STICKY.stem}.html"' in index
-    assert (out / f"{HEALTHY.stem}.html").is_file() and (out / "notes.txt").is_file()
+    assert f'href="loops/{HEALTHY.stem}.html"' in index
+    assert f'href="loops/{STICKY.stem}.html"' in index
+    assert (out / "loops" / f"{HEALTHY.stem}.html").is_file() and (out / "notes.txt").is_file()
     assert temp_files(out) == []
 
-    # --clean starts afresh: the earlier loop and the user's file are gone.
+    # --clean starts afresh: the earlier loop is gone, the user's file is not (the
+    # report removes only what its manifest says it wrote).
     assert report(STICKY, "--out", out, "--no-gap", "--clean").exit_code == EXIT_OK
     assert index_loops(out) == [STICKY.stem]
     assert HEALTHY.stem not in (out / "index.html").read_text()
-    assert not (out / f"{HEALTHY.stem}.html").exists() and not (out / "notes.txt").exists()
+    assert not (out / "loops" / f"{HEALTHY.stem}.html").exists()
+    assert (out / "notes.txt").read_text() == "kept by the user"
 
 
-def test_clean_refuses_a_folder_that_is_not_a_report(tmp_path):
+def test_clean_of_a_folder_that_is_not_a_report_removes_nothing(tmp_path):
     folder = tmp_path / "home"
     folder.mkdir()
     (folder / "thesis.tex").write_text("precious")
     result = report(HEALTHY, "--out", folder, "--no-gap", "--clean")
-    assert result.exit_code == EXIT_USAGE, result.stderr
-    assert "not a stiction report folder" in result.stderr
+    assert result.exit_code == EXIT_OK, result.stderr
     assert (folder / "thesis.tex").read_text() == "precious"
+
+
+def test_clean_never_removes_the_input_it_reads(tmp_path):
+    # Issue 20: `report rc/loop1.csv --out rc --clean` deleted rc and its input.
+    folder = tmp_path / "rc"
+    folder.mkdir()
+    data = folder / "loop1.csv"
+    data.write_bytes(HEALTHY.read_bytes())
+    digest = hashlib.sha256(data.read_bytes()).hexdigest()
+    for _ in range(2):  # the second run cleans the first run's report
+        result = report(data, "--out", folder, "--no-gap", "--clean")
+        assert result.exit_code == EXIT_OK, result.stderr
+        assert hashlib.sha256(data.read_bytes()).hexdigest() == digest
+    assert (folder / "loops" / "loop1.html").is_file()
+
+
+def test_a_report_killed_midway_can_be_cleaned(tmp_path):
+    out = tmp_path / "r"
+    assert report(HEALTHY, "--out", out, "--no-gap").exit_code == EXIT_OK
+    # As if killed after the loop's files and before the index: no index, no rows.
+    (out / "index.html").unlink()
+    (out / "rows.json").unlink()
+    assert report(STICKY, "--out", out, "--no-gap", "--clean").exit_code == EXIT_OK
+    assert not (out / "loops" / f"{HEALTHY.stem}.html").exists()
+    assert index_loops(out) == [STICKY.stem]
+
+
+def test_loop_names_never_replace_the_report_files(tmp_path):
+    data = pd.read_csv(HEALTHY)
+    files = []
+    for name in ("index", "rows", "summary", "manifest"):
+        files.append(tmp_path / f"{name}.csv")
+        data.to_csv(files[-1], index=False)
+    out = tmp_path / "r"
+    assert report(*files, "--out", out, "--no-gap").exit_code == EXIT_OK
+    assert sorted(index_loops(out)) == ["index", "manifest", "rows", "summary"]
+    assert (out / "index.html").read_text().startswith("<!DOCTYPE html>")
+    assert "Stiction report" in (out / "index.html").read_text()
+    assert isinstance(json.loads((out / "rows.json").read_text()), list)
+
+
+def test_two_inputs_with_one_stem_get_distinct_names_listed(tmp_path):
+    data = pd.read_csv(HEALTHY)
+    (tmp_path / "a").mkdir()
+    first, second = tmp_path / "loop.csv", tmp_path / "a" / "loop.parquet"
+    data.to_csv(first, index=False)
+    data.to_parquet(second)
+    out = tmp_path / "r"
+    result = report(first, second, "--out", out, "--no-gap")
+    assert result.exit_code == EXIT_OK, result.stderr
+    assert sorted(index_loops(out)) == ["loop", "loop_parquet"]
+    assert f"{second} -> loop_parquet" in result.stderr
+
+
+@pytest.mark.parametrize("option", ["--markdown"])
+def test_output_equal_to_an_input_is_a_usage_error(tmp_path, option):
+    data = tmp_path / "loop.csv"
+    data.write_bytes(HEALTHY.read_bytes())
+    result = report(data, "--out", tmp_path / "r", "--no-gap", option, data)
+    assert result.exit_code == EXIT_USAGE
+    assert data.read_bytes() == HEALTHY.read_bytes()
 
 
 def test_interrupted_write_leaves_the_old_file_whole(tmp_path, monkeypatch):
@@ -341,7 +413,7 @@ def test_tag_and_file_names_are_escaped(tmp_path):
         evil, "--out", out, "--no-gap", "--pv", EVIL_PV, "--op", EVIL_OP, "--markdown", "-"
     )
     assert result.exit_code == EXIT_OK, result.stderr
-    pages = [p for p in out.glob("*.html") if p.name != "index.html"]
+    pages = list((out / "loops").glob("*.html"))
     assert len(pages) == 1 and "<" not in pages[0].name
     for page in (pages[0], out / "index.html"):
         html = page.read_text()

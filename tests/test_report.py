@@ -166,10 +166,10 @@ def test_real_report_renders_in_headless_browser(tmp_path):
     out = tmp_path / "report"
     result = build_report([sample], out, gap=True)
     assert result.failed == []
-    d = json.loads((out / f"{sample.stem}.json").read_text())
+    d = json.loads((out / "loops" / f"{sample.stem}.json").read_text())
     # Figures expected on the page: phase plots, reconstruction, and the gap's own.
     n_figures = 1 + (d["replay"] is not None) * (1 + (d["gap"] is not None))
-    loop_page = out / f"{sample.stem}.html"
+    loop_page = out / "loops" / f"{sample.stem}.html"
     for page, min_images in ((loop_page, n_figures), (out / "index.html", 0)):
         dom, log = _browser_load(chromium, page, tmp_path / "profile")
         # The page's load handler counts decoded images: all of them must have loaded.

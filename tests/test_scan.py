@@ -503,3 +503,65 @@ def test_scan_rejects_bad_arguments(plant, tmp_path):
         scan(plant, out=tmp_path, engine="spark")
     with pytest.raises(UsageError, match="workers"):
         scan(plant, out=tmp_path, workers=0)
+
+
+# ------------------------------------------------------------------- names and resume
+# (issue 20: outputs read back, duplicate stems, resume by path spelling, nested files)
+
+
+def _two_loops(folder: Path, plant: Path) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name in ("L0000.csv", "L0002.csv"):
+        paths.append(folder / name)
+        paths[-1].write_bytes((plant / name).read_bytes())
+    return paths
+
+
+def test_scan_into_its_own_folder_runs_again(plant, tmp_path):
+    folder = tmp_path / "plant"
+    _two_loops(folder, plant)
+    first = scan(folder, out=folder, workers=1, gap=False)
+    assert first.n_loops == 2
+    # scan.csv and scan.parquet now lie beside the loops: they are not loops.
+    second = scan(folder, out=folder, workers=1, gap=False)
+    assert second.n_loops == 2 and second.n_skipped == 2
+
+
+def test_a_user_file_named_like_the_table_is_not_overwritten(plant, tmp_path):
+    folder = tmp_path / "plant"
+    _two_loops(folder, plant)
+    (folder / "scan.csv").write_bytes((plant / "L0000.csv").read_bytes())
+    with pytest.raises(UsageError, match="not written by a scan"):
+        scan(folder, out=folder, workers=1, gap=False)
+    assert (folder / "scan.csv").read_bytes() == (plant / "L0000.csv").read_bytes()
+
+
+def test_duplicate_stems_and_nested_files_get_distinct_listed_names(plant, tmp_path):
+    folder = tmp_path / "plant"
+    (folder / "unit2").mkdir(parents=True)
+    (folder / "a b.csv").write_bytes((plant / "L0000.csv").read_bytes())
+    (folder / "a_b.csv").write_bytes((plant / "L0002.csv").read_bytes())
+    (folder / "unit2" / "L0001.parquet").write_bytes((plant / "L0001.parquet").read_bytes())
+    (folder / "unit2" / "a b.csv").write_bytes((plant / "L0000.csv").read_bytes())
+    sources = discover(folder)
+    loops = sorted(s.loop for s in sources)
+    # Four files, four names; the nested files are found, not skipped.
+    assert len(set(loops)) == 4 and "L0001" in loops and "a b" in loops
+    result = scan(folder, out=tmp_path / "out", workers=1, gap=False)
+    assert result.n_loops == 4 and len(result.renamed) == 2
+    assert len(list((tmp_path / "out" / "loops").glob("*.json"))) == 4
+
+
+def test_resume_keys_on_resolved_path_and_content(plant, tmp_path, monkeypatch):
+    folder = tmp_path / "plant"
+    paths = _two_loops(folder, plant)
+    out = tmp_path / "out"
+    scan(folder, out=out, workers=1, gap=False)
+    monkeypatch.chdir(tmp_path)
+    # The same files, spelled relative: resumed.
+    assert scan(Path("plant"), out=Path("out"), workers=1, gap=False).n_skipped == 2
+    # One file edited: that one is analysed again.
+    text = paths[0].read_text().splitlines()
+    paths[0].write_text("\n".join(text[:-5]) + "\n")
+    assert scan(Path("plant"), out=Path("out"), workers=1, gap=False).n_skipped == 1

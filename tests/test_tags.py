@@ -656,3 +656,112 @@ def test_property_op_range_rescales_op_and_mv_only(frame, low, span):
     np.testing.assert_array_equal(rescaled.time, reference.time)
     assert rescaled.ts == reference.ts
     np.testing.assert_allclose(rescaled.scaled()["op"], reference.scaled()["op"], atol=1e-6)
+
+
+# --------------------------------------------------------------------------- robustness
+# (issue 20: memory bounded by the data, time units, ambiguous columns, overflow)
+
+
+def test_one_far_future_stamp_splits_the_record_instead_of_sizing_the_grid(tmp_path):
+    # One stamp 1e12 s away used to make a grid of 1e12 samples (tens of GB).
+    frame = loop_frame(n=600)
+    frame.loc[300, "time"] = 1e12
+    tags = read_tags(write_csv(frame, tmp_path / "loop.csv"))
+    assert tags.ts == 1.0
+    # The stamp is dropped with its row: 599 rows -> the longest stretch holds at most
+    # 599 samples and at least the 300 before or after the hole (interpolated over).
+    assert 300 <= tags.n <= 600
+    assert any("split there" in note for note in tags.warnings), tags.warnings
+
+
+def test_mistyped_iso_year_is_split_off(tmp_path):
+    frame = loop_frame(n=600)
+    stamps = (pd.Timestamp("2024-03-01") + pd.to_timedelta(frame.time, unit="s")).astype(str)
+    stamps.iloc[450] = "2204-03-01 00:07:30"
+    tags = read_tags(write_csv(frame.assign(time=stamps), tmp_path / "loop.csv"))
+    assert tags.ts == 1.0 and 400 <= tags.n <= 600
+
+
+def test_grid_beyond_the_ceiling_is_a_one_line_error(tmp_path, monkeypatch):
+    from stictiondiag.io import timebase
+
+    monkeypatch.setattr(timebase, "MAX_GRID_SAMPLES", 500)
+    frame = loop_frame(n=600)
+    frame["time"] = frame["time"] + np.r_[0.0, np.full(599, 0.3)]  # irregular: one step 1.3
+    one_line_error(
+        DataError, lambda: read_tags(write_csv(frame, tmp_path / "l.csv")), "grid", "cut the record"
+    )
+
+
+@pytest.mark.parametrize(
+    ("start", "per_second", "label"),
+    [
+        (1.7e12, 1e3, "epoch milliseconds"),
+        (1.7e15, 1e6, "epoch microseconds"),
+        (1.7e18, 1e9, "epoch nanoseconds"),
+        (45000.0, 1 / 86400, "Excel serial dates"),
+    ],
+)
+def test_time_units_are_detected_from_the_size_of_the_stamps(tmp_path, start, per_second, label):
+    frame = loop_frame(n=400, ts=2.0)
+    frame["time"] = start + frame["time"] * per_second
+    tags = read_tags(write_csv(frame, tmp_path / "loop.csv"))
+    # 2 s steps in the unit, back in seconds; CSV text keeps 17 digits, so the step
+    # of a 1.7e18 ns stamp is exact to about 1e-6 s relative.
+    assert tags.ts == pytest.approx(2.0, rel=1e-4)
+    assert any(label in note for note in tags.warnings), tags.warnings
+
+
+def test_time_unit_named_in_the_header_wins(tmp_path):
+    frame = loop_frame(n=400).rename(columns={"time": "time [ms]"})
+    frame["time [ms]"] = frame["time [ms]"] * 1000.0
+    assert read_tags(write_csv(frame, tmp_path / "loop.csv")).ts == 1.0
+
+
+def test_ambiguous_serial_dates_are_warned_about(tmp_path):
+    frame = loop_frame(n=400)
+    frame["time"] = 45000.0 + 0.05 * frame["time"]  # 0.05 days (72 min) or 0.05 s?
+    tags = read_tags(write_csv(frame, tmp_path / "loop.csv"))
+    assert tags.ts == pytest.approx(0.05)
+    assert any("could be Excel serial days or seconds" in note for note in tags.warnings)
+
+
+def test_two_columns_with_one_name_is_an_error_naming_both(tmp_path):
+    path = tmp_path / "dup.csv"
+    text = loop_frame().to_csv(index=False).replace("time,pv,op,mv,sp", "time,pv,op,pv,sp", 1)
+    path.write_text(text)
+    one_line_error(DataError, lambda: read_tags(path), "columns 2 and 4", "'pv'")
+
+
+def test_exact_name_beside_another_candidate_is_noted(tmp_path):
+    frame = loop_frame()
+    frame["FIC1.PV"] = frame["pv"] * 2
+    tags = read_tags(write_csv(frame, tmp_path / "loop.csv"))
+    assert tags.names["pv"] == "pv"
+    assert any("'FIC1.PV' also read as pv" in note for note in tags.warnings), tags.warnings
+
+
+@pytest.mark.parametrize("factor", [1e300, -1e300])
+def test_values_near_the_float_limit_are_a_data_error(tmp_path, factor):
+    frame = loop_frame()
+    frame["pv"] = frame["pv"] * factor
+    one_line_error(
+        DataError, lambda: read_tags(write_csv(frame, tmp_path / "l.csv")), "pv", "1e+75"
+    )
+
+
+def test_wide_export_reads_only_the_loop_columns(tmp_path):
+    frame = loop_frame(n=200)
+    extra = pd.DataFrame(np.zeros((200, 1000)), columns=[f"c{i}" for i in range(1000)])
+    path = write_csv(pd.concat([frame, extra], axis=1), tmp_path / "wide.csv")
+    from stictiondiag.io.readers import read_table
+
+    seen = {}
+
+    def select(header):
+        seen["n"] = header.shape[1]
+        return ["time", "pv", "op"]
+
+    table = read_table(path, select)
+    assert seen["n"] == 1005 and list(table.columns) == ["time", "pv", "op"]
+    assert read_tags(path).n == 200

@@ -24,17 +24,19 @@ Design:
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
 
-from stictiondiag.core.blas import one_blas_thread
+from stictiondiag.apps.pages import html_page, safe_name, unique_names
+from stictiondiag.apps.workers import run_dask, run_local
 from stictiondiag.core.errors import (
     DataError,
     StictionError,
@@ -83,6 +85,9 @@ class ScanResult:
         Loops in the plant, loops whose analysis failed, loops resumed from ``out``.
     outputs : dict
         Paths written (``parquet``, ``csv``, ``html``).
+    renamed : dict
+        File -> loop name, for files named otherwise than their stem (two files
+        with one stem, e.g. ``loop.csv`` and ``loop.parquet``, get distinct names).
     """
 
     table: pd.DataFrame
@@ -90,16 +95,42 @@ class ScanResult:
     n_failed: int
     n_skipped: int
     outputs: dict = field(default_factory=dict)
+    renamed: dict = field(default_factory=dict)
 
 
-def _safe_name(loop: str) -> str:
-    keep = "".join(c if (c.isalnum() or c in "-_.") else "_" for c in str(loop))
-    return keep.strip(".") or "loop"
+_safe_name = safe_name
+
+#: Files of a scan's output folder (beside ``loops/`` and ``index.html``).
+OUTPUT_TABLES = ("scan.parquet", "scan.csv")
 
 
 def _is_hidden(name: str) -> bool:
     # Dataset writers leave _SUCCESS, _common_metadata and .crc files beside the data.
     return name.startswith((".", "_"))
+
+
+def is_scan_output(f: Path) -> bool:
+    """Whether ``f`` is a file a scan wrote: its table beside its ``loops/`` and index.
+
+    Outputs are never read back as loops, so ``scan DIR --out DIR`` can run again.
+    """
+    return (
+        f.name in OUTPUT_TABLES
+        and (f.parent / "loops").is_dir()
+        and (f.parent / "index.html").is_file()
+    )
+
+
+def _loop_files(folder: Path) -> list[Path]:
+    """Loop files under ``folder``, subfolders included; hidden ones and scan outputs not."""
+    return sorted(
+        f
+        for f in folder.rglob("*")
+        if f.is_file()
+        and f.suffix.lower() in LOOP_FILE_SUFFIXES
+        and not any(_is_hidden(part) for part in f.relative_to(folder).parts)
+        and not is_scan_output(f)
+    )
 
 
 def _parquet_files(folder: Path) -> list[Path]:
@@ -110,6 +141,7 @@ def _parquet_files(folder: Path) -> list[Path]:
         if f.is_file()
         and f.suffix.lower() in (".parquet", ".pq")
         and not any(_is_hidden(part) for part in f.relative_to(folder).parts)
+        and not is_scan_output(f)
     )
 
 
@@ -167,17 +199,14 @@ def discover(path: str | os.PathLike, *, loop_column: str | None = None) -> list
             f"{p}: no such file or folder; give a folder of loop files or a Parquet dataset"
         )
     if p.is_dir():
-        top = sorted(
-            f
-            for f in p.iterdir()
-            if f.is_file() and f.suffix.lower() in LOOP_FILE_SUFFIXES and not _is_hidden(f.name)
-        )
-        nested = [f for f in _parquet_files(p) if f.parent != p]
+        files = _loop_files(p)
+        top = [f for f in files if f.parent == p]
+        nested = [f for f in files if f.parent != p]
     else:
-        top, nested = [p], []
-    if not top and not nested:
+        files, top, nested = [p], [p], []
+    if not files:
         raise DataError(f"{p}: no .csv or .parquet files found")
-    all_parquet = all(f.suffix.lower() in (".parquet", ".pq") for f in top)
+    all_parquet = all(f.suffix.lower() in (".parquet", ".pq") for f in files)
     if all_parquet:
         # Possibly one dataset holding many loops, told apart by a loop-id column.
         try:
@@ -211,7 +240,13 @@ def discover(path: str | os.PathLike, *, loop_column: str | None = None) -> list
         raise UsageError(
             f"--loop-column {loop_column!r} applies to a Parquet dataset; {p} holds CSV files"
         )
-    return [LoopSource(f.stem, str(f)) for f in top]
+    # One loop per file, in subfolders too; files with one stem get distinct names.
+    names = unique_names([f.stem for f in files], [f.name for f in files])
+    loops = [f.stem if safe_name(f.stem) == n else n for f, n in zip(files, names, strict=True)]
+    return sorted(
+        (LoopSource(loop, str(f)) for loop, f in zip(loops, files, strict=True)),
+        key=lambda s: s.loop,
+    )
 
 
 def load_source(source: LoopSource, **read_options):
@@ -363,157 +398,6 @@ def rank(rows: list[dict]) -> pd.DataFrame:
     return frame[lead + sorted(c for c in frame.columns if c not in lead)]
 
 
-def run_local(
-    todo,
-    fn,
-    args: tuple,
-    workers: int,
-    on_error: Callable[[object, BaseException], object] | None = None,
-) -> Iterator:
-    """Yield ``fn(src, *args)`` for each source, on a process pool of ``workers``.
-
-    At most ``2 x workers`` loops are in flight, so memory is bounded by the loops
-    being analysed, not by their number.  Results come in completion order.
-
-    Parameters
-    ----------
-    todo : iterable
-        Sources (picklable), consumed lazily.
-    fn : callable
-        Module-level function run in the workers (``spawn`` start method).
-    args : tuple
-        Further arguments of ``fn``.
-    workers : int
-        Worker processes; 1 runs ``fn`` in this process.
-    on_error : callable, optional
-        ``on_error(src, exc)`` gives the result for a source whose call raised or
-        whose worker died; without it the exception propagates.  After a worker
-        dies the pool is replaced and the remaining sources continue.
-    """
-    if workers <= 1:
-        for src in todo:
-            try:
-                res = fn(src, *args)
-            except Exception as exc:
-                if on_error is None:
-                    raise
-                res = on_error(src, exc)
-            yield res
-        return
-    import concurrent.futures as cf
-    import multiprocessing as mp
-    from concurrent.futures.process import BrokenProcessPool
-
-    ctx = mp.get_context("spawn")  # no forked numba/BLAS state in workers
-    it = iter(todo)
-    pool = None
-    pending: dict = {}
-    # Workers (this pool's, and a fresh pool's after a worker died) get one BLAS
-    # thread each.  The scan already runs one worker per core; a multi-threaded BLAS
-    # in each put two threads on every core: on two cores 100 loops took 206 s with
-    # two workers against 79-90 s with one BLAS thread each (benchmarks/bench_scan.py).
-    with one_blas_thread():
-        try:
-            while True:
-                if pool is None:
-                    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
-                for src in it:
-                    pending[pool.submit(fn, src, *args)] = src
-                    if len(pending) >= 2 * workers:
-                        break
-                if not pending:
-                    return
-                done, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-                broken = False
-                for fut in done:
-                    src = pending.pop(fut)
-                    try:
-                        res = fut.result()
-                    except Exception as exc:
-                        if on_error is None:
-                            raise
-                        broken = broken or isinstance(exc, BrokenProcessPool)
-                        res = on_error(src, exc)
-                    yield res
-                if broken:
-                    # A dead worker breaks the whole pool: the loops still in flight fail
-                    # with it, and a fresh pool takes the rest.
-                    for fut in cf.as_completed(list(pending)):
-                        src = pending.pop(fut)
-                        exc = fut.exception()
-                        yield fut.result() if exc is None else on_error(src, exc)
-                    pool.shutdown(wait=True, cancel_futures=True)
-                    pool = None
-        finally:
-            if pool is not None:
-                pool.shutdown(wait=True, cancel_futures=True)
-
-
-def run_dask(
-    todo,
-    fn,
-    args: tuple,
-    workers: int,
-    scheduler: str | None,
-    on_error: Callable[[object, BaseException], object] | None = None,
-) -> Iterator:
-    """Like :func:`run_local` on ``dask.distributed`` (a LocalCluster or ``scheduler``).
-
-    The LocalCluster has ``workers`` single-threaded worker processes; with a
-    ``scheduler`` address its workers must have ``stiction`` installed and see the
-    data at the same paths.  At most ``2 x`` (number of workers) loops are
-    submitted at a time.
-    """
-    try:
-        from distributed import Client, LocalCluster, as_completed
-    except ImportError:  # pragma: no cover - dask is a declared dependency
-        raise UsageError(
-            "the dask engine needs dask.distributed: pip install 'dask[distributed]'"
-        ) from None
-    cluster = None
-    try:
-        if scheduler:
-            client = Client(scheduler, timeout="10s")
-        else:
-            # The scheduler's HTTP server (health, dashboard) takes a free port: another
-            # cluster on the default 8787 must not make the scan fail or warn.
-            with one_blas_thread():
-                cluster = LocalCluster(
-                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
-                )
-            client = Client(cluster)
-    except OSError as exc:
-        if cluster is not None:
-            cluster.close()
-        raise UsageError(f"cannot reach Dask scheduler {scheduler!r}: {exc}") from None
-    try:
-        n_workers = max(1, len(client.scheduler_info().get("workers", {})) or workers)
-        it = iter(todo)
-        pending: dict = {}
-        for _, src in zip(range(2 * n_workers), it, strict=False):
-            pending[client.submit(fn, src, *args, pure=False)] = src
-        ac = as_completed(list(pending))
-        for fut in ac:
-            src = pending.pop(fut)
-            try:
-                res = fut.result()
-            except Exception as exc:  # KilledWorker, or a failure outside fn
-                if on_error is None:
-                    raise
-                res = on_error(src, exc)
-            fut.release()
-            yield res
-            nxt = next(it, None)
-            if nxt is not None:
-                new = client.submit(fn, nxt, *args, pure=False)
-                pending[new] = nxt
-                ac.add(new)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-
-
 def scan(
     path: str | os.PathLike,
     *,
@@ -576,19 +460,24 @@ def scan(
         raise UsageError(f"workers must be at least 1, got {workers}")
     workers = int(workers or os.cpu_count() or 1)
     read_options = dict(read_options or {})
-    sources = discover(path, loop_column=loop_column)
-    names = [_safe_name(s.loop) for s in sources]
-    if len(set(names)) != len(names):
-        raise DataError(f"{path}: two loops share a name after sanitising; rename the files")
     out = Path(out)
-    loops_dir = out / "loops"
-    loops_dir.mkdir(parents=True, exist_ok=True)
+    _check_out(out)
+    sources = discover(path, loop_column=loop_column)
+    names = unique_names([s.loop for s in sources])
+    file_names = {s.loop: name for s, name in zip(sources, names, strict=True)}
+    renamed = {
+        s.path: s.loop for s in sources if s.loop_column is None and s.loop != Path(s.path).stem
+    }
+    loops_dir = _make_loops_dir(out)
     settings = {"gap": bool(gap), "read_options": read_options}
 
     rows: list[dict] = []
     todo: list[LoopSource] = []
+    hashes: dict[str, str] = {}
+    keys = {src.loop: source_key(src, hashes) for src in sources}
     for src, name in zip(sources, names, strict=True):
-        done = None if force else _finished_row(loops_dir / f"{name}.json", src, settings)
+        record_file = loops_dir / f"{name}.json"
+        done = None if force else _finished_row(record_file, keys[src.loop], settings)
         if done is None:
             todo.append(src)
         else:
@@ -608,9 +497,14 @@ def scan(
     for res in runner:
         row = res["row"]
         rows.append(row)
-        name = _safe_name(row["loop"])
-        record = {"row": row, "settings": settings, "analysis": res["analysis"]}
-        write_atomic(loops_dir / f"{name}.html", loop_html(row, res["analysis"]))
+        name = file_names.get(row["loop"], _safe_name(row["loop"]))
+        record = {
+            "row": row,
+            "settings": settings,
+            "source_key": keys.get(row["loop"]),
+            "analysis": res["analysis"],
+        }
+        write_atomic(loops_dir / f"{name}.html", loop_html(row, res["analysis"], name))
         # The JSON record marks the loop as done, so it is written last.
         write_atomic(
             loops_dir / f"{name}.json", json.dumps(record, indent=1, default=_json_default)
@@ -620,16 +514,76 @@ def scan(
             progress(n_done, total, row["loop"])
 
     table = rank(rows)
-    outputs = write_table(table, out)
+    outputs = write_table(table, out, file_names)
     n_failed = int((table["verdict"] == "error").sum()) if not table.empty else 0
-    return ScanResult(table, total, n_failed, n_skipped, outputs)
+    return ScanResult(table, total, n_failed, n_skipped, outputs, renamed)
 
 
-def _finished_row(record_file: Path, source: LoopSource, settings: dict) -> dict | None:
+def _make_loops_dir(out: Path) -> Path:
+    loops_dir = out / "loops"
+    try:
+        loops_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(
+            f"cannot create the scan folder {loops_dir}: {(exc.strerror or str(exc)).lower()}; "
+            "choose a writable --out"
+        ) from None
+    return loops_dir
+
+
+def _check_out(out: Path) -> None:
+    """Refuse an output folder whose table files would replace files of the user."""
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"cannot write to {out}: it is a file; give a folder for --out")
+    for name in OUTPUT_TABLES:
+        f = out / name
+        if f.exists() and not is_scan_output(f):
+            raise UsageError(
+                f"{f} exists and was not written by a scan: it would be overwritten; "
+                "choose another --out"
+            )
+
+
+def _file_digest(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def source_key(source: LoopSource, cache: dict[str, str] | None = None) -> dict:
+    """What a finished loop's record must match to be resumed: where and what the data are.
+
+    The resolved path (however PATH was spelled), the loop id inside a dataset, and
+    the SHA-256 of the file's content (of every file of a dataset folder), so an
+    edited file is analysed again.  Unreadable files get no digest (they fail, and
+    failures are always retried).
+    """
+    cache = {} if cache is None else cache
+    path = Path(source.path).resolve()
+    key = str(path)
+    if key not in cache:
+        try:
+            if path.is_dir():
+                digest = hashlib.sha256()
+                for f in _parquet_files(path):
+                    digest.update(str(f.relative_to(path)).encode())
+                    digest.update(_file_digest(f).encode())
+                cache[key] = digest.hexdigest()
+            else:
+                cache[key] = _file_digest(path)
+        except OSError:
+            cache[key] = ""
+    return {"path": key, "loop": source.loop if source.loop_column else None, "sha256": cache[key]}
+
+
+def _finished_row(record_file: Path, key: dict, settings: dict) -> dict | None:
     """The table row of a loop analysed by an earlier run, or None to analyse it (again).
 
     A loop is analysed again when its record is missing or unreadable, comes from
-    another source file or other settings, or records a failure (the cause may
+    another file or other content (:func:`source_key`) or other settings, or records
+    a failure (the cause may
     have been fixed, or the worker may have died for another loop).
     """
     try:
@@ -640,14 +594,14 @@ def _finished_row(record_file: Path, source: LoopSource, settings: dict) -> dict
     if (
         not isinstance(row, dict)
         or row.get("verdict") == "error"
-        or row.get("source") != source.path
+        or record.get("source_key") != key
         or record.get("settings") != json.loads(json.dumps(settings, default=_json_default))
     ):
         return None
     return row
 
 
-def loop_html(row: dict, analysis: dict | None) -> str:
+def loop_html(row: dict, analysis: dict | None, name: str | None = None) -> str:
     """Per-loop page linked from the scan's ``index.html`` (no plots: fast at scale).
 
     ``stiction report`` on the loop's file gives the page with the phase and
@@ -655,14 +609,11 @@ def loop_html(row: dict, analysis: dict | None) -> str:
     """
     from html import escape
 
-    from stictiondiag.apps.report import (
-        _page,
-        render_loop_html,
-    )
+    from stictiondiag.apps.report_html import render_loop_html
 
+    name = name or _safe_name(row["loop"])
     if analysis is not None:
-        page = render_loop_html(analysis, {}, json_name=f"{_safe_name(row['loop'])}.json")
-        return page.replace('<a href="index.html">', '<a href="../index.html">')
+        return render_loop_html(analysis, {}, json_name=f"{name}.json", index_href="../index.html")
     body = (
         f"<h1>Loop {escape(str(row.get('loop')))}</h1>"
         f"<p>Source <code>{escape(str(row.get('source')))}</code></p>"
@@ -670,7 +621,7 @@ def loop_html(row: dict, analysis: dict | None) -> str:
         f"<p>{escape(str(row.get('error')))}</p>"
         '<p><a href="../index.html">all loops</a></p>'
     )
-    return _page(f"stiction: {row.get('loop')}", body)
+    return html_page(f"stiction: {row.get('loop')}", body)
 
 
 def _json_default(o):
@@ -681,8 +632,13 @@ def _json_default(o):
     return v if math.isfinite(v) else None
 
 
-def write_table(table: pd.DataFrame, out: Path) -> dict:
-    """Write the ranked table as Parquet, CSV and an HTML page (each atomically)."""
+def write_table(table: pd.DataFrame, out: Path, file_names: dict | None = None) -> dict:
+    """Write the ranked table as an HTML page, Parquet and CSV (each atomically).
+
+    The page comes first: beside ``loops/`` it marks the tables as the scan's own
+    (:func:`is_scan_output`), also when the run stops between them.
+    ``file_names`` maps a loop to its file name in ``loops/`` (default its safe name).
+    """
     from stictiondiag.core.atomic import (
         atomic_path,
         write_atomic,
@@ -701,14 +657,14 @@ def write_table(table: pd.DataFrame, out: Path) -> dict:
                     else v
                 )
             )
+    write_atomic(paths["html"], scan_html(clean, file_names))
     with atomic_path(paths["parquet"]) as tmp:
         clean.to_parquet(tmp, index=False)
     write_atomic(paths["csv"], clean.to_csv(index=False))
-    write_atomic(paths["html"], scan_html(clean))
     return {k: str(v) for k, v in paths.items()}
 
 
-def scan_html(table: pd.DataFrame) -> str:
+def scan_html(table: pd.DataFrame, file_names: dict | None = None) -> str:
     """Self-contained HTML page with the ranked table and per-loop links."""
     from html import escape
 
@@ -743,7 +699,7 @@ def scan_html(table: pd.DataFrame) -> str:
             else:
                 txt = str(v)
             if c == "loop":
-                name = _safe_name(str(v))
+                name = (file_names or {}).get(str(v)) or _safe_name(str(v))
                 link = f"loops/{escape(name)}.html"
                 txt = f'<a href="{link}">{escape(txt)}</a> <a class="j" href="loops/{escape(name)}.json">json</a>'
             else:

@@ -1,2 +1,1 @@
-"""Reading control-loop tags (pv, op, mv, sp) from historian exports.
-"""
+"""Reading control-loop tags (pv, op, mv, sp) from historian exports."""

@@ -46,11 +46,14 @@ Sampling
 * ``ts`` given: samples are taken as uniformly spaced by ``ts`` and a time column
   is not used as a clock (historian exports often carry sample counters or shifted
   clocks in the time column); a disagreeing time column is noted in the warnings.
-* else a time column (numeric seconds, or timestamps / ISO 8601 strings): its
-  median step is the sample time. Steps all within 1 % of the median count as
-  uniform; otherwise the signals are linearly resampled onto a uniform grid with the
-  median step (noted in the warnings), and grid points inside a time gap longer
-  than :data:`MAX_GAP_SAMPLES` steps become missing values.
+* else a time column (numbers, timestamps or ISO 8601 strings; units detected as
+  described in :mod:`stictiondiag.io.timebase`: epoch ms/us/ns, Excel serial dates,
+  a unit in the header): its median step is the sample time. Steps all within 1 % of
+  the median count as uniform; otherwise the signals are linearly resampled onto a
+  uniform grid with the median step (noted in the warnings), and grid points inside
+  a time gap longer than :data:`MAX_GAP_SAMPLES` steps become missing values. A
+  clock that jumps (one mistyped stamp far away) splits the record instead of
+  stretching the grid, so the grid's size is bounded by the number of rows.
 * neither: ``ts = 1 s``, noted in the warnings.
 
 Missing values
@@ -62,6 +65,11 @@ cannot be filled honestly: the longest contiguous stretch without them is kept.
 Both are reported in :attr:`Tags.warnings`. Fewer than :data:`MIN_SAMPLES`
 remaining samples raise :class:`~stictiondiag.core.errors.DataError`.
 
+Values beyond +-:data:`MAX_MAGNITUDE` are a :class:`~stictiondiag.core.errors.DataError`
+(the statistics of later steps would overflow); infinite values are missing values.
+Files are read by :mod:`stictiondiag.io.readers`: only the loop's columns, large CSVs in
+chunks; column matching lives in :mod:`stictiondiag.io.columns`.
+
 Warnings are collected in :attr:`Tags.warnings` (one line each) rather than issued
 through :mod:`warnings`, so the caller decides how to show them (the CLI prints
 them on stderr, the JSON output carries them).
@@ -69,14 +77,10 @@ them on stderr, the JSON output carries them).
 
 from __future__ import annotations
 
-import bz2
-import gzip
-import lzma
 import math
 import os
-import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -85,6 +89,15 @@ import numpy as np
 from stictiondiag.core.errors import (
     DataError,
     UsageError,
+)
+from stictiondiag.io.columns import ROLES, match_columns, numeric_column
+from stictiondiag.io.readers import read_table
+from stictiondiag.io.timebase import (
+    # Longest run of missing samples [samples] that is linearly interpolated; longer
+    # runs would invent whole stick or slip phases, so the record is cut instead.
+    MAX_GAP_SAMPLES,
+    time_seconds,
+    uniform,
 )
 
 if TYPE_CHECKING:
@@ -107,9 +120,6 @@ __all__ = [
 #: is the least any of the later steps (oscillation detection, fitting) can use.
 MIN_SAMPLES = 100
 
-#: Longest run of missing samples [samples] that is linearly interpolated; longer
-#: runs would invent whole stick or slip phases, so the record is cut instead.
-MAX_GAP_SAMPLES = 10
 
 #: Loop types accepted by ``loop_type``; "level" implies an integrating process.
 LOOP_TYPES = ("flow", "pressure", "level", "temperature", "composition", "other")
@@ -117,41 +127,16 @@ LOOP_TYPES = ("flow", "pressure", "level", "temperature", "composition", "other"
 #: Units of the op (and mv) columns in the file.
 OP_UNITS = ("percent", "mA")
 
-#: Signal roles in the paper's notation (Section 3).
-ROLES = ("pv", "op", "mv", "sp")
 
 LoopType = Literal["flow", "pressure", "level", "temperature", "composition", "other"]
-
-# Relative spread of time steps still treated as uniform sampling (historian
-# clocks jitter by a fraction of a percent).
-_UNIFORM_STEP_TOLERANCE = 0.01
 
 # Relative mismatch between an explicit ts and a time column's median step that
 # is worth a note.
 _TS_MISMATCH_TOLERANCE = 0.01
 
-_CSV_SUFFIXES = {".csv", ".tsv", ".txt"}
-_PARQUET_SUFFIXES = {".parquet", ".pq"}
-_COMPRESSION = {".gz": "gzip", ".bz2": "bz2", ".xz": "xz"}
-_SPREADSHEET_SUFFIXES = {".xls", ".xlsx", ".xlsm", ".ods"}
-_DELIMITERS = (",", ";", "\t", "|")
-
-_ROLE_SUFFIXES = {
-    "pv": {"pv", "meas", "measurement"},
-    "op": {"op", "out", "output", "co"},
-    "mv": {"mv", "pos", "position", "zt"},
-    "sp": {"sp", "sv", "spt", "setpoint"},
-}
-_ROLE_NAMES = {
-    "pv": {"processvalue", "processvariable", "controlledvariable", "y"},
-    "op": {"controlleroutput", "controloutput", "u"},
-    "mv": {"valve", "valveposition"},
-    "sp": {"setpoint", "reference", "r"},
-}
-_TIME_FIRST_TOKENS = {"time", "timestamp", "datetime", "date"}
-_POSITION_INSTRUMENT = re.compile(r"^z[ti][a-z]?\d*[a-z]?$")
-_BRACKETS = re.compile(r"[\(\[\{][^\)\]\}]*[\)\]\}]")
-_SEPARATORS = re.compile(r"[\s._\-:/]+")
+#: Largest magnitude of a signal value [signal units]: fourth powers (kurtosis) of
+#: 1e7 samples stay below the float maximum (1.8e308): (1e75)^4 x 1e7 = 1e307.
+MAX_MAGNITUDE = 1e75
 
 
 def scale(x: np.ndarray) -> np.ndarray:
@@ -454,8 +439,17 @@ def read_tags(
     if ts is not None:
         _check_ts(ts)
     file = Path(path)
-    return read_frame(
-        _read_frame(file),
+    overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time}
+
+    def select(header: pd.DataFrame) -> list[str]:
+        # The columns of this loop, matched on the header alone (same rules, same
+        # errors as on the whole table), so only they are read.
+        chosen = match_columns(header, overrides, str(file), header_notes)
+        return list(chosen.values())
+
+    header_notes: list[str] = []
+    tags = read_frame(
+        read_table(file, select),
         source=str(file),
         pv=pv,
         op=op,
@@ -468,6 +462,10 @@ def read_tags(
         loop_type=loop_type,
         integrating=integrating,
     )
+    if header_notes:
+        # Notes about columns that were not read (another candidate for a role).
+        tags = replace(tags, warnings=(*header_notes, *tags.warnings))
+    return tags
 
 
 def read_frame(
@@ -508,16 +506,16 @@ def read_frame(
     if frame.shape[1] == 0 or frame.shape[0] == 0:
         raise DataError(f"{source} has no data rows: export the loop data with a header row")
     overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time}
-    columns = _match_columns(frame, overrides, source)
     notes: list[str] = []
+    columns = match_columns(frame, overrides, source, notes)
     arrays = {
-        role: _numeric(frame[column], role, column, source, notes)
+        role: numeric_column(frame[column], role, column, source, notes)
         for role, column in columns.items()
         if role != "time"
     }
     if ts is None and "time" in columns:
-        seconds = _time_seconds(frame[columns["time"]], columns["time"], source)
-        arrays, ts = _uniform(arrays, seconds, columns["time"], notes)
+        seconds = time_seconds(frame[columns["time"]], columns["time"], source, notes)
+        arrays, ts = uniform(arrays, seconds, columns["time"], notes)
     else:
         if ts is None:
             ts = 1.0
@@ -577,294 +575,9 @@ def _check_options(
     return low, high
 
 
-# --------------------------------------------------------------------------- reading
-
-
-def _read_frame(file: Path) -> pd.DataFrame:
-    if not file.exists():
-        raise DataError(f"file not found: {file}: check the path")
-    if file.is_dir():
-        raise DataError(f"{file} is a directory: give one CSV or Parquet file")
-    suffixes = [suffix.lower() for suffix in file.suffixes]
-    compression = _COMPRESSION.get(suffixes[-1]) if suffixes else None
-    kind = suffixes[-2] if compression and len(suffixes) > 1 else (suffixes[-1] if suffixes else "")
-    if kind in _PARQUET_SUFFIXES and compression is None:
-        return _read_parquet(file)
-    if kind in _CSV_SUFFIXES:
-        return _read_csv(file, compression)
-    if kind in _SPREADSHEET_SUFFIXES:
-        raise DataError(f"{file} is a spreadsheet: save the sheet as CSV, or export Parquet")
-    shown = "".join(file.suffixes) or "no extension"
-    raise DataError(
-        f"unknown file type ({shown}) for {file}: give a .csv, .tsv, .txt or .parquet file"
-    )
-
-
-def _read_parquet(file: Path) -> pd.DataFrame:
-    import pyarrow
-    import pyarrow.parquet as pq
-
-    if file.stat().st_size == 0:
-        raise DataError(f"{file} is empty: export the loop data again")
-    try:
-        with open(file, "rb") as handle:
-            frame = pq.read_table(handle).to_pandas()
-    except (pyarrow.ArrowException, OSError, ValueError) as exc:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise DataError(
-            f"{file} is not a readable Parquet file ({reason}): export it again"
-        ) from None
-    # A datetime index written by pandas becomes a column in read_frame and can
-    # then serve as the time column.
-    return frame
-
-
-def _read_csv(file: Path, compression: str | None) -> pd.DataFrame:
-    import pandas as pd
-
-    if file.stat().st_size == 0:
-        raise DataError(f"{file} is empty: export the loop data again")
-    opener = {None: open, "gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}[compression]
-    try:
-        with opener(file, "rb") as handle:
-            head = handle.read(65536)
-    except (OSError, EOFError, lzma.LZMAError) as exc:
-        reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
-        what = f"{compression} " if compression else ""
-        raise DataError(
-            f"cannot read {what}file {file} ({reason}): check the file and its permissions"
-        ) from None
-    if not head.strip():
-        raise DataError(f"{file} is empty: export the loop data again")
-    if b"\x00" in head:
-        raise DataError(f"{file} is not a text CSV file (binary content): export it as CSV")
-    encoding = _encoding(head)
-    first_line = head.decode(encoding, errors="replace").lstrip().splitlines()[0]
-    separator = max(_DELIMITERS, key=first_line.count)
-    try:
-        with open(file, "rb") as handle:
-            frame = pd.read_csv(
-                handle,
-                sep=separator,
-                encoding=encoding,
-                compression=compression,
-                skipinitialspace=True,
-                low_memory=False,
-            )
-    except pd.errors.EmptyDataError:
-        raise DataError(f"{file} is empty: export the loop data again") from None
-    except (pd.errors.ParserError, UnicodeDecodeError, ValueError, OSError, EOFError) as exc:
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise DataError(f"{file} is not a readable CSV file ({reason}): export it again") from None
-    frame.columns = [str(column).strip() for column in frame.columns]
-    return frame
-
-
-def _encoding(head: bytes) -> str:
-    # Historian exports are UTF-8 or a Windows code page (degree signs in unit
-    # annotations); latin-1 decodes any byte, so it is the fallback.
-    try:
-        head.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        # A multi-byte character cut at the end of the sample is still UTF-8.
-        if exc.start < len(head) - 4:
-            return "latin-1"
-    return "utf-8-sig"
-
-
-# --------------------------------------------------------------------------- columns
-
-
-def _tokens(name: str) -> list[str]:
-    cleaned = _BRACKETS.sub(" ", name.lower())
-    return [token for token in _SEPARATORS.split(cleaned) if token]
-
-
-def _is_time_name(name: str) -> bool:
-    tokens = _tokens(name)
-    return bool(tokens) and (tokens[0] in _TIME_FIRST_TOKENS or tokens == ["t"])
-
-
-def _roles_of(name: str) -> set[str]:
-    """Roles a column name is a candidate for (module docstring rules)."""
-    tokens = _tokens(name)
-    if not tokens:
-        return set()
-    joined = "".join(tokens)
-    roles = {
-        role for role in ROLES if tokens[-1] in _ROLE_SUFFIXES[role] or joined in _ROLE_NAMES[role]
-    }
-    if _POSITION_INSTRUMENT.match(tokens[0]):
-        # ZT/ZI instruments measure valve position whatever their suffix says.
-        return {"mv"}
-    return roles
-
-
-def _column_list(frame: pd.DataFrame, limit: int = 12) -> str:
-    names = [str(column) for column in frame.columns]
-    shown = ", ".join(names[:limit])
-    return shown + (f", ... ({len(names)} columns)" if len(names) > limit else "")
-
-
-def _resolve_override(frame: pd.DataFrame, role: str, name: str, file: str) -> str:
-    columns = [str(column) for column in frame.columns]
-    if name in columns:
-        return name
-    folded = [column for column in columns if column.lower() == str(name).lower()]
-    if len(folded) == 1:
-        return folded[0]
-    raise DataError(
-        f"{role} column {name!r} not found in {file} (columns: {_column_list(frame)}): "
-        f"check the spelling of {role}=<column>"
-    )
-
-
-def _match_columns(
-    frame: pd.DataFrame, overrides: Mapping[str, str | None], file: str
-) -> dict[str, str]:
-    """Role -> column name, from explicit names first, then the matching rules."""
-    import pandas as pd
-
-    chosen: dict[str, str] = {}
-    for role, name in overrides.items():
-        if name is None:
-            continue
-        column = _resolve_override(frame, role, name, file)
-        for other, taken in chosen.items():
-            if taken == column:
-                raise UsageError(
-                    f"column {column!r} is named for both {other} and {role}: "
-                    f"give each role its own column"
-                )
-        chosen[role] = column
-    free = [str(column) for column in frame.columns if str(column) not in chosen.values()]
-    for role in ("pv", "op", "mv", "sp"):
-        if role in chosen:
-            continue
-        exact = [column for column in free if column.strip().lower() == role]
-        candidates = exact or [column for column in free if role in _roles_of(column)]
-        if len(candidates) > 1:
-            listed = ", ".join(repr(column) for column in candidates)
-            raise DataError(
-                f"{len(candidates)} columns in {file} look like {role} ({listed}): "
-                f"name the one to use with {role}=<column> (CLI --{role} <column>)"
-            )
-        if candidates:
-            chosen[role] = candidates[0]
-            free.remove(candidates[0])
-        elif role in ("pv", "op"):
-            hint = ""
-            mv_like = chosen.get("mv") or next(
-                (column for column in free if "mv" in _roles_of(column)), None
-            )
-            if role == "op" and mv_like is not None:
-                hint = f"; if {mv_like!r} is the controller output, pass op={mv_like!r}"
-            raise DataError(
-                f"no {role} column found in {file} (columns: {_column_list(frame)}): "
-                f"name it with {role}=<column> (CLI --{role} <column>){hint}"
-            )
-    if "time" not in chosen:
-        by_name = [column for column in free if _is_time_name(column)]
-        by_type = [
-            column
-            for column in free
-            if column not in by_name and pd.api.types.is_datetime64_any_dtype(frame[column])
-        ]
-        candidates = by_name or by_type
-        if len(candidates) > 1:
-            typed = [
-                column
-                for column in candidates
-                if pd.api.types.is_datetime64_any_dtype(frame[column])
-            ]
-            if len(typed) != 1:
-                listed = ", ".join(repr(column) for column in candidates)
-                raise DataError(
-                    f"{len(candidates)} columns in {file} look like time ({listed}): "
-                    f"name the one to use with time=<column>, or give ts=<seconds>"
-                )
-            candidates = typed
-        if candidates:
-            chosen["time"] = candidates[0]
-    return chosen
-
-
-def _numeric(series: pd.Series, role: str, column: str, file: str, notes: list[str]) -> np.ndarray:
-    """Column as float array; sparse non-numeric entries become gaps, mostly text is an error."""
-    import pandas as pd
-
-    if pd.api.types.is_bool_dtype(series) or pd.api.types.is_numeric_dtype(series):
-        return series.to_numpy(dtype=float, na_value=np.nan)
-    if pd.api.types.is_datetime64_any_dtype(series):
-        raise DataError(
-            f"{role} column {column!r} in {file} holds timestamps, not numbers: "
-            f"name the {role} column with {role}=<column>"
-        )
-    text = series.astype("string").str.strip()
-    present = text.notna() & (text != "")
-    values = pd.to_numeric(text.where(present), errors="coerce")
-    bad = present & values.isna()
-    n_present, n_bad = int(present.sum()), int(bad.sum())
-    if n_present == 0:
-        return values.to_numpy(dtype=float, na_value=np.nan)
-    if n_bad * 2 > n_present:
-        example = str(text[bad].iloc[0])
-        raise DataError(
-            f"{role} column {column!r} in {file} is not numeric (e.g. {example[:30]!r}): "
-            f"export numbers with a '.' decimal point, or name another column with {role}=<column>"
-        )
-    if n_bad:
-        example = str(text[bad].iloc[0])
-        notes.append(
-            f"{role}: {n_bad} non-numeric entries (e.g. {example[:30]!r}) treated as missing"
-        )
-    return values.to_numpy(dtype=float, na_value=np.nan)
-
-
-# --------------------------------------------------------------------------- time
-
-
-def _time_seconds(series: pd.Series, column: str, file: str) -> np.ndarray:
-    """Time column as seconds (float, NaN where unreadable)."""
-    import pandas as pd
-
-    if pd.api.types.is_datetime64_any_dtype(series):
-        stamps = series
-    elif pd.api.types.is_timedelta64_dtype(series):
-        return series.dt.total_seconds().to_numpy(dtype=float, na_value=np.nan)
-    elif pd.api.types.is_numeric_dtype(series) and not pd.api.types.is_bool_dtype(series):
-        return series.to_numpy(dtype=float, na_value=np.nan)
-    else:
-        text = series.astype("string").str.strip()
-        numbers = pd.to_numeric(text, errors="coerce")
-        if numbers.notna().sum() >= 0.5 * text.notna().sum() > 0:
-            return numbers.to_numpy(dtype=float, na_value=np.nan)
-        try:
-            stamps = pd.to_datetime(text, format="ISO8601", utc=True, errors="coerce")
-        except (ValueError, TypeError):
-            stamps = pd.Series(pd.NaT, index=series.index)
-        if stamps.notna().sum() < 0.5 * max(int(text.notna().sum()), 1):
-            try:
-                stamps = pd.to_datetime(text, format="mixed", utc=True, errors="coerce")
-            except (ValueError, TypeError):
-                stamps = pd.Series(pd.NaT, index=series.index)
-        if stamps.notna().sum() < 0.5 * max(int(text.notna().sum()), 1):
-            example = str(text.dropna().iloc[0]) if text.notna().any() else ""
-            raise DataError(
-                f"time column {column!r} in {file} is neither seconds nor timestamps "
-                f"(e.g. {example[:30]!r}): name the time column with time=<column> or give ts=<seconds>"
-            )
-    stamps = pd.Series(stamps)
-    if stamps.dt.tz is not None:
-        stamps = stamps.dt.tz_convert("UTC").dt.tz_localize(None)
-    nanoseconds = stamps.to_numpy(dtype="datetime64[ns]").astype("int64").astype(float)
-    nanoseconds[stamps.isna().to_numpy()] = np.nan
-    return nanoseconds * 1e-9
-
-
 def _note_ts_mismatch(series: pd.Series, column: str, ts: float, notes: list[str]) -> None:
     try:
-        seconds = _time_seconds(series, column, "")
+        seconds = time_seconds(series, column, "")
     except DataError:
         return
     steps = np.diff(seconds[np.isfinite(seconds)])
@@ -874,58 +587,6 @@ def _note_ts_mismatch(series: pd.Series, column: str, ts: float, notes: list[str
             f"time column {column!r} steps by {np.median(steps):.6g} s (median) but ts = "
             f"{ts:g} s was given: used ts, the time column is ignored"
         )
-
-
-def _uniform(
-    arrays: dict[str, np.ndarray], seconds: np.ndarray, column: str, notes: list[str]
-) -> tuple[dict[str, np.ndarray], float]:
-    """Signals on a uniform grid with the median time step; returns (arrays, ts)."""
-    keep = np.isfinite(seconds)
-    if not keep.all():
-        notes.append(f"time: dropped {int((~keep).sum())} rows without a readable time stamp")
-        seconds = seconds[keep]
-        arrays = {role: values[keep] for role, values in arrays.items()}
-    if seconds.size < 2:
-        raise DataError(
-            f"time column {column!r} has fewer than 2 readable time stamps: "
-            f"fix the time column or give ts=<seconds>"
-        )
-    order = np.argsort(seconds, kind="stable")
-    if np.any(np.diff(seconds) < 0):
-        notes.append(f"time: rows were not in time order; sorted by {column!r}")
-        seconds = seconds[order]
-        arrays = {role: values[order] for role, values in arrays.items()}
-    unique = np.concatenate(([True], np.diff(seconds) > 0))
-    if not unique.all():
-        notes.append(f"time: dropped {int((~unique).sum())} rows with a repeated time stamp")
-        seconds = seconds[unique]
-        arrays = {role: values[unique] for role, values in arrays.items()}
-    if seconds.size < 2:
-        raise DataError(
-            f"time column {column!r} does not increase: fix the time column or give ts=<seconds>"
-        )
-    steps = np.diff(seconds)
-    ts = float(np.median(steps))
-    if np.all(np.abs(steps - ts) <= _UNIFORM_STEP_TOLERANCE * ts):
-        return arrays, ts
-    n_grid = int(math.floor((seconds[-1] - seconds[0]) / ts + 1e-9)) + 1
-    grid = seconds[0] + ts * np.arange(n_grid)
-    # Grid points inside a time gap too long to interpolate become missing values,
-    # so the gap rules below treat a hole in the clock like a hole in the data.
-    right = np.clip(np.searchsorted(seconds, grid, side="left"), 1, seconds.size - 1)
-    bracket = seconds[right] - seconds[right - 1]
-    exact = np.isclose(grid, seconds[right]) | np.isclose(grid, seconds[right - 1])
-    in_gap = (bracket > (MAX_GAP_SAMPLES + 1) * ts) & ~exact
-    resampled = {}
-    for role, values in arrays.items():
-        on_grid = np.interp(grid, seconds, values)
-        on_grid[in_gap] = np.nan
-        resampled[role] = on_grid
-    notes.append(
-        f"time steps of {column!r} are irregular ({steps.min():.6g} to {steps.max():.6g} s, "
-        f"median {ts:.6g} s): resampled linearly onto a uniform {ts:.6g} s grid"
-    )
-    return resampled, ts
 
 
 # --------------------------------------------------------------------------- assembly
@@ -1004,6 +665,23 @@ def _fill_gaps(
     return filled
 
 
+def _check_magnitude(values: np.ndarray, role: str, label: str, where: str) -> None:
+    """Refuse values so large that the statistics of later steps would overflow.
+
+    Raises
+    ------
+    DataError
+        A finite value beyond :data:`MAX_MAGNITUDE`.
+    """
+    with np.errstate(invalid="ignore"):
+        largest = float(np.nanmax(np.abs(values))) if np.isfinite(values).any() else 0.0
+    if largest > MAX_MAGNITUDE:
+        raise DataError(
+            f"{role} {label!r}{where} reaches {largest:.3g}, beyond +-{MAX_MAGNITUDE:.0e}: "
+            "no plant signal is that large; check the export's units or scaling"
+        )
+
+
 def _assemble(
     arrays: dict[str, np.ndarray],
     *,
@@ -1035,6 +713,7 @@ def _assemble(
         if np.isinf(values).any():
             notes.append(f"{role}: infinite values treated as missing")
             values[np.isinf(values)] = np.nan
+        _check_magnitude(values, role, labels.get(role, role), where)
     arrays = _fill_gaps(arrays, labels, notes)
     n = arrays["pv"].size
     if n < MIN_SAMPLES:

@@ -1,0 +1,540 @@
+"""HTML pages and the Markdown summary of a stiction report (see :mod:`stictiondiag.apps.report`).
+
+Everything that comes from the data (tag names, file names, comments, warnings) is
+escaped in HTML and in Markdown, so a column called ``<script>`` shows as text.  The
+pages also carry a Content-Security-Policy (:func:`stictiondiag.apps.pages.html_page`).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import re
+from collections.abc import Sequence
+from html import escape
+
+from stictiondiag.apps.pages import html_page
+
+__all__ = ["md_escape", "render_index_html", "render_loop_html", "render_markdown", "sort_key"]
+
+_VERDICT_RANK = {"stiction": 0, "inconclusive": 1, "error": 2, "no_stiction": 3}
+
+_CAPTIONS = {
+    "phase": (
+        "Time trends (left) and phase plots (right), signals mean-centred with unit "
+        "variance as in Figs. 3-6 of Choudhury, Thornhill & Shah (2005). A stuck valve "
+        "shows as flat mv during op ramps and a parallelogram in the mv-op plot; dashed: "
+        "the fitted valve model."
+    ),
+    "reconstruction": (
+        "Closed-loop reconstruction: the fitted valve replayed with the identified "
+        "controller and process (Sections 4.2.2 and 5.3), against the recorded data."
+    ),
+    "gap_breakdown": (
+        "Sim-to-real gap: where the replay departs from the data, by signal, valve "
+        "phase, frequency and time, and how each candidate effect changes the gap on "
+        "held-out data."
+    ),
+    "gap_replay": (
+        "Sim-to-real gap: the replay against the data before and after adding the most "
+        "likely effect."
+    ),
+}
+
+
+def _num(v, spec=".3g") -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, bool):
+        return str(v)
+    if isinstance(v, int | float):
+        if not math.isfinite(float(v)):
+            return "n/a"
+        return format(round(v) if spec.endswith("d") else v, spec)
+    return escape(str(v))
+
+
+def _text(v) -> str:
+    """Any value from the data as escaped HTML text."""
+    return escape("" if v is None else str(v))
+
+
+def md_escape(text) -> str:
+    """Escape text for Markdown table cells and prose (no HTML, no formatting).
+
+    ``<`` and ``>`` become entities (a tag shows as text), Markdown punctuation is
+    backslash-escaped and ``|`` is escaped last so that it cannot end a table cell.
+    """
+    text = escape(str(text), quote=False)  # <script> -> &lt;script&gt;
+    text = re.sub(r"\s*[\r\n]+\s*", " ", text)
+    text = re.sub(r"([\\`*_{}\[\]()#+!~>])", r"\\\1", text)
+    return text.replace("|", "\\|")
+
+
+def _img(png: bytes, alt: str) -> str:
+    b64 = base64.b64encode(png).decode("ascii")
+    return f'<img alt="{escape(alt)}" src="data:image/png;base64,{b64}">'
+
+
+def _figure(name: str, png: bytes) -> str:
+    caption = _CAPTIONS.get(name) or (
+        "Sim-to-real gap: " + name.removeprefix("gap").strip("_ ").replace("_", " ")
+        if name.startswith("gap")
+        else name.replace("_", " ")
+    )
+    return f"<figure>{_img(png, name)}<figcaption>{escape(caption)}</figcaption></figure>"
+
+
+def _kv_table(rows: Sequence[tuple[str, str]]) -> str:
+    """Two-column table; keys are escaped here, values must be escaped HTML already."""
+    return (
+        "<table>"
+        + "".join(f"<tr><th>{escape(k)}</th><td>{v}</td></tr>" for k, v in rows)
+        + "</table>"
+    )
+
+
+def _interval_text(iv) -> str:
+    if not iv or len(iv) != 2 or None in iv:
+        return "not determined"
+    return f"{_num(iv[0])} to {_num(iv[1])}"
+
+
+def _interval_svg(value, iv, x_max: float, label: str) -> str:
+    """Inline bar: the interval as a band and the estimate as a dot on 0..x_max."""
+    width, height, pad = 220, 18, 6
+    if value is None or not x_max > 0:
+        return ""
+
+    def x(v: float) -> float:
+        return pad + (width - 2 * pad) * min(max(v, 0.0), x_max) / x_max
+
+    band = ""
+    if iv and len(iv) == 2 and None not in iv:
+        band = (
+            f'<rect x="{x(iv[0]):.1f}" y="4" width="{max(x(iv[1]) - x(iv[0]), 1.5):.1f}" '
+            'height="10" rx="2" fill="#9cc3e6"/>'
+        )
+    return (
+        f'<svg class="iv" width="{width}" height="{height}" role="img" '
+        f'aria-label="{escape(label)}"><title>{escape(label)}</title>'
+        f'<line x1="{pad}" y1="9" x2="{width - pad}" y2="9" stroke="#bbb"/>{band}'
+        f'<circle cx="{x(value):.1f}" cy="9" r="4" fill="#0b3d6b"/></svg>'
+    )
+
+
+def _card(label: str, value: str, sub: str = "") -> str:
+    sub_html = f'<div class="sub">{sub}</div>' if sub else ""
+    return (
+        f'<div class="card"><div class="label">{escape(label)}</div>'
+        f'<div class="value">{value}</div>{sub_html}</div>'
+    )
+
+
+def _params(d: dict | None, names: Sequence[tuple[str, str, str]]) -> str:
+    """``symbol = value unit`` for the keys present in ``d``."""
+    if not d:
+        return "n/a"
+    parts = [
+        f"{sym} = {_num(d.get(key))}{unit}" for key, sym, unit in names if d.get(key) is not None
+    ]
+    return escape(", ".join(parts)) if parts else "n/a"
+
+
+def _process_text(p: dict | None) -> str:
+    if not p:
+        return "n/a"
+    kind = str(p.get("type") or "process")
+    text = f"{escape(kind.upper() if kind == 'foptd' else kind)}: " + _params(
+        p,
+        [
+            ("gain", "K", ""),
+            ("time_constant_s", "\u03c4", " s"),
+            ("dead_time_s", "\u03b8", " s"),
+        ],
+    )
+    if p.get("fit_r2") is not None:
+        text += f" (R\u00b2 {_num(p.get('fit_r2'), '.2f')})"
+    return text
+
+
+def _controller_text(c: dict | None) -> str:
+    if not c:
+        return "n/a"
+    kind = str(c.get("type") or "controller").upper()
+    text = f"{escape(kind)}: " + _params(
+        c,
+        [
+            ("gain", "Kc", ""),
+            ("integral_time_s", "Ti", " s"),
+            ("op_bias", "op bias", " %"),
+        ],
+    )
+    if c.get("fit_r2") is not None:
+        text += f" (R\u00b2 {_num(c.get('fit_r2'), '.2f')})"
+    return text
+
+
+def _param_text(params) -> str:
+    """Readable ``name = value`` list of effect parameters (numbers to 3 digits)."""
+    if not isinstance(params, dict):
+        return _text(json.dumps(params, default=str)) if params is not None else ""
+    parts = []
+    for k, v in params.items():
+        if isinstance(v, bool) or v is None:
+            parts.append(f"{k} = {v}")
+        elif isinstance(v, int | float):
+            parts.append(f"{k} = {_num(v)}")
+        elif isinstance(v, str):
+            parts.append(f"{k} = {v}")
+        elif isinstance(v, list | tuple | dict):
+            parts.append(f"{k}: {len(v)} entries")
+        else:
+            parts.append(f"{k} = {v}")
+    return _text(", ".join(parts))
+
+
+def _period(v) -> str:
+    return "no cycle" if v is None else f"{_num(v)} s"
+
+
+def _json_details(summary: str, obj) -> str:
+    if not obj:
+        return ""
+    return (
+        f"<details><summary>{escape(summary)}</summary>"
+        f"<pre>{escape(json.dumps(obj, indent=1, default=str))}</pre></details>"
+    )
+
+
+def render_loop_html(
+    d: dict,
+    images: dict[str, bytes],
+    *,
+    json_name: str | None = None,
+    index_href: str = "../index.html",
+) -> str:
+    """HTML page for one loop.
+
+    Parameters
+    ----------
+    d : dict
+        :meth:`stictiondiag.analysis.Analysis.to_dict` of the loop.
+    images : dict
+        Figure name -> PNG bytes (``phase``, ``reconstruction``, gap plots).
+    json_name : str, optional
+        File name of the loop's JSON next to the page, linked from the header.
+    index_href : str
+        Link to the index page (the pages live in ``loops/``, beside nothing else).
+
+    Returns
+    -------
+    str
+        A complete, self-contained HTML document.
+    """
+    st = d.get("stiction") or {}
+    tg = d.get("tags") or {}
+    osc = (d.get("oscillation") or {}).get("pv") or {}
+    rep = d.get("replay") or None
+    gap = d.get("gap") or None
+    warnings = list(d.get("warnings") or [])
+    status = str(st.get("status") or st.get("verdict") or "unknown")
+    status_class = status if status in _VERDICT_RANK else "unknown"
+    S, J = st.get("S"), st.get("J")
+    si, ji = st.get("S_interval"), st.get("J_interval")
+    ends = [
+        v
+        for v in (S, J, *(si or []), *(ji or []))
+        if isinstance(v, int | float) and math.isfinite(v)
+    ]
+    x_max = 1.15 * max(ends) if ends and max(ends) > 0 else 1.0
+    details = st.get("details") or {}
+    determinacy = details.get("determinacy") or {}
+
+    links = [f'<a href="{escape(index_href)}">&larr; all loops</a>']
+    if json_name:
+        links.append(f'<a href="{escape(json_name)}">analysis JSON</a>')
+    names = tg.get("names") or {}
+    parts = [
+        f'<p class="muted">{" &middot; ".join(links)}</p>',
+        f"<h1>Loop {_text(d.get('loop'))}</h1>",
+        f'<p class="muted">source <code>{_text(d.get("source"))}</code> &middot; '
+        f"{_num(tg.get('n_samples'), 'd')} samples at {_num(tg.get('ts_s'))} s &middot; "
+        f"{_text(tg.get('loop_type'))} loop"
+        f"{' (integrating)' if tg.get('integrating') else ''} &middot; tags "
+        + ", ".join(f"{_text(k)} = <code>{_text(v)}</code>" for k, v in names.items())
+        + "</p>",
+    ]
+
+    # Compact summary: everything a reader needs before scrolling.
+    cards = [
+        _card(
+            "verdict",
+            f'<span class="verdict {status_class}">{_text(status.replace("_", " "))}</span>',
+            f"confidence {_num(st.get('confidence'), '.2f')}",
+        ),
+        _card(
+            "S (deadband + stickband)",
+            f"{_num(S)} %",
+            f"interval {_interval_text(si)}",
+        ),
+        _card("J (slip jump)", f"{_num(J)} %", f"interval {_interval_text(ji)}"),
+        _card(
+            "oscillation",
+            f"{_num(osc.get('period_s'), '.4g')} s" if osc.get("present") else "none",
+            f"regularity {_num(osc.get('regularity'), '.3g')}" if osc.get("present") else "",
+        ),
+    ]
+    if rep:
+        per = rep.get("period_s") or {}
+        fit_pv = (rep.get("fit") or {}).get("pv")
+        cards.append(
+            _card(
+                "reconstruction",
+                f"pv fit {_num(fit_pv, '.0f')} %" if fit_pv is not None else "n/a",
+                f"period {_period(per.get('data'))} data / {_period(per.get('replay'))} replay",
+            )
+        )
+    if gap:
+        cards.append(
+            _card(
+                "gap effect",
+                _text(gap.get("effect")),
+                f"gap shrinks {_num(gap.get('shrink_pct'), '.0f')} %",
+            )
+        )
+    cards.append(
+        _card(
+            "warnings",
+            f'<a href="#warnings">{len(warnings)}</a>' if warnings else "0",
+        )
+    )
+    parts.append('<div class="cards">' + "".join(cards) + "</div>")
+
+    reasons = st.get("reasons") or []
+    if reasons:
+        parts.append("<ul>" + "".join(f"<li>{_text(r)}</li>" for r in reasons) + "</ul>")
+    parts.append(_json_details("verdict evidence", st.get("evidence")))
+
+    parts.append("<h2>Stiction parameters</h2>")
+    interval_note = details.get("interval_method")
+    rows = []
+    for sym, name, value, iv, scaled in (
+        ("S", "deadband + stickband", S, si, st.get("S_scaled")),
+        ("J", "slip jump", J, ji, st.get("J_scaled")),
+    ):
+        rows.append(
+            f"<tr><th>{sym}</th><td>{name}</td><td class='num'>{_num(value)}</td>"
+            f"<td>{_interval_text(iv)}</td>"
+            f"<td>{_interval_svg(value, iv, x_max, f'{sym} {_num(value)} %, interval {_interval_text(iv)}')}</td>"
+            f"<td class='num'>{_num(scaled)}</td><td>{_text(determinacy.get(sym, ''))}</td></tr>"
+        )
+    parts.append(
+        "<table><tr><th></th><th>parameter</th><th>estimate [% of op span]</th>"
+        "<th>interval [% of op span]</th><th>0 &ndash; "
+        f"{_num(x_max, '.3g')} %</th><th>scaled [op std]</th><th>determined</th></tr>"
+        + "".join(rows)
+        + "</table>"
+    )
+    parts.append(
+        f'<p class="muted">method <code>{_text(st.get("method"))}</code>'
+        f" &middot; {_num(st.get('n_slips'), 'd')} slips"
+        + (
+            f" &middot; the stiction model removes {_num(100 * st['improvement'], '.0f')} % "
+            "of the linear valve's residual"
+            if isinstance(st.get("improvement"), int | float)
+            else ""
+        )
+        + (f"<br>interval: {_text(interval_note)}" if interval_note else "")
+        + "</p>"
+    )
+
+    parts.append('<h2 id="warnings">Data-quality warnings</h2>')
+    parts.append(
+        "<ul>" + "".join(f'<li class="warn">{_text(w)}</li>' for w in warnings) + "</ul>"
+        if warnings
+        else "<p>None.</p>"
+    )
+
+    if "phase" in images:
+        parts += ["<h2>Phase plots and trends</h2>", _figure("phase", images["phase"])]
+
+    parts.append("<h2>Closed-loop reconstruction</h2>")
+    if rep:
+        fit = rep.get("fit") or {}
+        per = rep.get("period_s") or {}
+        amp = rep.get("amplitude") or {}
+        parts.append(
+            _kv_table(
+                [
+                    ("process", _process_text(rep.get("process"))),
+                    ("controller", _controller_text(rep.get("controller"))),
+                    (
+                        f"period of {rep.get('period_signal') or 'pv'}, data / replay [s]",
+                        f"{_num(per.get('data'))} / {_num(per.get('replay'))}",
+                    ),
+                    (
+                        "fit, 100 (1 - NRMSE) [%]",
+                        escape(
+                            ", ".join(
+                                f"{k} {_num(v, '.0f')}"
+                                for k, v in fit.items()
+                                if not isinstance(v, dict)
+                            )
+                        )
+                        or "n/a",
+                    ),
+                    (
+                        "amplitude, data / replay",
+                        escape(
+                            ", ".join(
+                                f"{k} {_num((v or {}).get('data'))} / {_num((v or {}).get('replay'))}"
+                                for k, v in amp.items()
+                                if isinstance(v, dict)
+                            )
+                        )
+                        or "n/a",
+                    ),
+                ]
+            )
+        )
+        if "reconstruction" in images:
+            parts.append(_figure("reconstruction", images["reconstruction"]))
+    else:
+        parts.append("<p>No replay (see the warnings).</p>")
+
+    parts.append("<h2>Sim-to-real gap</h2>")
+    if gap:
+        parts.append(
+            _kv_table(
+                [
+                    ("metric", _text(gap.get("metric_name") or gap.get("metric"))),
+                    (
+                        "gap before / after",
+                        f"{_num(gap.get('before'))} / {_num(gap.get('after'))}",
+                    ),
+                    ("shrink", f"{_num(gap.get('shrink_pct'), '.0f')} %"),
+                    ("most likely effect", f"<strong>{_text(gap.get('effect'))}</strong>"),
+                    ("runner-up", _text(gap.get("runner_up"))),
+                    ("margin", _num(gap.get("margin"))),
+                ]
+            )
+        )
+        cands = gap.get("candidates") or []
+        if cands:
+            parts.append(
+                "<table><tr><th>candidate effect</th><th>gap after</th><th>shrink %</th>"
+                "<th>parameters</th></tr>"
+                + "".join(
+                    f"<tr><td>{_text(c.get('effect'))}</td><td class='num'>{_num(c.get('after'))}</td>"
+                    f"<td class='num'>{_num(c.get('shrink_pct'), '.0f')}</td>"
+                    f"<td>{_param_text(c.get('params'))}</td></tr>"
+                    for c in cands
+                )
+                + "</table>"
+            )
+        parts.append(_json_details("gap breakdown", gap.get("breakdown")))
+    elif gap is None and rep:
+        parts.append("<p>Not run.</p>")
+    else:
+        parts.append("<p>Not run (needs the reconstruction).</p>")
+    for name, png in images.items():
+        if name not in ("phase", "reconstruction"):
+            parts.append(_figure(name, png))
+    return html_page(f"stiction: {d.get('loop')}", "\n".join(p for p in parts if p))
+
+
+def sort_key(r: dict):
+    v = str(r.get("verdict"))
+    conf = r.get("confidence")
+    conf = float(conf) if isinstance(conf, int | float) and math.isfinite(conf) else 0.0
+    # Stiction first, most confident first: the maintenance order.
+    return (_VERDICT_RANK.get(v, 2), -conf if v == "stiction" else 0.0, str(r.get("loop")))
+
+
+def _counts(rows: Sequence[dict]) -> str:
+    n = {k: sum(1 for r in rows if r.get("verdict") == k) for k in _VERDICT_RANK}
+    text = f"{len(rows)} loop{'s' if len(rows) != 1 else ''}: {n['stiction']} stiction"
+    text += f", {n['inconclusive']} inconclusive, {n['no_stiction']} no stiction"
+    if n["error"]:
+        text += f", {n['error']} failed"
+    return text
+
+
+def _value_interval(v, lo, hi) -> str:
+    if v is None:
+        return "n/a"
+    if lo is None or hi is None:
+        return _num(v)
+    return f"{_num(v)} ({_num(lo)}&ndash;{_num(hi)})"
+
+
+def render_index_html(rows: Sequence[dict]) -> str:
+    """Index page over all loops of a report (stiction first, most confident first)."""
+    head = (
+        "<tr><th>loop</th><th>verdict</th><th>confidence</th><th>S [%] (interval)</th>"
+        "<th>J [%] (interval)</th><th>period [s]</th><th>gap effect</th><th>warnings</th></tr>"
+    )
+    body = []
+    for r in sorted(rows, key=sort_key):
+        loop = _text(r.get("loop"))
+        v = str(r.get("verdict"))
+        v_class = v if v in _VERDICT_RANK else "unknown"
+        page = r.get("page")
+        cell = f'<a href="{escape(str(page))}">{loop}</a>' if page else loop
+        if v == "error":
+            body.append(
+                f"<tr><td>{cell}</td><td><span class='verdict error'>failed</span></td>"
+                f"<td colspan='6'>{_text(r.get('error'))}</td></tr>"
+            )
+            continue
+        n_warn = r.get("n_warnings") or 0
+        body.append(
+            f"<tr><td>{cell}</td>"
+            f"<td><span class='verdict {v_class}'>{_text(v.replace('_', ' '))}</span></td>"
+            f"<td class='num'>{_num(r.get('confidence'), '.2f')}</td>"
+            f"<td class='num'>{_value_interval(r.get('S'), r.get('S_lo'), r.get('S_hi'))}</td>"
+            f"<td class='num'>{_value_interval(r.get('J'), r.get('J_lo'), r.get('J_hi'))}</td>"
+            f"<td class='num'>{_num(r.get('period_s'), '.4g')}</td>"
+            f"<td>{_text(r.get('gap_effect') or '')}</td>"
+            f'<td title="{_text(r.get("flags") or "")}">{n_warn}</td></tr>'
+        )
+    body_html = (
+        f"<h1>Stiction report</h1><p>{_counts(rows)}.</p>"
+        f"<table>{head}{''.join(body)}</table>"
+        '<p class="muted">S: deadband + stickband, J: slip jump, both in % of the valve '
+        "span (Choudhury, Thornhill &amp; Shah 2005); in parentheses the interval of values "
+        "the data cannot tell apart from the estimate.</p>"
+    )
+    return html_page("stiction report", body_html)
+
+
+def render_markdown(rows: Sequence[dict]) -> str:
+    """Markdown summary over all loops (for a CI job summary)."""
+    lines = [
+        "## Stiction report",
+        "",
+        _counts(rows) + ".",
+        "",
+        "| loop | verdict | confidence | S [%] | J [%] | gap effect | warnings |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    failed = []
+    for r in sorted(rows, key=sort_key):
+        v = str(r.get("verdict"))
+        if v == "error":
+            failed.append(r)
+            lines.append(f"| {md_escape(r.get('loop'))} | failed | | | | | |")
+            continue
+        s_iv = _value_interval(r.get("S"), r.get("S_lo"), r.get("S_hi")).replace("&ndash;", "-")
+        j_iv = _value_interval(r.get("J"), r.get("J_lo"), r.get("J_hi")).replace("&ndash;", "-")
+        lines.append(
+            f"| {md_escape(r.get('loop'))} | {md_escape(v.replace('_', ' '))} | "
+            f"{_num(r.get('confidence'), '.2f')} | {md_escape(s_iv)} | {md_escape(j_iv)} | "
+            f"{md_escape(r.get('gap_effect') or '')} | {int(r.get('n_warnings') or 0)} |"
+        )
+    if failed:
+        lines += ["", "Failed:", ""]
+        lines += [f"- {md_escape(r.get('loop'))}: {md_escape(r.get('error'))}" for r in failed]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,217 @@
+"""Which column of an export is pv, op, mv, sp and time (rules in :mod:`stictiondiag.io.tags`).
+
+Also :func:`numeric_column`, a column as numbers with sparse bad entries as gaps.
+A column is never chosen silently over an equal claimant: two columns with the same
+name (``pv`` twice; the parser would rename one ``pv.1``) are an error naming both,
+and a column named exactly like its role that wins over other candidates is noted.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from stictiondiag.core.errors import DataError, UsageError
+from stictiondiag.io.readers import duplicate_names
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["ROLES", "column_list", "is_time_name", "match_columns", "numeric_column", "roles_of"]
+
+#: Signal roles in the paper's notation (Section 3).
+ROLES = ("pv", "op", "mv", "sp")
+
+_ROLE_SUFFIXES = {
+    "pv": {"pv", "meas", "measurement"},
+    "op": {"op", "out", "output", "co"},
+    "mv": {"mv", "pos", "position", "zt"},
+    "sp": {"sp", "sv", "spt", "setpoint"},
+}
+_ROLE_NAMES = {
+    "pv": {"processvalue", "processvariable", "controlledvariable", "y"},
+    "op": {"controlleroutput", "controloutput", "u"},
+    "mv": {"valve", "valveposition"},
+    "sp": {"setpoint", "reference", "r"},
+}
+_TIME_FIRST_TOKENS = {"time", "timestamp", "datetime", "date"}
+_POSITION_INSTRUMENT = re.compile(r"^z[ti][a-z]?\d*[a-z]?$")
+_BRACKETS = re.compile(r"[\(\[\{][^\)\]\}]*[\)\]\}]")
+_SEPARATORS = re.compile(r"[\s._\-:/]+")
+
+
+def _refuse_duplicates(frame: pd.DataFrame, overrides: Mapping[str, str | None], file: str) -> None:
+    """Two columns with one name that could serve a role are an error naming both."""
+    written = [str(n) for n in frame.attrs.get("written_names", frame.columns)]
+    named = {str(n).strip().lower() for n in overrides.values() if n is not None}
+    for name, where in duplicate_names(written).items():
+        if name in ROLES or roles_of(name) or is_time_name(name) or name in named:
+            shown = written[where[0] - 1]
+            numbers = " and ".join(str(i) for i in where)
+            raise DataError(
+                f"columns {numbers} of {file} are both named {shown!r}: which one is meant "
+                "is not clear; rename one of them in the export"
+            )
+
+
+def _tokens(name: str) -> list[str]:
+    cleaned = _BRACKETS.sub(" ", name.lower())
+    return [token for token in _SEPARATORS.split(cleaned) if token]
+
+
+def is_time_name(name: str) -> bool:
+    tokens = _tokens(name)
+    return bool(tokens) and (tokens[0] in _TIME_FIRST_TOKENS or tokens == ["t"])
+
+
+def roles_of(name: str) -> set[str]:
+    """Roles a column name is a candidate for (module docstring rules)."""
+    tokens = _tokens(name)
+    if not tokens:
+        return set()
+    joined = "".join(tokens)
+    roles = {
+        role for role in ROLES if tokens[-1] in _ROLE_SUFFIXES[role] or joined in _ROLE_NAMES[role]
+    }
+    if _POSITION_INSTRUMENT.match(tokens[0]):
+        # ZT/ZI instruments measure valve position whatever their suffix says.
+        return {"mv"}
+    return roles
+
+
+def column_list(frame: pd.DataFrame, limit: int = 12) -> str:
+    names = [str(column) for column in frame.columns]
+    shown = ", ".join(names[:limit])
+    return shown + (f", ... ({len(names)} columns)" if len(names) > limit else "")
+
+
+def _resolve_override(frame: pd.DataFrame, role: str, name: str, file: str) -> str:
+    columns = [str(column) for column in frame.columns]
+    if name in columns:
+        return name
+    folded = [column for column in columns if column.lower() == str(name).lower()]
+    if len(folded) == 1:
+        return folded[0]
+    raise DataError(
+        f"{role} column {name!r} not found in {file} (columns: {column_list(frame)}): "
+        f"check the spelling of {role}=<column>"
+    )
+
+
+def match_columns(
+    frame: pd.DataFrame,
+    overrides: Mapping[str, str | None],
+    file: str,
+    notes: list[str] | None = None,
+) -> dict[str, str]:
+    """Role -> column name, from explicit names first, then the matching rules."""
+    import pandas as pd
+
+    _refuse_duplicates(frame, overrides, file)
+    chosen: dict[str, str] = {}
+    for role, name in overrides.items():
+        if name is None:
+            continue
+        column = _resolve_override(frame, role, name, file)
+        for other, taken in chosen.items():
+            if taken == column:
+                raise UsageError(
+                    f"column {column!r} is named for both {other} and {role}: "
+                    f"give each role its own column"
+                )
+        chosen[role] = column
+    free = [str(column) for column in frame.columns if str(column) not in chosen.values()]
+    for role in ("pv", "op", "mv", "sp"):
+        if role in chosen:
+            continue
+        exact = [column for column in free if column.strip().lower() == role]
+        candidates = exact or [column for column in free if role in roles_of(column)]
+        if len(exact) == 1 and notes is not None:
+            others = [c for c in free if c != exact[0] and role in roles_of(c)]
+            if others:
+                listed = ", ".join(repr(c) for c in others)
+                notes.append(
+                    f"{role}: used column {exact[0]!r}; {listed} also read as {role} "
+                    f"(name the one to use with {role}=<column>, CLI --{role} <column>)"
+                )
+        if len(candidates) > 1:
+            listed = ", ".join(repr(column) for column in candidates)
+            raise DataError(
+                f"{len(candidates)} columns in {file} look like {role} ({listed}): "
+                f"name the one to use with {role}=<column> (CLI --{role} <column>)"
+            )
+        if candidates:
+            chosen[role] = candidates[0]
+            free.remove(candidates[0])
+        elif role in ("pv", "op"):
+            hint = ""
+            mv_like = chosen.get("mv") or next(
+                (column for column in free if "mv" in roles_of(column)), None
+            )
+            if role == "op" and mv_like is not None:
+                hint = f"; if {mv_like!r} is the controller output, pass op={mv_like!r}"
+            raise DataError(
+                f"no {role} column found in {file} (columns: {column_list(frame)}): "
+                f"name it with {role}=<column> (CLI --{role} <column>){hint}"
+            )
+    if "time" not in chosen:
+        by_name = [column for column in free if is_time_name(column)]
+        by_type = [
+            column
+            for column in free
+            if column not in by_name and pd.api.types.is_datetime64_any_dtype(frame[column])
+        ]
+        candidates = by_name or by_type
+        if len(candidates) > 1:
+            typed = [
+                column
+                for column in candidates
+                if pd.api.types.is_datetime64_any_dtype(frame[column])
+            ]
+            if len(typed) != 1:
+                listed = ", ".join(repr(column) for column in candidates)
+                raise DataError(
+                    f"{len(candidates)} columns in {file} look like time ({listed}): "
+                    f"name the one to use with time=<column>, or give ts=<seconds>"
+                )
+            candidates = typed
+        if candidates:
+            chosen["time"] = candidates[0]
+    return chosen
+
+
+def numeric_column(
+    series: pd.Series, role: str, column: str, file: str, notes: list[str]
+) -> np.ndarray:
+    """Column as float array; sparse non-numeric entries become gaps, mostly text is an error."""
+    import pandas as pd
+
+    if pd.api.types.is_bool_dtype(series) or pd.api.types.is_numeric_dtype(series):
+        return series.to_numpy(dtype=float, na_value=np.nan)
+    if pd.api.types.is_datetime64_any_dtype(series):
+        raise DataError(
+            f"{role} column {column!r} in {file} holds timestamps, not numbers: "
+            f"name the {role} column with {role}=<column>"
+        )
+    text = series.astype("string").str.strip()
+    present = text.notna() & (text != "")
+    values = pd.to_numeric(text.where(present), errors="coerce")
+    bad = present & values.isna()
+    n_present, n_bad = int(present.sum()), int(bad.sum())
+    if n_present == 0:
+        return values.to_numpy(dtype=float, na_value=np.nan)
+    if n_bad * 2 > n_present:
+        example = str(text[bad].iloc[0])
+        raise DataError(
+            f"{role} column {column!r} in {file} is not numeric (e.g. {example[:30]!r}): "
+            f"export numbers with a '.' decimal point, or name another column with {role}=<column>"
+        )
+    if n_bad:
+        example = str(text[bad].iloc[0])
+        notes.append(
+            f"{role}: {n_bad} non-numeric entries (e.g. {example[:30]!r}) treated as missing"
+        )
+    return values.to_numpy(dtype=float, na_value=np.nan)
