@@ -1,0 +1,185 @@
+"""One calibrated stiction probability per loop.
+
+The evidence of the analysis (Choudhury, Thornhill & Shah 2005, Section 5.3: is there
+a limit cycle, and does the stiction model explain it better than a linear valve) and
+of the classic detection tests is reduced to a handful of well-defined numbers,
+:data:`FEATURES`, and combined by a regularised logistic regression into
+``P(stiction)``:
+
+``improvement``
+    Share of the linear valve's residual the stiction model removes,
+    ``1 - SSE_stiction / SSE_linear``, clipped to [-0.5, 1] [-].
+``support``
+    Block-bootstrap share of one-cycle resamples in which that improvement exceeds
+    :data:`~stictiondiag.stiction.verdict.MIN_IMPROVEMENT` (how consistently over the
+    cycles the stiction model does better) [-].
+``s_excludes_zero``, ``s_open``
+    The S interval's lower end is above 0; its upper end reaches the search limit
+    (1 or 0).
+``s_share``
+    S over the spread of op (5 to 95 % quantiles), clipped to [0, 2]: a sticky valve
+    makes op travel at least S between slips [-].
+``oscillating``, ``regularity``
+    A regular oscillation in pv (or the control error) or op (Thornhill et al. 2003
+    test of :func:`stictiondiag.signals.oscillation.detect_oscillation`), and
+    ``log(1 + r)`` of the larger regularity r (capped at 20) [-].
+``horch``
+    Horch (1999): +1 stiction, -1 no stiction, 0 undecided.
+``bicoherence``
+    Choudhury, Shah & Thornhill (2004): +1 nonlinear (NGI and NLI above their
+    thresholds), -1 Gaussian or linear, 0 undecided.
+``ellipse``
+    +1 when the same procedure ends in stiction (an open pv-op ellipse), else 0.
+``short_record``
+    The record holds fewer cycles than the oscillation test needs (1 or 0).
+
+The model is fitted on simulated loops only (:mod:`stictiondiag.apps.family`,
+``scripts/train_probability.py``), separately for loops with and without the valve
+position recorded, and ships as :data:`MODEL_FILE`; its calibration on held-out
+simulated loops is in ``docs/calibration.md``.  Real-plant labels are never used.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from stictiondiag.core.errors import StictionError
+
+#: The features, in the order of the model's coefficients.
+FEATURES: tuple[str, ...] = (
+    "improvement",
+    "support",
+    "s_excludes_zero",
+    "s_open",
+    "s_share",
+    "oscillating",
+    "regularity",
+    "horch",
+    "bicoherence",
+    "ellipse",
+    "short_record",
+)
+
+#: The fitted model, written by ``scripts/train_probability.py``.
+MODEL_FILE = Path(__file__).with_name("probability_model.json")
+
+#: Largest regularity counted [-] (beyond it a cycle is simply regular).
+MAX_REGULARITY = 20.0
+
+
+def _vote(verdict) -> float:
+    return {"stiction": 1.0, "no_stiction": -1.0}.get(str(verdict), 0.0)
+
+
+def classic_votes(op, pv, sp, ts: float, integrating: bool) -> dict:
+    """Horch's and the bicoherence procedure's findings as numbers (see module doc).
+
+    A test that cannot run on the record (too short, constant signal) votes 0.
+    """
+    from stictiondiag.stiction import baselines
+
+    out = {"horch": 0.0, "bicoherence": 0.0, "ellipse": 0.0}
+    try:
+        out["horch"] = _vote(
+            baselines.horch_cross_correlation(op, pv, ts, integrating=integrating).verdict
+        )
+    except (StictionError, ValueError, FloatingPointError):
+        pass
+    try:
+        hos = baselines.choudhury_hos_diagnosis(op, pv, sp, ts)
+    except (StictionError, ValueError, FloatingPointError):
+        return out
+    if hos["verdict"] == "no_stiction":
+        out["bicoherence"] = -1.0
+    elif hos.get("nonlinear"):
+        out["bicoherence"] = 1.0
+    out["ellipse"] = 1.0 if hos["verdict"] == "stiction" else 0.0
+    return out
+
+
+def evidence_features(
+    fit,
+    oscillation,
+    oscillation_op,
+    *,
+    improvement: float,
+    support: float,
+    op: np.ndarray,
+    classic: dict,
+    short_record: bool,
+) -> dict:
+    """The features of :data:`FEATURES` for one loop (see module doc)."""
+    d = fit.details or {}
+    S_iv = fit.S_interval
+    S_open = "reaches the search limit" in str((d.get("determinacy") or {}).get("S", ""))
+    q5, q95 = np.percentile(np.asarray(op, dtype=float), [5.0, 95.0])
+    spread = float(q95 - q5)
+    s_share = float(fit.S) / spread if spread > 0 else 0.0
+    regs = [
+        float(o.regularity)
+        for o in (oscillation, oscillation_op)
+        if o is not None and getattr(o, "present", False) and o.regularity is not None
+    ]
+    osc = any(getattr(o, "present", False) for o in (oscillation, oscillation_op) if o)
+    f = {
+        "improvement": float(np.clip(improvement, -0.5, 1.0)),
+        "support": float(support),
+        "s_excludes_zero": float(S_iv is not None and S_iv[0] > 0.0),
+        "s_open": float(S_open),
+        "s_share": float(np.clip(s_share if math.isfinite(s_share) else 0.0, 0.0, 2.0)),
+        "oscillating": float(osc),
+        "regularity": math.log1p(min(max(regs), MAX_REGULARITY)) if regs else 0.0,
+        "horch": float(classic.get("horch", 0.0)),
+        "bicoherence": float(classic.get("bicoherence", 0.0)),
+        "ellipse": float(classic.get("ellipse", 0.0)),
+        "short_record": float(bool(short_record)),
+    }
+    return f
+
+
+@lru_cache(maxsize=4)
+def load_model(path: str | None = None) -> dict:
+    """The fitted model (JSON), cached."""
+    p = Path(path) if path else MODEL_FILE
+    try:
+        model = json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise StictionError(
+            f"stiction probability model {p} missing or unreadable ({exc}); "
+            "run scripts/train_probability.py"
+        ) from None
+    if tuple(model.get("features", ())) != FEATURES:
+        raise StictionError(f"{p}: its features differ from this version's; retrain it")
+    return model
+
+
+def design_row(features: dict) -> np.ndarray:
+    """The features as one row in the order of :data:`FEATURES`."""
+    return np.array([float(features[k]) for k in FEATURES])
+
+
+def logistic(z):
+    """``1 / (1 + exp(-z))`` without overflow."""
+    z = np.asarray(z, dtype=float)
+    return np.where(
+        z >= 0, 1.0 / (1.0 + np.exp(-np.abs(z))), np.exp(-np.abs(z)) / (1.0 + np.exp(-np.abs(z)))
+    )
+
+
+def apply_part(part: dict, X: np.ndarray) -> np.ndarray:
+    """``P(stiction)`` of the rows of X by one fitted part of the model."""
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    z = (X - np.asarray(part["mean"])) / np.asarray(part["scale"])
+    return logistic(z @ np.asarray(part["coef"]) + float(part["intercept"]))
+
+
+def stiction_probability(features: dict, has_mv: bool, model: dict | None = None) -> float:
+    """Calibrated ``P(stiction)`` of one loop [-] (see module doc)."""
+    model = model or load_model()
+    part = model["parts"]["mv" if has_mv else "op_pv"]
+    return float(apply_part(part, design_row(features))[0])
