@@ -156,6 +156,7 @@ class Analysis:
             "verdict": st.get("status"),
             "detected": st.get("detected"),
             "confidence": st.get("confidence"),
+            "probability": st.get("probability"),
             "S": st.get("S"),
             "J": st.get("J"),
             "S_lo": (st.get("S_interval") or [None, None])[0],
@@ -416,6 +417,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None, figures: Any = 
         oscillation_op=osc_op,
         has_mv=tags.mv is not None,
         short_record=bool(short),
+        data=tags,
     )
 
     def so_far(replay_value, gap_value=None) -> Analysis:
