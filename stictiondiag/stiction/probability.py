@@ -23,13 +23,13 @@ of the classic detection tests is reduced to a handful of well-defined numbers,
     A regular oscillation in pv (or the control error) or op (Thornhill et al. 2003
     test of :func:`stictiondiag.signals.oscillation.detect_oscillation`), and
     ``log(1 + r)`` of the larger regularity r (capped at 20) [-].
-``horch``
-    Horch (1999): +1 stiction, -1 no stiction, 0 undecided.
-``bicoherence``
-    Choudhury, Shah & Thornhill (2004): +1 nonlinear (NGI and NLI above their
-    thresholds), -1 Gaussian or linear, 0 undecided.
-``ellipse``
-    +1 when the same procedure ends in stiction (an open pv-op ellipse), else 0.
+``horch``, ``choudhury``, ``he``, ``rossi_scali``, ``kano``
+    The calls of the classic tests (:mod:`stictiondiag.stiction.classic`): Horch
+    (1999, 2000) cross-correlation or second-derivative test; Choudhury, Shah &
+    Thornhill (2004) bicoherence and pv-op ellipse; He et al. (2007) triangle versus
+    sine fit (the oscillation's shape); Rossi & Scali (2005) relay versus sine fit;
+    Kano et al. (2004) stuck sections (pv as the valve's proxy in flow loops).  +1
+    stiction, -1 no stiction, 0 undecided or not applicable.
 ``short_record``
     The record holds fewer cycles than the oscillation test needs (1 or 0).
 
@@ -60,8 +60,10 @@ FEATURES: tuple[str, ...] = (
     "oscillating",
     "regularity",
     "horch",
-    "bicoherence",
-    "ellipse",
+    "choudhury",
+    "he",
+    "rossi_scali",
+    "kano",
     "short_record",
 )
 
@@ -72,18 +74,46 @@ MODEL_FILE = Path(__file__).with_name("probability_model.json")
 MAX_REGULARITY = 20.0
 
 
+#: The classic tests whose calls enter the model, by their name in
+#: :func:`stictiondiag.stiction.classic.classic_features` (``<test>_call``).
+CLASSIC_TESTS = ("horch", "choudhury", "he", "rossi_scali", "kano")
+
+
 def _vote(verdict) -> float:
     return {"stiction": 1.0, "no_stiction": -1.0}.get(str(verdict), 0.0)
 
 
-def classic_votes(op, pv, sp, ts: float, integrating: bool) -> dict:
-    """Horch's and the bicoherence procedure's findings as numbers (see module doc).
+def classic_votes(
+    op, pv, sp, ts: float, integrating: bool, loop_type: str | None = None, mv=None
+) -> dict:
+    """The classic tests' calls as numbers: +1 stiction, -1 no stiction, 0 undecided,
+    not applicable or not run (a test that cannot run on the record votes 0).
 
-    A test that cannot run on the record (too short, constant signal) votes 0.
+    The tests are those of :mod:`stictiondiag.stiction.classic`
+    (:func:`~stictiondiag.stiction.classic.classic_features`); all their statistics are
+    returned too, under their own names, for the record.
     """
+    try:
+        from stictiondiag.stiction.classic import classic_features
+    except ImportError:  # pragma: no cover - a tree without the classic package
+        return _baseline_votes(op, pv, sp, ts, integrating)
+    try:
+        feats = classic_features(pv, op, sp, ts, loop_type, integrating=integrating, mv=mv)
+    except (StictionError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+        feats = {}
+    out = {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in feats.items()}
+    for test in CLASSIC_TESTS:
+        v = feats.get(f"{test}_call")
+        out[test] = float(v) if v is not None and math.isfinite(v) else 0.0
+    return out
+
+
+def _baseline_votes(op, pv, sp, ts: float, integrating: bool) -> dict:
+    """Horch's and the bicoherence procedure's calls from the older baselines module
+    (the other tests vote 0)."""
     from stictiondiag.stiction import baselines
 
-    out = {"horch": 0.0, "bicoherence": 0.0, "ellipse": 0.0}
+    out = dict.fromkeys(CLASSIC_TESTS, 0.0)
     try:
         out["horch"] = _vote(
             baselines.horch_cross_correlation(op, pv, ts, integrating=integrating).verdict
@@ -91,14 +121,9 @@ def classic_votes(op, pv, sp, ts: float, integrating: bool) -> dict:
     except (StictionError, ValueError, FloatingPointError):
         pass
     try:
-        hos = baselines.choudhury_hos_diagnosis(op, pv, sp, ts)
+        out["choudhury"] = _vote(baselines.choudhury_hos_diagnosis(op, pv, sp, ts)["verdict"])
     except (StictionError, ValueError, FloatingPointError):
-        return out
-    if hos["verdict"] == "no_stiction":
-        out["bicoherence"] = -1.0
-    elif hos.get("nonlinear"):
-        out["bicoherence"] = 1.0
-    out["ellipse"] = 1.0 if hos["verdict"] == "stiction" else 0.0
+        pass
     return out
 
 
@@ -134,9 +159,7 @@ def evidence_features(
         "s_share": float(np.clip(s_share if math.isfinite(s_share) else 0.0, 0.0, 2.0)),
         "oscillating": float(osc),
         "regularity": math.log1p(min(max(regs), MAX_REGULARITY)) if regs else 0.0,
-        "horch": float(classic.get("horch", 0.0)),
-        "bicoherence": float(classic.get("bicoherence", 0.0)),
-        "ellipse": float(classic.get("ellipse", 0.0)),
+        **{t: float(classic.get(t, 0.0)) for t in CLASSIC_TESTS},
         "short_record": float(bool(short_record)),
     }
     return f

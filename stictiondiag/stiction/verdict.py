@@ -1,6 +1,14 @@
 """The stiction verdict (Section 5.3): is there an oscillation, and does the stiction
 model explain it better than a linear valve, by how much, and how consistently over
-the cycles.
+the cycles; answered with one calibrated probability.
+
+The evidence (the fit's improvement over a linear valve and its bootstrap support
+over the cycles, the S interval, the oscillation and its regularity, the classic
+tests' calls) is combined into ``P(stiction)`` by
+:mod:`stictiondiag.stiction.probability`, a model fitted on simulated loops only.
+The verdict follows from P: ``stiction`` above :data:`STICTION_LEVEL`,
+``no_stiction`` below :data:`NO_STICTION_LEVEL`, ``inconclusive`` between, each with
+the evidence that weighed most for and against.
 
 The two estimators (:func:`stictiondiag.stiction.segments.estimate_from_mv` and
 :func:`stictiondiag.stiction.hammerstein.fit_hammerstein`) each return a
@@ -133,6 +141,10 @@ def _osc_text(name: str, osc) -> str:
     return f"no oscillation in {name}" + (f" ({why})" if why else "")
 
 
+#: Size of stiction the paper's industrial loops show, a few % of span (Section 3)
+#: [% of span]: a ``no_stiction`` verdict whose S interval reaches beyond it says so.
+RULE_OUT_S = 2.0
+
 #: P(stiction) above which the verdict is ``stiction`` [-].
 STICTION_LEVEL = 0.7
 
@@ -157,7 +169,8 @@ def _fit_text(fit: StictionFit, has_mv: bool) -> str:
     )
 
 
-#: Words for each feature's push towards (+) or away from (-) stiction.
+#: Words for each feature's state: (high or 1, low or 0); for the classic tests' calls
+#: (stiction, undecided, no stiction).
 _FEATURE_WORDS = {
     "improvement": (
         "the stiction model fits much better than a linear valve",
@@ -168,32 +181,43 @@ _FEATURE_WORDS = {
         "the improvement does not hold over the cycles",
     ),
     "s_excludes_zero": ("S is told apart from 0", "S cannot be told apart from 0"),
-    "s_open": ("S is bounded", "S's interval reaches the search limit"),
+    "s_open": ("S's interval reaches the search limit", "S is bounded"),
     "s_share": ("S is a large share of op's travel", "S is a small share of op's travel"),
     "oscillating": ("the loop oscillates", "no regular oscillation"),
     "regularity": ("the cycle is regular", "the cycle is irregular"),
-    "horch": ("Horch's test says stiction", "Horch's test says no stiction"),
-    "bicoherence": (
-        "the bicoherence test finds a nonlinearity",
-        "the bicoherence test finds the loop linear",
-    ),
-    "ellipse": ("the pv-op plot is an open ellipse", "the pv-op plot is not an open ellipse"),
     "short_record": ("the record is short", "the record is long enough"),
+    "horch": "Horch's test",
+    "choudhury": "the bicoherence test and pv-op ellipse",
+    "he": "He et al.'s shape test",
+    "rossi_scali": "Rossi & Scali's shape test",
+    "kano": "Kano et al.'s stuck-section test",
 }
 
+_CALLS = {1.0: "says stiction", -1.0: "says no stiction", 0.0: "is undecided or does not apply"}
 
-def _contributions(features: dict, has_mv: bool, model: dict) -> list[tuple[str, float]]:
-    """Each feature's term in the log-odds, relative to the training mean, largest first."""
+
+def _feature_text(name: str, value: float, mean: float) -> str:
+    words = _FEATURE_WORDS[name]
+    if isinstance(words, str):
+        return f"{words} {_CALLS.get(float(value), 'is undecided')}"
+    binary = name in ("s_excludes_zero", "s_open", "oscillating", "short_record")
+    high = value > 0.5 if binary else value > mean
+    return words[0 if high else 1]
+
+
+def _contributions(features: dict, has_mv: bool, model: dict) -> list[tuple[str, float, str]]:
+    """Each feature's term in the log-odds relative to the training mean, with its
+    words, largest first."""
     part = model["parts"]["mv" if has_mv else "op_pv"]
     terms = []
     for i, k in enumerate(FEATURES):
         t = part["coef"][i] * (features[k] - part["mean"][i]) / part["scale"][i]
-        terms.append((k, float(t)))
+        terms.append((k, float(t), _feature_text(k, features[k], part["mean"][i])))
     return sorted(terms, key=lambda kv: -abs(kv[1]))
 
 
-def _evidence_words(contrib: list[tuple[str, float]], sign: int, n: int = 3) -> str:
-    words = [_FEATURE_WORDS[k][0 if t > 0 else 1] for k, t in contrib if t * sign > 0.05]
+def _evidence_words(contrib: list[tuple[str, float, str]], sign: int, n: int = 3) -> str:
+    words = [w for _, t, w in contrib if t * sign > 0.05]
     return "; ".join(words[:n]) if words else "nothing in particular"
 
 
@@ -219,7 +243,15 @@ def verdict_features(
         bs, bl = np.array([fit.cost]), np.array([fit.linear_cost])
     support, f, f_iv = improvement_support(bs, bl, min_improvement, seed=seed)
     if data is not None:
-        classic = classic_votes(data.op, data.pv, data.sp, float(data.ts), bool(data.integrating))
+        classic = classic_votes(
+            data.op,
+            data.pv,
+            data.sp,
+            float(data.ts),
+            bool(data.integrating),
+            getattr(data, "loop_type", None),
+            getattr(data, "mv", None),
+        )
         op = data.op
     else:
         classic, op = {}, fit.mv_model
@@ -329,7 +361,7 @@ def stiction_verdict(
     evidence = {
         "probability": P,
         "features": features,
-        "contributions": dict(contrib),
+        "contributions": {k: t for k, t, _ in contrib},
         "stiction_level": STICTION_LEVEL,
         "no_stiction_level": NO_STICTION_LEVEL,
         "improvement": f,
@@ -346,5 +378,11 @@ def stiction_verdict(
             "inconclusive) or 1 - P (no stiction)"
         ),
     }
-    reasons = (head, improve_text, _fit_text(fit, bool(has_mv)), *osc_texts)
+    notes = ()
+    if status == "no_stiction" and fit.S_interval is not None and fit.S_interval[1] >= RULE_OUT_S:
+        notes = (
+            f"the record does not bound S: stiction up to {fit.S_interval[1]:.3g} % of span "
+            "cannot be excluded from these data alone",
+        )
+    reasons = (head, *notes, improve_text, _fit_text(fit, bool(has_mv)), *osc_texts)
     return Verdict(status, detected, float(confidence), reasons, evidence, probability=P)
