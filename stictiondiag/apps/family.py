@@ -29,7 +29,8 @@ What varies (each loop draws one option of each line):
 * **set point**: fixed, or one to four steps (cascade slaves always move).
 * **measurement noise**: white, with a standard deviation 1 % to 150 % of the
   noise-free pv's (from negligible to dominant).
-* **recording**: sampled every 1-3 simulation steps; in some loops pv (and op)
+* **recording**: 40 to 400 times the loop's time scale long (600 to 5000 samples),
+  sampled every 1-3 simulation steps; in some loops pv (and op)
   quantised to a resolution of 5-40 % of their spread, or compressed by a
   deadband or swinging-door historian (the archive holds a point only when the
   signal leaves the band; the export holds, or interpolates linearly between,
@@ -60,8 +61,12 @@ PHYSICAL_SHARE = 0.25
 MV_SHARE = 0.25
 #: Samples simulated before the record starts (transient of the start) [-].
 WARMUP = 400
+#: Range of the record's length in units of the loop's time scale (process lag plus
+#: dead time; closed-loop time constant plus dead time for an integrating loop) [-]:
+#: a record an engineer exports spans tens to hundreds of them.
+DURATION_SCALES = (40.0, 400.0)
 #: Range of recorded samples [-].
-N_RANGE = (800, 4000)
+N_RANGE = (600, 5000)
 
 
 @dataclass(frozen=True)
@@ -204,23 +209,33 @@ def _deadband_archive(x: np.ndarray, d: float) -> np.ndarray:
 
 def _swinging_door(x: np.ndarray, d: float) -> np.ndarray:
     """Swinging-door compression (Bristol 1990), exported by linear interpolation
-    between the archived points."""
-    keep = [0]
-    anchor = 0
+    between the archived points.
+
+    From the last archived point the door keeps the slopes that pass within ``d`` of
+    every sample since; when no slope is left, the point before is archived on the
+    middle of the slopes that were still open, so every exported sample lies within
+    ``d`` of the recorded one.
+    """
+    idx, val = [0], [float(x[0])]
     lo, hi = -np.inf, np.inf
     for k in range(1, x.size):
-        dt = k - anchor
-        hi = min(hi, (x[k] + d - x[anchor]) / dt)
-        lo = max(lo, (x[k] - d - x[anchor]) / dt)
-        if lo > hi:
-            anchor = k - 1
-            keep.append(anchor)
-            dt = k - anchor
-            hi = (x[k] + d - x[anchor]) / dt
-            lo = (x[k] - d - x[anchor]) / dt
-    keep.append(x.size - 1)
-    idx = np.array(sorted(set(keep)))
-    return np.interp(np.arange(x.size), idx, x[idx])
+        a, xa = idx[-1], val[-1]
+        dt = k - a
+        new_hi = min(hi, (x[k] + d - xa) / dt)
+        new_lo = max(lo, (x[k] - d - xa) / dt)
+        if new_lo > new_hi:
+            slope = 0.5 * (lo + hi)
+            idx.append(k - 1)
+            val.append(xa + slope * (k - 1 - a))
+            hi = x[k] + d - val[-1]
+            lo = x[k] - d - val[-1]
+        else:
+            lo, hi = new_lo, new_hi
+    if idx[-1] != x.size - 1:
+        a, xa = idx[-1], val[-1]
+        idx.append(x.size - 1)
+        val.append(xa + 0.5 * (lo + hi) * (x.size - 1 - a))
+    return np.interp(np.arange(x.size), np.array(idx), np.array(val))
 
 
 def _record(rng, pv, op, how: str):
@@ -254,9 +269,10 @@ def family_loop(seed: int) -> FamilyLoop:
     sp_moves = bool(rng.random() < 0.3)
     characteristic = "equal_percentage" if rng.random() < 1 / 3 else "linear"
     decim = int(rng.choice([1, 1, 2, 3]))
-    n_rec = int(rng.integers(*N_RANGE))
+    span = _loguniform(rng, *DURATION_SCALES)
 
     process, Kc, Ti, t_loop, scale = _process(rng, kind)
+    n_rec = int(np.clip(span * t_loop / decim, *N_RANGE))
     fk, fi = {
         "aggressive": (rng.uniform(1.4, 2.0), rng.uniform(0.5, 1.0)),
         "normal": (rng.uniform(0.7, 1.3), rng.uniform(0.8, 1.2)),

@@ -35,7 +35,8 @@ of the classic detection tests is reduced to a handful of well-defined numbers,
 
 The model is fitted on simulated loops only (:mod:`stictiondiag.apps.family`,
 ``scripts/train_probability.py``), separately for loops with and without the valve
-position recorded, and ships as :data:`MODEL_FILE`; its calibration on held-out
+position recorded (the mv fit compares the valve with its own position, the
+Hammerstein fit only through the process), and ships as :data:`MODEL_FILE`; its calibration on held-out
 simulated loops is in ``docs/calibration.md``.  Real-plant labels are never used.
 """
 
@@ -120,8 +121,9 @@ def _baseline_votes(op, pv, sp, ts: float, integrating: bool) -> dict:
         )
     except (StictionError, ValueError, FloatingPointError):
         pass
+    hos = getattr(baselines, "choudhury_hos_diagnosis", None)
     try:
-        out["choudhury"] = _vote(baselines.choudhury_hos_diagnosis(op, pv, sp, ts)["verdict"])
+        out["choudhury"] = _vote(hos(op, pv, sp, ts)["verdict"]) if hos else 0.0
     except (StictionError, ValueError, FloatingPointError):
         pass
     return out
@@ -201,8 +203,14 @@ def apply_part(part: dict, X: np.ndarray) -> np.ndarray:
     return logistic(z @ np.asarray(part["coef"]) + float(part["intercept"]))
 
 
+def part_name(features: dict, has_mv: bool) -> str:
+    """The part of the model that judges a loop: ``mv`` (valve position recorded) or
+    ``op_pv``."""
+    return "mv" if has_mv else "op_pv"
+
+
 def stiction_probability(features: dict, has_mv: bool, model: dict | None = None) -> float:
     """Calibrated ``P(stiction)`` of one loop [-] (see module doc)."""
     model = model or load_model()
-    part = model["parts"]["mv" if has_mv else "op_pv"]
+    part = model["parts"][part_name(features, has_mv)]
     return float(apply_part(part, design_row(features))[0])

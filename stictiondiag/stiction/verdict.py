@@ -28,6 +28,7 @@ from stictiondiag.stiction.probability import (
     classic_votes,
     evidence_features,
     load_model,
+    part_name,
     stiction_probability,
 )
 from stictiondiag.stiction.valvefit import StictionFit
@@ -208,7 +209,7 @@ def _feature_text(name: str, value: float, mean: float) -> str:
 def _contributions(features: dict, has_mv: bool, model: dict) -> list[tuple[str, float, str]]:
     """Each feature's term in the log-odds relative to the training mean, with its
     words, largest first."""
-    part = model["parts"]["mv" if has_mv else "op_pv"]
+    part = model["parts"][part_name(features, has_mv)]
     terms = []
     for i, k in enumerate(FEATURES):
         t = part["coef"][i] * (features[k] - part["mean"][i]) / part["scale"][i]
@@ -334,11 +335,18 @@ def stiction_verdict(
     )
     P = stiction_probability(features, bool(has_mv), model)
     contrib = _contributions(features, bool(has_mv), model)
+    n_blocks = len(((fit.details or {}).get("block_sse") or {}).get("stiction", [])) or 1
 
     improve_text = (
         f"the stiction model removes {100 * f:.0f} % of the linear valve's residual "
         f"(95 % interval over cycles {100 * f_iv[0]:.0f} to {100 * f_iv[1]:.0f} %; "
-        f"support {support:.2f} for more than {100 * min_improvement:.0f} %)"
+        f"support {support:.2f} for more than {100 * min_improvement:.0f} %"
+        + (
+            f"; only {n_blocks} cycle block(s), too few to measure consistency"
+            if n_blocks < 3
+            else ""
+        )
+        + ")"
     )
     osc_texts = [_osc_text("pv", oscillation)]
     if oscillation_op is not None:
@@ -368,7 +376,7 @@ def stiction_verdict(
         "improvement_interval": list(f_iv),
         "support": support,
         "min_improvement": min_improvement,
-        "n_blocks": int(len(((fit.details or {}).get("block_sse") or {}).get("stiction", []))),
+        "n_blocks": int(n_blocks),
         "has_mv": bool(has_mv),
         "short_record": bool(short_record),
         "classic": classic,
