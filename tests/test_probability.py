@@ -226,7 +226,7 @@ def test_probability_of_the_packaged_model_orders_the_evidence():
         "improvement": 0.9,
         "support": 1.0,
         "s_excludes_zero": 1.0,
-        "s_share": 0.8,
+        "s_low_share": 0.8,
         "oscillating": 1.0,
         "regularity": math.log1p(5.0),
     }

@@ -16,9 +16,11 @@ of the classic detection tests is reduced to a handful of well-defined numbers,
 ``s_excludes_zero``, ``s_open``
     The S interval's lower end is above 0; its upper end reaches the search limit
     (1 or 0).
-``s_share``
-    S over the spread of op (5 to 95 % quantiles), clipped to [0, 2]: a sticky valve
-    makes op travel at least S between slips [-].
+``s_low_share``
+    The lower end of the S interval over the spread of op (5 to 95 % quantiles),
+    clipped to [0, 2]: a sticky valve makes op travel at least S between slips, and
+    only the S the data insist on counts (0 when S cannot be told from 0, however
+    large the fitted S is against an op that hardly moves) [-].
 ``oscillating``, ``regularity``
     A regular oscillation in pv (or the control error) or op (Thornhill et al. 2003
     test of :func:`stictiondiag.signals.oscillation.detect_oscillation`), and
@@ -57,7 +59,7 @@ FEATURES: tuple[str, ...] = (
     "support",
     "s_excludes_zero",
     "s_open",
-    "s_share",
+    "s_low_share",
     "oscillating",
     "regularity",
     "horch",
@@ -146,7 +148,8 @@ def evidence_features(
     S_open = "reaches the search limit" in str((d.get("determinacy") or {}).get("S", ""))
     q5, q95 = np.percentile(np.asarray(op, dtype=float), [5.0, 95.0])
     spread = float(q95 - q5)
-    s_share = float(fit.S) / spread if spread > 0 else 0.0
+    s_low = float(S_iv[0]) if S_iv is not None else 0.0
+    s_low_share = s_low / spread if spread > 0 else 0.0
     regs = [
         float(o.regularity)
         for o in (oscillation, oscillation_op)
@@ -158,7 +161,7 @@ def evidence_features(
         "support": float(support),
         "s_excludes_zero": float(S_iv is not None and S_iv[0] > 0.0),
         "s_open": float(S_open),
-        "s_share": float(np.clip(s_share if math.isfinite(s_share) else 0.0, 0.0, 2.0)),
+        "s_low_share": float(np.clip(s_low_share if math.isfinite(s_low_share) else 0.0, 0.0, 2.0)),
         "oscillating": float(osc),
         "regularity": math.log1p(min(max(regs), MAX_REGULARITY)) if regs else 0.0,
         **{t: float(classic.get(t, 0.0)) for t in CLASSIC_TESTS},

@@ -183,7 +183,10 @@ _FEATURE_WORDS = {
     ),
     "s_excludes_zero": ("S is told apart from 0", "S cannot be told apart from 0"),
     "s_open": ("S's interval reaches the search limit", "S is bounded"),
-    "s_share": ("S is a large share of op's travel", "S is a small share of op's travel"),
+    "s_low_share": (
+        "the smallest S the data allow is a large share of op's travel",
+        "the data allow a small or no S compared with op's travel",
+    ),
     "oscillating": ("the loop oscillates", "no regular oscillation"),
     "regularity": ("the cycle is regular", "the cycle is irregular"),
     "short_record": ("the record is short", "the record is long enough"),
@@ -201,6 +204,8 @@ def _feature_text(name: str, value: float, mean: float) -> str:
     words = _FEATURE_WORDS[name]
     if isinstance(words, str):
         return f"{words} {_CALLS.get(float(value), 'is undecided')}"
+    if name == "regularity" and value == 0.0:
+        return "no cycle whose regularity could be measured"
     binary = name in ("s_excludes_zero", "s_open", "oscillating", "short_record")
     high = value > 0.5 if binary else value > mean
     return words[0 if high else 1]
