@@ -171,6 +171,7 @@ class Analysis:
             "verdict": st.get("status"),
             "detected": st.get("detected"),
             "confidence": st.get("confidence"),
+            "probability": st.get("probability"),
             "S": st.get("S"),
             "J": st.get("J"),
             "S_lo": s_int[0],
@@ -368,6 +369,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         oscillation_op=osc_op,
         has_mv=tags.mv is not None,
         short_record=bool(short),
+        data=tags,
     )
 
     # 5. Closed-loop replay; its own notes (a poor identification, a replay without

@@ -414,9 +414,9 @@ def test_record_short_of_three_cycles_is_analysed_with_a_warning(conc):
     assert any(w.startswith("short record") and "export at least" in w for w in a.warnings)
     assert a.verdict.evidence["short_record"] is True
     # The sticky valve (S = 5 %) is not called healthy.  The fit covers less than two
-    # one-cycle blocks, too few for the bootstrap to measure consistency, so the
-    # verdict stays inconclusive rather than stiction.
-    assert a.verdict.status == "inconclusive"
+    # one-cycle blocks, too few for the bootstrap to measure consistency, and the
+    # verdict says so; whether it calls stiction is up to the calibrated probability.
+    assert a.verdict.status != "no_stiction"
     assert any("too few to measure consistency" in r for r in a.verdict.reasons)
     # With mv the stick and slip phases are seen directly: no length requirement.
     tags = Tags.from_arrays(short["pv"], short["op"], mv=short["mv"], ts=1.0)

@@ -14,7 +14,6 @@ from stictiondiag.signals.oscillation import detect_oscillation
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import estimate_from_mv
 from stictiondiag.stiction.valvefit import (
-    StictionFit,
     cost_threshold,
     cycle_samples,
     effective_samples,
@@ -24,8 +23,8 @@ from stictiondiag.stiction.valvefit import (
     white_noise_std,
 )
 from stictiondiag.stiction.verdict import (
-    RULE_OUT_S,
-    Verdict,
+    NO_STICTION_LEVEL,
+    STICTION_LEVEL,
     improvement_support,
     stiction_verdict,
 )
@@ -69,7 +68,8 @@ def test_sticky_valve_with_mv_is_stiction():
     assert v.detected is True
     # Every cycle shows the same stick-slip, so every bootstrap resample improves
     # on the linear valve by far more than 10 %.
-    assert v.confidence == 1.0
+    assert v.evidence["support"] == 1.0
+    assert v.confidence == v.probability > STICTION_LEVEL
     assert v.evidence["improvement"] > 0.9
     json.dumps(v.to_dict(), allow_nan=False)
 
@@ -80,7 +80,7 @@ def test_sticky_valve_without_mv_is_stiction():
     v = verdict_for(fit, op, pv, dt)
     assert v.status == "stiction"
     # As above: the improvement is large in every cycle.
-    assert v.confidence > 0.95
+    assert v.evidence["support"] > 0.95
 
 
 def test_linear_valve_cycling_under_a_load_is_no_stiction():
@@ -102,11 +102,17 @@ def test_linear_valve_cycling_under_a_load_is_no_stiction():
         # S ~ 0: a band would hold the valve at every reversal of op.
         assert fit.S < 0.2
         v = verdict_for(fit, op, pv, dt)
-        assert v.status == "no_stiction"
-        assert v.detected is False
-        # The stiction model removes less than 10 % of the residual in most resamples
-        # (the Hammerstein fit's band, 0.04 %, still picks up some of the load).
-        assert v.confidence > 0.8
+        # Never called stiction, and the evidence leans to a healthy valve.  With mv
+        # the valve is seen following op: no stiction.  Without mv the model,
+        # calibrated on simulated loops where a sticky valve under a periodic load
+        # can look much the same, may stay between the levels.
+        assert v.status != "stiction"
+        assert v.probability < 0.5
+        if fit.method == "mv_segments":
+            assert v.status == "no_stiction"
+            assert v.detected is False
+            assert v.confidence == pytest.approx(1.0 - v.probability, abs=1e-12)
+            assert v.confidence > 1.0 - NO_STICTION_LEVEL
 
 
 def test_no_oscillation_is_not_stiction():
@@ -115,7 +121,11 @@ def test_no_oscillation_is_not_stiction():
     assert not detect_oscillation(pv, dt).present
     fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False)
     v = verdict_for(fit, op, pv, dt)
-    assert v.status == "no_stiction"
+    # Without mv a quiet loop does not prove a healthy valve (in the simulated family
+    # many sticky valves show no cycle under slow loads or sluggish tuning), so the
+    # calibrated probability may stay between the levels; it must lean healthy.
+    assert v.status != "stiction"
+    assert v.probability < 0.5
     assert any("no oscillation" in r for r in v.reasons)
 
 
@@ -134,39 +144,7 @@ def test_no_oscillation_but_recorded_stick_slip_is_stiction():
 
     v = stiction_verdict(fit, NoCycle(), oscillation_op=NoCycle(), has_mv=True)
     assert v.status == "stiction"
-    assert "sticks and slips" in v.reasons[0]
-
-
-def test_weak_improvement_is_inconclusive():
-    # Per-cycle costs where the stiction model gains 10 % on average but loses in a
-    # third of the cycles: the support sits between the decision levels.
-    blocks_lin = np.ones(12)
-    blocks_st = np.where(np.arange(12) % 3 == 0, 1.1, 0.85)
-    fit = StictionFit(
-        S=1.0,
-        J=0.5,
-        S_scaled=0.5,
-        J_scaled=0.25,
-        S_interval=(0.5, 1.5),
-        J_interval=(0.0, 1.0),
-        method="hammerstein",
-        mv_model=np.zeros(10),
-        n_slips=12,
-        cost=float(blocks_st.sum()),
-        linear_cost=float(blocks_lin.sum()),
-        details={"block_sse": {"stiction": blocks_st.tolist(), "linear": blocks_lin.tolist()}},
-    )
-
-    class Cycle:
-        present = True
-        period_s = 100.0
-        regularity = 3.0
-
-    v = stiction_verdict(fit, Cycle())
-    assert v.status == "inconclusive"
-    assert v.detected is None
-    assert 0.05 < v.confidence < 0.95
-    assert isinstance(v, Verdict)
+    assert v.reasons[0].startswith("P(stiction) = ")
 
 
 def test_verdict_is_unit_invariant():
@@ -226,7 +204,6 @@ def test_cost_threshold_and_profile_interval():
     assert cost_threshold(100.0, 5.0, 3, model_error=0.6) == pytest.approx(1025.6, abs=0.1)
 
 
-
 def test_profile_interval_does_not_widen_onto_a_rejected_end():
     # Coarse grid 0, 1, ..., 6 of C = 100 + 10 (s - 3)^2; threshold 130: inside
     # |s - 3| <= sqrt(3) = 1.73, i.e. grid values 2, 3, 4.  The grid's ends 0 and 6
@@ -245,6 +222,7 @@ def test_profile_interval_does_not_widen_onto_a_rejected_end():
     # Not at an end: widened to the neighbouring evaluated value.
     (lo, hi), _, _ = profile_interval(s, c, 130.0, 0.0, 6.0)
     assert lo == 1.0 and hi == 5.0
+
 
 def test_noise_and_cycle_helpers():
     rng = np.random.default_rng(1)
@@ -272,49 +250,6 @@ def test_valve_run_matches_the_published_model():
     assert np.allclose(y[1:], ref[1:])
     # Four cycles: one slip after each of the eight turns of op.
     assert n_slips == 8
-
-
-@pytest.mark.parametrize(
-    "upper, status",
-    [(1.0, "no_stiction"), (RULE_OUT_S - 1e-9, "no_stiction"), (8.0, "inconclusive")],
-)
-def test_no_stiction_needs_S_bounded(upper, status):
-    # The linear valve explains every cycle as well as the stiction model (support 0).
-    # That says "no stiction" only when the fit also bounds S below RULE_OUT_S; a
-    # record that leaves S anywhere up to 8 % of span rules nothing out.
-    blocks = np.ones(12)
-    fit = StictionFit(
-        S=0.0,
-        J=0.0,
-        S_scaled=0.0,
-        J_scaled=0.0,
-        S_interval=(0.0, upper),
-        J_interval=(0.0, upper),
-        method="hammerstein",
-        mv_model=np.zeros(10),
-        n_slips=0,
-        cost=float(blocks.sum()),
-        linear_cost=float(blocks.sum()),
-        details={"block_sse": {"stiction": blocks.tolist(), "linear": blocks.tolist()}},
-    )
-
-    class Cycle:
-        present = True
-        period_s = 100.0
-        regularity = 3.0
-
-    class NoCycle:
-        present = False
-        reason = "irregular"
-
-    for osc in (Cycle(), NoCycle()):
-        v = stiction_verdict(fit, osc, oscillation_op=osc)
-        assert v.status == status
-        if status == "inconclusive":
-            assert "not ruled out" in v.reasons[0]
-            assert v.confidence == pytest.approx(0.0)  # the support for stiction
-        else:
-            assert v.confidence == pytest.approx(1.0)
 
 
 def test_valve_sse_many_is_valve_sse_batch():

@@ -370,8 +370,12 @@ def test_scan_table_is_ranked(local_scan):
     table = local_scan[0].table
     order = table["verdict"].map(VERDICT_RANK).to_numpy()
     assert np.all(np.diff(order) >= 0)
+    # Within a verdict, by P(stiction), then severity.
     for _, group in table.groupby("verdict"):
-        assert np.all(np.diff(group["severity"].to_numpy()) <= 0)
+        p = group["probability"].to_numpy()
+        assert np.all(np.diff(p) <= 0)
+        for _, tied in group.groupby("probability"):
+            assert np.all(np.diff(tied["severity"].to_numpy()) <= 0)
     assert list(table["rank"]) == list(range(1, len(table) + 1))
 
 

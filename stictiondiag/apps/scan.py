@@ -364,6 +364,7 @@ LEADING_COLUMNS = (
     "rank",
     "loop",
     "verdict",
+    "probability",
     "severity",
     "confidence",
     "S",
@@ -376,9 +377,11 @@ LEADING_COLUMNS = (
 
 
 def rank(rows: list[dict]) -> pd.DataFrame:
-    """Rows ordered by verdict, then severity (descending), then loop name.
+    """Rows ordered by verdict, then P(stiction) and severity (descending), then loop name.
 
-    Verdicts in the order of :data:`VERDICT_RANK`; severity from :func:`severity`.
+    Verdicts in the order of :data:`VERDICT_RANK` (the verdict follows from
+    P(stiction), so this ranks the analysed loops by their probability); severity
+    from :func:`severity`.
     Columns: :data:`LEADING_COLUMNS`, then the rest alphabetically.
     """
     frame = pd.DataFrame(rows)
@@ -388,11 +391,13 @@ def rank(rows: list[dict]) -> pd.DataFrame:
         frame["error"] = None
     frame["severity"] = [severity(r) for r in rows]
     frame["_vr"] = frame["verdict"].map(VERDICT_RANK).fillna(len(VERDICT_RANK))
+    p = frame["probability"] if "probability" in frame else pd.Series(float("nan"), frame.index)
+    frame["_p"] = pd.to_numeric(p, errors="coerce").fillna(-1.0)
     frame["_loop"] = frame["loop"].astype(str)
     frame = frame.sort_values(
-        ["_vr", "severity", "_loop"], ascending=[True, False, True], kind="mergesort"
+        ["_vr", "_p", "severity", "_loop"], ascending=[True, False, False, True], kind="mergesort"
     )
-    frame = frame.drop(columns=["_vr", "_loop"]).reset_index(drop=True)
+    frame = frame.drop(columns=["_vr", "_p", "_loop"]).reset_index(drop=True)
     frame.insert(0, "rank", range(1, len(frame) + 1))
     lead = [c for c in LEADING_COLUMNS if c in frame.columns]
     return frame[lead + sorted(c for c in frame.columns if c not in lead)]

@@ -1,6 +1,14 @@
 """The stiction verdict (Section 5.3): is there an oscillation, and does the stiction
 model explain it better than a linear valve, by how much, and how consistently over
-the cycles.
+the cycles; answered with one calibrated probability.
+
+The evidence (the fit's improvement over a linear valve and its bootstrap support
+over the cycles, the S interval, the oscillation and its regularity, the classic
+tests' calls) is combined into ``P(stiction)`` by
+:mod:`stictiondiag.stiction.probability`, a model fitted on simulated loops only.
+The verdict follows from P: ``stiction`` above :data:`STICTION_LEVEL`,
+``no_stiction`` below :data:`NO_STICTION_LEVEL`, ``inconclusive`` between, each with
+the evidence that weighed most for and against.
 
 The two estimators (:func:`stictiondiag.stiction.segments.estimate_from_mv` and
 :func:`stictiondiag.stiction.hammerstein.fit_hammerstein`) each return a
@@ -15,6 +23,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stictiondiag.core.serialize import to_plain as _plain
+from stictiondiag.stiction.probability import (
+    FEATURES,
+    classic_votes,
+    evidence_features,
+    load_model,
+    part_name,
+    stiction_probability,
+)
 from stictiondiag.stiction.valvefit import StictionFit
 
 
@@ -36,6 +52,8 @@ class Verdict:
         Human-readable reasons, most important first.
     evidence : dict
         The measured quantities behind the decision (JSON-able).
+    probability : float or None
+        Calibrated P(stiction) [-] (:mod:`stictiondiag.stiction.probability`).
     """
 
     status: str
@@ -43,6 +61,7 @@ class Verdict:
     confidence: float
     reasons: tuple[str, ...]
     evidence: dict = field(default_factory=dict, repr=False)
+    probability: float | None = None
 
     def to_dict(self) -> dict:
         return _plain(
@@ -51,11 +70,11 @@ class Verdict:
                 "verdict": self.status,
                 "detected": self.detected,
                 "confidence": self.confidence,
+                "probability": self.probability,
                 "reasons": list(self.reasons),
                 "evidence": self.evidence,
             }
         )
-
 
 
 # --------------------------------------------------------------------------------------
@@ -65,16 +84,6 @@ class Verdict:
 #: Smallest share of the linear valve's residual the stiction model must remove for
 #: the improvement to count as material [-].
 MIN_IMPROVEMENT = 0.1
-
-#: Bootstrap support needed to call stiction (and 1 minus it to call no stiction).
-DECISION_LEVEL = 0.95
-
-#: "No stiction" is said only when the record bounds S below this [% of span]: a
-#: linear valve that explains the data as well as a sticky one is no evidence of a
-#: healthy valve when the fit leaves S anywhere up to several % (a record without
-#: clear cycles, disturbed by loads and set-point changes).  Stiction of a few % of
-#: span is what the paper's industrial loops show (Section 3).
-RULE_OUT_S = 2.0
 
 #: Bootstrap resamples of the per-cycle costs.
 N_BOOTSTRAP = 2000
@@ -133,6 +142,138 @@ def _osc_text(name: str, osc) -> str:
     return f"no oscillation in {name}" + (f" ({why})" if why else "")
 
 
+#: Size of stiction the paper's industrial loops show, a few % of span (Section 3)
+#: [% of span]: a ``no_stiction`` verdict whose S interval reaches beyond it says so.
+RULE_OUT_S = 2.0
+
+#: P(stiction) above which the verdict is ``stiction`` [-].
+STICTION_LEVEL = 0.7
+
+#: P(stiction) below which the verdict is ``no_stiction`` [-].
+NO_STICTION_LEVEL = 0.3
+
+# The levels are stated before any real-plant record is seen, from the cost of the
+# two errors: a loop is called only when the calibrated probability favours its
+# verdict at least 7 to 3 (odds above 2.3), so that a called loop is wrong at most
+# three times in ten by the model's own, calibrated account; between the levels the
+# evidence is too even to send a technician or to strike the valve off the list.
+
+
+def _fit_text(fit: StictionFit, has_mv: bool) -> str:
+    S_iv = fit.S_interval
+    return (
+        f"S = {fit.S:.3g} %"
+        + (f" [{S_iv[0]:.3g}, {S_iv[1]:.3g}]" if S_iv else "")
+        + f", J = {fit.J:.3g} %"
+        + (f" [{fit.J_interval[0]:.3g}, {fit.J_interval[1]:.3g}]" if fit.J_interval else "")
+        + f" of span ({'valve position' if has_mv else 'op and pv'})"
+    )
+
+
+#: Words for each feature's state: (high or 1, low or 0); for the classic tests' calls
+#: (stiction, undecided, no stiction).
+_FEATURE_WORDS = {
+    "improvement": (
+        "the stiction model fits much better than a linear valve",
+        "the stiction model hardly fits better than a linear valve",
+    ),
+    "support": (
+        "the improvement holds over the cycles",
+        "the improvement does not hold over the cycles",
+    ),
+    "s_excludes_zero": ("S is told apart from 0", "S cannot be told apart from 0"),
+    "s_open": ("S's interval reaches the search limit", "S is bounded"),
+    "s_low_share": (
+        "the smallest S the data allow is a large share of op's travel",
+        "the data allow a small or no S compared with op's travel",
+    ),
+    "oscillating": ("the loop oscillates", "no regular oscillation"),
+    "regularity": ("the cycle is regular", "the cycle is irregular"),
+    "short_record": ("the record is short", "the record is long enough"),
+    "horch": "Horch's test",
+    "choudhury": "the bicoherence test and pv-op ellipse",
+    "he": "He et al.'s shape test",
+    "rossi_scali": "Rossi & Scali's shape test",
+    "kano": "Kano et al.'s stuck-section test",
+}
+
+_CALLS = {1.0: "says stiction", -1.0: "says no stiction", 0.0: "is undecided or does not apply"}
+
+
+def _feature_text(name: str, value: float, mean: float) -> str:
+    words = _FEATURE_WORDS[name]
+    if isinstance(words, str):
+        return f"{words} {_CALLS.get(float(value), 'is undecided')}"
+    if name == "regularity" and value == 0.0:
+        return "no cycle whose regularity could be measured"
+    binary = name in ("s_excludes_zero", "s_open", "oscillating", "short_record")
+    high = value > 0.5 if binary else value > mean
+    return words[0 if high else 1]
+
+
+def _contributions(features: dict, has_mv: bool, model: dict) -> list[tuple[str, float, str]]:
+    """Each feature's term in the log-odds relative to the training mean, with its
+    words, largest first."""
+    part = model["parts"][part_name(features, has_mv)]
+    terms = []
+    for i, k in enumerate(FEATURES):
+        t = part["coef"][i] * (features[k] - part["mean"][i]) / part["scale"][i]
+        terms.append((k, float(t), _feature_text(k, features[k], part["mean"][i])))
+    return sorted(terms, key=lambda kv: -abs(kv[1]))
+
+
+def _evidence_words(contrib: list[tuple[str, float, str]], sign: int, n: int = 3) -> str:
+    words = [w for _, t, w in contrib if t * sign > 0.05]
+    return "; ".join(words[:n]) if words else "nothing in particular"
+
+
+def verdict_features(
+    fit: StictionFit,
+    oscillation,
+    oscillation_op,
+    *,
+    short_record: bool,
+    data=None,
+    min_improvement: float = MIN_IMPROVEMENT,
+    seed: int = 0,
+) -> tuple[dict, tuple[float, float, tuple[float, float]], dict]:
+    """The probability model's features of one loop, the improvement's support
+    (:func:`improvement_support`: support, improvement, interval) and the classic
+    tests' votes; what :func:`stiction_verdict` decides on, and what the model is
+    trained on (``scripts/train_probability.py``)."""
+    d = fit.details or {}
+    blocks = d.get("block_sse") or {}
+    bs = np.asarray(blocks.get("stiction", []), dtype=float)
+    bl = np.asarray(blocks.get("linear", []), dtype=float)
+    if bs.size == 0:
+        bs, bl = np.array([fit.cost]), np.array([fit.linear_cost])
+    support, f, f_iv = improvement_support(bs, bl, min_improvement, seed=seed)
+    if data is not None:
+        classic = classic_votes(
+            data.op,
+            data.pv,
+            data.sp,
+            float(data.ts),
+            bool(data.integrating),
+            getattr(data, "loop_type", None),
+            getattr(data, "mv", None),
+        )
+        op = data.op
+    else:
+        classic, op = {}, fit.mv_model
+    features = evidence_features(
+        fit,
+        oscillation,
+        oscillation_op,
+        improvement=f,
+        support=support,
+        op=op,
+        classic=classic,
+        short_record=short_record,
+    )
+    return features, (support, f, f_iv), classic
+
+
 def stiction_verdict(
     fit: StictionFit,
     oscillation,
@@ -140,114 +281,74 @@ def stiction_verdict(
     oscillation_op=None,
     has_mv: bool | None = None,
     short_record: bool = False,
+    data=None,
     min_improvement: float = MIN_IMPROVEMENT,
-    decision_level: float = DECISION_LEVEL,
     seed: int = 0,
+    model: dict | None = None,
 ) -> Verdict:
-    """Does valve stiction explain the loop's oscillation?
+    """Does valve stiction explain the loop's oscillation, and how probably?
 
     The question of Section 5.3 of Choudhury, Thornhill & Shah (2005), asked of
-    the data: is there an oscillation at all (Sections 4.2.2 and 5.3: stiction shows
-    as a limit cycle), does the stiction model explain the data better than a linear
-    valve, by how much, consistently over the cycles, and are S and J determined.
+    the data and answered with a calibrated probability
+    (:mod:`stictiondiag.stiction.probability`): the stiction model's improvement
+    over a linear valve and its consistency over the cycles (:func:`improvement_support`),
+    the S interval, the oscillation and its regularity, and the classic tests
+    (Horch 1999; Choudhury, Shah & Thornhill 2004) run on ``data``.
 
     Parameters
     ----------
     fit : StictionFit
         From :func:`stictiondiag.stiction.segments.estimate_from_mv` or
         :func:`stictiondiag.stiction.hammerstein.fit_hammerstein`.
-    oscillation : Oscillation
-        :func:`stictiondiag.signals.oscillation.detect_oscillation` of pv.
-    oscillation_op : Oscillation, optional
-        The same for op; an oscillation in either counts.
+    oscillation, oscillation_op : Oscillation
+        :func:`stictiondiag.signals.oscillation.detect_oscillation` of pv (or the
+        control error) and of op.
     has_mv : bool, optional
         Whether the valve position was recorded; default from ``fit.method``.
     short_record : bool
-        The record shows a regular cycle but holds fewer periods of it than the
-        oscillation test needs (:func:`stictiondiag.analysis.check_record_length`):
-        the missing oscillation is then no evidence against stiction.
+        The record holds fewer cycles than the oscillation test needs
+        (:func:`stictiondiag.analysis.check_record_length`).
+    data : Tags, optional
+        The loop's record (``op``, ``pv``, ``sp``, ``ts``, ``integrating``) for the
+        classic tests; without it they count as undecided.
     min_improvement : float
-        Share of the linear valve's residual the stiction model must remove to count
-        as a material improvement [-].
-    decision_level : float
-        Support needed for a decision [-].
+        Share of the linear valve's residual that counts as a material improvement [-].
     seed : int
         Seed of the bootstrap.
+    model : dict, optional
+        A fitted probability model; default the packaged one.
 
     Returns
     -------
     Verdict
-
-    Notes
-    -----
-    The evidence is the bootstrap support ``P`` of :func:`improvement_support`: the
-    share of block resamples (blocks about one cycle long) in which the stiction
-    model removes more than ``min_improvement`` of the residual the linear valve
-    leaves.  It measures at once *how much* (the threshold) and *how consistently*
-    (the resampling over cycles) the stiction model does better.
-
-    * An oscillation, ``P >= decision_level`` and S determined (its interval excludes
-      0 and stays inside the search range): **stiction**, confidence ``P``.
-    * An oscillation and ``P <= 1 - decision_level``, or ``P < 0.5`` with a linear
-      valve (S = 0) inside the S interval: **no stiction**, confidence ``1 - P``.
-    * No regular oscillation in pv or op: **no stiction**, confidence ``1 - P``,
-      unless the valve evidence itself shows repeated stick-slip
-      (``P >= decision_level``, at least three slips, S determined; on a short
-      record the support over at least three blocks): then
-      **stiction**, confidence ``P`` (or **inconclusive** when ``P`` is that high
-      but S is not determined).  With mv recorded that is the valve seen
-      sticking; without, a valve model that explains pv by its slips.  When the
-      record is merely too short to confirm its cycle (``short_record``), the
-      missing oscillation proves nothing: **no stiction** then needs
-      ``P <= 1 - decision_level`` (a linear valve explains pv as well), and
-      anything between is **inconclusive**.  Plant
-      stiction cycles are often too irregular for the regularity test of
-      :func:`stictiondiag.signals.oscillation.detect_oscillation` (its r > 1), and a fit
-      whose band excludes zero and beats a linear valve in 95 % of the cycle
-      resamples is evidence of its own.
-    * Otherwise **inconclusive** (weak or inconsistent improvement, or S poorly
-      determined), confidence ``P`` (the support for stiction).
-    * Every **no stiction** above also needs the S interval to end below
-      :data:`RULE_OUT_S`; where the record leaves a larger S open the verdict is
-      **inconclusive** and says how much stiction is not ruled out.
-
-    The confidence is therefore never set by hand: it is a bootstrap share computed
-    from the fit's residuals.
+        ``stiction`` when ``P > STICTION_LEVEL``, ``no_stiction`` when
+        ``P < NO_STICTION_LEVEL``, else ``inconclusive``.  The confidence is
+        confidence in the verdict: ``P`` for stiction, ``1 - P`` for no stiction,
+        ``P`` (between the levels, so never near 1) for inconclusive.
     """
     if has_mv is None:
         has_mv = fit.method == "mv_segments"
-    d = fit.details or {}
-    blocks = d.get("block_sse") or {}
-    bs = np.asarray(blocks.get("stiction", []), dtype=float)
-    bl = np.asarray(blocks.get("linear", []), dtype=float)
-    if bs.size == 0:
-        bs, bl = np.array([fit.cost]), np.array([fit.linear_cost])
-    P, f, f_iv = improvement_support(bs, bl, min_improvement, seed=seed)
-
-    osc_pv = bool(getattr(oscillation, "present", False))
-    osc_op = bool(getattr(oscillation_op, "present", False)) if oscillation_op else False
-    oscillating = osc_pv or osc_op
-
-    S_iv = fit.S_interval
-    S_open = "reaches the search limit" in str((d.get("determinacy") or {}).get("S", ""))
-    S_excludes_zero = S_iv is not None and S_iv[0] > 0.0
-    S_determined = S_excludes_zero and not S_open
-    n_slips = int((d.get("segments") or {}).get("n_slips", fit.n_slips))
-
-    fit_text = (
-        f"S = {fit.S:.3g} %"
-        + (f" [{S_iv[0]:.3g}, {S_iv[1]:.3g}]" if S_iv else "")
-        + f", J = {fit.J:.3g} %"
-        + (f" [{fit.J_interval[0]:.3g}, {fit.J_interval[1]:.3g}]" if fit.J_interval else "")
-        + f" of span ({'valve position' if has_mv else 'op and pv'})"
+    model = model or load_model()
+    features, (support, f, f_iv), classic = verdict_features(
+        fit,
+        oscillation,
+        oscillation_op,
+        short_record=short_record,
+        data=data,
+        min_improvement=min_improvement,
+        seed=seed,
     )
+    P = stiction_probability(features, bool(has_mv), model)
+    contrib = _contributions(features, bool(has_mv), model)
+    n_blocks = len(((fit.details or {}).get("block_sse") or {}).get("stiction", [])) or 1
+
     improve_text = (
         f"the stiction model removes {100 * f:.0f} % of the linear valve's residual "
         f"(95 % interval over cycles {100 * f_iv[0]:.0f} to {100 * f_iv[1]:.0f} %; "
-        f"support {P:.2f} for more than {100 * min_improvement:.0f} %"
+        f"support {support:.2f} for more than {100 * min_improvement:.0f} %"
         + (
-            f"; only {bs.size} cycle block(s), too few to measure consistency"
-            if bs.size < 3
+            f"; only {n_blocks} cycle block(s), too few to measure consistency"
+            if n_blocks < 3
             else ""
         )
         + ")"
@@ -255,138 +356,46 @@ def stiction_verdict(
     osc_texts = [_osc_text("pv", oscillation)]
     if oscillation_op is not None:
         osc_texts.append(_osc_text("op", oscillation_op))
-    det_texts = []
-    if not S_excludes_zero:
-        det_texts.append("S cannot be told apart from 0 (no stick band)")
-    elif S_open:
-        det_texts.append("S poorly determined: its interval reaches the search limit")
-    if d.get("J_confounded_with_gain"):
-        det_texts.append(
-            "J not determined without mv: the fitted valve never moves smoothly, so its "
-            "jump trades off against the process gain"
+    levels = f"levels {NO_STICTION_LEVEL:g} and {STICTION_LEVEL:g}"
+    for_text = _evidence_words(contrib, +1)
+    against_text = _evidence_words(contrib, -1)
+    if P > STICTION_LEVEL:
+        status, detected, confidence = "stiction", True, P
+        head = f"P(stiction) = {P:.2f} (above {STICTION_LEVEL:g}): {for_text}"
+    elif P < NO_STICTION_LEVEL:
+        status, detected, confidence = "no_stiction", False, 1.0 - P
+        head = f"P(stiction) = {P:.2f} (below {NO_STICTION_LEVEL:g}): {against_text}"
+    else:
+        status, detected, confidence = "inconclusive", None, P
+        head = (
+            f"P(stiction) = {P:.2f}, between the {levels}: the evidence is split "
+            f"(for: {for_text}; against: {against_text})"
         )
-
     evidence = {
-        "oscillation_pv": osc_pv,
-        "oscillation_op": osc_op,
+        "probability": P,
+        "features": features,
+        "contributions": {k: t for k, t, _ in contrib},
+        "stiction_level": STICTION_LEVEL,
+        "no_stiction_level": NO_STICTION_LEVEL,
         "improvement": f,
         "improvement_interval": list(f_iv),
-        "support": P,
+        "support": support,
         "min_improvement": min_improvement,
-        "decision_level": decision_level,
-        "n_blocks": int(bs.size),
-        "S_determined": bool(S_determined),
-        "n_slips": n_slips,
+        "n_blocks": int(n_blocks),
         "has_mv": bool(has_mv),
         "short_record": bool(short_record),
+        "classic": classic,
         "confidence_formula": (
-            "support = share of block-bootstrap resamples (one-cycle blocks) in which the "
-            "stiction model removes more than min_improvement of the linear valve's "
-            "residual; confidence = support (stiction, inconclusive) or 1 - support "
-            "(no stiction)"
+            "P = calibrated logistic model of the features (stictiondiag.stiction."
+            "probability, fitted on simulated loops); confidence = P (stiction, "
+            "inconclusive) or 1 - P (no stiction)"
         ),
     }
-
-    if not oscillating:
-        # A record too short to confirm its cycle must show the improvement over at
-        # least three blocks: a bootstrap over fewer measures no consistency.
-        enough_blocks = bs.size >= 3 or not short_record
-        if P >= decision_level and n_slips >= 3 and S_determined and enough_blocks:
-            source = (
-                "the recorded valve position sticks and slips"
-                if has_mv
-                else "the valve model explains pv by repeated slips"
-            )
-            return Verdict(
-                "stiction",
-                True,
-                P,
-                (
-                    f"{source} ({n_slips} slips) although the cycle is not regular",
-                    *osc_texts,
-                    improve_text,
-                    fit_text,
-                ),
-                evidence,
-            )
-        if P >= decision_level:
-            return Verdict(
-                "inconclusive",
-                None,
-                P,
-                (
-                    "no regular oscillation, but the valve model fits better than a linear "
-                    "valve: " + improve_text,
-                    *det_texts,
-                    *osc_texts,
-                    fit_text,
-                ),
-                evidence,
-            )
-        if short_record and P > 1.0 - decision_level:
-            return Verdict(
-                "inconclusive",
-                None,
-                P,
-                (
-                    "the record is too short to confirm or rule out a limit cycle, and the "
-                    "valve model's evidence is not decisive: " + improve_text,
-                    *det_texts,
-                    *osc_texts,
-                    fit_text,
-                ),
-                evidence,
-            )
-        if short_record:
-            reasons = (
-                "a linear valve explains pv as well (the record is too short to confirm "
-                "its cycle): " + improve_text,
-                *osc_texts,
-                fit_text,
-            )
-        else:
-            reasons = (*osc_texts, "nothing for stiction to explain", improve_text)
-        return _no_stiction_unless_open(P, reasons, S_iv, fit_text, evidence)
-
-    if P >= decision_level and S_determined:
-        return Verdict(
-            "stiction", True, P, (improve_text, fit_text, *osc_texts, *det_texts), evidence
+    notes = ()
+    if status == "no_stiction" and fit.S_interval is not None and fit.S_interval[1] >= RULE_OUT_S:
+        notes = (
+            f"the record does not bound S: stiction up to {fit.S_interval[1]:.3g} % of span "
+            "cannot be excluded from these data alone",
         )
-    if P <= 1.0 - decision_level or (not S_excludes_zero and P < 0.5):
-        return _no_stiction_unless_open(
-            P,
-            ("a linear valve explains the oscillation as well: " + improve_text, *osc_texts),
-            S_iv,
-            fit_text,
-            evidence,
-        )
-    why = (
-        "the improvement over a linear valve is weak or not consistent over the cycles"
-        if P < decision_level
-        else "the stiction parameters are poorly determined"
-    )
-    return Verdict(
-        "inconclusive", None, P, (why, improve_text, *det_texts, fit_text, *osc_texts), evidence
-    )
-
-
-def _no_stiction_unless_open(P, reasons, S_iv, fit_text, evidence) -> Verdict:
-    """**No stiction** (confidence ``1 - P``) when the S interval's upper end is below
-    :data:`RULE_OUT_S`; otherwise **inconclusive** (confidence ``P``): the record does
-    not rule out a sticky valve of that size."""
-    upper = None if S_iv is None else float(S_iv[1])
-    evidence = {**evidence, "S_upper": upper, "rule_out_S": RULE_OUT_S}
-    if upper is not None and upper >= RULE_OUT_S:
-        return Verdict(
-            "inconclusive",
-            None,
-            P,
-            (
-                f"stiction up to S = {upper:.3g} % of span is not ruled out by the record "
-                f"(no stiction needs S bounded below {RULE_OUT_S:g} %)",
-                *reasons,
-                fit_text,
-            ),
-            evidence,
-        )
-    return Verdict("no_stiction", False, 1.0 - P, (*reasons, fit_text), evidence)
+    reasons = (head, *notes, improve_text, _fit_text(fit, bool(has_mv)), *osc_texts)
+    return Verdict(status, detected, float(confidence), reasons, evidence, probability=P)

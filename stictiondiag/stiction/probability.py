@@ -1,0 +1,219 @@
+"""One calibrated stiction probability per loop.
+
+The evidence of the analysis (Choudhury, Thornhill & Shah 2005, Section 5.3: is there
+a limit cycle, and does the stiction model explain it better than a linear valve) and
+of the classic detection tests is reduced to a handful of well-defined numbers,
+:data:`FEATURES`, and combined by a regularised logistic regression into
+``P(stiction)``:
+
+``improvement``
+    Share of the linear valve's residual the stiction model removes,
+    ``1 - SSE_stiction / SSE_linear``, clipped to [-0.5, 1] [-].
+``support``
+    Block-bootstrap share of one-cycle resamples in which that improvement exceeds
+    :data:`~stictiondiag.stiction.verdict.MIN_IMPROVEMENT` (how consistently over the
+    cycles the stiction model does better) [-].
+``s_excludes_zero``, ``s_open``
+    The S interval's lower end is above 0; its upper end reaches the search limit
+    (1 or 0).
+``s_low_share``
+    The lower end of the S interval over the spread of op (5 to 95 % quantiles),
+    clipped to [0, 2]: a sticky valve makes op travel at least S between slips, and
+    only the S the data insist on counts (0 when S cannot be told from 0, however
+    large the fitted S is against an op that hardly moves) [-].
+``oscillating``, ``regularity``
+    A regular oscillation in pv (or the control error) or op (Thornhill et al. 2003
+    test of :func:`stictiondiag.signals.oscillation.detect_oscillation`), and
+    ``log(1 + r)`` of the larger regularity r (capped at 20) [-].
+``horch``, ``choudhury``, ``he``, ``rossi_scali``, ``kano``
+    The calls of the classic tests (:mod:`stictiondiag.stiction.classic`): Horch
+    (1999, 2000) cross-correlation or second-derivative test; Choudhury, Shah &
+    Thornhill (2004) bicoherence and pv-op ellipse; He et al. (2007) triangle versus
+    sine fit (the oscillation's shape); Rossi & Scali (2005) relay versus sine fit;
+    Kano et al. (2004) stuck sections (pv as the valve's proxy in flow loops).  +1
+    stiction, -1 no stiction, 0 undecided or not applicable.
+``short_record``
+    The record holds fewer cycles than the oscillation test needs (1 or 0).
+
+The model is fitted on simulated loops only (:mod:`stictiondiag.apps.family`,
+``scripts/train_probability.py``), separately for loops with and without the valve
+position recorded (the mv fit compares the valve with its own position, the
+Hammerstein fit only through the process), and ships as :data:`MODEL_FILE`; its calibration on held-out
+simulated loops is in ``docs/calibration.md``.  Real-plant labels are never used.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from stictiondiag.core.errors import StictionError
+
+#: The features, in the order of the model's coefficients.
+FEATURES: tuple[str, ...] = (
+    "improvement",
+    "support",
+    "s_excludes_zero",
+    "s_open",
+    "s_low_share",
+    "oscillating",
+    "regularity",
+    "horch",
+    "choudhury",
+    "he",
+    "rossi_scali",
+    "kano",
+    "short_record",
+)
+
+#: The fitted model, written by ``scripts/train_probability.py``.
+MODEL_FILE = Path(__file__).with_name("probability_model.json")
+
+#: Largest regularity counted [-] (beyond it a cycle is simply regular).
+MAX_REGULARITY = 20.0
+
+
+#: The classic tests whose calls enter the model, by their name in
+#: :func:`stictiondiag.stiction.classic.classic_features` (``<test>_call``).
+CLASSIC_TESTS = ("horch", "choudhury", "he", "rossi_scali", "kano")
+
+
+def _vote(verdict) -> float:
+    return {"stiction": 1.0, "no_stiction": -1.0}.get(str(verdict), 0.0)
+
+
+def classic_votes(
+    op, pv, sp, ts: float, integrating: bool, loop_type: str | None = None, mv=None
+) -> dict:
+    """The classic tests' calls as numbers: +1 stiction, -1 no stiction, 0 undecided,
+    not applicable or not run (a test that cannot run on the record votes 0).
+
+    The tests are those of :mod:`stictiondiag.stiction.classic`
+    (:func:`~stictiondiag.stiction.classic.classic_features`); all their statistics are
+    returned too, under their own names, for the record.
+    """
+    try:
+        from stictiondiag.stiction.classic import classic_features
+    except ImportError:  # pragma: no cover - a tree without the classic package
+        return _baseline_votes(op, pv, sp, ts, integrating)
+    try:
+        feats = classic_features(pv, op, sp, ts, loop_type, integrating=integrating, mv=mv)
+    except (StictionError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+        feats = {}
+    out = {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in feats.items()}
+    for test in CLASSIC_TESTS:
+        v = feats.get(f"{test}_call")
+        out[test] = float(v) if v is not None and math.isfinite(v) else 0.0
+    return out
+
+
+def _baseline_votes(op, pv, sp, ts: float, integrating: bool) -> dict:
+    """Horch's and the bicoherence procedure's calls from the older baselines module
+    (the other tests vote 0)."""
+    from stictiondiag.stiction import baselines
+
+    out = dict.fromkeys(CLASSIC_TESTS, 0.0)
+    try:
+        out["horch"] = _vote(
+            baselines.horch_cross_correlation(op, pv, ts, integrating=integrating).verdict
+        )
+    except (StictionError, ValueError, FloatingPointError):
+        pass
+    hos = getattr(baselines, "choudhury_hos_diagnosis", None)
+    try:
+        out["choudhury"] = _vote(hos(op, pv, sp, ts)["verdict"]) if hos else 0.0
+    except (StictionError, ValueError, FloatingPointError):
+        pass
+    return out
+
+
+def evidence_features(
+    fit,
+    oscillation,
+    oscillation_op,
+    *,
+    improvement: float,
+    support: float,
+    op: np.ndarray,
+    classic: dict,
+    short_record: bool,
+) -> dict:
+    """The features of :data:`FEATURES` for one loop (see module doc)."""
+    d = fit.details or {}
+    S_iv = fit.S_interval
+    S_open = "reaches the search limit" in str((d.get("determinacy") or {}).get("S", ""))
+    q5, q95 = np.percentile(np.asarray(op, dtype=float), [5.0, 95.0])
+    spread = float(q95 - q5)
+    s_low = float(S_iv[0]) if S_iv is not None else 0.0
+    s_low_share = s_low / spread if spread > 0 else 0.0
+    regs = [
+        float(o.regularity)
+        for o in (oscillation, oscillation_op)
+        if o is not None and getattr(o, "present", False) and o.regularity is not None
+    ]
+    osc = any(getattr(o, "present", False) for o in (oscillation, oscillation_op) if o)
+    f = {
+        "improvement": float(np.clip(improvement, -0.5, 1.0)),
+        "support": float(support),
+        "s_excludes_zero": float(S_iv is not None and S_iv[0] > 0.0),
+        "s_open": float(S_open),
+        "s_low_share": float(np.clip(s_low_share if math.isfinite(s_low_share) else 0.0, 0.0, 2.0)),
+        "oscillating": float(osc),
+        "regularity": math.log1p(min(max(regs), MAX_REGULARITY)) if regs else 0.0,
+        **{t: float(classic.get(t, 0.0)) for t in CLASSIC_TESTS},
+        "short_record": float(bool(short_record)),
+    }
+    return f
+
+
+@lru_cache(maxsize=4)
+def load_model(path: str | None = None) -> dict:
+    """The fitted model (JSON), cached."""
+    p = Path(path) if path else MODEL_FILE
+    try:
+        model = json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise StictionError(
+            f"stiction probability model {p} missing or unreadable ({exc}); "
+            "run scripts/train_probability.py"
+        ) from None
+    if tuple(model.get("features", ())) != FEATURES:
+        raise StictionError(f"{p}: its features differ from this version's; retrain it")
+    return model
+
+
+def design_row(features: dict) -> np.ndarray:
+    """The features as one row in the order of :data:`FEATURES`."""
+    return np.array([float(features[k]) for k in FEATURES])
+
+
+def logistic(z):
+    """``1 / (1 + exp(-z))`` without overflow."""
+    z = np.asarray(z, dtype=float)
+    return np.where(
+        z >= 0, 1.0 / (1.0 + np.exp(-np.abs(z))), np.exp(-np.abs(z)) / (1.0 + np.exp(-np.abs(z)))
+    )
+
+
+def apply_part(part: dict, X: np.ndarray) -> np.ndarray:
+    """``P(stiction)`` of the rows of X by one fitted part of the model."""
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    z = (X - np.asarray(part["mean"])) / np.asarray(part["scale"])
+    return logistic(z @ np.asarray(part["coef"]) + float(part["intercept"]))
+
+
+def part_name(features: dict, has_mv: bool) -> str:
+    """The part of the model that judges a loop: ``mv`` (valve position recorded) or
+    ``op_pv``."""
+    return "mv" if has_mv else "op_pv"
+
+
+def stiction_probability(features: dict, has_mv: bool, model: dict | None = None) -> float:
+    """Calibrated ``P(stiction)`` of one loop [-] (see module doc)."""
+    model = model or load_model()
+    part = model["parts"][part_name(features, has_mv)]
+    return float(apply_part(part, design_row(features))[0])

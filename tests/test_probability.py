@@ -1,0 +1,237 @@
+"""The calibrated stiction probability: its family of simulated loops, its fit, and
+the verdict that follows from it (stictiondiag.apps.family,
+stictiondiag.stiction.probability, stictiondiag.stiction.verdict)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stictiondiag.apps.family import (
+    _deadband_archive,
+    _swinging_door,
+    family_loop,
+    loop_features,
+)
+from stictiondiag.stiction.probability import (
+    FEATURES,
+    MODEL_FILE,
+    apply_part,
+    load_model,
+    logistic,
+    stiction_probability,
+)
+from stictiondiag.stiction.valvefit import StictionFit
+from stictiondiag.stiction.verdict import (
+    NO_STICTION_LEVEL,
+    STICTION_LEVEL,
+    stiction_verdict,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _train_module():
+    spec = importlib.util.spec_from_file_location(
+        "train_probability", ROOT / "scripts" / "train_probability.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+# --------------------------------------------------------------------------------------
+# The family of simulated loops
+# --------------------------------------------------------------------------------------
+
+
+def test_family_loop_is_deterministic():
+    a, b = family_loop(123), family_loop(123)
+    assert np.array_equal(a.pv, b.pv) and np.array_equal(a.op, b.op)
+    assert a.truth == b.truth
+    c = family_loop(124)
+    assert not (a.pv.size == c.pv.size and np.array_equal(a.pv, c.pv))
+
+
+def test_family_proportions():
+    # 300 draws of a Bernoulli(0.5) label: standard error 0.029, so 0.38-0.62 is a
+    # four-sigma band; mv recorded with probability 0.25 (s.e. 0.025): 0.15-0.35.
+    loops = [family_loop(50_000 + i).truth for i in range(300)]
+    sticky = np.mean([t["sticky"] for t in loops])
+    assert 0.38 < sticky < 0.62
+    assert 0.15 < np.mean([t["has_mv"] for t in loops]) < 0.35
+    # Every kind of loop, load and record occurs, and healthy loops have a linear valve.
+    assert {t["kind"] for t in loops} == {"flow", "self", "integrating", "slave"}
+    assert {t["load"] for t in loops} == {"none", "drift", "steps", "periodic"}
+    assert {t["record"] for t in loops} == {"plain", "quantised", "deadband", "swinging_door"}
+    assert {t["valve"] for t in loops if t["sticky"]} == {"choudhury", "kano", "physical"}
+    assert all(t["valve"] == "linear" and t["S"] == 0 for t in loops if not t["sticky"])
+
+
+def test_historian_compression_stays_within_its_band():
+    # Both archives reproduce the signal within the compression band d (the property
+    # that defines them); exactly at d up to rounding, hence the 1e-9.
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.normal(size=2000))
+    d = 0.7
+    for f in (_deadband_archive, _swinging_door):
+        y = f(x, d)
+        assert np.max(np.abs(y - x)) <= d + 1e-9
+    # and they compress: with a band of 2 unit steps a random walk leaves the band
+    # about every (2 / 1)^2 = 4 samples, so the deadband archive holds about a
+    # quarter of the samples; half is a wide margin.
+    assert np.unique(_deadband_archive(x, 2.0)).size < 0.5 * x.size
+
+
+# --------------------------------------------------------------------------------------
+# The model
+# --------------------------------------------------------------------------------------
+
+
+def test_logistic_is_stable():
+    z = np.array([-800.0, -1.0, 0.0, 1.0, 800.0])
+    p = logistic(z)
+    assert np.all(np.isfinite(p))
+    assert p[2] == 0.5 and p[0] == 0.0 and p[4] == 1.0
+    assert p[3] == pytest.approx(1 / (1 + math.exp(-1)), rel=1e-12)
+
+
+def test_fit_logistic_recovers_known_coefficients():
+    # 20 000 draws from a known logistic model: the L2 penalty (C = 1 on standardised
+    # features) is negligible at this size, and the coefficients' standard errors are
+    # about 0.02-0.03, so 0.1 is a wide margin.
+    train = _train_module()
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(20_000, 3))
+    w = np.array([1.5, -0.8, 0.0])
+    y = (rng.random(20_000) < logistic(X @ w + 0.3)).astype(float)
+    part = train.fit_logistic(X, y)
+    coef = np.array(part["coef"]) / np.array(part["scale"])
+    assert np.allclose(coef, w, atol=0.1)
+    p = apply_part(part, X)
+    assert abs(float(p.mean()) - float(y.mean())) < 0.01
+
+
+def test_reliability_of_a_calibrated_predictor():
+    # y ~ Bernoulli(p) with p uniform: every band of width 0.2 holds ~8000 draws, so
+    # its observed frequency has a standard error below 0.006; 0.03 is 5 of them.
+    train = _train_module()
+    rng = np.random.default_rng(2)
+    p = rng.random(40_000)
+    y = (rng.random(p.size) < p).astype(float)
+    table = train.reliability(p, y)
+    assert len(table) == 5
+    assert sum(r["n"] for r in table) == p.size
+    for r in table:
+        assert abs(r["observed"] - r["mean_p"]) < 0.03
+
+
+def test_packaged_model():
+    model = load_model()
+    assert tuple(model["features"]) == FEATURES
+    assert set(model["parts"]) == {"op_pv", "mv"}
+    for part in model["parts"].values():
+        assert len(part["coef"]) == len(FEATURES)
+        assert all(s > 0 for s in part["scale"])
+    assert json.loads(MODEL_FILE.read_text()) == model
+
+
+def test_features_are_those_of_the_analysis():
+    # The training features are computed by the analysis' own steps: on a sticky and
+    # a healthy family loop they equal the verdict's evidence of analyze() exactly.
+    from stictiondiag.analysis import AnalysisConfig, analyze
+
+    for seed in (7006, 7002):
+        loop = family_loop(seed)
+        a = analyze(loop.tags(), config=AnalysisConfig(gap=False, replay=False))
+        assert a.verdict.evidence["features"] == loop_features(loop)
+
+
+# --------------------------------------------------------------------------------------
+# The verdict from the probability
+# --------------------------------------------------------------------------------------
+
+
+def _fit():
+    blocks = np.ones(6)
+    return StictionFit(
+        S=1.0,
+        J=0.5,
+        S_scaled=0.5,
+        J_scaled=0.25,
+        S_interval=(0.5, 1.5),
+        J_interval=(0.0, 1.0),
+        method="hammerstein",
+        mv_model=np.linspace(0.0, 10.0, 50),
+        n_slips=6,
+        cost=6.0,
+        linear_cost=6.0,
+        details={"block_sse": {"stiction": blocks.tolist(), "linear": blocks.tolist()}},
+    )
+
+
+class _Cycle:
+    present = True
+    period_s = 100.0
+    regularity = 3.0
+
+
+def _constant_model(p: float) -> dict:
+    # A model whose probability is p whatever the features (zero coefficients).
+    z = math.log(p / (1 - p))
+    part = {
+        "mean": [0.0] * len(FEATURES),
+        "scale": [1.0] * len(FEATURES),
+        "coef": [0.0] * len(FEATURES),
+        "intercept": z,
+    }
+    return {"features": list(FEATURES), "parts": {"op_pv": part, "mv": part}}
+
+
+@pytest.mark.parametrize(
+    "p, status",
+    [
+        (0.95, "stiction"),
+        (STICTION_LEVEL + 0.01, "stiction"),
+        (STICTION_LEVEL - 0.01, "inconclusive"),
+        (0.5, "inconclusive"),
+        (NO_STICTION_LEVEL + 0.01, "inconclusive"),
+        (NO_STICTION_LEVEL - 0.01, "no_stiction"),
+        (0.02, "no_stiction"),
+    ],
+)
+def test_verdict_follows_the_probability(p, status):
+    v = stiction_verdict(_fit(), _Cycle(), oscillation_op=_Cycle(), model=_constant_model(p))
+    assert v.status == status
+    assert v.probability == pytest.approx(p, abs=1e-12)
+    expected = {"stiction": p, "no_stiction": 1 - p, "inconclusive": p}[status]
+    assert v.confidence == pytest.approx(expected, abs=1e-12)
+    assert v.detected is {"stiction": True, "no_stiction": False, "inconclusive": None}[status]
+    assert f"P(stiction) = {p:.2f}" in v.reasons[0]
+    if status == "inconclusive":
+        assert v.confidence < STICTION_LEVEL  # never shows 1.00
+        assert "between the levels" in v.reasons[0]
+    json.dumps(v.to_dict(), allow_nan=False)
+
+
+def test_probability_of_the_packaged_model_orders_the_evidence():
+    # Clear stick-slip evidence in a regular cycle scores higher than none, with and
+    # without mv.
+    strong = dict.fromkeys(FEATURES, 0.0) | {
+        "improvement": 0.9,
+        "support": 1.0,
+        "s_excludes_zero": 1.0,
+        "s_low_share": 0.8,
+        "oscillating": 1.0,
+        "regularity": math.log1p(5.0),
+    }
+    none = dict.fromkeys(FEATURES, 0.0) | {"s_open": 1.0, "oscillating": 1.0, "regularity": 1.0}
+    for has_mv in (False, True):
+        hi = stiction_probability(strong, has_mv)
+        lo = stiction_probability(none, has_mv)
+        assert 0.0 < lo < hi < 1.0
