@@ -96,10 +96,8 @@ def classic_votes(
     (:func:`~stictiondiag.stiction.classic.classic_features`); all their statistics are
     returned too, under their own names, for the record.
     """
-    try:
-        from stictiondiag.stiction.classic import classic_features
-    except ImportError:  # pragma: no cover - a tree without the classic package
-        return _baseline_votes(op, pv, sp, ts, integrating)
+    from stictiondiag.stiction.classic import classic_features
+
     try:
         feats = classic_features(pv, op, sp, ts, loop_type, integrating=integrating, mv=mv)
     except (StictionError, ValueError, FloatingPointError, np.linalg.LinAlgError):
@@ -108,26 +106,6 @@ def classic_votes(
     for test in CLASSIC_TESTS:
         v = feats.get(f"{test}_call")
         out[test] = float(v) if v is not None and math.isfinite(v) else 0.0
-    return out
-
-
-def _baseline_votes(op, pv, sp, ts: float, integrating: bool) -> dict:
-    """Horch's and the bicoherence procedure's calls from the older baselines module
-    (the other tests vote 0)."""
-    from stictiondiag.stiction import baselines
-
-    out = dict.fromkeys(CLASSIC_TESTS, 0.0)
-    try:
-        out["horch"] = _vote(
-            baselines.horch_cross_correlation(op, pv, ts, integrating=integrating).verdict
-        )
-    except (StictionError, ValueError, FloatingPointError):
-        pass
-    hos = getattr(baselines, "choudhury_hos_diagnosis", None)
-    try:
-        out["choudhury"] = _vote(hos(op, pv, sp, ts)["verdict"]) if hos else 0.0
-    except (StictionError, ValueError, FloatingPointError):
-        pass
     return out
 
 
