@@ -78,6 +78,16 @@ def test_score_of_empty_groups():
     assert s["stated"]["n"] == 0 and s["stated"]["accuracy"] is None
 
 
+def test_default_isdb_dir_is_beside_the_checkout(monkeypatch):
+    # The data sits in ../shared next to the checkout, wherever the checkout is cloned
+    # (CI clones it elsewhere); a wrong level here silently skips every ISDB test.
+    monkeypatch.delenv("STICTION_ISDB", raising=False)
+    checkout = Path(__file__).resolve().parents[1]
+    assert default_isdb_dir() == checkout.parent / "shared" / "data" / "isdb"
+    monkeypatch.setenv("STICTION_ISDB", "/elsewhere/isdb")
+    assert default_isdb_dir() == Path("/elsewhere/isdb")
+
+
 @needs_isdb
 def test_manifest_labels():
     # The published comments give 28 stated labels (16 stiction, 12 not), 17 likely and

@@ -55,7 +55,8 @@ def default_isdb_dir() -> Path:
     env = os.environ.get("STICTION_ISDB")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "isdb"
+    checkout = Path(__file__).resolve().parents[2]  # stictiondiag/apps/ -> checkout
+    return checkout.parent / "shared" / "data" / "isdb"
 
 
 def expert_label(stiction_published: str, other_fault: str | None) -> tuple[str | None, str]:
