@@ -43,7 +43,7 @@ def _fmt(x, spec: str = ".3g") -> str:
 
 
 def render_summary(loop: str, summary: dict) -> str:
-    """Readable summary of :meth:`stictiondiag.models.loops.Simulation.summary` for stderr."""
+    """Readable summary of :meth:`stictiondiag.models.simulation.Simulation.summary` for stderr."""
     st = summary["settings"]
     valve = st["valve"]
     if valve in ("choudhury", "kano"):

@@ -64,17 +64,13 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         describing_function_numeric,
         predict_limit_cycle,
     )
-    from stictiondiag.models.loops import (
-        LimitCycle,
-        Simulation,
-        simulate_loop,
-        simulate_paper_loop,
-    )
+    from stictiondiag.models.loops import simulate_loop, simulate_paper_loop
     from stictiondiag.models.physical import (
         VALVE_PARAMETERS,
         PhysicalValve,
         karnopp,
     )
+    from stictiondiag.models.simulation import LimitCycle, Simulation
     from stictiondiag.models.valve import (
         STICTION_MODEL_PARAMETERS,
         choudhury_model,
@@ -207,8 +203,8 @@ _LAZY: dict[str, str] = {
     "identify_controller": "identification.controller",
     "identify_process": "identification.process",
     "process_fit": "identification.process",
-    "LimitCycle": "models.loops",
-    "Simulation": "models.loops",
+    "LimitCycle": "models.simulation",
+    "Simulation": "models.simulation",
     "simulate_loop": "models.loops",
     "simulate_paper_loop": "models.loops",
     "Oscillation": "signals.oscillation",

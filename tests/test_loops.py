@@ -12,8 +12,6 @@ import pytest
 from stictiondiag.core.errors import UsageError
 from stictiondiag.models.loops import (
     MAX_SAMPLES,
-    LimitCycle,
-    Simulation,
     _process_coefficients,
     simulate_loop,
     simulate_paper_loop,
@@ -25,6 +23,7 @@ from stictiondiag.models.processes import (
     PI,
     Integrating,
 )
+from stictiondiag.models.simulation import LimitCycle, Simulation
 
 # Table 3 with the simulated pv period at dt = 0.1 s from REFERENCE.md.
 #

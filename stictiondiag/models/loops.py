@@ -38,7 +38,6 @@ of small size would never do in a loop with a deadband.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -54,6 +53,7 @@ from stictiondiag.models.processes import (
     PI,
     Integrating,
 )
+from stictiondiag.models.simulation import Simulation
 from stictiondiag.models.valve import (
     EQUAL_PERCENTAGE_RANGEABILITY,
     _check_sj,
@@ -76,228 +76,6 @@ DEFAULT_KICK = 1.0
 #: Default duration of :func:`simulate_paper_loop` [s] (about 10 cycles of the slowest
 #: cycle of Section 4.2.2).
 PAPER_LOOP_DURATION = 3000.0
-
-
-@dataclass(frozen=True)
-class LimitCycle:
-    """Sustained oscillation of a simulated loop (after the start-up transient).
-
-    Attributes
-    ----------
-    present : bool
-        pv oscillates regularly and without decay (Thornhill et al. 2003 test).
-    period_s : float or None
-        Period of the pv cycle [s].
-    amplitude : dict
-        Half peak-to-peak amplitude of the cycle of ``pv`` [pv units], ``op`` and
-        ``mv`` [% of span]; None for a signal without a cycle.
-    oscillations : dict
-        The :class:`~stictiondiag.signals.oscillation.Oscillation` of pv, op and mv.
-    transient_s : float
-        Length of the start of the run left out of the analysis [s].
-    """
-
-    present: bool
-    period_s: float | None
-    amplitude: dict
-    oscillations: dict
-    transient_s: float
-
-    def to_dict(self) -> dict:
-        """JSON-able dict."""
-        return {
-            "present": bool(self.present),
-            "period_s": _plain(self.period_s),
-            "amplitude": {k: _plain(v) for k, v in self.amplitude.items()},
-            "oscillations": {k: v.to_dict() for k, v in self.oscillations.items()},
-            "transient_s": float(self.transient_s),
-        }
-
-
-@dataclass(frozen=True, eq=False)
-class Simulation:
-    """Time series of a closed-loop simulation (:func:`simulate_loop`).
-
-    Attributes
-    ----------
-    time : ndarray
-        Time [s], every ``dt`` from 0.
-    sp : ndarray
-        Setpoint [pv units].
-    pv : ndarray
-        Measured process output, noise included [pv units].
-    op : ndarray
-        Controller output, the valve demand [% of span].
-    mv : ndarray
-        Valve position [% of span].
-    dt : float
-        Sample time of the records [s].
-    settings : dict
-        Everything the run depended on (JSON-able): process, controller, valve, S, J,
-        physical valve, integration step [s], biases, kick, noise, seed, ...
-    process : FOPTD or Integrating, optional
-        The simulated process (for the describing-function prediction).
-    controller : PI, optional
-        The simulated controller.
-    physical : PhysicalValve, optional
-        The physical valve, when ``settings["valve"] == "physical"``.
-    """
-
-    time: np.ndarray
-    sp: np.ndarray
-    pv: np.ndarray
-    op: np.ndarray
-    mv: np.ndarray
-    dt: float
-    settings: dict = field(default_factory=dict)
-    process: FOPTD | Integrating | None = None
-    controller: PI | None = None
-    physical: PhysicalValve | None = None
-
-    @property
-    def n(self) -> int:
-        """Number of samples."""
-        return int(self.time.size)
-
-    def to_pandas(self):
-        """DataFrame with columns time [s], sp, pv [pv units], op, mv [% of span]."""
-        import pandas as pd
-
-        return pd.DataFrame(
-            {"time": self.time, "sp": self.sp, "pv": self.pv, "op": self.op, "mv": self.mv}
-        )
-
-    def to_dict(self, include_series: bool = True) -> dict:
-        """JSON-able dict: settings and, optionally, the series as lists."""
-        d = {"dt": float(self.dt), "n_samples": self.n, "settings": self.settings}
-        if include_series:
-            d["series"] = {
-                name: [_plain(v) for v in getattr(self, name).tolist()]
-                for name in ("time", "sp", "pv", "op", "mv")
-            }
-        return d
-
-    def plot(self, **kwargs):
-        """Trends of sp/pv and op/mv with the mv-op and pv-op maps (Figs. 9, 12-15).
-
-        Keyword arguments go to :func:`stictiondiag.plotting.simulation.plot_simulation`.
-        """
-        from stictiondiag.plotting.simulation import plot_simulation
-
-        return plot_simulation(self, **kwargs)
-
-    def describing_function(self):
-        """Limit cycle predicted by the describing function for this loop (Section 6).
-
-        :func:`stictiondiag.models.describing.predict_limit_cycle` with the run's process,
-        controller and stiction parameters.  For the physical valve the quasi-static
-        data-driven equivalent is used (:meth:`PhysicalValve.data_driven_equivalent`):
-        with calibration ``c`` the valve output is ``c`` times that of a data-driven
-        valve with ``S`` and ``J / c`` on the op axis, so the process gain is
-        multiplied by ``c``.  For the linear valve there is no nonlinearity and no
-        cycle.
-
-        Returns
-        -------
-        tuple of (LimitCyclePrediction, dict)
-            The prediction and the basis of it: ``{"S", "J", "process_gain_factor",
-            "source"}``.
-        """
-        import dataclasses
-
-        from stictiondiag.models.describing import predict_limit_cycle
-
-        if self.process is None or self.controller is None:
-            raise UsageError("this simulation does not carry its process and controller")
-        valve = self.settings.get("valve")
-        process = self.process
-        if valve == "physical":
-            eq = self.physical.data_driven_equivalent()
-            gain = eq["gain"]
-            S, J = eq["S"], eq["J"] / gain
-            if gain != 1.0:
-                process = dataclasses.replace(process, gain=process.gain * gain)
-            source = (
-                "quasi-static equivalent of the physical valve, S=(Fs+Fc)/(c k), J=(Fs-Fc)/(c k)"
-            )
-        elif valve in ("choudhury", "kano"):
-            S, J, gain = float(self.settings["S"]), float(self.settings["J"]), 1.0
-            source = "data-driven S and J"
-        else:
-            S, J, gain = 0.0, 0.0, 1.0
-            source = "linear valve (no nonlinearity)"
-        prediction = predict_limit_cycle(process, self.controller, S, J)
-        basis = {"S": S, "J": J, "process_gain_factor": gain, "source": source}
-        return prediction, basis
-
-    def summary(self, transient: float | None = None) -> dict:
-        """JSON-able summary: simulated cycle and describing-function prediction.
-
-        Keys: ``limit_cycle`` (bool), ``period_s`` (pv period [s] or None),
-        ``amplitude`` {op, mv [% of span], pv [pv units]} (half peak-to-peak),
-        ``describing_function`` {limit_cycle, period_s, amplitude (X_m, % of span),
-        S, J, basis}, ``oscillation`` (per-signal detail) and ``settings``.
-        """
-        lc = self.limit_cycle(transient)
-        prediction, basis = self.describing_function()
-        return {
-            "limit_cycle": bool(lc.present),
-            "period_s": _plain(lc.period_s),
-            "amplitude": {k: _plain(lc.amplitude[k]) for k in ("op", "mv", "pv")},
-            "describing_function": {
-                "limit_cycle": bool(prediction.limit_cycle),
-                "period_s": _plain(prediction.period_s),
-                "amplitude": _plain(prediction.amplitude_op),
-                "S": float(basis["S"]),
-                "J": float(basis["J"]),
-                "basis": basis["source"],
-            },
-            "oscillation": lc.to_dict(),
-            "settings": self.settings,
-        }
-
-    def limit_cycle(self, transient: float | None = None) -> LimitCycle:
-        """Detect the sustained cycle of pv, op and mv after the start-up transient.
-
-        Parameters
-        ----------
-        transient : float, optional
-            Start of the run to leave out [s]; default the first third.
-
-        Returns
-        -------
-        LimitCycle
-            Uses :func:`stictiondiag.signals.oscillation.detect_oscillation` on each signal.
-        """
-        from stictiondiag.signals.oscillation import detect_oscillation
-
-        duration = self.n * self.dt
-        if transient is None:
-            transient = duration / 3.0
-        transient = float(transient)
-        if not (math.isfinite(transient) and 0.0 <= transient < duration):
-            raise UsageError(
-                f"transient must be in [0, {duration:g}) s (the run length), got {transient}"
-            )
-        start = int(round(transient / self.dt))
-        osc = {
-            name: detect_oscillation(getattr(self, name)[start:], self.dt)
-            for name in ("pv", "op", "mv")
-        }
-        return LimitCycle(
-            present=bool(osc["pv"].present),
-            period_s=osc["pv"].period_s,
-            amplitude={name: o.amplitude for name, o in osc.items()},
-            oscillations=osc,
-            transient_s=start * self.dt,
-        )
-
-
-def _plain(v):
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
 
 
 @jit
@@ -496,7 +274,9 @@ def _band_setting(band: np.ndarray):
 
 def _check_loop(process, controller) -> None:
     if not isinstance(process, FOPTD | Integrating):
-        raise UsageError("process must be a FOPTD or Integrating model (stictiondiag.models.processes)")
+        raise UsageError(
+            "process must be a FOPTD or Integrating model (stictiondiag.models.processes)"
+        )
     if not isinstance(controller, PI):
         raise UsageError("controller must be a PI model (stictiondiag.models.processes)")
     _number("process gain", process.gain)
@@ -505,6 +285,59 @@ def _check_loop(process, controller) -> None:
         _number("process time constant", process.time_constant, positive=True)
     _number("controller gain", controller.gain)
     _number("controller integral time", controller.integral_time, positive=True)
+
+
+def _valve_integration(
+    valve: str, physical: PhysicalValve | None, dt: float, n: int
+) -> tuple[PhysicalValve | None, int, float, np.ndarray, float]:
+    """Integration set-up of the valve: ``(physical, n_sub, h, kernel parameters, stem)``.
+
+    The physical valve of Section 4 is integrated in ``n_sub`` sub-steps ``h`` per
+    sample; the data-driven valves of Section 5 take one step ``dt`` (their kernel
+    parameters are unused).
+    """
+    if valve != "physical":
+        return physical, 1, dt, PhysicalValve().kernel_parameters(dt), 1.0
+    if physical is None:
+        physical = PhysicalValve.from_case("nominal")
+    if not isinstance(physical, PhysicalValve):
+        raise UsageError("physical must be a PhysicalValve (see stictiondiag.models.physical)")
+    n_sub, h = physical.substeps(dt)
+    if n * n_sub > MAX_VALVE_STEPS:
+        raise UsageError(
+            f"{n * n_sub:.3g} integration steps of the physical valve exceed the limit "
+            f"of {MAX_VALVE_STEPS:,}: shorten the duration"
+        )
+    return physical, n_sub, h, physical.kernel_parameters(h), physical.stem_travel_per_percent
+
+
+def _initial_state(
+    controller: PI,
+    *,
+    op_bias: float,
+    pv_bias: float,
+    kick: float,
+    e0: float,
+    initial_op: float | None,
+    initial_mv: float | None,
+    initial_integral: float | None,
+) -> tuple[float, float, float]:
+    """Initial controller output, valve position [% of span] and error integral.
+
+    Defaults: op at ``op_bias``, the valve stuck ``kick`` away from it, and the
+    integral that gives that op at the initial error ``e0`` (module docstring).
+    """
+    op0 = op_bias if initial_op is None else _number("initial_op", initial_op)
+    op0 = min(max(op0, 0.0), 100.0)
+    mv0 = op_bias + kick if initial_mv is None else _number("initial_mv", initial_mv)
+    mv0 = min(max(mv0, 0.0), 100.0)
+    Kc = float(controller.gain)
+    Ti = float(controller.integral_time)
+    if initial_integral is None:
+        integral0 = Ti * ((op0 - op_bias) / Kc - e0) if Kc != 0 else 0.0
+    else:
+        integral0 = _number("initial_integral", initial_integral)
+    return op0, mv0, integral0
 
 
 def simulate_loop(
@@ -630,24 +463,7 @@ def simulate_loop(
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
         raise UsageError(f"seed must be an integer or None, got {seed!r}")
 
-    if valve == "physical":
-        if physical is None:
-            physical = PhysicalValve.from_case("nominal")
-        if not isinstance(physical, PhysicalValve):
-            raise UsageError("physical must be a PhysicalValve (see stictiondiag.models.physical)")
-        n_sub, h = physical.substeps(dt)
-        if n * n_sub > MAX_VALVE_STEPS:
-            raise UsageError(
-                f"{n * n_sub:.3g} integration steps of the physical valve exceed the limit "
-                f"of {MAX_VALVE_STEPS:,}: shorten the duration"
-            )
-        p = physical.kernel_parameters(h)
-        stem = physical.stem_travel_per_percent
-    else:
-        n_sub, h = 1, dt
-        p = PhysicalValve().kernel_parameters(dt)  # unused by the kernel
-        stem = 1.0
-
+    physical, n_sub, h, p, stem = _valve_integration(valve, physical, dt, n)
     sp_arr = _series("sp", sp, n, 0.0)
     load_arr = _series("load", load, n, 0.0)
     if noise_std > 0:
@@ -655,17 +471,18 @@ def simulate_loop(
     else:
         noise = np.zeros(n)
 
-    op0 = op_bias if initial_op is None else _number("initial_op", initial_op)
-    op0 = min(max(op0, 0.0), 100.0)
-    mv0 = op_bias + kick if initial_mv is None else _number("initial_mv", initial_mv)
-    mv0 = min(max(mv0, 0.0), 100.0)
     Kc = float(controller.gain)
     Ti = float(controller.integral_time)
-    if initial_integral is None:
-        e0 = sp_arr[0] - (pv_bias + load_arr[0])
-        integral0 = Ti * ((op0 - op_bias) / Kc - e0) if Kc != 0 else 0.0
-    else:
-        integral0 = _number("initial_integral", initial_integral)
+    op0, mv0, integral0 = _initial_state(
+        controller,
+        op_bias=op_bias,
+        pv_bias=pv_bias,
+        kick=kick,
+        e0=sp_arr[0] - (pv_bias + load_arr[0]),
+        initial_op=initial_op,
+        initial_mv=initial_mv,
+        initial_integral=initial_integral,
+    )
 
     pv_filter_time = _number("pv_filter_time", pv_filter_time, minimum=0.0)
     f_pole = math.exp(-h / pv_filter_time) if pv_filter_time > 0.0 else 0.0
