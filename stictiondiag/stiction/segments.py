@@ -616,6 +616,41 @@ def _segment_cost(op, mv, variant, ev: _SlipEvents, sync) -> float | None:
     )
 
 
+def _synchronisation(segs: Segments, n: int) -> tuple[int, float]:
+    """Where and in which direction the model valve starts moving.
+
+    Right after the first recorded slip, in its direction, when it comes in the
+    first half of the record; otherwise from the start, moving with op.
+    """
+    if segs.n_slips >= 1 and segs.slip[0, 1] < n // 2:
+        return int(segs.slip[0, 1]) - 1, float(segs.direction[0])
+    return 0, 0.0
+
+
+def _mv_fit_details(
+    variant, bias: float, searches: dict, best, intervals, hi_edges, n_eff: float
+) -> dict:
+    """The least-squares part of :func:`estimate_from_mv`'s ``details``."""
+    S_all, J_all, C_all, S_ls, J_ls, cost = searches[best][1]
+    (S_iv, J_iv), (S_hi_edge, J_hi_edge) = intervals, hi_edges
+    return {
+        "valve_model": variant.name,
+        "play_width": variant.play_width,
+        "bias": bias,
+        "least_squares": {
+            "S": S_ls,
+            "J": J_ls,
+            "S_interval": list(S_iv),
+            "J_interval": list(J_iv),
+            "cost": cost,
+            "cost_by_valve_model": {k: v[1][5] for k, v in searches.items()},
+            "effective_samples": n_eff,
+            "S_bounded": not S_hi_edge,
+            "J_bounded": not J_hi_edge,
+        },
+    }
+
+
 def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     """S and J from the valve's recorded position (Sections 2.3 and 3, Fig. 2).
 
@@ -664,12 +699,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     S_max = float(max(hi - lo, 1e-12))
     J_max = S_max
 
-    # Synchronisation: the model starts moving in the direction of the first
-    # recorded slip, right after it; without a slip, moving with op from the start.
-    if segs.n_slips >= 1 and segs.slip[0, 1] < n // 2:
-        k_start, d_start = int(segs.slip[0, 1]) - 1, float(segs.direction[0])
-    else:
-        k_start, d_start = 0, 0.0
+    k_start, d_start = _synchronisation(segs, n)
     k0 = k_start + 1
 
     ev = _slip_events(segs)
@@ -705,20 +735,9 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
 
     period = cycle_samples(op)
     details = {
-        "valve_model": variant.name,
-        "play_width": variant.play_width,
-        "bias": bias,
-        "least_squares": {
-            "S": S_ls,
-            "J": J_ls,
-            "S_interval": list(S_iv),
-            "J_interval": list(J_iv),
-            "cost": cost,
-            "cost_by_valve_model": {k: v[1][5] for k, v in searches.items()},
-            "effective_samples": n_eff,
-            "S_bounded": not S_hi_edge,
-            "J_bounded": not J_hi_edge,
-        },
+        **_mv_fit_details(
+            variant, bias, searches, best, (S_iv, J_iv), (S_hi_edge, J_hi_edge), n_eff
+        ),
         "segments": _segments_details(segs, ev, S_ci, J_ci, seg_cost),
         "determinacy": determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge),
         "interval_method": (
