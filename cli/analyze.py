@@ -44,55 +44,54 @@ def check_outputs(out: Path | None, json_path: str | None, file: Path | None = N
     check_output_file("--json", json_path, inputs)
 
 
+def with_findings(d: dict) -> dict:
+    """``d`` with its findings in words (:mod:`stictiondiag.apps.findings`) under
+    ``"findings"``."""
+    from stictiondiag.apps.findings import findings_from_dict
+
+    return {**d, "findings": findings_from_dict(d).to_dict()}
+
+
 def _fmt(x, spec=".2f", none="n/a") -> str:
     return none if x is None else format(x, spec)
 
 
 def render_summary(d: dict) -> str:
-    """Readable terminal summary of an :meth:`Analysis.to_dict` result."""
+    """Readable terminal summary of an :meth:`Analysis.to_dict` result.
+
+    The verdict shows the calibrated P(stiction) with its decision levels, a poorly
+    determined S or J says so next to its value, the replay is read by period,
+    amplitude and waveform agreement, and the findings in words close the summary.
+    """
+    from stictiondiag.apps.findings import findings_from_dict, param_text, probability_text
+    from stictiondiag.replay.metrics import render_metrics
+
     st, tg = d["stiction"], d["tags"]
     osc = d["oscillation"]["pv"]
+    source = tg.get("loop_type_source") or "user/default"
     lines = [
-        f"loop        {d['loop']}  ({tg['loop_type']}, {tg['n_samples']} samples at "
+        f"loop        {d['loop']}  ({tg['loop_type']} [{source}], {tg['n_samples']} samples at "
         f"{tg['ts_s']:g} s, {'with' if tg['has_mv'] else 'no'} mv)",
-        f"verdict     {st.get('status', '?').upper().replace('_', ' ')}"
-        f"  (confidence {_fmt(st.get('confidence'), '.2f')})",
-    ]
-    si, ji = st.get("S_interval"), st.get("J_interval")
-    s_int = f" [{si[0]:.2f}, {si[1]:.2f}]" if si and None not in si else ""
-    j_int = f" [{ji[0]:.2f}, {ji[1]:.2f}]" if ji and None not in ji else ""
-    lines.append(
-        f"S           {_fmt(st.get('S'))}{s_int} % of op span  ({_fmt(st.get('S_scaled'))} scaled)"
-    )
-    lines.append(
-        f"J           {_fmt(st.get('J'))}{j_int} % of op span  ({_fmt(st.get('J_scaled'))} scaled)"
-    )
-    lines.append(f"method      {st.get('method')}")
-    lines.append(
+        f"verdict     {st.get('status', '?').upper().replace('_', ' ')}  ({probability_text(st)})",
+        f"S           {param_text(st, 'S', unit=' % of op span')}  "
+        f"({_fmt(st.get('S_scaled'))} scaled)",
+        f"J           {param_text(st, 'J', unit=' % of op span')}  "
+        f"({_fmt(st.get('J_scaled'))} scaled)",
+        f"method      {st.get('method')}",
         "oscillation "
         + (
             f"period {_fmt(osc.get('period_s'), '.1f')} s, regularity {_fmt(osc.get('regularity'))}"
             if osc.get("present")
             else "none detected"
-        )
-    )
+        ),
+    ]
     for r in st.get("reasons") or []:
         lines.append(f"  - {r}")
     rep = d.get("replay")
     if rep:
-        fit = rep.get("fit") or {}
-        per = rep.get("period_s") or {}
-        wave = rep.get("waveform") or {}
-        lines.append(
-            f"replay      process {rep.get('process', {}).get('type')}, "
-            f"period data {_fmt(per.get('data'), '.1f')} s / replay {_fmt(per.get('replay'), '.1f')} s"
-        )
-        lines.append(
-            "            fit [%, 100 = exact] "
-            + ", ".join(f"{k} {_fmt(v, '.0f')}" for k, v in fit.items() if not isinstance(v, dict))
-            + "; cycle shape [1 = same] "
-            + ", ".join(f"{k} {_fmt(v, '.2f')}" for k, v in wave.items() if not isinstance(v, dict))
-        )
+        lines.append(f"replay      process {rep.get('process', {}).get('type')}")
+        if rep.get("metrics"):
+            lines.append(f"            {render_metrics(rep['metrics'])}")
     gap = d.get("gap")
     if gap:
         lines.append(
@@ -102,6 +101,8 @@ def render_summary(d: dict) -> str:
         )
     for w in d.get("warnings") or []:
         lines.append(f"warning     {w}")
+    lines.append("findings")
+    lines += ["  " + line for line in findings_from_dict(d).text(width=14).splitlines()]
     return "\n".join(lines)
 
 
@@ -130,7 +131,7 @@ def analyze(
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
         info(f"analysing {file} ...")
         result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
-        d = result.to_dict()
+        d = with_findings(result.to_dict())
         emit(d, render_summary(d), json_path)
         if out is not None:
             for target in result.save_figures(out):

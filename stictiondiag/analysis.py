@@ -27,6 +27,7 @@ import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -37,6 +38,8 @@ from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.diagnose import GapDiagnosis, diagnose_gap
 from stictiondiag.io.tags import Tags, read_tags
 from stictiondiag.replay import Replay, replay
+from stictiondiag.replay.compensation import Compensation, compensation_from_replay
+from stictiondiag.replay.metrics import replay_metrics
 from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
@@ -75,10 +78,14 @@ class AnalysisConfig:
         Run the sim-to-real gap diagnosis (the slowest step).
     replay : bool
         Run the closed-loop replay (needed by the gap diagnosis).
+    compensation : bool
+        Try the variable-integral compensation on the replayed loop (Section 6.4,
+        :mod:`stictiondiag.replay.compensation`; needs the replay).
     """
 
     gap: bool = True
     replay: bool = True
+    compensation: bool = True
 
 
 @dataclass(frozen=True)
@@ -107,6 +114,11 @@ class Analysis:
         run or not possible.
     warnings : tuple of str
         Data-quality and analysis warnings, in the order they arose.
+    compensation : Compensation or None
+        The smallest variable-integral band [pv units] that stops the replayed
+        loop's cycle and the offset it leaves (Section 6.4), None when not run.
+    analysed_at : str
+        When the analysis ran (ISO 8601, UTC).
     """
 
     tags: Tags
@@ -117,6 +129,8 @@ class Analysis:
     replay: Replay | None = None
     gap: GapDiagnosis | None = None
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    compensation: Compensation | None = None
+    analysed_at: str = ""
 
     @property
     def loop(self) -> str:
@@ -129,15 +143,22 @@ class Analysis:
         stiction = to_plain(self.fit.to_dict())
         stiction["units"] = "% of op span"
         stiction.update(to_plain(self.verdict.to_dict()))
+        rep = None
+        if self.replay is not None:
+            rep = to_plain(self.replay.to_dict())
+            rep["metrics"] = to_plain(replay_metrics(self.replay).to_dict())
         return {
             "source": str(tags.source),
             "loop": self.loop,
+            "analysed_at": self.analysed_at or None,
             "tags": {
                 "names": dict(tags.names),
                 "n_samples": int(tags.n),
                 "ts_s": float(tags.ts),
                 "duration_s": float(tags.n * tags.ts),
+                "start": _plain_text(getattr(tags, "start", None)),
                 "loop_type": tags.loop_type,
+                "loop_type_source": _plain_text(getattr(tags, "loop_type_source", None)),
                 "integrating": bool(tags.integrating),
                 "has_mv": tags.mv is not None,
                 "has_sp": tags.sp is not None,
@@ -147,7 +168,10 @@ class Analysis:
                 "op": to_plain(self.oscillation_op.to_dict()),
             },
             "stiction": stiction,
-            "replay": None if self.replay is None else to_plain(self.replay.to_dict()),
+            "replay": rep,
+            "compensation": (
+                None if self.compensation is None else to_plain(self.compensation.to_dict())
+            ),
             "gap": None if self.gap is None else to_plain(self.gap.to_dict()),
             "warnings": list(self.warnings),
         }
@@ -180,6 +204,7 @@ class Analysis:
             "J_hi": j_int[1],
             "method": st.get("method"),
             "replay_fit_pv": (rep.get("fit") or {}).get("pv"),
+            "replay_period_error_pct": (rep.get("metrics") or {}).get("period_error_pct"),
             "gap_effect": gap.get("effect"),
             "gap_shrink_pct": gap.get("shrink_pct"),
             "n_warnings": len(self.warnings),
@@ -384,6 +409,16 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         if rep is not None:
             warnings.extend(f"replay: {w}" for w in rep.warnings)
 
+    # 5b. Variable-integral compensation of the replayed loop (Section 6.4).
+    comp = None
+    if config.compensation and rep is not None and verdict.status != "no_stiction":
+        replayed_loop = rep
+        comp = _or_warn(
+            "compensation not tried",
+            warnings,
+            lambda: compensation_from_replay(replayed_loop),
+        )
+
     # 6. Sim-to-real gap (it needs the replay).
     gap = None
     if config.gap and rep is not None:
@@ -401,6 +436,8 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         replay=rep,
         gap=gap,
         warnings=tuple(warnings),
+        compensation=comp,
+        analysed_at=datetime.now(UTC).isoformat(timespec="seconds"),
     )
 
 
@@ -440,6 +477,11 @@ def estimate_stiction(tags: Tags) -> StictionFit:
         integrating=bool(tags.integrating),
         flow_loop=tags.loop_type in FLOW_LIKE,
     )
+
+
+def _plain_text(v: object) -> str | None:
+    """A tag attribute as text for the JSON (None stays None)."""
+    return None if v is None else str(v)
 
 
 def _or_warn(what: str, warnings: list[str], step: Callable[[], _T]) -> _T | None:

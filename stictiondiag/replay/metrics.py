@@ -1,0 +1,192 @@
+"""Replay figures an engineer reads right: period, amplitude and waveform agreement.
+
+A stiction limit cycle runs free: its phase drifts, so a point-by-point error (the
+NRMSE behind the replay's ``fit``) calls a replay wrong that has the right period,
+size and shape but is half a cycle away after a while.  The questions an engineer
+asks of a reconstruction of a limit cycle (Sections 4.2.2 and 5.3 of Choudhury,
+Thornhill & Shah 2005, where the model's cycles of Figs. 12-15 are compared with
+the plant's of Figs. 3-6 by their shape, not sample by sample) are answered here one
+at a time, from a :class:`~stictiondiag.replay.closed_loop.Replay`:
+
+``period_error_pct``
+    ``100 (T_replay / T_data - 1)`` of the signal the replay reports the period of [%].
+``amplitude`` and ``amplitude_error_pct``
+    Half peak-to-peak amplitude of data and replay by *one* measure for both
+    (:func:`cycle_amplitude`), and ``100 (A_replay / A_data - 1)`` [%].  The replay's
+    own ``amplitude`` field uses the oscillation detector's amplitude where a signal
+    oscillates and a percentile range where it does not, so a drifting data signal
+    and a clean replay can be measured differently; this module does not.
+``waveform``
+    Correlation of the average cycle of data and replay after aligning their phase
+    over one cycle (:func:`stictiondiag.replay.closed_loop.waveform_similarity`),
+    1 = same shape [-].
+``nrmse``
+    Kept as the replay computed it, for those who want the phase-sensitive figure.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: Percentiles of the amplitude measure when no period is known [%].
+PERCENTILES = (2.0, 98.0)
+
+
+def cycle_amplitude(x: np.ndarray, window: int | None) -> float | None:
+    """Half peak-to-peak amplitude of a cycling signal, in its own units.
+
+    With a period of ``window`` samples: the median, over consecutive windows of one
+    period, of half the window's range (a slow drift adds only its change over one
+    period, a single spike changes one window only).  Without a period, or with
+    fewer than two whole windows: half the range between the 2nd and 98th
+    percentiles of the whole signal.  None for an empty or non-finite signal.
+    """
+    y = np.asarray(x, dtype=float)
+    if y.size == 0 or not np.all(np.isfinite(y)):
+        return None
+    if window is not None and window >= 2 and y.size >= 2 * window:
+        m = y.size // window
+        blocks = y[: m * window].reshape(m, window)
+        return float(np.median(blocks.max(axis=1) - blocks.min(axis=1))) / 2.0
+    lo, hi = np.percentile(y, PERCENTILES)
+    return float(hi - lo) / 2.0
+
+
+def _pct_error(model: float | None, data: float | None) -> float | None:
+    if model is None or data is None or not data > 0:
+        return None
+    return 100.0 * (model / data - 1.0)
+
+
+@dataclass(frozen=True)
+class ReplayMetrics:
+    """Period, amplitude and waveform agreement of a replay with its data.
+
+    Attributes
+    ----------
+    period_signal : str
+        Signal whose period is compared (``pv``, or ``op`` when pv does not cycle).
+    period_data_s, period_replay_s : float or None
+        Oscillation periods [s]; None where the signal does not oscillate.
+    period_error_pct : float or None
+        ``100 (T_replay / T_data - 1)`` [%].
+    amplitude : dict
+        Signal -> ``{"data", "replay"}`` half peak-to-peak [units of the signal: pv
+        units, or % of span for op and mv], both by :func:`cycle_amplitude` with the
+        data's period.
+    amplitude_error_pct : dict
+        Signal -> ``100 (A_replay / A_data - 1)`` [%].
+    waveform : dict
+        Signal -> correlation of the phase-aligned average cycles [-].
+    nrmse : dict
+        Signal -> NRMSE of the replay [-] (phase-sensitive).
+    """
+
+    period_signal: str
+    period_data_s: float | None
+    period_replay_s: float | None
+    period_error_pct: float | None
+    amplitude: dict = field(default_factory=dict)
+    amplitude_error_pct: dict = field(default_factory=dict)
+    waveform: dict = field(default_factory=dict)
+    nrmse: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dict."""
+        return {
+            "period_signal": self.period_signal,
+            "period_data_s": _plain(self.period_data_s),
+            "period_replay_s": _plain(self.period_replay_s),
+            "period_error_pct": _plain(self.period_error_pct),
+            "amplitude": {
+                k: {side: _plain(v.get(side)) for side in ("data", "replay")}
+                for k, v in self.amplitude.items()
+            },
+            "amplitude_error_pct": {k: _plain(v) for k, v in self.amplitude_error_pct.items()},
+            "waveform": {k: _plain(v) for k, v in self.waveform.items()},
+            "nrmse": {k: _plain(v) for k, v in self.nrmse.items()},
+            "amplitude_measure": "median over one-period windows of half the range",
+        }
+
+    def to_pandas(self) -> pd.DataFrame:
+        """One row per signal: amplitudes, amplitude error [%], waveform, NRMSE."""
+        import pandas as pd
+
+        rows = [
+            {
+                "signal": name,
+                "amplitude_data": amp.get("data"),
+                "amplitude_replay": amp.get("replay"),
+                "amplitude_error_pct": self.amplitude_error_pct.get(name),
+                "waveform": self.waveform.get(name),
+                "nrmse": self.nrmse.get(name),
+            }
+            for name, amp in self.amplitude.items()
+        ]
+        return pd.DataFrame(rows)
+
+    def text(self) -> str:
+        """One line: period error, amplitude errors and waveform agreement."""
+        return render_metrics(self.to_dict())
+
+
+def _plain(v) -> float | None:
+    if v is None:
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _signed(v, unit: str = " %") -> str:
+    return "n/a" if v is None else f"{v:+.0f}{unit}"
+
+
+def render_metrics(m: dict) -> str:
+    """One line from :meth:`ReplayMetrics.to_dict`."""
+    per = m.get("period_error_pct")
+    d, r = m.get("period_data_s"), m.get("period_replay_s")
+    if per is not None:
+        period = f"period {_signed(per)} ({r:.4g} s against {d:.4g} s)"
+    elif d is not None:
+        period = "period: the replay does not cycle"
+    else:
+        period = "period: the data do not cycle"
+    amp = ", ".join(f"{k} {_signed(v)}" for k, v in (m.get("amplitude_error_pct") or {}).items())
+    wave = ", ".join(
+        f"{k} {'n/a' if v is None else format(v, '.2f')}"
+        for k, v in (m.get("waveform") or {}).items()
+    )
+    return f"{period}; amplitude {amp or 'n/a'}; waveform agreement [1 = same] {wave or 'n/a'}"
+
+
+def replay_metrics(rep) -> ReplayMetrics:
+    """:class:`ReplayMetrics` of a :class:`~stictiondiag.replay.closed_loop.Replay`."""
+    d = rep.period_s.get("data")
+    r = rep.period_s.get("replay")
+    window = None if not d else int(round(float(d) / float(rep.dt)))
+    pairs = {"pv": (rep.data["pv"], rep.pv), "op": (rep.data["op"], rep.op)}
+    if rep.data.get("mv") is not None:
+        pairs["mv"] = (rep.data["mv"], rep.mv)
+    amplitude: dict[str, dict] = {}
+    errors: dict[str, float | None] = {}
+    for name, (y, yr) in pairs.items():
+        a_d, a_r = cycle_amplitude(y, window), cycle_amplitude(yr, window)
+        amplitude[name] = {"data": a_d, "replay": a_r}
+        errors[name] = _pct_error(a_r, a_d)
+    return ReplayMetrics(
+        period_signal=rep.period_signal,
+        period_data_s=d,
+        period_replay_s=r,
+        period_error_pct=_pct_error(r, d),
+        amplitude=amplitude,
+        amplitude_error_pct=errors,
+        waveform={k: rep.waveform.get(k) for k in pairs},
+        nrmse={k: rep.nrmse.get(k) for k in pairs},
+    )
