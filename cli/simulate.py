@@ -38,6 +38,42 @@ def _float(option: str, text: str | None, *, minimum: float | None = None, posit
     return value
 
 
+#: Stuck-valve guard: the valve counts as never slipping when it moved on fewer
+#: than this many samples after the first third of the run.
+MIN_SLIPS = 2
+
+
+def stuck_valve_warning(sim, S: float) -> str | None:
+    """Warn when a data-driven valve never slipped although op travelled past S.
+
+    Choudhury's model (Section 5.1, Fig. 10) re-arms its stuck band at every change
+    of sign of the input's slope.  With measurement noise on pv, op reverses at
+    almost every sample, the band is re-armed each time and the valve never slips;
+    the integral then winds op to a limit.  The paper asks for a filtered op
+    (Section 5.1, EWMA) for noisy inputs; Kano's model keeps its stuck band through
+    such reversals.  The run is reported as simulated; this says why it has no cycle.
+    """
+    import numpy as np
+
+    valve = sim.settings.get("valve")
+    if valve not in ("choudhury", "kano") or not sim.settings.get("noise_std"):
+        return None
+    start = sim.n // 3
+    moves = int(np.count_nonzero(np.diff(sim.mv[start:])))
+    travel = float(np.max(np.abs(sim.op[start:] - sim.mv[start:])))
+    if moves >= MIN_SLIPS or travel <= S:
+        return None
+    name = "data-driven (Choudhury)" if valve == "choudhury" else "Kano"
+    return (
+        f"the {name} valve never slipped after {start * sim.dt:g} s although op moved "
+        f"{travel:.3g} % from it (op ends at {float(sim.op[-1]):.3g} %): noise on pv "
+        "reverses op at almost every sample and the model re-arms its stuck band at "
+        "each reversal (Section 5.1 asks for a filtered op); this run is kept as "
+        "simulated -- use --valve kano, which keeps the stuck band through noise, for "
+        "a noisy loop"
+    )
+
+
 def _fmt(x, spec: str = ".3g") -> str:
     return "n/a" if x is None else format(x, spec)
 
@@ -86,17 +122,28 @@ def render_summary(loop: str, summary: dict) -> str:
         )
     else:
         lines.append(f"describing   predicts no limit cycle  [{df['basis']}]")
+    lines += [f"warning      {w}" for w in summary.get("warnings") or []]
     return "\n".join(lines)
 
 
 @app.command()
 def simulate(
     S: Annotated[
-        str, typer.Option("--S", metavar="FLOAT", help="Deadband plus stickband [% of span], >= 0.")
-    ] = "5",
+        str | None,
+        typer.Option(
+            "--S",
+            metavar="FLOAT",
+            help="Deadband plus stickband [% of span], >= 0 (data-driven valves; default 5).",
+        ),
+    ] = None,
     J: Annotated[
-        str, typer.Option("--J", metavar="FLOAT", help="Slip jump [% of span], >= 0.")
-    ] = "2",
+        str | None,
+        typer.Option(
+            "--J",
+            metavar="FLOAT",
+            help="Slip jump [% of span], >= 0 (data-driven valves; default 2).",
+        ),
+    ] = None,
     loop: Annotated[
         str | None,
         typer.Option(
@@ -155,7 +202,13 @@ def simulate(
         ),
     ] = None,
     noise: Annotated[
-        str, typer.Option(metavar="PV_UNITS", help="Measurement noise standard deviation on pv.")
+        str,
+        typer.Option(
+            metavar="PV_UNITS",
+            help="Measurement noise standard deviation on pv. The data-driven valve "
+            "(Choudhury) sticks for good under noisy op (Section 5.1): the summary warns "
+            "when it never slipped; --valve kano keeps its stuck band through noise.",
+        ),
     ] = "0",
     seed: Annotated[int | None, typer.Option(min=0, help="Seed of the noise (>= 0).")] = None,
     kick: Annotated[
@@ -180,7 +233,7 @@ def simulate(
 
     Runs the loop of Choudhury, Thornhill & Shah (2005), Eq. 3 and Table 3, from a stuck valve, detects the limit cycle of pv and compares it with the describing-function prediction (Section 6; for the physical valve through its quasi-static S and J).
 
-    The summary goes to stderr; JSON, CSV and the plot go to the files asked for (JSON to stdout with --json -). Exit codes: 0 done, 2 bad option value or unwritable output.
+    The summary goes to stderr; JSON, CSV and the plot go to the files asked for (JSON to stdout with --json -). --S/--J apply to the data-driven valves only: with --valve physical or linear they are refused. Exit codes: 0 done, 2 bad option value, contradicting options or unwritable output.
     """
     from stictiondiag.core.atomic import (
         atomic_path,
@@ -208,8 +261,21 @@ def simulate(
             "seed": seed,
             "kick": _float("--kick", kick),
         }
-        s_value = _float("--S", S, minimum=0.0)
-        j_value = _float("--J", J, minimum=0.0)
+        s_value = _float("--S", "5" if S is None else S, minimum=0.0)
+        j_value = _float("--J", "2" if J is None else J, minimum=0.0)
+        sj_given = [opt for opt, text in (("--S", S), ("--J", J)) if text is not None]
+        if sj_given and valve in ("physical", "linear"):
+            hint = (
+                "set the friction with --Fs/--Fc/--Fv/--calibration or --case "
+                "(the summary shows its quasi-static S and J)"
+                if valve == "physical"
+                else "use --valve datadriven or kano for a sticky valve"
+            )
+            raise UsageError(
+                f"{'/'.join(sj_given)} {'apply' if len(sj_given) > 1 else 'applies'} to the "
+                "data-driven valves (datadriven, kano), "
+                f"not to --valve {valve}: {hint}"
+            )
         given = [
             opt
             for opt, text in (
@@ -233,7 +299,8 @@ def simulate(
             kwargs["physical"] = physical.PhysicalValve.from_case(case, **overrides)
         sim = loops.simulate_paper_loop(loop_name, s_value, j_value, **kwargs)
         summary = sim.summary()
-        summary = {"loop": loop_name, **summary}
+        stuck = stuck_valve_warning(sim, s_value)
+        summary = {"loop": loop_name, **summary, "warnings": [stuck] if stuck else []}
         info(render_summary(loop_name, summary))
         text = json.dumps(summary, indent=2, allow_nan=False) + "\n"
         if json_out == "-":

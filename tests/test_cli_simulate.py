@@ -116,6 +116,10 @@ def test_linear_valve_and_variable_integral():
         (["--valve", "physical", "--case", "rusty"], "unknown physical valve case"),
         (["--valve", "physical", "--Fs", "100", "--Fc", "200"], "use Fs >= Fc"),
         (["--Fs", "100"], "apply to --valve physical only"),
+        # S and J mean nothing to the physical or the linear valve: refused, not ignored.
+        (["--valve", "physical", "--S", "5", "--J", "2"], "--S/--J apply to the data-driven"),
+        (["--valve", "physical", "--S", "5"], "--S applies to the data-driven valves"),
+        (["--valve", "linear", "--J", "2"], "not to --valve linear"),
         (["--noise", "-1"], "--noise must be >= 0"),
         (["--integral-band", "-2"], "--integral-band must be >= 0"),
     ],
@@ -139,3 +143,27 @@ def test_unwritable_output(tmp_path):
     directory.mkdir()
     result = _run("--duration", "100", "--json", str(directory))
     assert result.exit_code == 2
+
+
+def test_noisy_data_driven_valve_that_never_slips_is_announced():
+    """Choudhury's valve re-arms its stuck band at every reversal of a noisy op
+    (Section 5.1): it sticks for good and op winds to its limit.  The run is kept and
+    the summary and the JSON say why there is no cycle, and what to use instead."""
+    result = _run("--S", "5", "--J", "2", "--noise", "0.01", "--seed", "1", "--json", "-")
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    assert data["limit_cycle"] is False
+    (warning,) = data["warnings"]
+    assert "never slipped" in warning and "--valve kano" in warning
+    assert "warning      the data-driven (Choudhury) valve never slipped" in result.stderr
+    # Kano's valve keeps its stuck band through the noise: it cycles, no warning.
+    result = _run(
+        "--valve", "kano", "--S", "5", "--J", "2", "--noise", "0.01", "--seed", "1", "--json", "-"
+    )
+    data = json.loads(result.stdout)
+    assert data["limit_cycle"] is True and data["warnings"] == []
+
+
+def test_noiseless_run_has_no_warning():
+    result = _run("--duration", "600", "--json", "-")
+    assert json.loads(result.stdout)["warnings"] == []
