@@ -248,11 +248,19 @@ class Analysis:
 
     def figure_builders(self) -> dict[str, Callable[[], Figure]]:
         """The functions that draw :meth:`figures`, by name, without drawing them:
-        ``phase`` (Figs. 3-6 style), ``reconstruction`` (with a replay),
-        ``gap_breakdown`` and ``gap_replay`` (with a gap diagnosis)."""
+        ``phase`` (Figs. 3-6 style), ``valve_zoom`` (a few cycles of mv-op, or of the
+        model's mv-op, with S and J drawn as in Fig. 10), ``reconstruction`` (with a
+        replay), ``gap_breakdown`` and ``gap_replay`` (with a gap diagnosis)."""
         builders: dict[str, Callable[[], Figure]] = {"phase": self.plot}
+        zoom = self._valve_zoom_builder()
+        if zoom is not None:
+            builders["valve_zoom"] = zoom
         if self.replay is not None:
-            builders["reconstruction"] = self.replay.plot
+            from stictiondiag.plotting.replay import plot_replay
+
+            rep = self.replay
+            metrics = to_plain(replay_metrics(rep).to_dict())
+            builders["reconstruction"] = lambda: plot_replay(rep, metrics=metrics)
         if self.gap is not None:
             from stictiondiag.plotting.gap import plot_gap_breakdown, plot_gap_replay
 
@@ -260,6 +268,28 @@ class Analysis:
             builders["gap_breakdown"] = lambda: plot_gap_breakdown(gap)
             builders["gap_replay"] = lambda: plot_gap_replay(gap)
         return builders
+
+    def _valve_zoom_builder(self) -> Callable[[], Figure] | None:
+        """The ``valve_zoom`` figure's builder, None without a valve signal or a
+        finite S and J."""
+        from stictiondiag.plotting.valve import plot_valve_zoom
+
+        tags, fit = self.tags, self.fit
+        model = tags.mv is None
+        mv = np.asarray(fit.mv_model if model else tags.mv, dtype=float)
+        if mv.size != tags.n or not (math.isfinite(fit.S) and math.isfinite(fit.J)):
+            return None
+        period = self.oscillation_op.period_s or self.oscillation.period_s
+        return lambda: plot_valve_zoom(
+            tags.op,
+            mv,
+            ts=float(tags.ts),
+            S=float(fit.S),
+            J=float(fit.J),
+            period_s=period,
+            model=model,
+            title=f"{self.loop}: valve signature (Fig. 10)",
+        )
 
     def figures(self) -> dict[str, Figure]:
         """Figures by name (see :meth:`figure_builders`)."""

@@ -140,11 +140,50 @@ def test_analysis_figures_are_pngs(tmp_path):
     )
     tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, ts=1.0)
     figs = analyze(tags, config=AnalysisConfig(gap=False)).figures()
-    assert set(figs) == {"phase", "reconstruction"}
+    assert set(figs) == {"phase", "valve_zoom", "reconstruction"}
     for name, fig in figs.items():
+        _assert_units_and_no_empty_panels(name, fig)
         path = tmp_path / f"{name}.png"
         fig.savefig(path, dpi=110, format="png")
         with Image.open(path) as im:
             assert im.format == "PNG"
             w, h = fig.get_size_inches() * 110
             assert im.size == (round(w), round(h))
+
+
+def _assert_units_and_no_empty_panels(name, fig):
+    """Every visible panel shows something, and every axis label carries its unit
+    in brackets (a time axis shared down a column is labelled at the bottom only)."""
+    for ax in fig.axes:
+        if not ax.axison:
+            assert ax.texts, f"{name}: an empty panel"
+            continue
+        assert ax.has_data(), f"{name}: panel {ax.get_title()!r} is empty"
+        assert "[" in ax.get_ylabel(), f"{name}: y axis {ax.get_ylabel()!r} has no unit"
+        assert ax.get_xlabel() == "" or "[" in ax.get_xlabel(), (name, ax.get_xlabel())
+
+
+def test_valve_zoom_draws_S_and_J_at_a_slip():
+    """Fig. 10: S along op ending at the slip, J along mv from the stuck position.
+    Open loop through Choudhury's valve (Eq. 4), so the slips are known: each one
+    jumps J plus what op moved in that sample (0.1 s of a 50 s sine, < 0.13 %)."""
+    from stictiondiag.models.valve import choudhury_model
+    from stictiondiag.plotting.valve import find_slip, plot_valve_zoom
+
+    t = np.arange(0, 300, 0.1)
+    op = 50 + 10 * np.sin(2 * np.pi * t / 50)
+    mv = choudhury_model(op, 5.0, 2.0)
+    fig = plot_valve_zoom(op, mv, ts=0.1, S=5.0, J=2.0, period_s=50.0)
+    _assert_units_and_no_empty_panels("valve_zoom", fig)
+    ax = fig.axes[0]
+    arrows = [a for a in ax.texts if getattr(a, "arrow_patch", None) is not None]
+    assert len(arrows) == 2
+    (x0, y0), (x1, y1) = arrows[0].xyann, arrows[0].xy  # S: horizontal
+    assert y0 == y1 and abs(x1 - x0) == pytest.approx(5.0, abs=1e-9)
+    (x2, y2), (x3, y3) = arrows[1].xyann, arrows[1].xy  # J: vertical, from the stuck mv
+    assert x2 == x3 == x1 and y2 == y1 and abs(y3 - y2) == pytest.approx(2.0, abs=1e-9)
+    k = find_slip(mv[-1500:], 2.0)
+    assert k is not None and abs(mv[-1500:][k] - mv[-1500:][k - 1]) == pytest.approx(2.0, abs=0.13)
+    # No slip as large as half of J: the figure says so instead of drawing arrows.
+    fig = plot_valve_zoom(op, op, ts=0.1, S=5.0, J=2.0, period_s=50.0)
+    assert not [a for a in fig.axes[0].texts if getattr(a, "arrow_patch", None) is not None]

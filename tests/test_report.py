@@ -113,6 +113,49 @@ def test_md_escape_neutralises_markdown():
     assert _cell_separators(cell) == [] and "\n" not in cell
 
 
+def _poorly_determined_dict(status="inconclusive", p=0.55):
+    d = _analysis_dict("LIC200")
+    d["stiction"].update(
+        {
+            "status": status,
+            "probability": p,
+            "confidence": p,
+            "S": 0.48,
+            "J": 5.78,
+            "S_interval": [0.0, 1.7],
+            "J_interval": [2.89, 5.78],
+            "details": {
+                "determinacy": {
+                    "S": "poorly determined",
+                    "J": "poorly determined (interval reaches the search limit)",
+                }
+            },
+            "evidence": {"stiction_level": 0.7, "no_stiction_level": 0.3},
+        }
+    )
+    d["tags"]["has_mv"] = False
+    return d
+
+
+def test_loop_page_shows_probability_and_marks_poorly_determined_parameters():
+    """Issue 18: no "confidence 1.00" on an undecided verdict; a poorly determined
+    J is marked where it is shown, with its interval and the search edge."""
+    html = render_loop_html(_poorly_determined_dict(), {})
+    assert "P(stiction) = 0.55 (decision levels 0.3 and 0.7)" in html
+    assert "confidence" not in html.split("verdict evidence")[0]
+    assert "J = 5.78 % of travel (poorly determined: interval 2.89–5.78 at the search edge)" in html
+    assert html.count('class="poor"') >= 4  # two cards and two table cells
+    assert "mv is not recorded" in html  # what the data cannot tell
+    assert 'id="loop-type">flow</span> <span class="muted">from user/default' in html
+
+
+def test_loop_type_source_is_shown_when_recorded():
+    d = _analysis_dict("FIC101")
+    d["tags"]["loop_type_source"] = "tag prefix FIC"
+    html = render_loop_html(d, {})
+    assert "from tag prefix FIC" in html
+
+
 def _chromium():
     for name in ("chromium", "chromium-browser", "google-chrome"):
         path = shutil.which(name)
@@ -170,7 +213,24 @@ def test_real_report_renders_in_headless_browser(tmp_path):
     # Figures expected on the page: phase plots, reconstruction, and the gap's own.
     n_figures = 1 + (d["replay"] is not None) * (1 + (d["gap"] is not None))
     loop_page = out / "loops" / f"{sample.stem}.html"
-    for page, min_images in ((loop_page, n_figures), (out / "index.html", 0)):
+    # The new elements: findings in words, data span and analysis date, the loop type
+    # and its source, the Fig. 10 valve signature, P(stiction) instead of a confidence.
+    dom, _ = _browser_load(chromium, loop_page, tmp_path / "profile")
+    for marker in (
+        'id="findings"',
+        'id="data-span"',
+        'id="analysed-at"',
+        'id="loop-type"',
+        'id="valve-signature"',
+        'alt="valve_zoom"',
+        "P(stiction) = ",
+        "decision levels 0.3 and 0.7",
+        "waveform agreement",
+    ):
+        assert marker in dom, marker
+    assert "confidence" not in dom.split('id="findings"')[0]  # not in the header cards
+    assert re.search(r'id="analysed-at">\d{4}-\d\d-\d\dT', dom)
+    for page, min_images in ((loop_page, n_figures + 1), (out / "index.html", 0)):
         dom, log = _browser_load(chromium, page, tmp_path / "profile")
         # The page's load handler counts decoded images: all of them must have loaded.
         m = re.search(r'data-images-loaded="(\d+)/(\d+)"', dom)

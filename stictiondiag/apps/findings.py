@@ -167,25 +167,32 @@ def is_poorly_determined(st: dict, sym: str) -> bool:
     return determinacy(st, sym).startswith("poorly") and not _zero_and_pinned(st, sym)
 
 
-def param_text(st: dict, sym: str, *, unit: str = " %") -> str:
-    """``J = 5.8 % (poorly determined: interval 2.9-5.8 at the search edge)``.
-
-    A well or moderately determined value carries its interval in brackets; a poorly
-    determined one says so, with the interval and whether it ends at the edge of the
-    search (the data bound it on one side only).
-    """
-    value = st.get(sym)
+def param_note(st: dict, sym: str) -> str:
+    """How well ``sym`` is known, in words: ``interval 4.98-5.01``,
+    ``moderately determined: interval ...`` or ``poorly determined: interval
+    2.89-5.78 at the search edge`` ('' without an interval)."""
     iv = st.get(f"{sym}_interval")
-    text = f"{sym} = {_fmt(value)}{unit}"
     have_iv = bool(iv) and len(iv) == 2 and None not in iv
-    iv_text = f"{_fmt(iv[0])}\u2013{_fmt(iv[1])}" if have_iv else "not determined"
+    iv_text = f"interval {_fmt(iv[0])}\u2013{_fmt(iv[1])}" if have_iv else "no interval"
     note = determinacy(st, sym)
     if is_poorly_determined(st, sym):
         edge = " at the search edge" if "search limit" in note else ""
-        return f"{text} (poorly determined: interval {iv_text}{edge})"
+        return f"poorly determined: {iv_text}{edge}"
     if note.startswith("moderately"):
-        return f"{text} (moderately determined: interval {iv_text})"
-    return f"{text} [{iv_text}]" if have_iv else text
+        return f"moderately determined: {iv_text}"
+    return iv_text if have_iv else ""
+
+
+def param_text(st: dict, sym: str, *, unit: str = " %") -> str:
+    """``J = 5.8 % (poorly determined: interval 2.9-5.8 at the search edge)``.
+
+    A well or moderately determined value carries its interval; a poorly determined
+    one says so, with the interval and whether it ends at the edge of the search
+    (the data bound it on one side only).
+    """
+    note = param_note(st, sym)
+    text = f"{sym} = {_fmt(st.get(sym))}{unit}"
+    return f"{text} ({note})" if note else text
 
 
 def probability_text(st: dict) -> str:

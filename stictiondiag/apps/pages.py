@@ -40,6 +40,8 @@ figure{margin:1em 0} figcaption{font-size:.85em;color:#444;margin-top:.3em;max-w
 img{max-width:100%;height:auto;border:1px solid #eee}
 .warn{color:#8a5300} code{background:#f5f5f5;padding:0 .2em;word-break:break-all}
 svg.iv{vertical-align:middle}
+.poor{color:#a33;font-weight:600} span.poor{font-size:.7em}
+table.findings{max-width:1000px} table.findings th{white-space:nowrap;vertical-align:top}
 details{margin:.4em 0} pre{background:#f7f7f7;padding:.5em;overflow:auto;font-size:12px}
 """
 

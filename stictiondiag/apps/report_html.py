@@ -14,7 +14,15 @@ import re
 from collections.abc import Sequence
 from html import escape
 
+from stictiondiag.apps.findings import (
+    determinacy,
+    findings_from_dict,
+    is_poorly_determined,
+    param_note,
+    probability_text,
+)
 from stictiondiag.apps.pages import html_page
+from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL
 
 __all__ = ["md_escape", "render_index_html", "render_loop_html", "render_markdown", "sort_key"]
 
@@ -27,9 +35,17 @@ _CAPTIONS = {
         "shows as flat mv during op ramps and a parallelogram in the mv-op plot; dashed: "
         "the fitted valve model."
     ),
+    "valve_zoom": (
+        "The last few cycles of mv against op (of the fitted model when mv is not "
+        "recorded), both in % of span, with the fitted S (deadband + stickband, along "
+        "op) and J (slip jump, along mv) drawn at the largest slip, as in Fig. 10 of "
+        "Choudhury, Thornhill & Shah (2005)."
+    ),
     "reconstruction": (
         "Closed-loop reconstruction: the fitted valve replayed with the identified "
-        "controller and process (Sections 4.2.2 and 5.3), against the recorded data."
+        "controller and process (Sections 4.2.2 and 5.3), against the recorded data. "
+        "The panel titles give the amplitude error and the waveform agreement of the "
+        "phase-aligned average cycle (1 = same shape)."
     ),
     "gap_breakdown": (
         "Sim-to-real gap: where the replay departs from the data, by signal, valve "
@@ -208,6 +224,266 @@ def _json_details(summary: str, obj) -> str:
     )
 
 
+def _duration_text(seconds) -> str:
+    """A duration in the unit that reads best (s, min, h or days)."""
+    if not isinstance(seconds, int | float) or not math.isfinite(seconds):
+        return "n/a"
+    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.3g} s"
+
+
+def _header(d: dict, json_name: str | None, index_href: str) -> list[str]:
+    """Links, title, source, data span and analysis date, loop type and its source."""
+    tg = d.get("tags") or {}
+    links = [f'<a href="{escape(index_href)}">&larr; all loops</a>']
+    if json_name:
+        links.append(f'<a href="{escape(json_name)}">analysis JSON</a>')
+    names = tg.get("names") or {}
+    start = tg.get("start")
+    span = (
+        f"{_num(tg.get('n_samples'), 'd')} samples at {_num(tg.get('ts_s'))} s = "
+        f"{_duration_text(tg.get('duration_s'))}" + (f" from {_text(start)}" if start else "")
+    )
+    loop_type_source = tg.get("loop_type_source") or "user/default"
+    return [
+        f'<p class="muted">{" &middot; ".join(links)}</p>',
+        f"<h1>Loop {_text(d.get('loop'))}</h1>",
+        f'<p class="muted">source <code>{_text(d.get("source"))}</code> &middot; tags '
+        + ", ".join(f"{_text(k)} = <code>{_text(v)}</code>" for k, v in names.items())
+        + "</p>",
+        _kv_table(
+            [
+                ("data span", f'<span id="data-span">{span}</span>'),
+                (
+                    "analysed",
+                    f'<span id="analysed-at">{_text(d.get("analysed_at") or "n/a")}</span>',
+                ),
+                (
+                    "loop type",
+                    f'<span id="loop-type">{_text(tg.get("loop_type"))}'
+                    f"{' (integrating)' if tg.get('integrating') else ''}</span>"
+                    f' <span class="muted">from {_text(loop_type_source)}</span>',
+                ),
+            ]
+        ),
+    ]
+
+
+def _param_card(st: dict, sym: str, label: str) -> str:
+    """Card of S or J: value, and the interval or the poorly-determined note."""
+    poor = is_poorly_determined(st, sym)
+    value = f"{_num(st.get(sym))} %" + (
+        ' <span class="poor">poorly determined</span>' if poor else ""
+    )
+    return _card(label, value, escape(param_note(st, sym)))
+
+
+def _cards(d: dict, st: dict, warnings: list) -> str:
+    """The compact summary: verdict with P(stiction), S, J, cycle, replay, gap."""
+    osc = (d.get("oscillation") or {}).get("pv") or {}
+    rep, gap = d.get("replay") or None, d.get("gap") or None
+    status = str(st.get("status") or st.get("verdict") or "unknown")
+    status_class = status if status in _VERDICT_RANK else "unknown"
+    cards = [
+        _card(
+            "verdict",
+            f'<span class="verdict {status_class}">{_text(status.replace("_", " "))}</span>',
+            escape(probability_text(st)),
+        ),
+        _param_card(st, "S", "S (deadband + stickband)"),
+        _param_card(st, "J", "J (slip jump)"),
+        _card(
+            "oscillation",
+            f"{_num(osc.get('period_s'), '.4g')} s" if osc.get("present") else "none",
+            f"regularity {_num(osc.get('regularity'), '.3g')}" if osc.get("present") else "",
+        ),
+    ]
+    if rep:
+        m = rep.get("metrics") or {}
+        per = m.get("period_error_pct")
+        cards.append(
+            _card(
+                "reconstruction",
+                f"period {per:+.0f} %" if isinstance(per, int | float) else "no period",
+                escape(
+                    "waveform agreement "
+                    + ", ".join(
+                        f"{k} {_num(v, '.2f')}" for k, v in (m.get("waveform") or {}).items()
+                    )
+                ),
+            )
+        )
+    if gap:
+        cards.append(
+            _card(
+                "gap effect",
+                _text(gap.get("effect")),
+                f"gap shrinks {_num(gap.get('shrink_pct'), '.0f')} %",
+            )
+        )
+    cards.append(_card("warnings", f'<a href="#warnings">{len(warnings)}</a>' if warnings else "0"))
+    return '<div class="cards">' + "".join(cards) + "</div>"
+
+
+def _findings_section(d: dict) -> str:
+    """The findings in words (:mod:`stictiondiag.apps.findings`)."""
+    f = findings_from_dict(d)
+    rows = "".join(
+        f"<tr><th>{escape(topic)}</th><td>{_text(text)}</td></tr>" for topic, text in f.items()
+    )
+    return f'<h2 id="findings">Findings</h2><table class="findings">{rows}</table>'
+
+
+def _parameters_section(st: dict) -> list[str]:
+    """Table of S and J with intervals, bars and determinacy; method and improvement."""
+    S, J = st.get("S"), st.get("J")
+    si, ji = st.get("S_interval"), st.get("J_interval")
+    ends = [
+        v
+        for v in (S, J, *(si or []), *(ji or []))
+        if isinstance(v, int | float) and math.isfinite(v)
+    ]
+    x_max = 1.15 * max(ends) if ends and max(ends) > 0 else 1.0
+    details = st.get("details") or {}
+    rows = []
+    for sym, name, value, iv, scaled in (
+        ("S", "deadband + stickband", S, si, st.get("S_scaled")),
+        ("J", "slip jump", J, ji, st.get("J_scaled")),
+    ):
+        cls = ' class="poor"' if is_poorly_determined(st, sym) else ""
+        label = f"{sym} {_num(value)} %, interval {_interval_text(iv)}"
+        rows.append(
+            f"<tr><th>{sym}</th><td>{name}</td><td class='num'>{_num(value)}</td>"
+            f"<td>{_interval_text(iv)}</td>"
+            f"<td>{_interval_svg(value, iv, x_max, label)}</td>"
+            f"<td class='num'>{_num(scaled)}</td>"
+            f"<td{cls}>{_text(determinacy(st, sym))}</td></tr>"
+        )
+    interval_note = details.get("interval_method")
+    return [
+        "<h2>Stiction parameters</h2>",
+        "<table><tr><th></th><th>parameter</th><th>estimate [% of op span]</th>"
+        "<th>interval [% of op span]</th><th>0 &ndash; "
+        f"{_num(x_max, '.3g')} %</th><th>scaled [op std]</th><th>determined</th></tr>"
+        + "".join(rows)
+        + "</table>",
+        f'<p class="muted">method <code>{_text(st.get("method"))}</code>'
+        f" &middot; {_num(st.get('n_slips'), 'd')} slips"
+        + (
+            f" &middot; the stiction model removes {_num(100 * st['improvement'], '.0f')} % "
+            "of the linear valve's residual"
+            if isinstance(st.get("improvement"), int | float)
+            else ""
+        )
+        + (f"<br>interval: {_text(interval_note)}" if interval_note else "")
+        + "</p>",
+    ]
+
+
+def _amplitude_text(amp: dict, errors: dict) -> str:
+    parts = []
+    for k, v in amp.items():
+        if not isinstance(v, dict):
+            continue
+        err = errors.get(k)
+        err_text = f" ({err:+.0f} %)" if isinstance(err, int | float) else ""
+        parts.append(f"{k} {_num(v.get('data'))} / {_num(v.get('replay'))}{err_text}")
+    return escape(", ".join(parts)) or "n/a"
+
+
+def _replay_section(rep: dict | None, images: dict[str, bytes]) -> list[str]:
+    """Identified models, period/amplitude/waveform agreement, NRMSE, the figure."""
+    parts = ["<h2>Closed-loop reconstruction</h2>"]
+    if not rep:
+        return [*parts, "<p>No replay (see the warnings).</p>"]
+    m = rep.get("metrics") or {}
+    per = m.get("period_error_pct")
+    parts.append(
+        _kv_table(
+            [
+                ("process", _process_text(rep.get("process"))),
+                ("controller", _controller_text(rep.get("controller"))),
+                (
+                    f"period of {m.get('period_signal') or rep.get('period_signal') or 'pv'}, "
+                    "data / replay [s]",
+                    f"{_num(m.get('period_data_s'))} / {_num(m.get('period_replay_s'))}"
+                    + (f" (period error {per:+.0f} %)" if isinstance(per, int | float) else ""),
+                ),
+                (
+                    "amplitude, data / replay (amplitude error) [signal units]",
+                    _amplitude_text(m.get("amplitude") or {}, m.get("amplitude_error_pct") or {}),
+                ),
+                (
+                    "waveform agreement, phase-aligned cycle [1 = same]",
+                    escape(
+                        ", ".join(
+                            f"{k} {_num(v, '.2f')}" for k, v in (m.get("waveform") or {}).items()
+                        )
+                    )
+                    or "n/a",
+                ),
+                (
+                    "NRMSE, point by point [-] (punishes phase drift)",
+                    escape(
+                        ", ".join(
+                            f"{k} {_num(v, '.2f')}" for k, v in (rep.get("nrmse") or {}).items()
+                        )
+                    )
+                    or "n/a",
+                ),
+            ]
+        )
+    )
+    if "reconstruction" in images:
+        parts.append(_figure("reconstruction", images["reconstruction"]))
+    return parts
+
+
+def _gap_section(gap: dict | None, has_replay: bool, images: dict[str, bytes]) -> list[str]:
+    """Gap table, candidate effects and the gap figures."""
+    parts = ["<h2>Sim-to-real gap</h2>"]
+    if gap:
+        parts.append(
+            _kv_table(
+                [
+                    ("metric", _text(gap.get("metric_name") or gap.get("metric"))),
+                    (
+                        "gap before / after [%]",
+                        f"{_num(gap.get('before'))} / {_num(gap.get('after'))}",
+                    ),
+                    ("shrink", f"{_num(gap.get('shrink_pct'), '.0f')} %"),
+                    ("most likely effect", f"<strong>{_text(gap.get('effect'))}</strong>"),
+                    ("runner-up", _text(gap.get("runner_up"))),
+                    ("margin [%]", _num(gap.get("margin"))),
+                ]
+            )
+        )
+        cands = gap.get("candidates") or []
+        if cands:
+            parts.append(
+                "<table><tr><th>candidate effect</th><th>gap after [%]</th><th>shrink %</th>"
+                "<th>parameters</th></tr>"
+                + "".join(
+                    f"<tr><td>{_text(c.get('effect'))}</td><td class='num'>{_num(c.get('after'))}</td>"
+                    f"<td class='num'>{_num(c.get('shrink_pct'), '.0f')}</td>"
+                    f"<td>{_param_text(c.get('params'))}</td></tr>"
+                    for c in cands
+                )
+                + "</table>"
+            )
+        parts.append(_json_details("gap breakdown", gap.get("breakdown")))
+    elif has_replay:
+        parts.append("<p>Not run.</p>")
+    else:
+        parts.append("<p>Not run (needs the reconstruction).</p>")
+    for name, png in images.items():
+        if name not in ("phase", "reconstruction", "valve_zoom"):
+            parts.append(_figure(name, png))
+    return parts
+
+
 def render_loop_html(
     d: dict,
     images: dict[str, bytes],
@@ -222,7 +498,8 @@ def render_loop_html(
     d : dict
         :meth:`stictiondiag.analysis.Analysis.to_dict` of the loop.
     images : dict
-        Figure name -> PNG bytes (``phase``, ``reconstruction``, gap plots).
+        Figure name -> PNG bytes (``phase``, ``valve_zoom``, ``reconstruction``,
+        gap plots).
     json_name : str, optional
         File name of the loop's JSON next to the page, linked from the header.
     index_href : str
@@ -234,214 +511,30 @@ def render_loop_html(
         A complete, self-contained HTML document.
     """
     st = d.get("stiction") or {}
-    tg = d.get("tags") or {}
-    osc = (d.get("oscillation") or {}).get("pv") or {}
-    rep = d.get("replay") or None
-    gap = d.get("gap") or None
     warnings = list(d.get("warnings") or [])
-    status = str(st.get("status") or st.get("verdict") or "unknown")
-    status_class = status if status in _VERDICT_RANK else "unknown"
-    S, J = st.get("S"), st.get("J")
-    si, ji = st.get("S_interval"), st.get("J_interval")
-    ends = [
-        v
-        for v in (S, J, *(si or []), *(ji or []))
-        if isinstance(v, int | float) and math.isfinite(v)
-    ]
-    x_max = 1.15 * max(ends) if ends and max(ends) > 0 else 1.0
-    details = st.get("details") or {}
-    determinacy = details.get("determinacy") or {}
-
-    links = [f'<a href="{escape(index_href)}">&larr; all loops</a>']
-    if json_name:
-        links.append(f'<a href="{escape(json_name)}">analysis JSON</a>')
-    names = tg.get("names") or {}
-    parts = [
-        f'<p class="muted">{" &middot; ".join(links)}</p>',
-        f"<h1>Loop {_text(d.get('loop'))}</h1>",
-        f'<p class="muted">source <code>{_text(d.get("source"))}</code> &middot; '
-        f"{_num(tg.get('n_samples'), 'd')} samples at {_num(tg.get('ts_s'))} s &middot; "
-        f"{_text(tg.get('loop_type'))} loop"
-        f"{' (integrating)' if tg.get('integrating') else ''} &middot; tags "
-        + ", ".join(f"{_text(k)} = <code>{_text(v)}</code>" for k, v in names.items())
-        + "</p>",
-    ]
-
-    # Compact summary: everything a reader needs before scrolling.
-    cards = [
-        _card(
-            "verdict",
-            f'<span class="verdict {status_class}">{_text(status.replace("_", " "))}</span>',
-            f"confidence {_num(st.get('confidence'), '.2f')}",
-        ),
-        _card(
-            "S (deadband + stickband)",
-            f"{_num(S)} %",
-            f"interval {_interval_text(si)}",
-        ),
-        _card("J (slip jump)", f"{_num(J)} %", f"interval {_interval_text(ji)}"),
-        _card(
-            "oscillation",
-            f"{_num(osc.get('period_s'), '.4g')} s" if osc.get("present") else "none",
-            f"regularity {_num(osc.get('regularity'), '.3g')}" if osc.get("present") else "",
-        ),
-    ]
-    if rep:
-        per = rep.get("period_s") or {}
-        fit_pv = (rep.get("fit") or {}).get("pv")
-        cards.append(
-            _card(
-                "reconstruction",
-                f"pv fit {_num(fit_pv, '.0f')} %" if fit_pv is not None else "n/a",
-                f"period {_period(per.get('data'))} data / {_period(per.get('replay'))} replay",
-            )
-        )
-    if gap:
-        cards.append(
-            _card(
-                "gap effect",
-                _text(gap.get("effect")),
-                f"gap shrinks {_num(gap.get('shrink_pct'), '.0f')} %",
-            )
-        )
-    cards.append(
-        _card(
-            "warnings",
-            f'<a href="#warnings">{len(warnings)}</a>' if warnings else "0",
-        )
-    )
-    parts.append('<div class="cards">' + "".join(cards) + "</div>")
-
+    parts = _header(d, json_name, index_href)
+    parts.append(_cards(d, st, warnings))
+    parts.append(_findings_section(d))
     reasons = st.get("reasons") or []
     if reasons:
         parts.append("<ul>" + "".join(f"<li>{_text(r)}</li>" for r in reasons) + "</ul>")
     parts.append(_json_details("verdict evidence", st.get("evidence")))
-
-    parts.append("<h2>Stiction parameters</h2>")
-    interval_note = details.get("interval_method")
-    rows = []
-    for sym, name, value, iv, scaled in (
-        ("S", "deadband + stickband", S, si, st.get("S_scaled")),
-        ("J", "slip jump", J, ji, st.get("J_scaled")),
-    ):
-        rows.append(
-            f"<tr><th>{sym}</th><td>{name}</td><td class='num'>{_num(value)}</td>"
-            f"<td>{_interval_text(iv)}</td>"
-            f"<td>{_interval_svg(value, iv, x_max, f'{sym} {_num(value)} %, interval {_interval_text(iv)}')}</td>"
-            f"<td class='num'>{_num(scaled)}</td><td>{_text(determinacy.get(sym, ''))}</td></tr>"
-        )
-    parts.append(
-        "<table><tr><th></th><th>parameter</th><th>estimate [% of op span]</th>"
-        "<th>interval [% of op span]</th><th>0 &ndash; "
-        f"{_num(x_max, '.3g')} %</th><th>scaled [op std]</th><th>determined</th></tr>"
-        + "".join(rows)
-        + "</table>"
-    )
-    parts.append(
-        f'<p class="muted">method <code>{_text(st.get("method"))}</code>'
-        f" &middot; {_num(st.get('n_slips'), 'd')} slips"
-        + (
-            f" &middot; the stiction model removes {_num(100 * st['improvement'], '.0f')} % "
-            "of the linear valve's residual"
-            if isinstance(st.get("improvement"), int | float)
-            else ""
-        )
-        + (f"<br>interval: {_text(interval_note)}" if interval_note else "")
-        + "</p>"
-    )
-
+    parts += _parameters_section(st)
     parts.append('<h2 id="warnings">Data-quality warnings</h2>')
     parts.append(
         "<ul>" + "".join(f'<li class="warn">{_text(w)}</li>' for w in warnings) + "</ul>"
         if warnings
         else "<p>None.</p>"
     )
-
     if "phase" in images:
         parts += ["<h2>Phase plots and trends</h2>", _figure("phase", images["phase"])]
-
-    parts.append("<h2>Closed-loop reconstruction</h2>")
-    if rep:
-        fit = rep.get("fit") or {}
-        per = rep.get("period_s") or {}
-        amp = rep.get("amplitude") or {}
-        parts.append(
-            _kv_table(
-                [
-                    ("process", _process_text(rep.get("process"))),
-                    ("controller", _controller_text(rep.get("controller"))),
-                    (
-                        f"period of {rep.get('period_signal') or 'pv'}, data / replay [s]",
-                        f"{_num(per.get('data'))} / {_num(per.get('replay'))}",
-                    ),
-                    (
-                        "fit, 100 (1 - NRMSE) [%]",
-                        escape(
-                            ", ".join(
-                                f"{k} {_num(v, '.0f')}"
-                                for k, v in fit.items()
-                                if not isinstance(v, dict)
-                            )
-                        )
-                        or "n/a",
-                    ),
-                    (
-                        "amplitude, data / replay",
-                        escape(
-                            ", ".join(
-                                f"{k} {_num((v or {}).get('data'))} / {_num((v or {}).get('replay'))}"
-                                for k, v in amp.items()
-                                if isinstance(v, dict)
-                            )
-                        )
-                        or "n/a",
-                    ),
-                ]
-            )
-        )
-        if "reconstruction" in images:
-            parts.append(_figure("reconstruction", images["reconstruction"]))
-    else:
-        parts.append("<p>No replay (see the warnings).</p>")
-
-    parts.append("<h2>Sim-to-real gap</h2>")
-    if gap:
-        parts.append(
-            _kv_table(
-                [
-                    ("metric", _text(gap.get("metric_name") or gap.get("metric"))),
-                    (
-                        "gap before / after",
-                        f"{_num(gap.get('before'))} / {_num(gap.get('after'))}",
-                    ),
-                    ("shrink", f"{_num(gap.get('shrink_pct'), '.0f')} %"),
-                    ("most likely effect", f"<strong>{_text(gap.get('effect'))}</strong>"),
-                    ("runner-up", _text(gap.get("runner_up"))),
-                    ("margin", _num(gap.get("margin"))),
-                ]
-            )
-        )
-        cands = gap.get("candidates") or []
-        if cands:
-            parts.append(
-                "<table><tr><th>candidate effect</th><th>gap after</th><th>shrink %</th>"
-                "<th>parameters</th></tr>"
-                + "".join(
-                    f"<tr><td>{_text(c.get('effect'))}</td><td class='num'>{_num(c.get('after'))}</td>"
-                    f"<td class='num'>{_num(c.get('shrink_pct'), '.0f')}</td>"
-                    f"<td>{_param_text(c.get('params'))}</td></tr>"
-                    for c in cands
-                )
-                + "</table>"
-            )
-        parts.append(_json_details("gap breakdown", gap.get("breakdown")))
-    elif gap is None and rep:
-        parts.append("<p>Not run.</p>")
-    else:
-        parts.append("<p>Not run (needs the reconstruction).</p>")
-    for name, png in images.items():
-        if name not in ("phase", "reconstruction"):
-            parts.append(_figure(name, png))
+    if "valve_zoom" in images:
+        parts += [
+            '<h2 id="valve-signature">Valve signature: S and J on the mv&ndash;op plot</h2>',
+            _figure("valve_zoom", images["valve_zoom"]),
+        ]
+    parts += _replay_section(d.get("replay") or None, images)
+    parts += _gap_section(d.get("gap") or None, bool(d.get("replay")), images)
     return html_page(f"stiction: {d.get('loop')}", "\n".join(p for p in parts if p))
 
 
@@ -451,6 +544,15 @@ def sort_key(r: dict):
     conf = float(conf) if isinstance(conf, int | float) and math.isfinite(conf) else 0.0
     # Stiction first, most confident first: the maintenance order.
     return (_VERDICT_RANK.get(v, 2), -conf if v == "stiction" else 0.0, str(r.get("loop")))
+
+
+def _probability(r: dict):
+    """P(stiction) of an index row; rows from before the probability was recorded
+    carry only the confidence, which is P itself for a stiction verdict."""
+    p = r.get("probability")
+    if p is None and r.get("verdict") == "stiction":
+        return r.get("confidence")
+    return p
 
 
 def _counts(rows: Sequence[dict]) -> str:
@@ -473,7 +575,7 @@ def _value_interval(v, lo, hi) -> str:
 def render_index_html(rows: Sequence[dict]) -> str:
     """Index page over all loops of a report (stiction first, most confident first)."""
     head = (
-        "<tr><th>loop</th><th>verdict</th><th>confidence</th><th>S [%] (interval)</th>"
+        "<tr><th>loop</th><th>verdict</th><th>P(stiction)</th><th>S [%] (interval)</th>"
         "<th>J [%] (interval)</th><th>period [s]</th><th>gap effect</th><th>warnings</th></tr>"
     )
     body = []
@@ -493,7 +595,7 @@ def render_index_html(rows: Sequence[dict]) -> str:
         body.append(
             f"<tr><td>{cell}</td>"
             f"<td><span class='verdict {v_class}'>{_text(v.replace('_', ' '))}</span></td>"
-            f"<td class='num'>{_num(r.get('confidence'), '.2f')}</td>"
+            f"<td class='num'>{_num(_probability(r), '.2f')}</td>"
             f"<td class='num'>{_value_interval(r.get('S'), r.get('S_lo'), r.get('S_hi'))}</td>"
             f"<td class='num'>{_value_interval(r.get('J'), r.get('J_lo'), r.get('J_hi'))}</td>"
             f"<td class='num'>{_num(r.get('period_s'), '.4g')}</td>"
@@ -505,7 +607,9 @@ def render_index_html(rows: Sequence[dict]) -> str:
         f"<table>{head}{''.join(body)}</table>"
         '<p class="muted">S: deadband + stickband, J: slip jump, both in % of the valve '
         "span (Choudhury, Thornhill &amp; Shah 2005); in parentheses the interval of values "
-        "the data cannot tell apart from the estimate.</p>"
+        "the data cannot tell apart from the estimate. P(stiction): the calibrated "
+        f"probability of stiction; the verdict is stiction above {STICTION_LEVEL:g}, "
+        f"no stiction below {NO_STICTION_LEVEL:g}, inconclusive between.</p>"
     )
     return html_page("stiction report", body_html)
 
@@ -517,7 +621,7 @@ def render_markdown(rows: Sequence[dict]) -> str:
         "",
         _counts(rows) + ".",
         "",
-        "| loop | verdict | confidence | S [%] | J [%] | gap effect | warnings |",
+        "| loop | verdict | P(stiction) | S [%] | J [%] | gap effect | warnings |",
         "|---|---|---|---|---|---|---|",
     ]
     failed = []
@@ -531,7 +635,7 @@ def render_markdown(rows: Sequence[dict]) -> str:
         j_iv = _value_interval(r.get("J"), r.get("J_lo"), r.get("J_hi")).replace("&ndash;", "-")
         lines.append(
             f"| {md_escape(r.get('loop'))} | {md_escape(v.replace('_', ' '))} | "
-            f"{_num(r.get('confidence'), '.2f')} | {md_escape(s_iv)} | {md_escape(j_iv)} | "
+            f"{_num(_probability(r), '.2f')} | {md_escape(s_iv)} | {md_escape(j_iv)} | "
             f"{md_escape(r.get('gap_effect') or '')} | {int(r.get('n_warnings') or 0)} |"
         )
     if failed:

@@ -23,6 +23,7 @@ from stictiondiag.plotting.canvas import (
 _BEFORE = "tab:orange"
 _AFTER = "tab:green"
 _DATA = "0.25"
+_UNITS = {"pv": "pv units", "op": "% of span", "mv": "% of span"}
 
 
 def _bars(ax, labels, before, after, title, ylabel):
@@ -51,18 +52,31 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     Figure
     """
     b = diagnosis.breakdown
+    # Only the panels with something to show, in reading order; the summary text
+    # takes the last cell and a cell left over is removed (no empty panels).
+    panels = [lambda ax: _signal_panel(ax, b.get("signal", {}))]
+    if b.get("phase"):
+        panels.append(lambda ax: _phase_panel(ax, b.get("phase")))
+    if any(s in (b.get("frequency") or {}) for s in ("mv", "pv", "op")):
+        panels.append(lambda ax: _frequency_panel(ax, b.get("frequency", {})))
+    if b.get("time"):
+        panels.append(lambda ax: _time_panel(ax, b.get("time", {})))
+    if diagnosis.candidates:
+        panels.append(lambda ax: _candidates_panel(ax, diagnosis))
     fig, axes = new_figure(2, 3, (14, 7.5))
-    _signal_panel(axes[0, 0], b.get("signal", {}))
-    _phase_panel(axes[0, 1], b.get("phase"))
-    _frequency_panel(axes[0, 2], b.get("frequency", {}))
-    _time_panel(axes[1, 0], b.get("time", {}))
-    _candidates_panel(axes[1, 1], diagnosis)
-    ax = axes[1, 2]
+    cells = list(axes.flat)
+    for draw, ax in zip(panels, cells, strict=False):
+        draw(ax)
+    ax = cells[len(panels)]
     ax.set_axis_off()
     summary = _summary(diagnosis)
     ax.text(0.0, 1.0, summary, va="top", family="monospace", fontsize=8, transform=ax.transAxes)
+    for spare in cells[len(panels) + 1 :]:
+        spare.set_axis_off()
     fig.suptitle(title or "Sim-to-real gap: where the replay departs from the data")
     _breakdown_layout(fig, axes, text_width(summary, 8, "monospace"))
+    for spare in cells[len(panels) + 1 :]:
+        fig.delaxes(spare)
     return fig
 
 
@@ -257,7 +271,7 @@ def plot_gap_replay(diagnosis, *, window: int | None = None, title: str | None =
                 lw=0.8,
                 label=f"with {diagnosis.effect}",
             )
-        ax.set_ylabel(name)
+        ax.set_ylabel(f"{name} [{_UNITS[name]}]")
         ax.legend(fontsize=7, loc="upper right")
         ax2 = axes[i, 1]
         if name == "mv":
@@ -275,6 +289,8 @@ def plot_gap_replay(diagnosis, *, window: int | None = None, title: str | None =
             if diagnosis.effect != "none":
                 ax2.plot(*decimate(t[sl], r1), color=_AFTER, lw=0.6, label="after")
             ax2.set_title(f"{name} replay error", fontsize=9)
+            ax2.set_xlabel("time [s]")
+            ax2.set_ylabel(f"data - replay [{_UNITS[name]}]")
         ax2.legend(fontsize=7)
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(

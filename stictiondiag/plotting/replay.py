@@ -38,7 +38,27 @@ def _default_window(replay) -> float:
     return min(duration, 8.0 * period)
 
 
-def plot_replay(replay, *, window: float | None = None, title: str | None = None) -> Figure:
+def _signal_title(name: str, replay, metrics: dict | None) -> str:
+    """Panel title: amplitude error and waveform agreement from ``metrics``
+    (:mod:`stictiondiag.replay.metrics`), else the replay's fit and waveform."""
+    if metrics:
+        err = (metrics.get("amplitude_error_pct") or {}).get(name)
+        wave = (metrics.get("waveform") or {}).get(name)
+        amp = "n/a" if err is None else f"{err:+.0f} %"
+        return f"{name}: amplitude {amp}, waveform agreement {_fmt(wave, '.2f')}"
+    return (
+        f"{name}: fit {_fmt(replay.fit.get(name), '.0f')} %, "
+        f"waveform {_fmt(replay.waveform.get(name), '.3f')}"
+    )
+
+
+def plot_replay(
+    replay,
+    *,
+    window: float | None = None,
+    title: str | None = None,
+    metrics: dict | None = None,
+) -> Figure:
     """Overlay of a :class:`~stictiondiag.replay.closed_loop.Replay` and the recorded data.
 
     Parameters
@@ -51,6 +71,9 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
         use the whole record.
     title : str, optional
         Figure title; default names S, J, the periods and the pv fit.
+    metrics : dict, optional
+        ``ReplayMetrics.to_dict()`` (:mod:`stictiondiag.replay.metrics`): the panels
+        then show period error, amplitude error and waveform agreement.
 
     Returns
     -------
@@ -78,22 +101,14 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
     trend(ax, data["pv"], label="pv data", **DATA_STYLE)
     trend(ax, replay.pv, label="pv replay", **REPLAY_STYLE)
     ax.set_ylabel("pv [pv units]")
-    ax.set_title(
-        f"pv: fit {_fmt(replay.fit.get('pv'), '.0f')} %, "
-        f"waveform {_fmt(replay.waveform.get('pv'), '.3f')}",
-        fontsize=9,
-    )
+    ax.set_title(_signal_title("pv", replay, metrics), fontsize=9)
     ax.legend(loc="upper right", fontsize=7, ncol=3)
 
     ax = axes[1, 0]
     trend(ax, data["op"], label="op data", **DATA_STYLE)
     trend(ax, replay.op, label="op replay", **REPLAY_STYLE)
     ax.set_ylabel("op [% of span]")
-    ax.set_title(
-        f"op: fit {_fmt(replay.fit.get('op'), '.0f')} %, "
-        f"waveform {_fmt(replay.waveform.get('op'), '.3f')}",
-        fontsize=9,
-    )
+    ax.set_title(_signal_title("op", replay, metrics), fontsize=9)
     ax.legend(loc="upper right", fontsize=7, ncol=2)
 
     ax = axes[2, 0]
@@ -103,11 +118,7 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
     ax.set_ylabel("mv [% of span]")
     ax.set_xlabel("time [s]")
     if "mv" in replay.fit:
-        ax.set_title(
-            f"mv: fit {_fmt(replay.fit.get('mv'), '.0f')} %, "
-            f"waveform {_fmt(replay.waveform.get('mv'), '.3f')}",
-            fontsize=9,
-        )
+        ax.set_title(_signal_title("mv", replay, metrics), fontsize=9)
     ax.legend(loc="upper right", fontsize=7, ncol=2)
 
     ax = axes[0, 1]
@@ -126,12 +137,12 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
     ax.plot(data["op"], data["pv"], label="data", **DATA_STYLE)
     ax.plot(replay.op, replay.pv, label="replay", **REPLAY_STYLE)
     ax.set_xlabel("op [% of span]")
-    ax.set_ylabel("pv")
+    ax.set_ylabel("pv [pv units]")
     ax.set_title("pv-op", fontsize=9)
 
     ax = axes[2, 1]
     ax.axis("off")
-    summary = _summary(replay)
+    summary = _summary(replay, metrics)
     ax.text(0.0, 1.0, summary, va="top", ha="left", fontsize=8, family="monospace")
 
     if title is None:
@@ -141,8 +152,9 @@ def plot_replay(replay, *, window: float | None = None, title: str | None = None
     return fig
 
 
-def _summary(replay) -> str:
-    """The text of the last panel: valve, controller, process, periods, amplitudes."""
+def _summary(replay, metrics: dict | None = None) -> str:
+    """The text of the last panel: valve, controller, process, periods, amplitudes
+    (by the one measure of ``metrics`` for data and replay, when given)."""
     proc, ctrl = replay.process, replay.controller
     lines = [
         f"valve: S = {replay.S:.3g} %, J = {replay.J:.3g} %",
@@ -164,7 +176,11 @@ def _summary(replay) -> str:
         f"period [s]: data {_fmt(replay.period_s.get('data'))}, "
         f"replay {_fmt(replay.period_s.get('replay'))} ({replay.period_signal})"
     )
-    for name, amp in replay.amplitude.items():
+    if metrics:
+        per = metrics.get("period_error_pct")
+        lines.append(f"period error: {'n/a' if per is None else format(per, '+.0f') + ' %'}")
+    amplitudes = (metrics or {}).get("amplitude") or replay.amplitude
+    for name, amp in amplitudes.items():
         lines.append(
             f"amplitude {name}: data {_fmt(amp.get('data'))}, replay {_fmt(amp.get('replay'))}"
         )

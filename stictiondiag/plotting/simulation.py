@@ -63,7 +63,7 @@ def plot_simulation(sim, *, last: float | None = None, title: str | None = None)
     ax.plot(t, op, lw=0.8, color="0.3", label="op")
     ax.plot(t, mv, lw=1.6, color="tab:red", label="mv")
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("[% of span]")
+    ax.set_ylabel("op, mv [% of span]")
     ax.legend(loc="upper right", fontsize=8)
 
     ax = axes[0, 1]
@@ -77,7 +77,7 @@ def plot_simulation(sim, *, last: float | None = None, title: str | None = None)
     ax = axes[1, 1]
     ax.plot(op, pv, lw=0.8, color="tab:blue")
     ax.set_xlabel("op [% of span]")
-    ax.set_ylabel("pv")
+    ax.set_ylabel("pv [pv units]")
     ax.set_title("pv-op", fontsize=9)
 
     fig.suptitle(title if title is not None else _title(sim.settings), fontsize=10)
