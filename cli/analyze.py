@@ -44,14 +44,6 @@ def check_outputs(out: Path | None, json_path: str | None, file: Path | None = N
     check_output_file("--json", json_path, inputs)
 
 
-def with_findings(d: dict) -> dict:
-    """``d`` with its findings in words (:mod:`stictiondiag.apps.findings`) under
-    ``"findings"``."""
-    from stictiondiag.apps.findings import findings_from_dict
-
-    return {**d, "findings": findings_from_dict(d).to_dict()}
-
-
 def _fmt(x, spec=".2f", none="n/a") -> str:
     return none if x is None else format(x, spec)
 
@@ -131,6 +123,8 @@ def analyze(
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
         info(f"analysing {file} ...")
         result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
+        from stictiondiag.apps.findings import with_findings
+
         d = with_findings(result.to_dict())
         emit(d, render_summary(d), json_path)
         if out is not None:

@@ -353,3 +353,8 @@ def findings_from_dict(d: dict) -> Findings:
         gap=_gap(d),
         limits=tuple(_limits(d, st, poorly)),
     )
+
+
+def with_findings(d: dict) -> dict:
+    """``d`` with its findings in words under ``"findings"`` (for the JSON files)."""
+    return {**d, "findings": findings_from_dict(d).to_dict()}
