@@ -226,6 +226,7 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
         AnalysisConfig,
         analyze_file,
     )
+    from stictiondiag.apps.findings import with_findings
 
     path, name = source
     loop = _display_name(path, name)
@@ -233,6 +234,7 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
         result = analyze_file(path, config=AnalysisConfig(gap=gap), **read_options)
         d = result.to_dict()
         d["loop"] = loop
+        d = with_findings(d)
         from stictiondiag.plotting import figure_png
 
         images = {k: figure_png(fig) for k, fig in result.figures().items()}
