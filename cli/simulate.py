@@ -126,6 +126,51 @@ def render_summary(loop: str, summary: dict) -> str:
     return "\n".join(lines)
 
 
+def valve_options(valve: str, S: str | None, J: str | None, case: str, friction: dict):
+    """S and J [% of span] and the physical valve (or None) from the options.
+
+    ``--S``/``--J`` belong to the data-driven valves and ``--Fs``/``--Fc``/``--Fv``/
+    ``--calibration`` (``friction``, option name without dashes -> text or None) to
+    the physical one: given to the other kind of valve they are refused, not
+    ignored.
+
+    Raises
+    ------
+    UsageError
+        A value is not a number or out of range, or an option does not apply to
+        the valve.
+    """
+    from stictiondiag.models import physical
+
+    s_value = _float("--S", "5" if S is None else S, minimum=0.0)
+    j_value = _float("--J", "2" if J is None else J, minimum=0.0)
+    sj_given = [opt for opt, text in (("--S", S), ("--J", J)) if text is not None]
+    if sj_given and valve in ("physical", "linear"):
+        hint = (
+            "set the friction with --Fs/--Fc/--Fv/--calibration or --case "
+            "(the summary shows its quasi-static S and J)"
+            if valve == "physical"
+            else "use --valve datadriven or kano for a sticky valve"
+        )
+        raise UsageError(
+            f"{'/'.join(sj_given)} {'apply' if len(sj_given) > 1 else 'applies'} to the "
+            f"data-driven valves (datadriven, kano), not to --valve {valve}: {hint}"
+        )
+    given = [f"--{name}" for name, text in friction.items() if text is not None]
+    if given and valve != "physical":
+        raise UsageError(f"{', '.join(given)} apply to --valve physical only")
+    if valve != "physical":
+        return s_value, j_value, None
+    overrides = {
+        name: _float(f"--{name}", friction[name], minimum=0.0)
+        for name in ("Fs", "Fc", "Fv")
+        if friction.get(name) is not None
+    }
+    if friction.get("calibration") is not None:
+        overrides["calibration"] = _float("--calibration", friction["calibration"], positive=True)
+    return s_value, j_value, physical.PhysicalValve.from_case(case, **overrides)
+
+
 @app.command()
 def simulate(
     S: Annotated[
@@ -239,7 +284,7 @@ def simulate(
         atomic_path,
         write_atomic,
     )
-    from stictiondiag.models import loops, physical, processes
+    from stictiondiag.models import loops, processes
 
     with friendly_errors():
         check_output_file("--plot", plot, figure=True)
@@ -261,42 +306,11 @@ def simulate(
             "seed": seed,
             "kick": _float("--kick", kick),
         }
-        s_value = _float("--S", "5" if S is None else S, minimum=0.0)
-        j_value = _float("--J", "2" if J is None else J, minimum=0.0)
-        sj_given = [opt for opt, text in (("--S", S), ("--J", J)) if text is not None]
-        if sj_given and valve in ("physical", "linear"):
-            hint = (
-                "set the friction with --Fs/--Fc/--Fv/--calibration or --case "
-                "(the summary shows its quasi-static S and J)"
-                if valve == "physical"
-                else "use --valve datadriven or kano for a sticky valve"
-            )
-            raise UsageError(
-                f"{'/'.join(sj_given)} {'apply' if len(sj_given) > 1 else 'applies'} to the "
-                "data-driven valves (datadriven, kano), "
-                f"not to --valve {valve}: {hint}"
-            )
-        given = [
-            opt
-            for opt, text in (
-                ("--Fs", Fs),
-                ("--Fc", Fc),
-                ("--Fv", Fv),
-                ("--calibration", calibration),
-            )
-            if text is not None
-        ]
-        if given and valve != "physical":
-            raise UsageError(f"{', '.join(given)} apply to --valve physical only")
-        if valve == "physical":
-            overrides = {
-                name: _float(f"--{name}", text, minimum=0.0)
-                for name, text in (("Fs", Fs), ("Fc", Fc), ("Fv", Fv))
-                if text is not None
-            }
-            if calibration is not None:
-                overrides["calibration"] = _float("--calibration", calibration, positive=True)
-            kwargs["physical"] = physical.PhysicalValve.from_case(case, **overrides)
+        s_value, j_value, physical_valve = valve_options(
+            valve, S, J, case, {"Fs": Fs, "Fc": Fc, "Fv": Fv, "calibration": calibration}
+        )
+        if physical_valve is not None:
+            kwargs["physical"] = physical_valve
         sim = loops.simulate_paper_loop(loop_name, s_value, j_value, **kwargs)
         summary = sim.summary()
         stuck = stuck_valve_warning(sim, s_value)

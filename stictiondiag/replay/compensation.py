@@ -173,6 +173,35 @@ def _trial(
     return True, offset, settle
 
 
+def _search(try_band, amplitude: float):
+    """Coarse grid of :data:`BAND_GRID` amplitudes up to the first band that stops
+    the cycle, then :data:`BISECTION_STEPS` halvings below it.  Returns the trials
+    ``[(band, stopped)]`` and ``(band, offset, settle)`` of the smallest band that
+    stopped it, or None."""
+    trials: list[tuple[float, bool]] = []
+    found: tuple[float, float, float] | None = None
+    below = 0.0
+    for factor in BAND_GRID:
+        band = factor * amplitude
+        stopped, offset, settle = try_band(band)
+        trials.append((band, stopped))
+        if stopped:
+            found = (band, offset, settle)
+            break
+        below = band
+    if found is not None:
+        lo, hi = below, found[0]
+        for _ in range(BISECTION_STEPS):
+            mid = 0.5 * (lo + hi)
+            stopped, offset, settle = try_band(mid)
+            trials.append((mid, stopped))
+            if stopped:
+                hi, found = mid, (mid, offset, settle)
+            else:
+                lo = mid
+    return trials, found
+
+
 def compensate(
     process: FOPTD | Integrating,
     controller: PI,
@@ -272,27 +301,7 @@ def compensate(
         return Compensation(False, "the fitted loop's pv cycle has no amplitude")
     warm = WARM_CYCLES * per
     phases = tuple(int(k * per / N_PHASES) for k in range(N_PHASES))
-    trials: list[tuple[float, bool]] = []
-    found: tuple[float, float, float] | None = None
-    below = 0.0
-    for factor in BAND_GRID:
-        band = factor * amplitude
-        stopped, offset, settle = _trial(run, band, n, warm, per, phases)
-        trials.append((band, stopped))
-        if stopped:
-            found = (band, offset, settle)
-            break
-        below = band
-    if found is not None:
-        lo, hi = below, found[0]
-        for _ in range(BISECTION_STEPS):
-            mid = 0.5 * (lo + hi)
-            stopped, offset, settle = _trial(run, mid, n, warm, per, phases)
-            trials.append((mid, stopped))
-            if stopped:
-                hi, found = mid, (mid, offset, settle)
-            else:
-                lo = mid
+    trials, found = _search(lambda band: _trial(run, band, n, warm, per, phases), amplitude)
     common = {
         "amplitude": amplitude,
         "period_s": float(cycle.period_s),
