@@ -44,6 +44,18 @@ def check_outputs(out: Path | None, json_path: str | None, file: Path | None = N
     check_output_file("--json", json_path, inputs)
 
 
+def _param(st: dict, sym: str) -> str:
+    """``5 % of op span (interval 4.98-5.01; 1.64 scaled)``, poorly determined
+    values marked as such (:func:`stictiondiag.apps.findings.param_note`)."""
+    from stictiondiag.apps.findings import param_note
+
+    value = st.get(sym)
+    text = "n/a" if value is None else f"{value:.3g} % of op span"
+    note = param_note(st, sym)
+    scaled = f"{_fmt(st.get(f'{sym}_scaled'))} scaled"
+    return f"{text} ({note}; {scaled})" if note else f"{text} ({scaled})"
+
+
 def _fmt(x, spec=".2f", none="n/a") -> str:
     return none if x is None else format(x, spec)
 
@@ -55,7 +67,7 @@ def render_summary(d: dict) -> str:
     determined S or J says so next to its value, the replay is read by period,
     amplitude and waveform agreement, and the findings in words close the summary.
     """
-    from stictiondiag.apps.findings import findings_from_dict, param_text, probability_text
+    from stictiondiag.apps.findings import findings_from_dict, probability_text
     from stictiondiag.replay.metrics import render_metrics
 
     st, tg = d["stiction"], d["tags"]
@@ -65,10 +77,8 @@ def render_summary(d: dict) -> str:
         f"loop        {d['loop']}  ({tg['loop_type']} [{source}], {tg['n_samples']} samples at "
         f"{tg['ts_s']:g} s, {'with' if tg['has_mv'] else 'no'} mv)",
         f"verdict     {st.get('status', '?').upper().replace('_', ' ')}  ({probability_text(st)})",
-        f"S           {param_text(st, 'S', unit=' % of op span')}  "
-        f"({_fmt(st.get('S_scaled'))} scaled)",
-        f"J           {param_text(st, 'J', unit=' % of op span')}  "
-        f"({_fmt(st.get('J_scaled'))} scaled)",
+        f"S           {_param(st, 'S')}",
+        f"J           {_param(st, 'J')}",
         f"method      {st.get('method')}",
         "oscillation "
         + (

@@ -202,6 +202,8 @@ class Analysis:
             "S_hi": s_int[1],
             "J_lo": j_int[0],
             "J_hi": j_int[1],
+            "S_determinacy": ((st.get("details") or {}).get("determinacy") or {}).get("S"),
+            "J_determinacy": ((st.get("details") or {}).get("determinacy") or {}).get("J"),
             "method": st.get("method"),
             "replay_fit_pv": (rep.get("fit") or {}).get("pv"),
             "replay_period_error_pct": (rep.get("metrics") or {}).get("period_error_pct"),
@@ -272,7 +274,7 @@ class Analysis:
     def _valve_zoom_builder(self) -> Callable[[], Figure] | None:
         """The ``valve_zoom`` figure's builder, None without a valve signal or a
         finite S and J."""
-        from stictiondiag.plotting.valve import plot_valve_zoom
+        from stictiondiag.plotting.valve import plot_valve_zoom, poorly_determined
 
         tags, fit = self.tags, self.fit
         model = tags.mv is None
@@ -288,6 +290,7 @@ class Analysis:
             J=float(fit.J),
             period_s=period,
             model=model,
+            poorly=[sym for sym in ("S", "J") if poorly_determined(fit, sym)],
             title=f"{self.loop}: valve signature (Fig. 10)",
         )
 

@@ -187,3 +187,25 @@ def test_valve_zoom_draws_S_and_J_at_a_slip():
     # No slip as large as half of J: the figure says so instead of drawing arrows.
     fig = plot_valve_zoom(op, op, ts=0.1, S=5.0, J=2.0, period_s=50.0)
     assert not [a for a in fig.axes[0].texts if getattr(a, "arrow_patch", None) is not None]
+
+
+def test_poorly_determined_parameters_are_marked_on_the_figures():
+    from types import SimpleNamespace
+
+    from stictiondiag.plotting.valve import plot_valve_zoom, poorly_determined
+
+    fit = SimpleNamespace(
+        S=0.5,
+        J=5.78,
+        S_interval=(0.0, 1.7),
+        J_interval=(2.89, 5.78),
+        details={"determinacy": {"S": "well determined", "J": "poorly determined (search)"}},
+    )
+    assert [s for s in ("S", "J") if poorly_determined(fit, s)] == ["J"]
+    zero = SimpleNamespace(S=0.0, S_interval=(0.0, 0.0), details={"determinacy": {"S": "poorly"}})
+    assert not poorly_determined(zero, "S")  # pinned at zero by the data
+    t = np.arange(0, 300, 0.1)
+    op = 50 + 10 * np.sin(2 * np.pi * t / 50)
+    fig = plot_valve_zoom(op, op, ts=0.1, S=0.5, J=5.78, period_s=50.0, poorly=["J"])
+    texts = " ".join(t.get_text() for t in fig.axes[0].texts)
+    assert "J = 5.78 % (poorly determined)" in texts and "S = 0.5 %," in texts

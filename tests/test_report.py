@@ -264,3 +264,28 @@ def _png_size(png: bytes) -> tuple[int, int]:
     """Width and height from a PNG's IHDR chunk."""
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     return int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+
+
+def test_index_and_markdown_mark_poorly_determined_parameters():
+    rows = [
+        {
+            "loop": "LIC200",
+            "verdict": "inconclusive",
+            "probability": 0.55,
+            "confidence": 0.55,
+            "S": 0.5,
+            "S_lo": 0.0,
+            "S_hi": 1.7,
+            "S_determinacy": "moderately determined",
+            "J": 5.78,
+            "J_lo": 2.89,
+            "J_hi": 5.78,
+            "J_determinacy": "poorly determined (interval reaches the search limit)",
+        }
+    ]
+    html = render_index_html(rows)
+    assert '5.78 (2.89&ndash;5.78) <span class="poor"' in html
+    assert html.count('class="poor"') == 1  # J only
+    assert "<th>P(stiction)</th>" in html and "0.55" in html
+    md = render_markdown(rows)
+    assert r"5.78 \(2.89-5.78\) poorly determined" in md and "P(stiction)" in md

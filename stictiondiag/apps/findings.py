@@ -270,11 +270,17 @@ def _compensation(status: str, d: dict) -> str:
             "a variable-integral PI (Section 6.4) does not stop the cycle of the fitted "
             f"loop: {comp.get('reason')}"
         )
+    offset, amplitude = comp.get("offset_pv"), comp.get("amplitude_pv")
+    share = (
+        f", {100 * offset / amplitude:.0f} % of the cycle's amplitude"
+        if isinstance(offset, int | float) and isinstance(amplitude, int | float) and amplitude > 0
+        else ""
+    )
     return (
         f"meanwhile a variable-integral band of {_num(band, '.3g')} pv units "
         f"({_num(comp.get('band_pct_of_amplitude'), '.0f')} % of the cycle's pv "
-        f"amplitude) stops the cycle at an offset of {_num(comp.get('offset_pv'), '.3g')} "
-        "pv units (at most the band), simulated on the fitted loop (Section 6.4)"
+        f"amplitude) stops the cycle at an offset of {_num(offset, '.3g')} pv units"
+        f"{share} (at most the band), simulated on the fitted loop (Section 6.4)"
     )
 
 

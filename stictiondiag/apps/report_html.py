@@ -572,6 +572,26 @@ def _value_interval(v, lo, hi) -> str:
     return f"{_num(v)} ({_num(lo)}&ndash;{_num(hi)})"
 
 
+def _row_poorly(r: dict, sym: str) -> bool:
+    """An index row's ``sym`` is poorly determined (``<sym>_determinacy``)."""
+    st = {
+        sym: r.get(sym),
+        f"{sym}_interval": [r.get(f"{sym}_lo"), r.get(f"{sym}_hi")],
+        "details": {"determinacy": {sym: r.get(f"{sym}_determinacy")}},
+    }
+    return is_poorly_determined(st, sym)
+
+
+def _row_param(r: dict, sym: str, *, html: bool = True) -> str:
+    """Value (interval) of an index row, marked when poorly determined."""
+    text = _value_interval(r.get(sym), r.get(f"{sym}_lo"), r.get(f"{sym}_hi"))
+    if not _row_poorly(r, sym):
+        return text
+    if html:
+        return f'{text} <span class="poor" title="poorly determined">poorly determined</span>'
+    return f"{text} poorly determined"
+
+
 def render_index_html(rows: Sequence[dict]) -> str:
     """Index page over all loops of a report (stiction first, most confident first)."""
     head = (
@@ -596,8 +616,8 @@ def render_index_html(rows: Sequence[dict]) -> str:
             f"<tr><td>{cell}</td>"
             f"<td><span class='verdict {v_class}'>{_text(v.replace('_', ' '))}</span></td>"
             f"<td class='num'>{_num(_probability(r), '.2f')}</td>"
-            f"<td class='num'>{_value_interval(r.get('S'), r.get('S_lo'), r.get('S_hi'))}</td>"
-            f"<td class='num'>{_value_interval(r.get('J'), r.get('J_lo'), r.get('J_hi'))}</td>"
+            f"<td class='num'>{_row_param(r, 'S')}</td>"
+            f"<td class='num'>{_row_param(r, 'J')}</td>"
             f"<td class='num'>{_num(r.get('period_s'), '.4g')}</td>"
             f"<td>{_text(r.get('gap_effect') or '')}</td>"
             f'<td title="{_text(r.get("flags") or "")}">{n_warn}</td></tr>'
@@ -631,8 +651,8 @@ def render_markdown(rows: Sequence[dict]) -> str:
             failed.append(r)
             lines.append(f"| {md_escape(r.get('loop'))} | failed | | | | | |")
             continue
-        s_iv = _value_interval(r.get("S"), r.get("S_lo"), r.get("S_hi")).replace("&ndash;", "-")
-        j_iv = _value_interval(r.get("J"), r.get("J_lo"), r.get("J_hi")).replace("&ndash;", "-")
+        s_iv = _row_param(r, "S", html=False).replace("&ndash;", "-")
+        j_iv = _row_param(r, "J", html=False).replace("&ndash;", "-")
         lines.append(
             f"| {md_escape(r.get('loop'))} | {md_escape(v.replace('_', ' '))} | "
             f"{_num(_probability(r), '.2f')} | {md_escape(s_iv)} | {md_escape(j_iv)} | "

@@ -147,7 +147,10 @@ def plot_phase(
         ax_p.set_aspect("equal", adjustable="datalim")
         label = "mv-op" if has_mv else "mv-op of the model (no mv recorded)"
         if fit is not None and np.isfinite(getattr(fit, "S", np.nan)):
-            label += f"\nS = {fit.S:.2f} %, J = {fit.J:.2f} % of span"
+            from stictiondiag.plotting.valve import poorly_determined, sj_label
+
+            poorly = [sym for sym in ("S", "J") if poorly_determined(fit, sym)]
+            label += f"\n{sj_label(fit.S, fit.J, poorly)} of span"
         ax_p.set_title(label, fontsize=9)
         if has_mv and has_model:
             ax_p.legend(loc="best", fontsize=7, framealpha=0.85)

@@ -29,6 +29,30 @@ _S_COLOR = "tab:blue"
 _J_COLOR = "tab:red"
 
 
+def poorly_determined(fit, sym: str) -> bool:
+    """The fit's determinacy note calls ``sym`` poorly determined (``fit.details
+    ["determinacy"]``), unless estimate and interval are all zero (a zero estimate
+    cannot pass the estimator's width-to-value test; the data pin it at zero).
+    The same rule as :func:`stictiondiag.apps.findings.is_poorly_determined`."""
+    details = getattr(fit, "details", None) or {}
+    note = str((details.get("determinacy") or {}).get(sym) or "")
+    if not note.startswith("poorly"):
+        return False
+    iv = getattr(fit, f"{sym}_interval", None) or (None, None)
+    values = [getattr(fit, sym, None), *iv]
+    return not all(isinstance(v, int | float) and v == 0 for v in values)
+
+
+def _one_label(sym: str, value: float, poorly=()) -> str:
+    mark = " (poorly determined)" if sym in poorly else ""
+    return f"{sym} = {value:.3g} %{mark}"
+
+
+def sj_label(S: float, J: float, poorly=()) -> str:
+    """``S = 5 %, J = 5.78 % (poorly determined)`` for figure titles."""
+    return f"{_one_label('S', S, poorly)}, {_one_label('J', J, poorly)}"
+
+
 def zoom_window(n: int, ts: float, period_s: float | None) -> slice:
     """The last :data:`ZOOM_CYCLES` cycles of the record (or its last
     :data:`ZOOM_DEFAULT` samples when it does not cycle)."""
@@ -78,6 +102,7 @@ def plot_valve_zoom(
     J: float,
     period_s: float | None = None,
     model: bool = False,
+    poorly=(),
     title: str | None = None,
 ) -> Figure:
     """mv against op over the last few cycles, with S and J drawn as in Fig. 10.
@@ -95,6 +120,9 @@ def plot_valve_zoom(
         Oscillation period [s]; sets the window to :data:`ZOOM_CYCLES` cycles.
     model : bool
         ``mv`` is the model's (no mv recorded): said in the title and legend.
+    poorly : sequence of str
+        Parameters (``"S"``, ``"J"``) the data determine poorly: marked so on the
+        figure.
     title : str, optional
         Figure title.
 
@@ -127,7 +155,7 @@ def plot_valve_zoom(
         ax.text(
             0.02,
             0.98,
-            f"S = {S:.3g} %, J = {J:.3g} % (no slip of J in this window)",
+            f"{sj_label(S, J, poorly)} (no slip of J in this window)",
             transform=ax.transAxes,
             va="top",
             fontsize=8,
