@@ -171,8 +171,8 @@ def param_note(st: dict, sym: str) -> str:
     """How well ``sym`` is known, in words: ``interval 4.98-5.01``,
     ``moderately determined: interval ...`` or ``poorly determined: interval
     2.89-5.78 at the search edge`` ('' without an interval)."""
-    iv = st.get(f"{sym}_interval")
-    have_iv = bool(iv) and len(iv) == 2 and None not in iv
+    iv = list(st.get(f"{sym}_interval") or [])
+    have_iv = len(iv) == 2 and None not in iv
     iv_text = f"interval {_fmt(iv[0])}\u2013{_fmt(iv[1])}" if have_iv else "no interval"
     note = determinacy(st, sym)
     if is_poorly_determined(st, sym):

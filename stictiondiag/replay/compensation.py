@@ -302,16 +302,14 @@ def compensate(
     warm = WARM_CYCLES * per
     phases = tuple(int(k * per / N_PHASES) for k in range(N_PHASES))
     trials, found = _search(lambda band: _trial(run, band, n, warm, per, phases), amplitude)
-    common = {
-        "amplitude": amplitude,
-        "period_s": float(cycle.period_s),
-        "trials": tuple(trials),
-    }
+    period = float(cycle.period_s)
     if found is None:
         return Compensation(
             True,
             f"no band up to {BAND_GRID[-1]:g} times the cycle's pv amplitude stops the cycle",
-            **common,
+            amplitude=amplitude,
+            period_s=period,
+            trials=tuple(trials),
         )
     band, offset, settle = found
     return Compensation(
@@ -321,8 +319,10 @@ def compensate(
         band=band,
         band_pct_of_amplitude=100.0 * band / amplitude,
         offset=offset,
+        amplitude=amplitude,
+        period_s=period,
         settle_s=settle * dt,
-        **common,
+        trials=tuple(trials),
     )
 
 
