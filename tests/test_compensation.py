@@ -102,3 +102,14 @@ def test_from_a_replay_of_simulated_data():
     assert c.band == pytest.approx(direct.band, rel=0.02)
     frame = c.to_pandas()
     assert list(frame.columns) == ["band", "stopped"] and frame["stopped"].any()
+
+
+def test_integrating_loop_with_a_slip_jump_is_not_stopped():
+    """Section 6.4 / Fig. 17: without the controller's integral, the level loop
+    (G = 1/s) still holds an integrator, and a slip jump keeps the cycle going: no
+    band up to the end of the grid stops it, and the reason says why."""
+    level = LOOP_PARAMETERS["level"]
+    c = compensate(level["process"], level["controller"], 3.0, 3.0, dt=0.1, period_s=9.6)
+    assert c.applicable and not c.stops_cycle
+    assert c.period_s == pytest.approx(9.6, rel=0.03)  # REFERENCE.md, Table 3 row
+    assert "integrator" in c.reason and all(not ok for _, ok in c.trials)

@@ -23,6 +23,12 @@ and the loop runs :data:`TEST_CYCLES` more periods.  The switch-on falls at
 every phase, the valve position does not move at all over the last
 :data:`STILL_CYCLES` periods (a stiction limit cycle cannot go on without slips).
 
+For an integrating process (a level loop) the scheme leaves the process's own
+integrator in the loop: with P action only, the open-loop phase still tends to
+``-pi/2`` minus the dead time's lag at low frequency, which can meet the ``-1/N``
+curve of a valve with a slip jump (Fig. 17, right).  The search then reports that
+no band stops the cycle, which is a finding, not a failure.
+
 The offset bound
 ----------------
 Suppose the valve has stopped for good and pv has settled, with control error
@@ -304,9 +310,16 @@ def compensate(
     trials, found = _search(lambda band: _trial(run, band, n, warm, per, phases), amplitude)
     period = float(cycle.period_s)
     if found is None:
+        why = (
+            "; the process integrates, so without the controller's integral the loop "
+            "still holds an integrator, which sustains the cycle of a slip jump "
+            "(Section 6.4, Fig. 17)"
+            if getattr(process, "kind", "") == "integrating"
+            else ""
+        )
         return Compensation(
             True,
-            f"no band up to {BAND_GRID[-1]:g} times the cycle's pv amplitude stops the cycle",
+            f"no band up to {BAND_GRID[-1]:g} times the cycle's pv amplitude stops the cycle{why}",
             amplitude=amplitude,
             period_s=period,
             trials=tuple(trials),
