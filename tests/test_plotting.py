@@ -209,3 +209,10 @@ def test_poorly_determined_parameters_are_marked_on_the_figures():
     fig = plot_valve_zoom(op, op, ts=0.1, S=0.5, J=5.78, period_s=50.0, poorly=["J"])
     texts = " ".join(t.get_text() for t in fig.axes[0].texts)
     assert "J = 5.78 % (poorly determined)" in texts and "S = 0.5 %," in texts
+    # On the arrows too, when the window holds a slip.
+    from stictiondiag.models.valve import choudhury_model
+
+    mv = choudhury_model(op, 5.0, 2.0)
+    fig = plot_valve_zoom(op, mv, ts=0.1, S=5.0, J=2.0, period_s=50.0, poorly=["J"])
+    labels = [a.get_text() for a in fig.axes[0].texts if a.get_text()]
+    assert labels == ["S = 5 %", "J = 2 % (poorly determined)"]

@@ -87,9 +87,10 @@ def _arrow(ax, start, end, color: str, text: str, offset) -> None:
         color=color,
         fontsize=9,
         fontweight="bold",
-        ha="center",
+        ha="center" if offset[0] == 0 else ("left" if offset[0] > 0 else "right"),
         va="center",
         zorder=6,
+        bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85},
     )
 
 
@@ -144,12 +145,10 @@ def plot_valve_zoom(
     if k is not None and S > 0:
         d = 1.0 if y[k] > y[k - 1] else -1.0
         stuck, slip_op = float(y[k - 1]), float(x[k])
-        _arrow(
-            ax, (slip_op - d * S, stuck), (slip_op, stuck), _S_COLOR, f"S = {S:.3g} %", (0, -11 * d)
-        )
-        _arrow(
-            ax, (slip_op, stuck), (slip_op, stuck + d * J), _J_COLOR, f"J = {J:.3g} %", (-30 * d, 0)
-        )
+        s_text, j_text = _one_label("S", S, poorly), _one_label("J", J, poorly)
+        # Labels on the side of the jump: inside the loop, away from the title.
+        _arrow(ax, (slip_op - d * S, stuck), (slip_op, stuck), _S_COLOR, s_text, (0, 11 * d))
+        _arrow(ax, (slip_op, stuck), (slip_op, stuck + d * J), _J_COLOR, j_text, (-6 * d, 0))
         note = "arrows at the largest slip of the window"
     else:
         ax.text(
