@@ -73,3 +73,25 @@ def test_replay_that_does_not_cycle():
     assert m.period_error_pct is None
     assert m.amplitude_error_pct["pv"] == pytest.approx(-100.0)
     assert render_metrics(m.to_dict()).startswith("period: the replay does not cycle")
+
+
+def test_sample_level_loop_amplitudes_are_compared_by_one_measure():
+    """Issue 18: on level_undershoot the op lines read "data 5.47, replay 2.73": the
+    drifting data op (not detected as oscillating) was measured by its whole range,
+    the replay's by its cycle.  By one measure the replay of the same valve (S = 5,
+    J = 2.5 in the file's generator) in the identified integrating loop matches op's
+    cycle within 10 % (its period is within 10 % too)."""
+    from pathlib import Path
+
+    from stictiondiag.analysis import AnalysisConfig, analyze_file
+
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "level_undershoot.csv"
+    a = analyze_file(
+        sample, config=AnalysisConfig(gap=False, compensation=False), loop_type="level"
+    )
+    m = replay_metrics(a.replay)
+    assert abs(m.period_error_pct) < 10.0
+    for name in ("pv", "op", "mv"):
+        assert abs(m.amplitude_error_pct[name]) < 10.0, (name, m.amplitude[name])
+    window = int(round(m.period_data_s / a.replay.dt))
+    assert m.amplitude["op"]["data"] == cycle_amplitude(a.replay.data["op"], window)
