@@ -91,6 +91,8 @@ from stictiondiag.core.errors import (
     UsageError,
 )
 from stictiondiag.io.columns import ROLES, match_columns, numeric_column
+from stictiondiag.io.looptype import resolve_loop_type
+from stictiondiag.io.opunits import check_op_units
 from stictiondiag.io.readers import read_table
 from stictiondiag.io.timebase import (
     # Longest run of missing samples [samples] that is linearly interpolated; longer
@@ -192,6 +194,12 @@ class Tags:
         True when the process integrates (level loops, Section 4.2.2, Table 3).
     warnings : tuple of str
         One-line notes about what reading changed (resampling, gaps, defaults).
+    loop_type_source : str
+        What decided ``loop_type`` and ``integrating``: ``"user"`` (given),
+        ``"tag"`` (ISA tag prefix, :mod:`stictiondiag.io.looptype`), ``"data"``
+        (:mod:`stictiondiag.identification.looptype`), ``"default"`` (nothing did:
+        self-regulating assumed), or ``"pending"`` (read without a loop type; the
+        data are still to decide).
     """
 
     time: np.ndarray
@@ -205,6 +213,7 @@ class Tags:
     loop_type: str = "other"
     integrating: bool = False
     warnings: tuple[str, ...] = ()
+    loop_type_source: str = "user"
 
     @property
     def n(self) -> int:
@@ -274,6 +283,7 @@ class Tags:
             "duration_s": float(self.duration),
             "loop_type": self.loop_type,
             "integrating": bool(self.integrating),
+            "loop_type_source": self.loop_type_source,
             "has_mv": self.mv is not None,
             "has_sp": self.sp is not None,
             "op_range_pct": [float(self.op.min()), float(self.op.max())],
@@ -283,7 +293,15 @@ class Tags:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Tags):
             return NotImplemented
-        scalars = ("ts", "names", "source", "loop_type", "integrating", "warnings")
+        scalars = (
+            "ts",
+            "names",
+            "source",
+            "loop_type",
+            "integrating",
+            "warnings",
+            "loop_type_source",
+        )
         if any(getattr(self, name) != getattr(other, name) for name in scalars):
             return False
         for name in ("time", "pv", "op", "mv", "sp"):
@@ -387,7 +405,7 @@ def read_tags(
     ts: float | None = None,
     op_units: str = "percent",
     op_range: tuple[float, float] | None = None,
-    loop_type: str = "other",
+    loop_type: str | None = None,
     integrating: bool | None = None,
 ) -> Tags:
     """Read one control loop from a CSV or Parquet file.
@@ -415,8 +433,13 @@ def read_tags(
         Raw op (and mv) values at 0 % and 100 % of span, in ``op_units``
         (default (0, 100) for percent, (4, 20) for mA). E.g. ``(0, 1)`` for a
         fraction, ``(0, 4095)`` for raw DAC counts.
-    loop_type : {"flow", "pressure", "level", "temperature", "composition", "other"}
-        Kind of loop; ``"level"`` implies an integrating process.
+    loop_type : {"flow", "pressure", "level", "temperature", "composition", "other"}, optional
+        Kind of loop; ``"level"`` implies an integrating process.  None: from the
+        ISA tag prefix of the pv, op and sp columns (``LIC101.PV`` -> level,
+        :mod:`stictiondiag.io.looptype`); when the names do not tell,
+        :attr:`Tags.loop_type_source` is ``"pending"`` and
+        :func:`stictiondiag.identification.looptype.settle_loop_type` (run by
+        :func:`stictiondiag.analysis.analyze`) lets the data decide.
     integrating : bool, optional
         Whether the process integrates; default: True for level loops only.
 
@@ -480,7 +503,7 @@ def read_frame(
     ts: float | None = None,
     op_units: str = "percent",
     op_range: tuple[float, float] | None = None,
-    loop_type: str = "other",
+    loop_type: str | None = None,
     integrating: bool | None = None,
 ) -> Tags:
     """Tags from a DataFrame already in memory, with the rules of :func:`read_tags`.
@@ -552,11 +575,11 @@ def _check_ts(ts: float) -> float:
 
 
 def _check_options(
-    op_units: str, op_range: tuple[float, float] | None, loop_type: str
+    op_units: str, op_range: tuple[float, float] | None, loop_type: str | None
 ) -> tuple[float, float]:
     if op_units not in OP_UNITS:
         raise UsageError(f"op_units must be 'percent' or 'mA', not {op_units!r}")
-    if loop_type not in LOOP_TYPES:
+    if loop_type is not None and loop_type not in LOOP_TYPES:
         raise UsageError(f"loop_type must be one of {', '.join(LOOP_TYPES)}, not {loop_type!r}")
     if op_range is None:
         return (4.0, 20.0) if op_units == "mA" else (0.0, 100.0)
@@ -690,7 +713,7 @@ def _assemble(
     source: str,
     op_units: str,
     op_range: tuple[float, float] | None,
-    loop_type: str,
+    loop_type: str | None,
     integrating: bool | None,
     notes: list[str],
 ) -> Tags:
@@ -727,17 +750,13 @@ def _assemble(
                 f"{role} {labels.get(role, role)!r}{where} is constant ({values[0]:g}): stiction "
                 f"needs a moving loop; pick a period when the loop was in automatic and cycling"
             )
+    check_op_units(arrays["op"], op_units, op_range, labels.get("op", "op"), where, notes)
     for role in ("op", "mv"):
         if role in arrays and (low, high) != (0.0, 100.0):
             arrays[role] = (arrays[role] - low) / (high - low) * 100.0
-    outside = (arrays["op"] < -5.0) | (arrays["op"] > 105.0)
-    if outside.mean() > 0.01:
-        notes.append(
-            f"op spans {arrays['op'].min():.4g} to {arrays['op'].max():.4g} % of span, beyond "
-            f"0-100 %: check op_units/op_range (S and J are reported in these units)"
-        )
-    if integrating is None:
-        integrating = loop_type == "level"
+    loop_type, integrating, decided_by = resolve_loop_type(
+        loop_type, integrating, [labels[r] for r in ("pv", "op", "sp") if r in labels], notes
+    )
     for values in arrays.values():
         values.setflags(write=False)
     time = ts * np.arange(n, dtype=float)
@@ -756,4 +775,5 @@ def _assemble(
         loop_type=loop_type,
         integrating=bool(integrating),
         warnings=tuple(notes),
+        loop_type_source=decided_by,
     )
