@@ -36,7 +36,7 @@ from dataclasses import replace
 from stictiondiag.core.errors import StictionError
 from stictiondiag.io.tags import Tags
 
-__all__ = ["R2_MARGIN", "StructureEvidence", "infer_integrating", "settle_loop_type"]
+__all__ = ["R2_MARGIN", "infer_integrating", "settle_loop_type"]
 
 #: Least R^2 advantage [-] of one structure over the other for the data to decide
 #: when both are consistent with negative feedback: one tenth of pv's variance,
