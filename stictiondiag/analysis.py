@@ -36,6 +36,7 @@ import numpy as np
 from stictiondiag.core.errors import DataError, StictionError
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.diagnose import GapDiagnosis, diagnose_gap
+from stictiondiag.identification.looptype import settle_loop_type
 from stictiondiag.io.tags import Tags, read_tags
 from stictiondiag.replay import Replay, replay
 from stictiondiag.replay.compensation import Compensation, compensation_from_replay
@@ -160,6 +161,7 @@ class Analysis:
                 "loop_type": tags.loop_type,
                 "loop_type_source": _plain_text(getattr(tags, "loop_type_source", None)),
                 "integrating": bool(tags.integrating),
+                "loop_type_source": tags.loop_type_source,
                 "has_mv": tags.mv is not None,
                 "has_sp": tags.sp is not None,
             },
@@ -188,6 +190,8 @@ class Analysis:
             "loop": self.loop,
             "source": d["source"],
             "loop_type": d["tags"]["loop_type"],
+            "loop_type_source": d["tags"]["loop_type_source"],
+            "integrating": d["tags"]["integrating"],
             "n_samples": d["tags"]["n_samples"],
             "has_mv": d["tags"]["has_mv"],
             "oscillating": bool(self.oscillation.present),
@@ -409,6 +413,7 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         use the data the reason goes into the warnings and their field is None.
     """
     config = config or AnalysisConfig()
+    tags = settle_loop_type(tags)  # the data decide the structure when nothing else did
     warnings = list(tags.warnings)
 
     # 2. Is there an oscillation at all?
