@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from enum import Enum
+from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -70,9 +71,35 @@ OpRangeOption = Annotated[
         callback=op_range_check,
     ),
 ]
+
+
+def given_only(ctx: typer.Context, param: typer.CallbackParam, value):
+    """Option callback: the value when given on the command line, else None.
+
+    ``--loop-type`` left at its default must not hide the ISA tag or the data.
+    """
+    source = ctx.get_parameter_source(param.name) if param.name else None
+    # By name: the click that typer runs on may not be the one installed as "click".
+    return None if getattr(source, "name", "DEFAULT") in ("DEFAULT", "DEFAULT_MAP") else value
+
+
 LoopTypeOption = Annotated[
     LoopType,
-    typer.Option("--loop-type", help="What the loop controls (level implies integrating)."),
+    typer.Option(
+        "--loop-type",
+        callback=given_only,
+        help="What the loop controls (level implies integrating). Default: from the ISA "
+        "tag (FIC flow, LIC level, PIC pressure, TIC temperature, AIC/QIC composition), "
+        "else the data tell integrating from self-regulating.",
+    ),
+]
+LoopsOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--loops",
+        help="Loops manifest CSV: one row per loop (column file or loop) with any of "
+        "loop_type, ts, op_units, op_range, pv, op, mv, sp, time.",
+    ),
 ]
 IntegratingOption = Annotated[
     bool | None,
@@ -92,10 +119,14 @@ def read_options(
     ts: float | None,
     op_units: OpUnits,
     op_range: tuple[float, float] | None,
-    loop_type: LoopType,
+    loop_type: LoopType | None,
     integrating: bool | None,
 ) -> dict:
-    """Keyword arguments for :func:`stictiondiag.io.tags.read_tags` from CLI options."""
+    """Keyword arguments for :func:`stictiondiag.io.tags.read_tags` from CLI options.
+
+    ``--loop-type`` left at its default becomes ``loop_type=None``: the ISA tag, else
+    the data, decide (:mod:`stictiondiag.io.looptype`).
+    """
     return {
         "pv": pv,
         "op": op,
@@ -105,6 +136,6 @@ def read_options(
         "ts": ts,
         "op_units": op_units.value,
         "op_range": op_range,
-        "loop_type": loop_type.value,
+        "loop_type": None if loop_type is None else LoopType(loop_type).value,
         "integrating": integrating,
     }
