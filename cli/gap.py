@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from .app import app
-from .common import check_output_file, emit, friendly_errors, info
+from .common import check_output_file, emit, friendly_errors, info, read_loop
 from .options import (
     IntegratingOption,
     JsonOption,
@@ -83,7 +83,7 @@ def gap(
 ) -> None:
     """Sim-to-real gap: measure and locate it, and name the unmodelled effect that explains it."""
     from stictiondiag.core.atomic import atomic_path
-    from stictiondiag.gap.diagnose import diagnose_file
+    from stictiondiag.gap.diagnose import diagnose_tags
 
     with friendly_errors():
         check_output_file("--plot", plot, [file], figure=True)
@@ -94,7 +94,7 @@ def gap(
         check_output_file("--json", json_path, [file])
         info(f"diagnosing the gap of {file} ...")
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
-        result = diagnose_file(file, **options)
+        result = diagnose_tags(read_loop(file, options))
         d = result.to_dict()
         emit(d, render_gap(d), json_path)
         if plot is not None:
