@@ -1,0 +1,400 @@
+"""Whole-plant exports: many loops in one file, wide or long, and a loops manifest.
+
+A historian export of a plant comes in two layouts:
+
+* **wide**: one column per tag, loops told apart by the tag's prefix
+  (``Timestamp, FIC101.PV, FIC101.OP, LIC200.PV, LIC200.OP, ...``).  Columns are
+  grouped by everything before their role suffix (the rules of
+  :mod:`stictiondiag.io.tags`: ``.PV``, ``.OP``, ``.MV``, ``.SP`` ...); a group with
+  a pv and an op is a loop, read with :func:`~stictiondiag.io.tags.read_tags` and
+  its columns named, so only its columns are read;
+* **long**: three columns ``timestamp, tag, value`` (CSV or Parquet).  Tags are
+  grouped by prefix as above; each loop's tags are resampled by linear
+  interpolation to one common grid: the step is the coarsest of the tags' median
+  steps (no tag is given detail it does not have), the span the time all tags
+  cover; grid points farther than :data:`~stictiondiag.io.timebase.MAX_GAP_SAMPLES`
+  steps from a sample of a tag are missing values.  The grid is reported in the
+  loop's warnings.
+
+A group that is not a loop (a pv without op, two pv columns) is listed with the
+reason (:attr:`PlantLoop.problem`); the other loops are analysed.  A file with one
+loop keeps the file's own reading (:func:`~stictiondiag.io.tags.read_tags`).
+
+The loops manifest (:func:`read_manifest`) gives per-loop settings: a CSV with a
+column ``file`` or ``loop`` and any of ``loop_type``, ``ts``, ``op_units``,
+``op_range`` (``LO HI``) or ``op_lo``/``op_hi``, ``integrating`` and the tag names
+``pv``, ``op``, ``mv``, ``sp``, ``time``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from stictiondiag.core.errors import DataError, UsageError
+from stictiondiag.io.columns import ROLES, is_time_name, roles_of
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from stictiondiag.io.tags import Tags
+
+__all__ = [
+    "LONG_COLUMNS",
+    "PlantLoop",
+    "manifest_options",
+    "plant_loops",
+    "read_manifest",
+    "read_plant_loop",
+]
+
+#: Column names of a long export (first match of each, case-insensitive).
+LONG_COLUMNS = {
+    "time": ("timestamp", "time", "datetime", "date", "t"),
+    "tag": ("tag", "tagname", "tag_name", "name", "point"),
+    "value": ("value", "val", "v"),
+}
+
+_SUFFIX = re.compile(r"[\s._\-:/]+[^\s._\-:/]+$")
+
+
+@dataclass(frozen=True)
+class PlantLoop:
+    """One loop of a plant file.
+
+    Attributes
+    ----------
+    loop : str
+        Loop name: the tag prefix (``FIC101``), or the file's stem for a one-loop file.
+    path : str
+        The file.
+    layout : str
+        ``"file"`` (one loop), ``"wide"`` or ``"long"``.
+    columns : dict
+        Role -> column (wide) or tag (long) name.
+    problem : str or None
+        Why the loop cannot be analysed (incomplete or ambiguous), else None.
+    """
+
+    loop: str
+    path: str
+    layout: str = "file"
+    columns: dict = field(default_factory=dict)
+    problem: str | None = None
+
+
+def _prefix(name: str) -> str:
+    """A tag's loop prefix: the name without its role suffix (``FIC101.PV`` -> ``FIC101``)."""
+    stripped = _SUFFIX.sub("", str(name).strip())
+    return stripped if stripped != str(name).strip() else ""
+
+
+def group_tags(names: list[str]) -> dict[str, dict[str, list[str]]]:
+    """Prefix -> role -> tag names, for names with a role suffix and a prefix."""
+    groups: dict[str, dict[str, list[str]]] = {}
+    for name in names:
+        if is_time_name(name):
+            continue
+        prefix = _prefix(name)
+        roles = roles_of(name)
+        if not prefix or len(roles) != 1:
+            continue
+        groups.setdefault(prefix, {}).setdefault(next(iter(roles)), []).append(name)
+    return groups
+
+
+def _loops_of_groups(
+    path: str, groups: dict[str, dict[str, list[str]]], layout: str, time: str | None
+) -> list[PlantLoop]:
+    loops = []
+    for prefix, roles in sorted(groups.items()):
+        problem = None
+        twice = [
+            f"{r} ({', '.join(repr(n) for n in roles[r])})" for r in roles if len(roles[r]) > 1
+        ]
+        missing = [r for r in ("pv", "op") if r not in roles]
+        if twice:
+            problem = f"ambiguous: more than one tag for {'; '.join(twice)}: name them in --loops"
+        elif missing:
+            have = ", ".join(n for r in ROLES for n in roles.get(r, []))
+            problem = f"incomplete: no {' and no '.join(missing)} tag (has {have})"
+        columns = {r: names[0] for r, names in roles.items()}
+        if time is not None:
+            columns["time"] = time
+        loops.append(PlantLoop(prefix, path, layout, columns, problem))
+    return loops
+
+
+def _header(path: Path) -> pd.DataFrame:
+    from stictiondiag.io.readers import read_table
+
+    seen: list = []
+
+    def select(header):
+        seen.append(header)
+        return [str(header.columns[0])]  # read one column: only the header is wanted
+
+    frame = read_table(path, select)
+    return seen[0] if seen else frame.iloc[:0]
+
+
+def _long_columns(names: list[str]) -> dict[str, str] | None:
+    lower = {str(n).strip().lower(): str(n) for n in names}
+    if len(names) != 3:
+        return None
+    found = {}
+    for role, options in LONG_COLUMNS.items():
+        hit = next((lower[o] for o in options if o in lower), None)
+        if hit is None:
+            return None
+        found[role] = hit
+    return found if len(set(found.values())) == 3 else None
+
+
+def plant_loops(path: str | os.PathLike) -> list[PlantLoop]:
+    """The loops of one file: a wide or long plant export, or a one-loop file.
+
+    Raises
+    ------
+    DataError
+        The file cannot be read (:func:`stictiondiag.io.readers.read_table`).
+    """
+    file = Path(path)
+    header = _header(file)
+    names = [str(c) for c in header.attrs.get("written_names", header.columns)]
+    long = _long_columns(names)
+    if long is not None:
+        tags = _long_tags(file, long)
+        groups = group_tags(tags)
+        if not groups:
+            raise DataError(
+                f"{file}: a long export ({', '.join(long.values())}) but no tag has a role "
+                "suffix such as .PV or .OP: name the tags <loop>.PV, <loop>.OP"
+            )
+        return _loops_of_groups(str(file), groups, "long", None)
+    groups = group_tags(names)
+    complete = [g for g in groups.values() if "pv" in g and "op" in g]
+    if len(groups) < 2 or len(complete) < 1 or (len(groups) == len(complete) == 1):
+        return [PlantLoop(file.stem, str(file))]
+    times = [n for n in names if is_time_name(n)]
+    return _loops_of_groups(str(file), groups, "wide", times[0] if len(times) == 1 else None)
+
+
+def _long_tags(file: Path, long: dict[str, str]) -> list[str]:
+    frame = _read_long(file, long, None)
+    return sorted({str(t) for t in frame[long["tag"]].dropna().unique()})
+
+
+def _read_long(file: Path, long: dict[str, str], tags: list[str] | None) -> pd.DataFrame:
+    from stictiondiag.io.readers import read_table
+
+    if file.suffix.lower() in (".parquet", ".pq") and tags is not None:
+        import pyarrow.dataset as ds
+
+        table = ds.dataset(str(file), format="parquet").to_table(
+            filter=ds.field(long["tag"]).isin(tags)
+        )
+        return table.to_pandas()
+    frame = read_table(file)
+    if tags is not None:
+        frame = frame[frame[long["tag"]].astype(str).isin(tags)]
+    return frame
+
+
+def _resample_long(
+    frame: pd.DataFrame, long: dict[str, str], tags: dict[str, str], label: str
+) -> tuple[pd.DataFrame, str]:
+    """Role columns on one grid (time [s] from the first grid point) and a note."""
+    import pandas as pd
+
+    from stictiondiag.io.timebase import MAX_GAP_SAMPLES, time_seconds
+
+    seconds = time_seconds(frame[long["time"]], long["time"], label)
+    values = pd.to_numeric(frame[long["value"]], errors="coerce").to_numpy(dtype=float)
+    series = {}
+    for role, tag in tags.items():
+        if role == "time":
+            continue
+        keep = (frame[long["tag"]].astype(str) == tag).to_numpy() & np.isfinite(seconds)
+        t, v = seconds[keep], values[keep]
+        order = np.argsort(t, kind="stable")
+        t, v = t[order], v[order]
+        if t.size < 2:
+            raise DataError(f"{label}: tag {tag!r} has {t.size} samples: export more of it")
+        series[role] = (t, v)
+    steps = {r: float(np.median(np.diff(np.unique(t)))) for r, (t, _) in series.items()}
+    step = max(steps.values())
+    start = max(t[0] for t, _ in series.values())
+    stop = min(t[-1] for t, _ in series.values())
+    if not (math.isfinite(step) and step > 0 and stop > start):
+        raise DataError(f"{label}: the tags of the loop do not overlap in time")
+    grid = start + step * np.arange(int(math.floor((stop - start) / step + 1e-9)) + 1)
+    out = {"time": grid - grid[0]}
+    for role, (t, v) in series.items():
+        good = np.isfinite(v)
+        t, v = t[good], v[good]
+        column = np.interp(grid, t, v)
+        # Grid points far from any sample of the tag are gaps, not interpolation.
+        idx = np.clip(np.searchsorted(t, grid), 1, t.size - 1)
+        nearest = np.minimum(np.abs(grid - t[idx - 1]), np.abs(t[idx] - grid))
+        column[nearest > MAX_GAP_SAMPLES * step] = np.nan
+        out[role] = column
+    tagged = ", ".join(f"{tags[r]} {steps[r]:g} s" for r in series)
+    note = (
+        f"long export: tags resampled to a common grid of {grid.size} points every {step:g} s "
+        f"(the coarsest median step: {tagged})"
+    )
+    return pd.DataFrame(out), note
+
+
+def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
+    """Read one loop of a plant file as :class:`~stictiondiag.io.tags.Tags`.
+
+    ``read_options`` are those of :func:`~stictiondiag.io.tags.read_tags`; column
+    names given there win over the grouping's.
+
+    Raises
+    ------
+    DataError
+        The loop is incomplete or ambiguous (:attr:`PlantLoop.problem`), or cannot be read.
+    """
+    from dataclasses import replace
+
+    from stictiondiag.io.tags import read_frame, read_tags
+
+    if loop.problem:
+        raise DataError(f"loop {loop.loop} of {loop.path}: {loop.problem}")
+    if loop.layout == "file":
+        return read_tags(loop.path, **read_options)
+    named = {r: c for r, c in loop.columns.items() if read_options.get(r) is None}
+    options = {**read_options, **named}
+    label = f"{loop.path}#{loop.loop}"
+    if loop.layout == "wide":
+        tags = read_tags(loop.path, **options)
+        return replace(tags, source=label)
+    file = Path(loop.path)
+    header = _header(file)
+    long = _long_columns([str(c) for c in header.columns])
+    if long is None:
+        raise DataError(f"{file} is no longer a long export (timestamp, tag, value)")
+    wanted = {r: options[r] for r in ROLES if options.get(r)}
+    frame = _read_long(file, long, list(wanted.values()))
+    grid, note = _resample_long(frame, long, wanted, label)
+    given = {k: v for k, v in options.items() if k not in (*ROLES, "time")}
+    # Columns named by their tags, so the ISA tag decides the loop type as in a wide file.
+    tags = read_frame(grid.rename(columns=wanted), source=label, time="time", **given, **wanted)
+    return replace(tags, warnings=(note, *tags.warnings))
+
+
+# --------------------------------------------------------------------------- manifest
+
+_MANIFEST_KEYS = ("loop_type", "ts", "op_units", "op_range", "integrating", *ROLES, "time")
+
+
+def _cell(value) -> str | None:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return None
+    text = str(value).strip()
+    return text or None
+
+
+def read_manifest(path: str | os.PathLike) -> dict[str, dict]:
+    """Per-loop read options from a loops manifest CSV (module docstring).
+
+    Returns
+    -------
+    dict
+        Key (the row's ``file`` as written, or ``loop``) -> options for
+        :func:`~stictiondiag.io.tags.read_tags`.
+
+    Raises
+    ------
+    UsageError
+        No ``file``/``loop`` column, an unknown column, a bad value (row named).
+    DataError
+        The file cannot be read.
+    """
+    from stictiondiag.io.readers import read_table
+    from stictiondiag.io.tags import LOOP_TYPES, OP_UNITS
+
+    file = Path(path)
+    frame = read_table(file)
+    frame.columns = [str(c).strip().lower() for c in frame.columns]
+    keys = [c for c in ("file", "loop") if c in frame.columns]
+    if not keys:
+        raise UsageError(f"loops manifest {file} needs a 'file' or 'loop' column")
+    allowed = {*keys, *_MANIFEST_KEYS, "op_lo", "op_hi", "comment"}
+    unknown = [c for c in frame.columns if c not in allowed]
+    if unknown:
+        raise UsageError(
+            f"loops manifest {file}: unknown column {unknown[0]!r} "
+            f"(use {', '.join(('file', 'loop', *_MANIFEST_KEYS, 'op_lo', 'op_hi'))})"
+        )
+    out: dict[str, dict] = {}
+    for i, row in enumerate(frame.to_dict("records"), start=2):
+        key = next((_cell(row[k]) for k in keys if _cell(row.get(k))), None)
+        where = f"loops manifest {file} line {i}"
+        if key is None:
+            raise UsageError(f"{where}: no file or loop named")
+        options: dict = {}
+        for role in (*ROLES, "time"):
+            if _cell(row.get(role)):
+                options[role] = _cell(row[role])
+        lt = _cell(row.get("loop_type"))
+        if lt is not None:
+            if lt.lower() not in LOOP_TYPES:
+                raise UsageError(f"{where}: loop_type {lt!r} is not one of {', '.join(LOOP_TYPES)}")
+            options["loop_type"] = lt.lower()
+        units = _cell(row.get("op_units"))
+        if units is not None:
+            unit = {"%": "percent", "percent": "percent", "ma": "mA"}.get(units.lower())
+            if unit is None:
+                raise UsageError(f"{where}: op_units {units!r} is not one of {', '.join(OP_UNITS)}")
+            options["op_units"] = unit
+        ts = _cell(row.get("ts"))
+        if ts is not None:
+            try:
+                value = float(ts)
+            except ValueError:
+                value = float("nan")
+            if not (math.isfinite(value) and value > 0):
+                raise UsageError(f"{where}: ts {ts!r} is not a positive number of seconds")
+            options["ts"] = value
+        rng = _cell(row.get("op_range"))
+        lo, hi = _cell(row.get("op_lo")), _cell(row.get("op_hi"))
+        if rng is not None or lo is not None or hi is not None:
+            parts = re.split(r"[\s;/]+|(?<=\d)-(?=\d)", rng) if rng else [lo, hi]
+            try:
+                low, high = (float(p) for p in parts if p not in (None, ""))
+            except (TypeError, ValueError):
+                raise UsageError(
+                    f"{where}: op_range {rng or f'{lo} {hi}'!r} must be 'LO HI' with LO < HI"
+                ) from None
+            if not (math.isfinite(low) and math.isfinite(high) and low < high):
+                raise UsageError(f"{where}: op_range must be 'LO HI' with finite LO < HI")
+            options["op_range"] = (low, high)
+        integ = _cell(row.get("integrating"))
+        if integ is not None:
+            flag = {"true": True, "yes": True, "1": True, "false": False, "no": False, "0": False}
+            if integ.lower() not in flag:
+                raise UsageError(f"{where}: integrating {integ!r} must be true or false")
+            options["integrating"] = flag[integ.lower()]
+        if key in out:
+            raise UsageError(f"{where}: {key!r} is listed twice")
+        out[key] = options
+    return out
+
+
+def manifest_options(manifest: dict[str, dict], loop: str, path: str) -> dict | None:
+    """The manifest's options for a loop (by loop name) or its file (by name or path)."""
+    p = Path(path)
+    for key in (loop, p.name, str(p), p.stem):
+        if key in manifest:
+            return manifest[key]
+    return None
