@@ -13,7 +13,15 @@ from stictiondiag.core.errors import EXIT_PARTIAL
 
 from .app import app
 from .common import check_output_dir, friendly_errors, info
-from .options import positive_seconds
+from .options import (
+    LoopsOption,
+    LoopType,
+    LoopTypeOption,
+    OpRangeOption,
+    OpUnits,
+    OpUnitsOption,
+    positive_seconds,
+)
 
 
 class Engine(str, Enum):
@@ -49,8 +57,18 @@ def scan(
             help="Sampling time [s] for files without a time column.", callback=positive_seconds
         ),
     ] = None,
+    loops: LoopsOption = None,
+    loop_type: LoopTypeOption = LoopType.other,
+    op_units: OpUnitsOption = OpUnits.percent,
+    op_range: OpRangeOption = None,
 ) -> None:
-    """Scan many loops; write a ranked table (Parquet, CSV, HTML). Exit 4 if some loops failed."""
+    """Scan many loops; write a ranked table (Parquet, CSV, HTML). Exit 4 if some loops failed.
+
+    PATH may hold whole-plant exports: a wide file with many loops told apart by tag
+    prefix (FIC101.PV, FIC101.OP, LIC200.PV, ...) or a long timestamp, tag, value
+    file; each loop is a row, an incomplete or ambiguous one fails with the reason.
+    The loop type comes from --loops, else --loop-type, else the ISA tag, else the data.
+    """
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -61,6 +79,18 @@ def scan(
         check_output_dir("--out", out, [path])
         if scheduler is not None and engine is not Engine.dask:
             raise UsageError("--scheduler applies to --engine dask; add --engine dask")
+        manifest = None
+        if loops is not None:
+            from stictiondiag.io.plant import read_manifest
+
+            manifest = read_manifest(loops)
+        options: dict = {"ts": ts} if ts is not None else {}
+        if loop_type is not None:
+            options["loop_type"] = LoopType(loop_type).value
+        if op_units is not OpUnits.percent:
+            options["op_units"] = op_units.value
+        if op_range is not None:
+            options["op_range"] = tuple(op_range)
         console = Console(file=sys.stderr)
         bar = Progress(
             TextColumn("[bold]scan"),
@@ -89,7 +119,9 @@ def scan(
                 force=force,
                 gap=gap,
                 loop_column=loop_column,
-                read_options={"ts": ts} if ts is not None else {},
+                read_options=options,
+                manifest=manifest,
+                exclude=(loops,) if loops is not None else (),
                 progress=progress,
             )
         finally:
@@ -107,8 +139,23 @@ def scan(
             f"wrote {result.outputs.get('html')}, {result.outputs.get('parquet')}, {result.outputs.get('csv')}"
         )
         cols = [
-            c for c in ("rank", "loop", "verdict", "confidence", "S", "J", "gap_effect") if c in t
+            c
+            for c in (
+                "rank",
+                "loop",
+                "verdict",
+                "confidence",
+                "S",
+                "J",
+                "loop_type",
+                "loop_type_source",
+                "gap_effect",
+            )
+            if c in t
         ]
+        if "error" in t:
+            for _, row in t[t["verdict"] == "error"].iterrows():
+                info(f"not analysed: {row['loop']}: {row['error']}")
         typer.echo(t[cols].head(20).to_string(index=False))
         if result.n_failed:
             info(f"{result.n_failed} loop(s) failed; see the 'error' column")

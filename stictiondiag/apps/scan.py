@@ -36,12 +36,14 @@ from pathlib import Path
 import pandas as pd
 
 from stictiondiag.apps.pages import html_page, safe_name, unique_names
+from stictiondiag.apps.scan_page import scan_html
 from stictiondiag.apps.workers import run_dask, run_local
 from stictiondiag.core.errors import (
     DataError,
     StictionError,
     UsageError,
 )
+from stictiondiag.io.plant import PlantLoop, is_long_file, plant_loops
 
 #: Column names accepted as the loop id of a Parquet dataset (first match wins).
 LOOP_ID_COLUMNS = ("loop_id", "loop", "loop_name", "tag", "loopid")
@@ -65,12 +67,18 @@ class LoopSource:
         File, or Parquet dataset, path.
     loop_column : str or None
         Loop-id column when ``path`` is a dataset holding many loops.
+    read_options : dict or None
+        Options of this loop (from a loops manifest), over the scan's own.
+    plant : PlantLoop or None
+        The loop's place in a whole-plant file (wide or long export,
+        :mod:`stictiondiag.io.plant`).
     """
 
     loop: str
     path: str
     loop_column: str | None = None
     read_options: dict | None = None
+    plant: PlantLoop | None = None
 
 
 @dataclass(frozen=True)
@@ -167,7 +175,12 @@ def _loop_ids(dataset, column: str) -> list:
     return sorted(ids, key=str)
 
 
-def discover(path: str | os.PathLike, *, loop_column: str | None = None) -> list[LoopSource]:
+def discover(
+    path: str | os.PathLike,
+    *,
+    loop_column: str | None = None,
+    exclude: tuple[str | os.PathLike, ...] = (),
+) -> list[LoopSource]:
     """List the loops under ``path``.
 
     Parameters
@@ -180,6 +193,14 @@ def discover(path: str | os.PathLike, *, loop_column: str | None = None) -> list
     loop_column : str, optional
         Loop-id column of a Parquet dataset; default the first of
         :data:`LOOP_ID_COLUMNS` present (case-insensitive).
+    exclude : tuple of path
+        Files that are not loops (the loops manifest inside the folder).
+
+    A file holding many loops (a wide export grouped by tag prefix, or a long
+    ``timestamp, tag, value`` export; :mod:`stictiondiag.io.plant`) gives one source
+    per loop, named by its tag prefix (by ``<file stem>:<prefix>`` when another loop
+    has that name); an incomplete or ambiguous loop is a source whose analysis fails
+    with the reason.
 
     Returns
     -------
@@ -207,7 +228,7 @@ def discover(path: str | os.PathLike, *, loop_column: str | None = None) -> list
     if not files:
         raise DataError(f"{p}: no .csv or .parquet files found")
     all_parquet = all(f.suffix.lower() in (".parquet", ".pq") for f in files)
-    if all_parquet:
+    if all_parquet and not any(is_long_file(f) for f in files):
         # Possibly one dataset holding many loops, told apart by a loop-id column.
         try:
             dataset = _open_dataset(p)
@@ -240,13 +261,48 @@ def discover(path: str | os.PathLike, *, loop_column: str | None = None) -> list
         raise UsageError(
             f"--loop-column {loop_column!r} applies to a Parquet dataset; {p} holds CSV files"
         )
-    # One loop per file, in subfolders too; files with one stem get distinct names.
-    names = unique_names([f.stem for f in files], [f.name for f in files])
-    loops = [f.stem if safe_name(f.stem) == n else n for f, n in zip(files, names, strict=True)]
+    # One loop per file, or many in a whole-plant export (io.plant), in subfolders
+    # too; loops with one name get distinct names.
+    skip = {Path(f).resolve() for f in exclude}
+    found = [
+        (plant.loop, f, plant)
+        for f in files
+        if f.resolve() not in skip
+        for plant in _plant_loops(f)
+    ]
+    if not found:
+        raise DataError(f"{p}: no loop files found (only the loops manifest)")
+    # A loop of a plant file whose name another loop also has is named by its file too.
+    count: dict[str, int] = {}
+    for loop, _, _ in found:
+        count[loop.lower()] = count.get(loop.lower(), 0) + 1
+    found = [
+        (
+            f"{f.stem}:{loop}" if plant.layout != "file" and count[loop.lower()] > 1 else loop,
+            f,
+            plant,
+        )
+        for loop, f, plant in found
+    ]
+    names = unique_names([n for n, _, _ in found], [str(f) for _, f, _ in found])
+    loops = [
+        loop if safe_name(loop) == n else n for (loop, _, _), n in zip(found, names, strict=True)
+    ]
     return sorted(
-        (LoopSource(loop, str(f)) for loop, f in zip(loops, files, strict=True)),
+        (
+            LoopSource(loop, str(f), plant=None if plant.layout == "file" else plant)
+            for loop, (_, f, plant) in zip(loops, found, strict=True)
+        ),
         key=lambda s: s.loop,
     )
+
+
+def _plant_loops(f: Path) -> list[PlantLoop]:
+    """The loops of one file; a file that cannot be read is one loop that fails in its row."""
+    try:
+        return plant_loops(f)
+    except StictionError:
+        return [PlantLoop(f.stem, str(f))]
 
 
 def load_source(source: LoopSource, **read_options):
@@ -263,6 +319,10 @@ def load_source(source: LoopSource, **read_options):
         read_tags,
     )
 
+    if source.plant is not None:
+        from stictiondiag.io.plant import read_plant_loop
+
+        return read_plant_loop(source.plant, **read_options)
     if source.loop_column is None:
         return read_tags(source.path, **read_options)
     import pyarrow as pa
@@ -414,6 +474,8 @@ def scan(
     gap: bool = True,
     loop_column: str | None = None,
     read_options: dict | None = None,
+    manifest: dict[str, dict] | None = None,
+    exclude: tuple[str | os.PathLike, ...] = (),
     progress: Callable[[int, int, str], None] | None = None,
 ) -> ScanResult:
     """Analyse every loop under ``path`` and write the ranked table to ``out``.
@@ -441,6 +503,12 @@ def scan(
         Loop-id column of a Parquet dataset (see :func:`discover`).
     read_options : dict, optional
         Options of :func:`stictiondiag.io.tags.read_tags` for every loop (e.g. ``ts``).
+    manifest : dict, optional
+        Per-loop options (:func:`stictiondiag.io.plant.read_manifest`), by loop name
+        (a plant file's loop by its tag prefix) or file; they win over
+        ``read_options``.
+    exclude : tuple of path
+        Files under ``path`` that are not loops (the manifest).
     progress : callable, optional
         Called as ``progress(done, total, loop)`` at the start and after each loop.
 
@@ -467,7 +535,21 @@ def scan(
     read_options = dict(read_options or {})
     out = Path(out)
     _check_out(out)
-    sources = discover(path, loop_column=loop_column)
+    sources = discover(path, loop_column=loop_column, exclude=exclude)
+    if manifest:
+        from dataclasses import replace
+
+        from stictiondiag.io.plant import manifest_options
+
+        sources = [
+            replace(
+                s,
+                read_options=manifest_options(
+                    manifest, s.plant.loop if s.plant is not None else s.loop, s.path
+                ),
+            )
+            for s in sources
+        ]
     names = unique_names([s.loop for s in sources])
     file_names = {s.loop: name for s, name in zip(sources, names, strict=True)}
     renamed = {
@@ -475,6 +557,8 @@ def scan(
     }
     loops_dir = _make_loops_dir(out)
     settings = {"gap": bool(gap), "read_options": read_options}
+    if manifest:
+        settings["manifest"] = manifest
 
     rows: list[dict] = []
     todo: list[LoopSource] = []
@@ -667,66 +751,3 @@ def write_table(table: pd.DataFrame, out: Path, file_names: dict | None = None) 
         clean.to_parquet(tmp, index=False)
     write_atomic(paths["csv"], clean.to_csv(index=False))
     return {k: str(v) for k, v in paths.items()}
-
-
-def scan_html(table: pd.DataFrame, file_names: dict | None = None) -> str:
-    """Self-contained HTML page with the ranked table and per-loop links."""
-    from html import escape
-
-    cols = [
-        c
-        for c in (
-            "rank",
-            "loop",
-            "verdict",
-            "confidence",
-            "S",
-            "J",
-            "severity",
-            "period_s",
-            "gap_effect",
-            "loop_type",
-            "flags",
-            "error",
-        )
-        if c in table.columns
-    ]
-    head = "".join(f"<th>{escape(c)}</th>" for c in cols)
-    body = []
-    for _, r in table.iterrows():
-        cells = []
-        for c in cols:
-            v = r[c]
-            if v is None or (isinstance(v, float) and not math.isfinite(v)):
-                txt = ""
-            elif isinstance(v, float):
-                txt = f"{v:.3g}"
-            else:
-                txt = str(v)
-            if c == "loop":
-                name = (file_names or {}).get(str(v)) or _safe_name(str(v))
-                link = f"loops/{escape(name)}.html"
-                txt = f'<a href="{link}">{escape(txt)}</a> <a class="j" href="loops/{escape(name)}.json">json</a>'
-            else:
-                txt = escape(txt)
-            cells.append(f"<td>{txt}</td>")
-        cls = escape(str(r.get("verdict", "")))
-        body.append(f'<tr class="{cls}">{"".join(cells)}</tr>')
-    n = len(table)
-    n_st = int((table.get("verdict") == "stiction").sum()) if n else 0
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>stiction scan</title>
-<style>
-body{{font-family:system-ui,sans-serif;margin:1.5em;color:#222}}
-table{{border-collapse:collapse;font-size:13px}}
-th,td{{border:1px solid #ccc;padding:3px 7px;text-align:left}}
-th{{background:#eee}} tr.stiction{{background:#fde2e1}} tr.inconclusive{{background:#fff5d6}}
-tr.error{{background:#eee;color:#777}} a.j{{font-size:11px;color:#777}}
-</style></head><body>
-<h1>Stiction scan</h1>
-<p>{n} loops, {n_st} with stiction, ranked by verdict then severity
-(confidence &times; (S + J), % of span).</p>
-<table><thead><tr>{head}</tr></thead><tbody>
-{"".join(body)}
-</tbody></table></body></html>
-"""

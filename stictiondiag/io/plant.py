@@ -48,6 +48,7 @@ if TYPE_CHECKING:
 __all__ = [
     "LONG_COLUMNS",
     "PlantLoop",
+    "is_long_file",
     "manifest_options",
     "plant_loops",
     "read_manifest",
@@ -276,8 +277,7 @@ def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
     options = {**read_options, **named}
     label = f"{loop.path}#{loop.loop}"
     if loop.layout == "wide":
-        tags = read_tags(loop.path, **options)
-        return replace(tags, source=label)
+        return _read_wide(Path(loop.path), options, label)
     file = Path(loop.path)
     header = _header(file)
     long = _long_columns([str(c) for c in header.columns])
@@ -290,6 +290,29 @@ def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
     # Columns named by their tags, so the ISA tag decides the loop type as in a wide file.
     tags = read_frame(grid.rename(columns=wanted), source=label, time="time", **given, **wanted)
     return replace(tags, warnings=(note, *tags.warnings))
+
+
+def _read_wide(file: Path, options: dict, label: str) -> Tags:
+    """One loop of a wide export: only its own columns, its own rows.
+
+    Rows before the loop's first and after its last sample (loops of one export
+    recorded over different spans) are not part of its record.
+    """
+    from stictiondiag.io.readers import read_table
+    from stictiondiag.io.tags import read_frame
+
+    columns = [options[r] for r in (*ROLES, "time") if options.get(r)]
+    frame = read_table(file, lambda header: columns)
+    missing = [c for c in columns if c not in frame.columns]
+    if missing:
+        raise DataError(f"{label}: column {missing[0]!r} not found in {file}")
+    frame = frame[columns]
+    roles = [options[r] for r in ROLES if options.get(r)]
+    present = frame[roles].notna().any(axis=1).to_numpy()
+    if present.any():
+        first, last = int(np.argmax(present)), len(present) - int(np.argmax(present[::-1]))
+        frame = frame.iloc[first:last].reset_index(drop=True)
+    return read_frame(frame, source=label, **options)
 
 
 # --------------------------------------------------------------------------- manifest
@@ -398,3 +421,12 @@ def manifest_options(manifest: dict[str, dict], loop: str, path: str) -> dict | 
         if key in manifest:
             return manifest[key]
     return None
+
+
+def is_long_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a long ``timestamp, tag, value`` export (False if unreadable)."""
+    try:
+        header = _header(Path(path))
+    except (DataError, OSError):
+        return False
+    return _long_columns([str(c) for c in header.columns]) is not None
