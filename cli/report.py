@@ -23,6 +23,7 @@ from .app import app
 from .common import check_output_dir, check_output_file, fail, friendly_errors, info
 from .options import (
     IntegratingOption,
+    LoopsOption,
     LoopType,
     LoopTypeOption,
     MvOption,
@@ -81,8 +82,15 @@ def report(
     op_range: OpRangeOption = None,
     loop_type: LoopTypeOption = LoopType.other,
     integrating: IntegratingOption = None,
+    loops: LoopsOption = None,
 ) -> None:
     """Write a self-contained HTML report per loop, an index page, summary.md and JSON.
+
+    A file may hold many loops: a wide export grouped by tag prefix (FIC101.PV,
+    FIC101.OP, LIC200.PV, ...) or a long timestamp, tag, value export; each loop gets
+    its page, an incomplete or ambiguous one is listed with the reason.  --loops gives
+    per-loop settings; the loop type comes from it, else --loop-type, else the ISA
+    tag, else the data.
 
     Exit codes: 0 success, 1 stiction found (with --fail-on-stiction), 2 usage error,
     3 no input could be read, 4 some inputs could not be analysed.
@@ -99,6 +107,11 @@ def report(
         check_output_dir("--out", out, files)
         check_output_file("--markdown", markdown, files)
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
+        manifest = None
+        if loops is not None:
+            from stictiondiag.io.plant import read_manifest
+
+            manifest = read_manifest(loops)
 
         def progress(done: int, n: int, name: str) -> None:
             info(f"[{done}/{n}] {name}")
@@ -111,6 +124,7 @@ def report(
             gap=gap,
             clean=clean,
             workers=workers,
+            manifest=manifest,
             progress=progress,
         )
         md = render_markdown(result.rows)
@@ -129,7 +143,7 @@ def report(
         info(f"stiction found (confidence {worst:.2f} >= {fail_on_stiction:g})")
     # A partial failure outranks a finding: the report is incomplete either way.
     if result.failed:
-        info(f"{len(result.failed)} of {len(files)} input(s) could not be analysed: exit 4")
+        info(f"{len(result.failed)} loop(s) could not be analysed: exit 4")
         raise typer.Exit(EXIT_PARTIAL)
     if finding:
         raise typer.Exit(EXIT_FINDING)

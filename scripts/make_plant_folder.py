@@ -97,7 +97,7 @@ def make_plant_folder(out: Path) -> dict:
         {"sample": np.arange(n)}
         | {k: np.concatenate([v, np.full(n - v.size, np.nan)]) for k, v in wide.items()}
     )
-    table.to_csv(out / "plant_wide.csv", index=False, float_format="%.6g")
+    table.to_csv(out / "plant_wide.csv", index=False, float_format="%.10g")
     pd.concat(long_parts, ignore_index=True).to_parquet(out / "plant_long.parquet", index=False)
     healthy = pd.read_csv(SAMPLES / "healthy_flow.csv")
     broken = pd.DataFrame(
@@ -108,7 +108,7 @@ def make_plant_folder(out: Path) -> dict:
             "FIC901.OP": healthy["op"],
         }
     )
-    broken.to_csv(out / "broken.csv", index=False, float_format="%.6g")
+    broken.to_csv(out / "broken.csv", index=False, float_format="%.10g")
     pd.DataFrame(manifest).to_csv(out / "loops.csv", index=False)
     (out / "expected.json").write_text(json.dumps(expected, indent=1) + "\n")
     return expected

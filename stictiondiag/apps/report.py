@@ -41,6 +41,7 @@ from stictiondiag.core.errors import (
     StictionError,
     UsageError,
 )
+from stictiondiag.io.plant import PlantLoop, manifest_options
 
 __all__ = [
     "ReportResult",
@@ -228,10 +229,19 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
     )
     from stictiondiag.apps.findings import with_findings
 
-    path, name = source
-    loop = _display_name(path, name)
+    path, name = source[0], source[1]
+    plant = source[2] if len(source) > 2 else None
+    options = {**read_options, **(source[3] if len(source) > 3 and source[3] else {})}
+    loop = source[4] if len(source) > 4 else _display_name(path, name)
+    label = f"{path}#{plant.loop}" if plant is not None else str(path)
     try:
-        result = analyze_file(path, config=AnalysisConfig(gap=gap), **read_options)
+        if plant is not None:
+            from stictiondiag.analysis import analyze
+            from stictiondiag.io.plant import read_plant_loop
+
+            result = analyze(read_plant_loop(plant, **options), config=AnalysisConfig(gap=gap))
+        else:
+            result = analyze_file(path, config=AnalysisConfig(gap=gap), **options)
         d = result.to_dict()
         d["loop"] = loop
         d = with_findings(d)
@@ -240,10 +250,10 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
         images = {k: figure_png(fig) for k, fig in result.figures().items()}
         row = result.summary_row()
         row["loop"] = loop
-        row["source"] = str(path)
+        row["source"] = label
         row["page"] = f"{LOOPS_DIR}/{name}.html"
         return {
-            "file": str(path),
+            "file": label,
             "loop": loop,
             "name": name,
             "page": render_loop_html(d, images, json_name=f"{name}.json"),
@@ -256,15 +266,44 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
         last = traceback.extract_tb(exc.__traceback__)[-1:]
         where = f" at {last[0].name}" if last else ""
         message = f"internal error{where}: {type(exc).__name__}: {_first_line(exc)}"
-    return {"file": str(path), "loop": loop, "error": message}
+    return {"file": label, "loop": loop, "error": message}
 
 
-def _worker_died(source: tuple[str, str], exc: BaseException) -> dict:
+def _worker_died(source: tuple, exc: BaseException) -> dict:
+    plant = source[2] if len(source) > 2 else None
     return {
-        "file": str(source[0]),
-        "loop": _display_name(*source),
+        "file": f"{source[0]}#{plant.loop}" if plant is not None else str(source[0]),
+        "loop": source[4] if len(source) > 4 else _display_name(source[0], source[1]),
         "error": f"internal error: the analysis process failed ({type(exc).__name__})",
     }
+
+
+def _expand(files: Sequence[str]) -> list[tuple[str, str, PlantLoop | None]]:
+    """(file, loop name, plant loop or None) for every loop of ``files``.
+
+    A one-loop file is named by its stem; a loop of a plant file by its tag prefix,
+    by ``<stem>:<prefix>`` when another loop has that name.  A file that cannot be
+    read is one loop that fails with the reason.
+    """
+    from stictiondiag.io.plant import plant_loops
+
+    found: list[tuple[str, str, PlantLoop | None]] = []
+    for f in files:
+        try:
+            loops = plant_loops(f)
+        except StictionError:
+            loops = []
+        if len(loops) <= 1 or all(p.layout == "file" for p in loops):
+            found.append((f, Path(f).stem, None))
+        else:
+            found.extend((f, p.loop, p) for p in loops)
+    count: dict[str, int] = {}
+    for _, loop, _ in found:
+        count[loop.lower()] = count.get(loop.lower(), 0) + 1
+    return [
+        (f, f"{Path(f).stem}:{loop}" if p is not None and count[loop.lower()] > 1 else loop, p)
+        for f, loop, p in found
+    ]
 
 
 def default_workers(n_files: int) -> int:
@@ -291,6 +330,7 @@ def build_report(
     gap: bool = True,
     clean: bool = False,
     workers: int | None = None,
+    manifest: dict[str, dict] | None = None,
     progress: Callable[[int, int, str], None] | None = None,
 ) -> ReportResult:
     """Analyse ``files`` and write (or update) the report folder ``out``.
@@ -314,6 +354,13 @@ def build_report(
     workers : int, optional
         Processes analysing loops side by side (default :func:`default_workers`);
         1 analyses them one after the other in this process.
+    manifest : dict, optional
+        Per-loop read options (:func:`stictiondiag.io.plant.read_manifest`) by loop
+        name or file; they win over ``read_options``.
+
+    A file holding many loops (wide or long plant export, :mod:`stictiondiag.io.plant`)
+    gives one page per loop, named by its tag prefix; an incomplete or ambiguous loop
+    is listed as failed with the reason.
     progress : callable, optional
         ``progress(done, n, loop)`` after each loop is finished (in completion order
         when ``workers`` > 1).
@@ -338,8 +385,24 @@ def build_report(
     workers = default_workers(len(files)) if workers is None else int(workers)
     if workers < 1:
         raise UsageError(f"workers must be at least 1, got {workers}")
-    names = unique_names([Path(f).stem for f in files], files)
-    renamed = {f: n for f, n in zip(files, names, strict=True) if n != safe_name(Path(f).stem)}
+    entries = _expand(files)
+    names = unique_names([loop for _, loop, _ in entries], [f for f, _, _ in entries])
+    renamed = {
+        f: n
+        for (f, loop, plant), n in zip(entries, names, strict=True)
+        if plant is None and n != safe_name(loop)
+    }
+    sources = [
+        (
+            f,
+            n,
+            plant,
+            manifest_options(manifest or {}, plant.loop if plant else loop, f) or {},
+            loop if plant is not None else _display_name(f, n),
+        )
+        for (f, loop, plant), n in zip(entries, names, strict=True)
+    ]
+    order = [f"{f}#{plant.loop}" if plant is not None else f for f, _, plant in entries]
     _check_outputs(out, files)
     _prepare_folder(out, clean, files)
     manifest = _Manifest(out)
@@ -347,10 +410,10 @@ def build_report(
     rows = _read_rows(out)
     failed: list[tuple[str, str]] = []
     outcomes = run_local(
-        list(zip(files, names, strict=True)),
+        sources,
         analyse_for_report,
         (dict(read_options or {}), bool(gap)),
-        min(workers, max(1, len(files))),
+        min(workers, max(1, len(sources))),
         on_error=_worker_died,
     )
     for done, res in enumerate(outcomes, start=1):
@@ -375,14 +438,14 @@ def build_report(
         # The index rows after every loop: an interrupted report keeps what it did.
         write_atomic(out / ROWS_FILE, _rows_json(rows))
         if progress:
-            progress(done, len(files), res["loop"])
+            progress(done, len(sources), res["loop"])
     # Failures in file order, so the message of an all-failed run names the first file.
-    failed.sort(key=lambda fm: files.index(fm[0]))
+    failed.sort(key=lambda fm: order.index(fm[0]) if fm[0] in order else len(order))
     ordered = sorted(rows.values(), key=sort_key)
     write_atomic(out / ROWS_FILE, _rows_json(rows))
     write_atomic(out / "index.html", render_index_html(ordered))
     write_atomic(out / "summary.md", render_markdown(ordered))
-    if failed and len(failed) == len(files):
+    if failed and len(failed) == len(sources):
         # Nothing could be read: the caller reports a data error.
         raise DataError(f"no input could be analysed; {failed[0][0]}: {failed[0][1]}")
     return ReportResult(

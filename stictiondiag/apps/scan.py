@@ -553,7 +553,9 @@ def scan(
     names = unique_names([s.loop for s in sources])
     file_names = {s.loop: name for s, name in zip(sources, names, strict=True)}
     renamed = {
-        s.path: s.loop for s in sources if s.loop_column is None and s.loop != Path(s.path).stem
+        s.path: s.loop
+        for s in sources
+        if s.loop_column is None and s.plant is None and s.loop != Path(s.path).stem
     }
     loops_dir = _make_loops_dir(out)
     settings = {"gap": bool(gap), "read_options": read_options}
