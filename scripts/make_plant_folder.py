@@ -10,12 +10,13 @@ From ``sample_data/*.csv`` (six simulated loops, see sample_data/README.md):
   each tag on its own clock (the loop's sampling);
 * ``broken.csv``: one more wide export with a loop whose op tag is missing
   (``FIC900.PV`` only) beside a complete one;
-* ``loops.csv``: the loops manifest (``loop, ts, loop_type``) with each loop's
-  sampling time (the wide file's clock is the sample count) and the loop types the
-  tags cannot give (blank where the tag or the data decide).
+* ``loops.csv``: the loops manifest (``loop, ts``) with each loop's sampling time
+  (the wide file's clock is a sample count); the loop types are left to the tags
+  and the data.
 
 The file ``expected.json`` lists, per loop, the sample file it came from, the options
-that analyse it by hand, its loop type and whether it integrates.
+that analyse it by hand, the loop type the tags or the data should give and whether
+it integrates.
 
 Usage: ``python scripts/make_plant_folder.py OUT`` (default ``plant``).
 """
@@ -32,14 +33,15 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_data"
 
-#: (sample file, loop name, tag style, loop type by hand, integrating, loop type in manifest)
+#: (sample file, loop name, tag style, loop type by hand, loop type inferred, integrating).
+#: ``Loop6`` has no ISA tag: the data tell it integrates, not that it is a level.
 LOOPS = (
-    ("healthy_flow.csv", "FIC101", "{p}.{r}", "flow", False, None),
-    ("level_undershoot.csv", "LIC-200", "{p}.{r}", "level", True, None),
-    ("flow_mixed.csv", "FC_301", "{p}_{r}", "flow", False, None),
-    ("temperature_quantised.csv", "TIC400", "{p}.{r}", "temperature", False, None),
-    ("slave_flow_stickslip.csv", "FIC501", "{p}:{r}", "flow", False, None),
-    ("level_no_mv.csv", "Loop6", "{p} {r}", "other", True, None),
+    ("healthy_flow.csv", "FIC101", "{p}.{r}", "flow", "flow", False),
+    ("level_undershoot.csv", "LIC-200", "{p}.{r}", "level", "level", True),
+    ("flow_mixed.csv", "FC_301", "{p}_{r}", "flow", "flow", False),
+    ("temperature_quantised.csv", "TIC400", "{p}.{r}", "temperature", "temperature", False),
+    ("slave_flow_stickslip.csv", "FIC501", "{p}:{r}", "flow", "flow", False),
+    ("level_no_mv.csv", "Loop6", "{p} {r}", "level", "other", True),
 )
 
 ROLE_NAMES = {"pv": "PV", "op": "OP", "mv": "MV", "sp": "SP"}
@@ -73,7 +75,7 @@ def make_plant_folder(out: Path) -> dict:
     expected: dict = {}
     manifest = []
     t0 = pd.Timestamp("2024-01-01")
-    for name, prefix, style, loop_type, integrating, _ in LOOPS:
+    for name, prefix, style, by_hand, inferred, integrating in LOOPS:
         frame = pd.read_csv(SAMPLES / name)
         ts = _ts(name)
         roles = _roles(frame)
@@ -82,14 +84,12 @@ def make_plant_folder(out: Path) -> dict:
             wide[tag] = values
             stamps = t0 + pd.to_timedelta(np.arange(values.size) * ts, unit="s")
             long_parts.append(pd.DataFrame({"timestamp": stamps, "tag": tag, "value": values}))
-        options = {"ts": ts}
-        if loop_type != "other":
-            options["loop_type"] = loop_type
         expected[prefix] = {
             "file": name,
-            "options": options,
-            "loop_type": loop_type,
+            "options": {"loop_type": by_hand},
+            "loop_type": inferred,
             "integrating": integrating,
+            "ts": ts,
         }
         manifest.append({"loop": prefix, "ts": ts})
     n = max(v.size for v in wide.values())

@@ -8,18 +8,23 @@ the stiction band) to pv by :func:`stictiondiag.identification.process.identify_
 and the loop's PI controller from sp, pv and op by
 :func:`stictiondiag.identification.controller.identify_controller`.
 
-Two first principles choose between them:
+Only a cycling pv (or control error) is used: a loop at rest shows no structure.  Then three first
+principles choose:
 
 1. **The loop is a negative feedback loop.**  A loop that holds its set point has
    controller and process gains of one sign (``Kc K > 0``); a structure whose
    identified gain contradicts the identified controller is not the plant.  When
    only one structure is consistent, it is chosen.
-2. **pv's rate follows op, or pv's level does.**  When both are consistent, the one
+2. **A lag slower than the record is an integrator.**  ``K/(tau s + 1)`` with
+   ``tau`` beyond the record acts as ``(K/tau)/s`` over it (both fit alike): the
+   process is taken as integrating.
+3. **pv's rate follows mv, or pv's level does.**  With mv recorded, the structure
    that explains clearly more of pv (R^2 higher by :data:`R2_MARGIN`) is chosen.
+   Without mv the valve's stick-slip lies between op and pv and corrupts this
+   comparison, so it is not made.
 
-Otherwise the data cannot tell (a self-regulating process slow against the record
-is an integrator over it; a loop without movement shows no structure): the loop is
-taken as self-regulating, as before, and a warning says so and how to set it.
+Otherwise the data cannot tell: the loop is taken as self-regulating, as before,
+and a warning says so and how to set it.
 
 Choice of the rule and of :data:`R2_MARGIN` on simulated loops only (PI loops of
 :func:`stictiondiag.models.loops.simulate_loop`, FOPTD time constants 3-300 s and
@@ -59,16 +64,22 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
         The decision and a one-line reason.
     """
     from stictiondiag.identification.controller import identify_controller
-    from stictiondiag.identification.process import identify_process
+    from stictiondiag.identification.process import FOPTD, identify_process
+    from stictiondiag.signals.oscillation import detect_oscillation
 
-    u = tags.mv if tags.mv is not None else tags.op
-    what = "mv" if tags.mv is not None else "op"
+    has_mv = tags.mv is not None
+    u = tags.mv if has_mv else tags.op
+    what = "mv" if has_mv else "op"
     dt = float(tags.ts)
+    error = tags.pv if tags.sp is None else tags.sp - tags.pv  # a set-point step hides the cycle
+    if not (detect_oscillation(tags.pv, dt).present or detect_oscillation(error, dt).present):
+        return None, "pv does not cycle, so the response to the valve is not seen clearly"
     try:
         kc = float(identify_controller(tags.sp, tags.pv, tags.op, dt).controller.gain)
     except (StictionError, ValueError, FloatingPointError):
         return None, "the controller could not be identified"
     fits: dict[bool, tuple[bool, float]] = {}
+    lag = math.nan  # time constant of the self-regulating fit [s]
     for integrating in (False, True):
         try:
             pf = identify_process(u, tags.pv, dt, integrating=integrating)
@@ -77,6 +88,8 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
         r2 = float(pf.fit_r2)
         if math.isfinite(r2) and math.isfinite(kc):
             fits[integrating] = (kc * float(pf.process.gain) > 0.0, r2)
+        if isinstance(pf.process, FOPTD):
+            lag = float(pf.process.time_constant)
     consistent = [k for k, (ok, _) in fits.items() if ok]
     r2s = ", ".join(
         f"{'integrating' if k else 'self-regulating'} R^2 {r2:.2f}" for k, (_, r2) in fits.items()
@@ -87,12 +100,18 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
             f"only it closes a negative feedback loop with the identified controller "
             f"({other} gain has the wrong sign; {what} -> pv)"
         )
-    if len(consistent) == 2:
-        gap = fits[True][1] - fits[False][1]
-        if abs(gap) >= R2_MARGIN:
-            return gap > 0, f"it explains more of pv ({r2s}; {what} -> pv)"
-        return None, f"both structures fit alike ({r2s})"
-    return None, "no structure closes a negative feedback loop with the identified controller"
+    if len(consistent) < 2:
+        return None, "no structure closes a negative feedback loop with the identified controller"
+    if lag >= tags.duration:
+        return True, (
+            f"the self-regulating fit's time constant ({lag:.3g} s) exceeds the record "
+            f"({tags.duration:.3g} s): over it the process is an integrator ({what} -> pv)"
+        )
+    gap = fits[True][1] - fits[False][1]
+    if has_mv and abs(gap) >= R2_MARGIN:
+        return gap > 0, f"it explains more of pv ({r2s}; {what} -> pv)"
+    why = "both structures fit alike" if has_mv else "without mv the valve hides the process"
+    return None, f"{why} ({r2s})"
 
 
 def settle_loop_type(tags: Tags) -> Tags:
