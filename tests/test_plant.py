@@ -331,3 +331,21 @@ def test_scan_gives_the_verdicts_and_sj_of_each_loop_analysed_by_hand(plant):
                 assert abs(row[key] - by_hand[key]) <= SAME_NUMBERS_TOL, (layout, loop, key)
     summary = json.loads((out / "loops" / "plant_long_LIC-200.json").read_text())
     assert any("common grid" in w for w in summary["analysis"]["warnings"])
+
+
+@pytest.mark.parametrize(
+    ("name", "integrating"),
+    [
+        ("level_undershoot.csv", True),  # with mv
+        ("level_no_mv.csv", True),
+        ("slave_flow_stickslip.csv", False),
+        ("temperature_quantised.csv", False),
+        ("flow_mixed.csv", False),
+    ],
+)
+def test_data_alone_tell_the_structure_of_the_cycling_sample_loops(name, integrating):
+    # Tag names dropped (Tags.from_arrays): only the data decide.
+    t = read_tags(SAMPLES / name, loop_type="other")
+    tags = Tags.from_arrays(t.pv, t.op, mv=t.mv, sp=t.sp, ts=t.ts, loop_type=None)
+    decided, why = infer_integrating(tags)
+    assert decided is integrating, why
