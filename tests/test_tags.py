@@ -299,7 +299,8 @@ def test_op_far_outside_span_is_flagged(tmp_path):
     frame = loop_frame()
     frame["op"] = 4.0 + 16.0 * frame["op"] / 100.0  # mA read as percent by mistake
     tags = read_tags(write_csv(frame, tmp_path / "ma.csv"))
-    assert not any("op_units" in note for note in tags.warnings)  # 4-20 lies inside 0-100
+    # 4-20 lies inside 0-100, but a whole record inside 4-20 suggests mA (issue 18).
+    assert any("--op-units mA" in note for note in tags.warnings)
     frame["op"] = frame["op"] * 100.0
     tags = read_tags(write_csv(frame, tmp_path / "big.csv"))
     assert any("op_units" in note for note in tags.warnings)
