@@ -44,6 +44,8 @@ SEMANTIC: dict[tuple[str, str], list[list[str]]] = {
     ("scan", "--workers"): [["0"]],
     ("scan", "--scheduler"): [["garbage://"]],
     ("scan", "--ts"): [["0"], ["-1"]],
+    ("scan", "--loops"): [["{dir}"], ["{file}/x.csv"]],
+    ("report", "--loops"): [["{dir}"], ["{file}/x.csv"], ["{input}"]],
     ("gap", "--plot"): [["{dir}"], ["{input}"], ["x.xyz"]],
     ("simulate", "--seed"): [["-1"]],
     ("simulate", "--plot"): [["x.xyz"], ["{dir}"]],

@@ -271,7 +271,7 @@ def test_bad_manifest_is_a_one_line_usage_error(tmp_path, text, message):
     assert message.split("'")[0].strip() in _error_line(result)
 
 
-def test_missing_manifest_is_a_one_line_data_error(tmp_path):
+def test_missing_manifest_is_a_one_line_usage_error(tmp_path):
     result = _run(
         "report",
         SAMPLES / "healthy_flow.csv",
@@ -280,7 +280,7 @@ def test_missing_manifest_is_a_one_line_data_error(tmp_path):
         "--out",
         tmp_path / "out",
     )
-    assert result.exit_code == EXIT_DATA
+    assert result.exit_code == EXIT_USAGE
     assert "file not found" in _error_line(result)
 
 

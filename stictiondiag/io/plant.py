@@ -339,15 +339,18 @@ def read_manifest(path: str | os.PathLike) -> dict[str, dict]:
     Raises
     ------
     UsageError
-        No ``file``/``loop`` column, an unknown column, a bad value (row named).
-    DataError
-        The file cannot be read.
+        The file cannot be read, has no ``file``/``loop`` column, an unknown
+        column, a bad value (row named).
     """
     from stictiondiag.io.readers import read_table
     from stictiondiag.io.tags import LOOP_TYPES, OP_UNITS
 
     file = Path(path)
-    frame = read_table(file)
+    try:
+        frame = read_table(file)
+    except DataError as exc:
+        # The manifest is the user's settings, not plant data: a usage error.
+        raise UsageError(f"loops manifest: {str(exc).splitlines()[0]}") from None
     frame.columns = [str(c).strip().lower() for c in frame.columns]
     keys = [c for c in ("file", "loop") if c in frame.columns]
     if not keys:
