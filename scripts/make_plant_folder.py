@@ -8,8 +8,7 @@ From ``sample_data/*.csv`` (six simulated loops, see sample_data/README.md):
   loop's end empty);
 * ``plant_long.parquet``: the same six loops as a long ``timestamp, tag, value`` table,
   each tag on its own clock (the loop's sampling);
-* ``broken.csv``: one more wide export with a loop whose op tag is missing
-  (``FIC900.PV`` only) beside a complete one;
+* the broken loop, in the wide file: ``FIC900.PV`` without its op;
 * ``loops.csv``: the loops manifest (``loop, ts``) with each loop's sampling time
   (the wide file's clock is a sample count); the loop types are left to the tags
   and the data.
@@ -92,6 +91,8 @@ def make_plant_folder(out: Path) -> dict:
             "ts": ts,
         }
         manifest.append({"loop": prefix, "ts": ts})
+    # The broken loop: a pv recorded without its controller's output.
+    wide["FIC900.PV"] = pd.read_csv(SAMPLES / "healthy_flow.csv")["pv"].to_numpy()
     n = max(v.size for v in wide.values())
     table = pd.DataFrame(
         {"sample": np.arange(n)}
@@ -99,16 +100,6 @@ def make_plant_folder(out: Path) -> dict:
     )
     table.to_csv(out / "plant_wide.csv", index=False, float_format="%.10g")
     pd.concat(long_parts, ignore_index=True).to_parquet(out / "plant_long.parquet", index=False)
-    healthy = pd.read_csv(SAMPLES / "healthy_flow.csv")
-    broken = pd.DataFrame(
-        {
-            "time": healthy["time"],
-            "FIC900.PV": healthy["pv"],
-            "FIC901.PV": healthy["pv"],
-            "FIC901.OP": healthy["op"],
-        }
-    )
-    broken.to_csv(out / "broken.csv", index=False, float_format="%.10g")
     pd.DataFrame(manifest).to_csv(out / "loops.csv", index=False)
     (out / "expected.json").write_text(json.dumps(expected, indent=1) + "\n")
     return expected

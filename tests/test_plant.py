@@ -304,6 +304,7 @@ def test_scan_of_the_plant_folder_lists_the_broken_loop_and_exits_4(plant):
     assert "not analysed: FIC900" in result.stderr and "incomplete: no op" in result.stderr
     table = pd.read_csv(out / "scan.csv")
     assert set(table.loc[table["verdict"] == "error", "loop"]) == {"FIC900"}
+    assert len(table) == 13  # six loops in each file, and the broken one
 
 
 def test_scan_infers_every_loop_type_of_the_plant(plant):
@@ -349,3 +350,15 @@ def test_data_alone_tell_the_structure_of_the_cycling_sample_loops(name, integra
     tags = Tags.from_arrays(t.pv, t.op, mv=t.mv, sp=t.sp, ts=t.ts, loop_type=None)
     decided, why = infer_integrating(tags)
     assert decided is integrating, why
+
+
+def test_report_without_options_replays_the_level_loops_as_integrating(tmp_path):
+    # README: `stiction report sample_data/*.csv`; the two level loops, one named by
+    # its ISA tags (LIC101), one by nothing but its data.
+    files = [SAMPLES / "level_undershoot.csv", SAMPLES / "level_no_mv.csv"]
+    result = _run("report", *files, "--out", tmp_path / "rep", "--no-gap", "--workers", "1")
+    assert result.exit_code == 0, result.stderr
+    for name, source in (("level_undershoot", "tag"), ("level_no_mv", "data")):
+        d = json.loads((tmp_path / "rep" / "loops" / f"{name}.json").read_text())
+        assert d["tags"]["integrating"] is True and d["tags"]["loop_type_source"] == source
+        assert d["replay"]["process"]["type"] == "integrating"

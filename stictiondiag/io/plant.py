@@ -16,7 +16,8 @@ A historian export of a plant comes in two layouts:
   steps from a sample of a tag are missing values.  The grid is reported in the
   loop's warnings.
 
-A group that is not a loop (a pv without op, two pv columns) is listed with the
+A file is a wide plant export when at least two prefixes have a pv and an op.  In
+it, a group that is not a loop (a pv without op, two pv columns) is listed with the
 reason (:attr:`PlantLoop.problem`); the other loops are analysed.  A file with one
 loop keeps the file's own reading (:func:`~stictiondiag.io.tags.read_tags`).
 
@@ -135,6 +136,17 @@ def _loops_of_groups(
 def _header(path: Path) -> pd.DataFrame:
     from stictiondiag.io.readers import read_table
 
+    if path.suffix.lower() in (".parquet", ".pq") and path.is_file():
+        import pandas as pd
+        import pyarrow.parquet as pq
+
+        try:
+            names = pq.read_schema(path).names
+        except Exception:  # noqa: BLE001 - pyarrow raises many types; read_table says why
+            names = None
+        if names is not None:
+            return pd.DataFrame(columns=pd.Index([str(n).strip() for n in names], dtype=object))
+
     seen: list = []
 
     def select(header):
@@ -181,7 +193,9 @@ def plant_loops(path: str | os.PathLike) -> list[PlantLoop]:
         return _loops_of_groups(str(file), groups, "long", None)
     groups = group_tags(names)
     complete = [g for g in groups.values() if "pv" in g and "op" in g]
-    if len(groups) < 2 or len(complete) < 1 or (len(groups) == len(complete) == 1):
+    if len(complete) < 2:
+        # One loop (perhaps beside a valve-position tag of another name): the file's
+        # own reading, with its column rules and messages.
         return [PlantLoop(file.stem, str(file))]
     times = [n for n in names if is_time_name(n)]
     return _loops_of_groups(str(file), groups, "wide", times[0] if len(times) == 1 else None)
