@@ -151,10 +151,17 @@ def _header(path: Path) -> pd.DataFrame:
 
     def select(header):
         seen.append(header)
-        return [str(header.columns[0])]  # read one column: only the header is wanted
+        raise _HeaderRead  # only the header is wanted: stop before the rows are parsed
 
-    frame = read_table(path, select)
-    return seen[0] if seen else frame.iloc[:0]
+    try:
+        frame = read_table(path, select)
+    except _HeaderRead:
+        return seen[0]
+    return frame.iloc[:0]
+
+
+class _HeaderRead(Exception):
+    """Raised by :func:`_header`'s column selection once the header is known."""
 
 
 def _long_columns(names: list[str]) -> dict[str, str] | None:
@@ -202,6 +209,13 @@ def plant_loops(path: str | os.PathLike) -> list[PlantLoop]:
 
 
 def _long_tags(file: Path, long: dict[str, str]) -> list[str]:
+    """The distinct tags of a long export (of a Parquet file, only its tag column is read)."""
+    if file.suffix.lower() in (".parquet", ".pq"):
+        import pyarrow.compute as pc
+        import pyarrow.parquet as pq
+
+        column = pq.read_table(file, columns=[long["tag"]]).column(0)
+        return sorted(str(t) for t in pc.unique(column).to_pylist() if t is not None)
     frame = _read_long(file, long, None)
     return sorted({str(t) for t in frame[long["tag"]].dropna().unique()})
 
