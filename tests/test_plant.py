@@ -116,6 +116,18 @@ def test_data_tell_a_sticky_level_loop_integrates(with_mv):
     assert settled.integrating and settled.loop_type_source == "data"
 
 
+def test_without_mv_a_fast_loop_is_not_taken_for_an_integrator():
+    # The concentration loop of Table 3 (3 e^-10s / (10s + 1), PI 0.2 / 10 s) with
+    # S 5, J 2: from op, the self-regulating fit's lag comes out far beyond the
+    # record; only mv could tell, so the data must not decide "integrating".
+    from stictiondiag.models.processes import LOOP_PARAMETERS
+
+    loop = LOOP_PARAMETERS["concentration"]
+    tags = _simulated(loop["process"], loop["controller"], 1.0, 5.0, 2.0, False)
+    integrating, why = infer_integrating(tags)
+    assert integrating is not True, why
+
+
 def test_data_tell_a_sticky_flow_loop_self_regulates():
     tags = _simulated(FOPTD(1.2, 10.0, 20.0), PI(0.3, 30.0), 10.0, 3.0, 3.0, True)
     integrating, why = infer_integrating(tags)

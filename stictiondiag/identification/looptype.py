@@ -16,12 +16,15 @@ principles choose:
    identified gain contradicts the identified controller is not the plant.  When
    only one structure is consistent, it is chosen.
 2. **A lag slower than the record is an integrator.**  ``K/(tau s + 1)`` with
-   ``tau`` beyond the record acts as ``(K/tau)/s`` over it (both fit alike): the
-   process is taken as integrating.
+   ``tau`` beyond the record acts as ``(K/tau)/s`` over it (both fit alike): with mv
+   recorded, the process is taken as integrating.
 3. **pv's rate follows mv, or pv's level does.**  With mv recorded, the structure
    that explains clearly more of pv (R^2 higher by :data:`R2_MARGIN`) is chosen.
-   Without mv the valve's stick-slip lies between op and pv and corrupts this
-   comparison, so it is not made.
+
+Without mv, only the first principle is used: the valve's stick-slip lies between
+op and pv, and the fits from op are not the process's (a sticky valve's square mv
+turns op's ramps into steps, so a self-regulating loop's op -> pv fit can come out
+as a lag far slower than the record: the paper's concentration loop, Table 3, does).
 
 Otherwise the data cannot tell: the loop is taken as self-regulating, as before,
 and a warning says so and how to set it.
@@ -106,7 +109,7 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
         )
     if len(consistent) < 2:
         return None, "no structure closes a negative feedback loop with the identified controller"
-    if lag >= tags.duration:
+    if has_mv and lag >= tags.duration:
         return True, (
             f"the self-regulating fit's time constant ({lag:.3g} s) exceeds the record "
             f"({tags.duration:.3g} s): over it the process is an integrator ({what} -> pv)"
