@@ -161,7 +161,6 @@ class Analysis:
                 "loop_type": tags.loop_type,
                 "loop_type_source": _plain_text(getattr(tags, "loop_type_source", None)),
                 "integrating": bool(tags.integrating),
-                "loop_type_source": tags.loop_type_source,
                 "has_mv": tags.mv is not None,
                 "has_sp": tags.sp is not None,
             },
