@@ -216,3 +216,20 @@ def test_poorly_determined_parameters_are_marked_on_the_figures():
     fig = plot_valve_zoom(op, mv, ts=0.1, S=5.0, J=2.0, period_s=50.0, poorly=["J"])
     labels = [a.get_text() for a in fig.axes[0].texts if a.get_text()]
     assert labels == ["S = 5 %", "J = 2 % (poorly determined)"]
+
+
+def test_gap_breakdown_layout_survives_a_summary_wider_than_the_figure():
+    # A summary line wider than the figure (a runner-up margin printed with 300
+    # digits did it) used to give matplotlib "left cannot be >= right"; the figure
+    # now widens so that each panel keeps at least 1.2 in.
+    from stictiondiag.plotting.canvas import new_figure
+    from stictiondiag.plotting.gap import _breakdown_layout
+
+    fig, axes = new_figure(2, 3, (14, 7.5))
+    _breakdown_layout(fig, axes, summary_width=30.0)
+    assert fig.get_figwidth() > 30.0
+    params = fig.subplotpars
+    assert params.left < params.right
+    width_in = (params.right - params.left) * fig.get_figwidth()
+    assert width_in >= 3 * 1.2  # three columns of at least min_cell
+    fig.clf()

@@ -460,7 +460,8 @@ def margin(winner: str, runner: str | None, scores: dict, evidences: dict) -> fl
 
     The share of the winner's penalised gain over the base model that the runner-up
     does not reach (100: the runner-up gains nothing); between two accepted effects,
-    the share of the winner's evidence the runner-up lacks; for ``none``, how far the
+    the share of the winner's evidence the runner-up lacks (of the larger evidence in
+    size when one is negative; at most 100); for ``none``, how far the
     best candidate's penalised score lies above the base error, in % of it.
     """
     if runner is None:
@@ -470,7 +471,11 @@ def margin(winner: str, runner: str | None, scores: dict, evidences: dict) -> fl
     if winner == "none":
         return 100.0 * (scores[runner].score - base_total) / max(base_total, 1e-300)
     if runner != "none" and scores[runner].accepted:
-        return 100.0 * (evidences[winner] - evidences[runner]) / max(evidences[winner], 1e-300)
+        # Evidence can be negative for both (a gain smaller than its penalty on some
+        # signal): measured against the larger of the two in size, capped at 100.
+        ev_w, ev_r = evidences[winner], evidences[runner]
+        scale = max(abs(ev_w), abs(ev_r), 1e-300)
+        return min(100.0, 100.0 * (ev_w - ev_r) / scale)
     return 100.0 * (scores[runner].score - scores[winner].score) / max(gain, 1e-300)
 
 

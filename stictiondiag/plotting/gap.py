@@ -223,8 +223,12 @@ def _breakdown_layout(fig: Figure, axes, summary_width: float) -> None:
 
     left = max(0.6, max(room(ax) for ax in axes[:, 0]) + pad)
     wspace = max(0.6, max(room(ax) for ax in axes[:, 1:].flat) + 2 * pad)
-    width = fig.get_figwidth()
-    # Summary text at the left edge of the last column (three equal columns).
+    # Summary text at the left edge of the last column (three equal columns); a
+    # summary too wide for the figure widens it, so that no panel shrinks below
+    # ``min_cell``.
+    min_cell = 1.2  # [in]
+    width = max(fig.get_figwidth(), left + 2 * wspace + 2 * min_cell + pad + summary_width)
+    fig.set_figwidth(width)
     cell = (width - left - 2 * wspace - pad - summary_width) / 2
     right = max(0.25, width - left - 2 * wspace - 3 * cell)
     place_axes(fig, left=left, right=right, top=0.66, bottom=0.6, wspace=wspace, hspace=0.72)
