@@ -94,6 +94,8 @@ CYCLE_BINS = 256
 CYCLE_HYSTERESIS = 0.25
 #: Cycles shorter or longer than this factor of the median cycle are left out.
 CYCLE_LENGTH_FACTOR = 1.6
+#: Cycles interpolated together by :func:`cycle_shape` (bounds its memory).
+CYCLE_BLOCK = 64
 #: Integral time standing in for "no integral action" in the simulator [x record].
 P_ONLY_INTEGRAL_FACTOR = 1.0e6
 #: Fewest samples a replay covers.
@@ -322,6 +324,11 @@ def cycle_shape(x: np.ndarray, n_bins: int = CYCLE_BINS) -> np.ndarray | None:
     :data:`CYCLE_LENGTH_FACTOR` of the median) dropped, the rest averaged.  Returns
     the average cycle scaled to zero mean and unit norm, or None with fewer than two
     cycles.
+
+    Cost O(n + n_bins n_cycles) time, O(n + n_bins) memory besides the signal: each
+    block of :data:`CYCLE_BLOCK` cycles is interpolated on its own slice of the
+    record (interpolating every cycle against the whole record cost O(n) per cycle,
+    quadratic in the record), and the cycles are summed as they come.
     """
     x = np.asarray(x, dtype=float)
     if x.size < 4 * n_bins // 8 or not np.all(np.isfinite(x)):
@@ -340,8 +347,17 @@ def cycle_shape(x: np.ndarray, n_bins: int = CYCLE_BINS) -> np.ndarray | None:
     if keep.sum() < 2:
         return None
     phase = np.arange(n_bins) / n_bins
-    cycles = [np.interp(ups[i] + lengths[i] * phase, k, xd) for i in np.flatnonzero(keep)]
-    shape = np.mean(cycles, axis=0)
+    kept = np.flatnonzero(keep)
+    total = np.zeros(n_bins)
+    for b in range(0, kept.size, CYCLE_BLOCK):
+        i = kept[b : b + CYCLE_BLOCK]
+        t = ups[i, None] + lengths[i, None] * phase  # within [ups[i], ups[i + 1])
+        lo = int(t[0, 0])
+        hi = min(x.size, int(t[-1, -1]) + 2)  # the samples either side of every t
+        cycles = np.interp(t, k[lo:hi], xd[lo:hi])
+        for row in cycles:  # in order: the sum np.mean(cycles, axis=0) forms
+            total += row
+    shape = total / kept.size
     shape = shape - shape.mean()
     norm = float(np.linalg.norm(shape))
     if norm == 0.0:
