@@ -97,6 +97,7 @@ def _child(path: str, gap: bool, trace: bool, warm_path: str) -> None:
     import stictiondiag.analysis as analysis
 
     seconds: dict[str, float] = {}
+    cpu: dict[str, float] = {}
     peaks: dict[str, int] = {}
 
     def wrap(name, step, function):
@@ -104,14 +105,16 @@ def _child(path: str, gap: bool, trace: bool, warm_path: str) -> None:
             if trace:
                 base = tracemalloc.get_traced_memory()[0]
                 tracemalloc.reset_peak()
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             try:
                 return function(*args, **kwargs)
             finally:
                 seconds[step] = seconds.get(step, 0.0) + time.perf_counter() - t0
+                cpu[step] = cpu.get(step, 0.0) + time.process_time() - c0
                 if trace:
-                    peak = tracemalloc.get_traced_memory()[1] - base
-                    peaks[step] = max(peaks.get(step, 0), peak)
+                    peak = tracemalloc.get_traced_memory()[1]
+                    peaks[step] = max(peaks.get(step, 0), peak - base)
+                    peaks["_all"] = max(peaks.get("_all", 0), peak)
 
         return timed
 
@@ -120,15 +123,18 @@ def _child(path: str, gap: bool, trace: bool, warm_path: str) -> None:
     config = analysis.AnalysisConfig(gap=gap)
     analysis.analyze_file(warm_path, config=config)  # numba's cache, lazy imports
     seconds.clear()
+    cpu.clear()
     peaks.clear()
     if trace:
         tracemalloc.start()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     result = analysis.analyze_file(path, config=config)
     total = time.perf_counter() - t0
     out = {
         "seconds": seconds,
+        "cpu": cpu,
         "total": total,
+        "total_cpu": time.process_time() - c0,
         "peak_bytes": peaks,
         "maxrss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
         "n": int(result.tags.n),
@@ -138,12 +144,20 @@ def _child(path: str, gap: bool, trace: bool, warm_path: str) -> None:
         "verdict": result.verdict.status,
     }
     if trace:
-        out["total_peak_bytes"] = tracemalloc.get_traced_memory()[1]
+        out["total_peak_bytes"] = max(peaks.pop("_all", 0), tracemalloc.get_traced_memory()[1])
     print(json.dumps(out))
 
 
 def _run_child(path: Path, gap: bool, trace: bool, warm: Path) -> dict:
-    cmd = [sys.executable, __file__, "--child", str(path), str(int(gap)), str(int(trace)), str(warm)]
+    cmd = [
+        sys.executable,
+        __file__,
+        "--child",
+        str(path),
+        str(int(gap)),
+        str(int(trace)),
+        str(warm),
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ))
     if proc.returncode != 0:
         raise SystemExit(f"child failed on {path}:\n{proc.stderr[-3000:]}")
@@ -168,17 +182,20 @@ def main(argv: list[str] | None = None) -> None:
 
     import stictiondiag
 
-    print(f"# stictiondiag from {Path(stictiondiag.__file__).parent}; gap={'on' if args.gap else 'off'}")
+    print(
+        f"# stictiondiag from {Path(stictiondiag.__file__).parent}; gap={'on' if args.gap else 'off'}"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.data or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        totals: dict[tuple[str, int], float] = {}
+        totals: dict[tuple[str, int], tuple[float, float]] = {}
         for variant in args.variants:
             warm = folder / f"warm_{variant}.parquet"
             if not warm.exists():
                 make_loop(warm, WARMUP_SAMPLES, variant == "mv")
-            print(f"\n## {variant}")
-            head = ["samples", "total [s]", *STEPS.values(), "max RSS", "traced peak", "B/sample"]
+            print(f"\n## {variant}: per step CPU [s] / traced peak above the step's start")
+            head = ["samples", "wall [s]", "CPU [s]", *STEPS.values()]
+            head += ["max RSS", "traced peak", "bytes/sample"]
             print("| " + " | ".join(head) + " |")
             print("|" + "---|" * len(head))
             for size in args.sizes:
@@ -188,15 +205,15 @@ def main(argv: list[str] | None = None) -> None:
                     make_loop(path, n, variant == "mv")
                 res = _run_child(path, args.gap, False, warm)
                 mem = None if args.no_memory else _run_child(path, args.gap, True, warm)
-                totals[(variant, n)] = res["total"]
+                totals[(variant, n)] = (res["total"], res["total_cpu"])
                 steps = [
-                    f"{res['seconds'].get(s, 0.0):.2f}"
+                    f"{res['cpu'].get(s, 0.0):.2f}"
                     + ("" if mem is None else f" / {_fmt_bytes(mem['peak_bytes'].get(s))}")
                     for s in STEPS.values()
                 ]
                 peak = None if mem is None else mem["total_peak_bytes"]
                 per = "-" if peak is None else f"{peak / n:.0f}"
-                row = [f"{n:.0e}", f"{res['total']:.2f}", *steps]
+                row = [f"{n:.0e}", f"{res['total']:.2f}", f"{res['total_cpu']:.2f}", *steps]
                 row += [_fmt_bytes(res["maxrss_bytes"]), _fmt_bytes(peak), per]
                 print("| " + " | ".join(row) + " |", flush=True)
                 print(
@@ -205,8 +222,8 @@ def main(argv: list[str] | None = None) -> None:
                     flush=True,
                 )
             if args.ratio and (variant, 50_000) in totals and (variant, 500_000) in totals:
-                ratio = totals[(variant, 500_000)] / totals[(variant, 50_000)]
-                print(f"\ngrowth 5e4 -> 5e5 ({variant}): {ratio:.1f}x")
+                (w1, c1), (w2, c2) = totals[(variant, 50_000)], totals[(variant, 500_000)]
+                print(f"\ngrowth 5e4 -> 5e5 ({variant}): wall {w2 / w1:.1f}x, CPU {c2 / c1:.1f}x")
 
 
 if __name__ == "__main__":

@@ -153,7 +153,9 @@ def test_median_filter_nearest_long_record_quarter_window():
         ext = np.concatenate([np.full(before, x[0]), x, np.full(after, x[-1])])
         for k0 in range(0, n, 500):
             windows = np.lib.stride_tricks.sliding_window_view(ext[k0 : k0 + 500 + size - 1], size)
-            np.testing.assert_array_equal(got[k0 : k0 + 500], np.sort(windows, axis=1)[:, size // 2])
+            np.testing.assert_array_equal(
+                got[k0 : k0 + 500], np.sort(windows, axis=1)[:, size // 2]
+            )
 
 
 def test_mannwhitneyu_matches_scipy():
