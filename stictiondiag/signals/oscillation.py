@@ -47,7 +47,6 @@ import numpy as np
 from stictiondiag.core.errors import UsageError
 from stictiondiag.core.filters import (
     detrend_linear,
-    median_filter_nearest,
     savgol_smooth,
 )
 
@@ -66,7 +65,7 @@ MIN_SUSTAIN_RATIO = 0.3
 ACF_SIGNIFICANCE = 3.0
 #: Shortest series analysed [samples]; shorter series are reported as not oscillating.
 MIN_SAMPLES = 16
-#: Width of the running median removed as drift, in periods of the oscillation [-].
+#: Width of the running mean removed as drift, in periods of the oscillation [-].
 DETREND_PERIODS = 3.0
 #: Passes of detrending and period estimation, at most, and the relative change of
 #: the period [-] at which they stop.
@@ -245,16 +244,28 @@ def dominant_period(x: np.ndarray, dt: float) -> float | None:
 
 
 def _detrend_by_cycles(x: np.ndarray, period_samples: float) -> np.ndarray:
-    """Remove the running median over :data:`DETREND_PERIODS` periods.
+    """Remove the running mean over :data:`DETREND_PERIODS` periods.
 
-    A running median over whole periods of a periodic signal is constant (every
-    window holds the same values), so it follows only the drift: ramps, wandering
-    and the steps of load changes and set-point moves, which a median follows
-    without smearing them into the cycle.  O(n log w) for a window of w samples
-    (:func:`stictiondiag.core.filters.median_filter_nearest`).
+    The mean over a window of whole periods of a periodic signal is constant
+    whatever its phase, so it follows only the drift (ramps, wandering, the steps of
+    load changes smeared over the window).  The window is ``DETREND_PERIODS *
+    period_samples`` long exactly, not rounded to whole samples: the sums come from
+    the cumulative sum interpolated at fractional positions, so a period that is not
+    a whole number of samples leaves no ripple at the period.  Within half a window
+    of either end the window stops at the end (the trend there is the first or last
+    whole window's).  O(n).
     """
-    window = max(3, int(round(DETREND_PERIODS * period_samples)) | 1)
-    return x - median_filter_nearest(x, window)
+    n = x.size
+    width = min(DETREND_PERIODS * period_samples, float(n - 1))
+    if width < 2.0:
+        return x - x.mean()
+    grid = np.arange(n + 1, dtype=float)  # cumsum[j] = sum of x[:j]
+    csum = np.concatenate([[0.0], np.cumsum(x)])
+    half = width / 2.0
+    centre = np.clip(np.arange(n) + 0.5, half, n - half)
+    lo = np.interp(centre - half, grid, csum)
+    hi = np.interp(centre + half, grid, csum)
+    return x - (hi - lo) / width
 
 
 def _refine_detrend(
