@@ -5,13 +5,14 @@ The loop is the concentration loop of Eq. 3 / Table 3 (Choudhury, Thornhill & Sh
 ``benchmarks/bench_analyze.py``, simulated for 10^4 .. 10^7 samples and written as
 Parquet (a CSV of 10^7 rows takes longer to write than the analysis runs).  Each
 record is analysed the way ``stiction analyze FILE`` does it (read, oscillation,
-S and J, verdict, replay and, with ``--gap``, the sim-to-real gap; no figures), in a
-fresh process per size that first analyses a 5000-sample loop so that the loading
+S and J, verdict, replay, the compensation study where the checkout has it and,
+with ``--gap``, the sim-to-real gap; no figures), in a fresh process per size that first analyses a 5000-sample loop so that the loading
 of numba's cache is not counted.
 
 Two runs per size and variant:
 
-* ``time``: wall time per step [s] and the process's peak resident memory
+* ``time``: CPU time per step [s] (the wall time of a shared machine is mostly
+  waiting), wall and CPU time of the analysis and the process's peak resident memory
   (``ru_maxrss``, the interpreter and libraries included);
 * ``memory``: the peak of the memory the step allocates on top of what was live
   when it started [bytes], from :mod:`tracemalloc` (numpy reports its buffers to
@@ -50,6 +51,7 @@ STEPS = {
     "estimate_stiction": "fit",
     "stiction_verdict": "verdict",
     "replay": "replay",
+    "compensation_from_replay": "compensation",
     "diagnose_gap": "gap",
 }
 #: Samples of the warm-up loop analysed before the timed run.
@@ -119,7 +121,8 @@ def _child(path: str, gap: bool, trace: bool, warm_path: str) -> None:
         return timed
 
     for name, step in STEPS.items():
-        setattr(analysis, name, wrap(name, step, getattr(analysis, name)))
+        if hasattr(analysis, name):  # an older checkout may lack a step
+            setattr(analysis, name, wrap(name, step, getattr(analysis, name)))
     config = analysis.AnalysisConfig(gap=gap)
     analysis.analyze_file(warm_path, config=config)  # numba's cache, lazy imports
     seconds.clear()
