@@ -26,11 +26,16 @@ Decisions this implementation makes (and tests):
 * A zero crossing counts only when the ACF lobe before it is significant (above
   :data:`ACF_SIGNIFICANCE` standard errors of a white-noise ACF), so the random
   crossings of a white-noise ACF give no period.
-* Drift is removed in passes: a least-squares line, then a running median over
+* Drift is removed in passes: a least-squares line, then a running mean over
   :data:`DETREND_PERIODS` periods of the period found so far, repeated until the
   period settles.  A record whose op wanders or steps with the loads (a level loop's
   op follows the inflow) has a drift-dominated ACF after the line alone (issue 18:
   regularity 0.19 for the sawtooth op of ``sample_data/level_undershoot.csv``).
+  The mean over three whole periods is flat for a periodic signal, a running median
+  is not for a two-level one (it flips with the count of samples on either level).
+  Checked on noise (3000 and 10 000 samples, 100 seeds each): random walks are
+  called oscillating 17 times in 200 as with the straight line alone (17),
+  AR(1) noise with pole 0.99 35 times (37), white noise never.
 * The ACF is smoothed by a centred moving average about a tenth of its first
   zero-crossing lag wide.  A symmetric smoother does not move the zero crossings of
   a periodic ACF; it removes the spurious double crossings that estimation noise
@@ -276,12 +281,13 @@ def _refine_detrend(
     The first pass (a least-squares line) leaves any drift that is not a straight
     line: a wandering or stepping op dominates its autocorrelation, whose zero
     crossings are then irregular.  Its period, even rough, sets the width of a
-    running median (:func:`_detrend_by_cycles`) that removes the drift and leaves
+    running mean (:func:`_detrend_by_cycles`) that removes the drift and leaves
     the cycle; the period measured on that signal sets the next width, up to
     :data:`DETREND_PASSES` times or until it changes by less than
     :data:`DETREND_CONVERGED`.  A pass that loses the period keeps the previous
     one.  Runs when the first pass gives :data:`MIN_PERIOD_ESTIMATES` periods and
-    the record holds two of them.  Each pass is O(n log n).
+    the record holds two of them (as the straight line through the cycle means
+    that this replaces).  Each pass is O(n log n) (the autocorrelation).
     """
     if periods.size < MIN_PERIOD_ESTIMATES or x.size < 2 * periods.mean():
         return xd, crossings, periods
@@ -327,10 +333,10 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
 
     Autocorrelation zero-crossing method of Thornhill, Huang & Zhang (2003); see the
     module docstring for the thresholds.  Drift is removed first (a least-squares
-    line, then, once the period is known, a running median over a few periods,
+    line, then, once the period is known, a running mean over a few periods,
     which the oscillation does not move, :func:`_refine_detrend`), so a drifting
     or stepping signal does not mask the oscillation.  O(n log n) in the record
-    length n (autocorrelations by FFT, running medians).
+    length n (autocorrelations by FFT; the running means are O(n)).
 
     Parameters
     ----------
