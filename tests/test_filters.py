@@ -106,23 +106,56 @@ def test_convolve1d_constant_matches_ndimage():
         _close(convolve1d_constant(x, weights), ndimage.convolve1d(x, weights, mode="constant"))
 
 
-def test_median_filter_nearest_matches_ndimage():
-    # A median picks a sample: the same numbers, exactly.
+def _median_sorted_window(x, size):
+    """The running median as the sorted-window kernel that
+    ``median_filter_nearest`` used before (O(n size)): the record extended by its end
+    values (``size // 2`` before, ``size - size // 2 - 1`` after, ndimage's centring
+    of an even window), each window sorted, element ``size // 2`` taken."""
+    x = np.asarray(x, dtype=float)
+    before, after = size // 2, size - size // 2 - 1
+    ext = np.concatenate([np.full(before, x[0]), x, np.full(after, x[-1])])
+    windows = np.lib.stride_tricks.sliding_window_view(ext, size)
+    return np.sort(windows, axis=1)[:, size // 2]
+
+
+def test_median_filter_nearest_matches_the_sorted_window_and_ndimage():
+    # A median picks a sample: the same numbers, exactly (no tolerance), for odd and
+    # even windows, windows longer than the record, ties and the ends.
     rng = np.random.default_rng(8)
     for trial in range(300):
         n = int(rng.integers(1, 600))
         x = rng.standard_normal(n).cumsum()
         if trial % 3 == 0:
             x = np.round(x)  # ties
-        size = int(rng.integers(0, 800)) | 1
-        np.testing.assert_array_equal(
-            median_filter_nearest(x, size), ndimage.median_filter(x, size=size, mode="nearest")
-        )
-    x = np.array([1.0, np.nan, 3.0, 2.0, 5.0])  # not finite, an even size: scipy's own
+        size = int(rng.integers(1, 800))
+        if trial % 2:
+            size |= 1
+        got = median_filter_nearest(x, size)
+        np.testing.assert_array_equal(got, _median_sorted_window(x, size))
+        np.testing.assert_array_equal(got, ndimage.median_filter(x, size=size, mode="nearest"))
+    x = np.array([1.0, np.nan, 3.0, 2.0, 5.0])  # not finite: scipy's own
     for size in (3, 4):
         np.testing.assert_array_equal(
             median_filter_nearest(x, size), ndimage.median_filter(x, size=size, mode="nearest")
         )
+
+
+def test_median_filter_nearest_long_record_quarter_window():
+    # The window cycle_samples starts with (a quarter of the record) on a record long
+    # enough that the old O(n size) kernel's cost showed; the reference in blocks of
+    # output samples (its sorted windows would need n * size floats at once).
+    rng = np.random.default_rng(3)
+    n = 6000
+    x = np.round(rng.standard_normal(n).cumsum(), 1)
+    for size in (n // 4 | 1, n // 4 & ~1):  # odd and even
+        got = median_filter_nearest(x, size)
+        before, after = size // 2, size - size // 2 - 1
+        ext = np.concatenate([np.full(before, x[0]), x, np.full(after, x[-1])])
+        for k0 in range(0, n, 500):
+            windows = np.lib.stride_tricks.sliding_window_view(ext[k0 : k0 + 500 + size - 1], size)
+            np.testing.assert_array_equal(
+                got[k0 : k0 + 500], np.sort(windows, axis=1)[:, size // 2]
+            )
 
 
 def test_mannwhitneyu_matches_scipy():

@@ -273,6 +273,50 @@ def test_cycle_shape_needs_cycles():
     assert cycle_shape(np.ones(1000)) is None
 
 
+def _cycle_shape_whole_record(x, n_bins=256):
+    """cycle_shape as it was before it worked on slices: every cycle interpolated
+    against the whole record's index, the cycles stacked and averaged."""
+    from stictiondiag.replay.closed_loop import (
+        CYCLE_HYSTERESIS,
+        CYCLE_LENGTH_FACTOR,
+        _up_crossings,
+    )
+
+    k = np.arange(x.size)
+    xd = x - np.polyval(np.polyfit(k, x, 1), k)
+    ups = _up_crossings(xd, CYCLE_HYSTERESIS * float(xd.std()))
+    if ups.size < 3:
+        return None
+    lengths = np.diff(ups)
+    med = float(np.median(lengths))
+    keep = (lengths <= CYCLE_LENGTH_FACTOR * med) & (lengths >= med / CYCLE_LENGTH_FACTOR)
+    if keep.sum() < 2:
+        return None
+    phase = np.arange(n_bins) / n_bins
+    cycles = [np.interp(ups[i] + lengths[i] * phase, k, xd) for i in np.flatnonzero(keep)]
+    shape = np.mean(cycles, axis=0)
+    shape = shape - shape.mean()
+    return shape / np.linalg.norm(shape)
+
+
+@pytest.mark.parametrize(("name", "S", "J"), [("concentration", 5.0, 2.0), ("level", 3.0, 4.5)])
+def test_cycle_shape_on_slices_equals_whole_record_interpolation(name, S, J):
+    # The same interpolation formula on the same two samples and the cycles summed in
+    # the same order: equal to rounding.  1e-12 of the unit-norm shape leaves room for
+    # a different association of the sum only (it measures 0 here).
+    sim = loop_data(name, S, J)
+    shapes = [(cycle_shape(y), _cycle_shape_whole_record(y)) for y in (sim.pv, sim.op, sim.mv)]
+    assert sum(got is not None for got, _ in shapes) >= 2  # something to compare
+    for got, want in shapes:
+        assert (got is None) == (want is None)
+        if got is not None:
+            np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-12)
+    # More cycles than one block of the slicing, an uneven number of them.
+    t = np.arange(60_000) * 0.1
+    y = np.sign(np.sin(2 * np.pi * t / 31.7)) + 0.3 * np.sin(2 * np.pi * t / 11.3)
+    np.testing.assert_allclose(cycle_shape(y), _cycle_shape_whole_record(y), rtol=0.0, atol=1e-12)
+
+
 def test_replay_of_healthy_sample_loop_identifies_the_process():
     """``sample_data/healthy_flow.csv``: linear valve, K = 0.8, tau = 5 s, 1 s dead
     time, PI Kc 0.6, Ti 6 s behind a 1 s pv filter, set-point steps, load steps and a

@@ -7,7 +7,9 @@ otherwise needs; :mod:`scipy.ndimage` about 0.1 s (its array-API layer parses
 every function's docstring at import).  The functions here compute the same numbers
 with numpy, numba kernels and :mod:`scipy.linalg`, which the analysis loads anyway
 (numba itself imports it); ``tests/test_filters.py`` checks each against the scipy
-function it replaces.
+function it replaces.  The running median is the exception: it calls
+:func:`scipy.ndimage.median_filter` (imported at its first call), whose
+O(n log w) rank filter no simple kernel here matches.
 """
 
 from __future__ import annotations
@@ -159,49 +161,26 @@ def convolve1d_constant(x: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return _correlate_constant(x, w, origin)
 
 
-@jit
-def _median_nearest(x, size):
-    # Running median over an odd window, the record extended by its end values: a
-    # sorted copy of the window, one sample out and one in per step.
-    n = x.shape[0]
-    half = size // 2
-    ext = np.empty(n + 2 * half)
-    ext[:half] = x[0]
-    ext[half : half + n] = x
-    ext[half + n :] = x[n - 1]
-    window = np.sort(ext[:size])
-    out = np.empty(n)
-    out[0] = window[half]
-    for k in range(1, n):
-        old = ext[k - 1]
-        new = ext[k - 1 + size]
-        i = np.searchsorted(window, old)  # window[i] == old
-        j = np.searchsorted(window, new)
-        if j > i:  # out at i, the ones between one place down, new above them
-            for m in range(i, j - 1):
-                window[m] = window[m + 1]
-            window[j - 1] = new
-        else:  # the ones between one place up, new below them
-            for m in range(i, j, -1):
-                window[m] = window[m - 1]
-            window[j] = new
-        out[k] = window[half]
-    return out
-
-
 def median_filter_nearest(x: np.ndarray, size: int) -> np.ndarray:
     """``scipy.ndimage.median_filter(x, size=size, mode="nearest")`` of a 1-D signal.
 
-    A median picks one of the samples, so any exact method gives the same numbers;
-    an odd ``size`` and finite samples here (anything else goes to scipy).
+    The running median over ``size`` samples, the record extended by its end values.
+    Cost O(n log size) time and O(n + size) memory for ``size <= 2 n + 1``:
+    ndimage's one-dimensional rank filter keeps the window in a double heap, one
+    sample out and one in per step (a longer window falls back to its generic
+    O(n size) filter; the analysis asks for at most a few periods).  (The
+    sorted-window kernel it replaces shifted up to ``size`` samples per step,
+    O(n size): quadratic in the record for the quarter-record windows of
+    :func:`stictiondiag.stiction.valvefit.cycle_samples`.)  A median picks one of
+    the samples, so the numbers are those of any exact method;
+    ``tests/test_filters.py`` checks them against a sorted-window reference.
+    ndimage is imported here, at the first call, not with this module (it costs a
+    tenth of a second).
     """
-    x = np.ascontiguousarray(x, dtype=float)
-    size = int(size)
-    if size < 1 or not size & 1 or x.size == 0 or not np.all(np.isfinite(x)):
-        from scipy.ndimage import median_filter
+    from scipy.ndimage import median_filter
 
-        return median_filter(x, size=size, mode="nearest")
-    return _median_nearest(x, size)
+    x = np.ascontiguousarray(x, dtype=float)
+    return median_filter(x, size=int(size), mode="nearest")
 
 
 def savgol_smooth(x: np.ndarray, window_length: int, polyorder: int) -> np.ndarray:

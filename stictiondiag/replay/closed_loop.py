@@ -94,6 +94,8 @@ CYCLE_BINS = 256
 CYCLE_HYSTERESIS = 0.25
 #: Cycles shorter or longer than this factor of the median cycle are left out.
 CYCLE_LENGTH_FACTOR = 1.6
+#: Cycles interpolated together by :func:`cycle_shape` (bounds its memory).
+CYCLE_BLOCK = 64
 #: Integral time standing in for "no integral action" in the simulator [x record].
 P_ONLY_INTEGRAL_FACTOR = 1.0e6
 #: Fewest samples a replay covers.
@@ -322,6 +324,11 @@ def cycle_shape(x: np.ndarray, n_bins: int = CYCLE_BINS) -> np.ndarray | None:
     :data:`CYCLE_LENGTH_FACTOR` of the median) dropped, the rest averaged.  Returns
     the average cycle scaled to zero mean and unit norm, or None with fewer than two
     cycles.
+
+    Cost O(n + n_bins n_cycles) time, O(n + n_bins) memory besides the signal: each
+    block of :data:`CYCLE_BLOCK` cycles is interpolated on its own slice of the
+    record (interpolating every cycle against the whole record cost O(n) per cycle,
+    quadratic in the record), and the cycles are summed as they come.
     """
     x = np.asarray(x, dtype=float)
     if x.size < 4 * n_bins // 8 or not np.all(np.isfinite(x)):
@@ -340,8 +347,17 @@ def cycle_shape(x: np.ndarray, n_bins: int = CYCLE_BINS) -> np.ndarray | None:
     if keep.sum() < 2:
         return None
     phase = np.arange(n_bins) / n_bins
-    cycles = [np.interp(ups[i] + lengths[i] * phase, k, xd) for i in np.flatnonzero(keep)]
-    shape = np.mean(cycles, axis=0)
+    kept = np.flatnonzero(keep)
+    total = np.zeros(n_bins)
+    for b in range(0, kept.size, CYCLE_BLOCK):
+        i = kept[b : b + CYCLE_BLOCK]
+        t = ups[i, None] + lengths[i, None] * phase  # within [ups[i], ups[i + 1])
+        lo = int(t[0, 0])
+        hi = min(x.size, int(t[-1, -1]) + 2)  # the samples either side of every t
+        cycles = np.interp(t, k[lo:hi], xd[lo:hi])
+        for row in cycles:  # in order: the sum np.mean(cycles, axis=0) forms
+            total += row
+    shape = total / kept.size
     shape = shape - shape.mean()
     norm = float(np.linalg.norm(shape))
     if norm == 0.0:
@@ -390,6 +406,265 @@ def _open_loop_like_simulator(
     return pv_bias + y
 
 
+@dataclass(frozen=True, eq=False)
+class _Record:
+    """The part of the record the replay covers, from ``start`` on.
+
+    ``pv`` [pv units]; ``op``, ``u`` (the valve position the process is identified
+    from: ``mv``, else ``mv_model``), ``mv``, ``mv_model`` [% of span]; ``sp`` [pv
+    units] or None; ``dt`` [s]; ``start`` [samples]; ``warnings``.
+    """
+
+    pv: np.ndarray
+    op: np.ndarray
+    u: np.ndarray
+    sp: np.ndarray | None
+    mv: np.ndarray | None
+    mv_model: np.ndarray | None
+    dt: float
+    start: int
+    warnings: tuple[str, ...]
+
+    @property
+    def n(self) -> int:
+        return int(self.pv.size)
+
+
+@dataclass(frozen=True, eq=False)
+class _Simulated:
+    """The replayed loop: pv [pv units], op and mv [% of span] in the units of the
+    data, the setpoint used, and the simulator settings of :attr:`Replay.settings`."""
+
+    pv: np.ndarray
+    op: np.ndarray
+    mv: np.ndarray
+    sp: np.ndarray
+    settings: dict
+
+
+def _replay_record(tags, fit) -> _Record:
+    """Step 0: the recorded arrays, and where the replay starts.
+
+    A fitted valve output may be defined only from some sample on (the fit starts
+    its valve at a known state, e.g. the first extreme of op, and holds it before):
+    without a recorded mv, the replay covers that part of the record only.  With a
+    recorded mv the simulated valve starts stuck where op turns (the state a sticky
+    valve is known to be in there): started anywhere else, it would forget how far
+    op had already travelled towards the next slip.  O(n log n) (the oscillation of
+    op, with mv).
+    """
+    from stictiondiag.signals.oscillation import detect_oscillation
+
+    dt = float(tags.ts)
+    pv = np.asarray(tags.pv, dtype=float)
+    op = np.asarray(tags.op, dtype=float)
+    n = pv.size
+    mv_rec = None if getattr(tags, "mv", None) is None else np.asarray(tags.mv, dtype=float)
+    sp_rec = None if getattr(tags, "sp", None) is None else np.asarray(tags.sp, dtype=float)
+    mv_model = getattr(fit, "mv_model", None)
+    mv_model = None if mv_model is None else np.asarray(mv_model, dtype=float)
+    S, J = float(fit.S), float(fit.J)
+    if not (math.isfinite(S) and math.isfinite(J)):
+        raise DataError("the stiction fit has no finite S and J: nothing to replay")
+    u = mv_rec if mv_rec is not None else mv_model
+    if u is None or u.size != n:
+        raise DataError("replay needs the valve position: record mv or pass a fit with mv_model")
+    warnings: list[str] = []
+    start = 0
+    why = "where the fitted valve model starts"
+    if mv_rec is None:
+        details = getattr(fit, "details", None)
+        if isinstance(details, dict):
+            start = int(details.get("start_sample") or 0)
+    elif S > 0.0:
+        from stictiondiag.stiction.hammerstein import first_extreme
+
+        osc_op = detect_oscillation(op, dt)
+        if osc_op.present and osc_op.period_s:
+            start, _ = first_extreme(op, max(4, int(round(osc_op.period_s / dt))))
+            why = "the first extreme of op, where the sticky valve's state is known"
+    if not 0 <= start <= n - MIN_REPLAY_SAMPLES:
+        start = 0
+    if start > 0:
+        pv, op, u = pv[start:], op[start:], u[start:]
+        sp_rec = None if sp_rec is None else sp_rec[start:]
+        mv_rec = None if mv_rec is None else mv_rec[start:]
+        mv_model = None if mv_model is None else mv_model[start:]
+        if mv_rec is None:  # with mv, settings["start_sample"] records it
+            warnings.append(f"replay starts at sample {start}, {why}")
+    return _Record(pv, op, u, sp_rec, mv_rec, mv_model, dt, start, tuple(warnings))
+
+
+def _replay_models(
+    rec: _Record, controller, process, integrating: bool | None
+) -> tuple[ControllerFit, ProcessFit, list[str]]:
+    """Steps 1 and 2: the PI controller from sp, pv, op and the process from the
+    valve position to pv (given, completed from the data, or identified), with
+    notes on a poor identification or inconsistent signs."""
+    warnings: list[str] = []
+    pv, op, dt = rec.pv, rec.op, rec.dt
+    if controller is None:
+        cf = identify_controller(rec.sp, pv, op, dt)
+    elif isinstance(controller, ControllerFit):
+        cf = controller
+    else:
+        cf = controller_fit(controller, rec.sp, pv, op, dt)
+    if cf.sp_assumed:
+        warnings.append("no setpoint recorded: taken as constant at the mean of pv")
+    if process is None:
+        # The loop rejects disturbances slower than some integral times; pv drifts
+        # on that scale are the load's, not the process's (identification/process.py, drift
+        # high-pass), so the high-pass is no slower than that.
+        drift = None
+        ti_c = cf.controller.integral_time
+        if math.isfinite(ti_c):
+            _, default_T = drift_pole(pv, dt, None)
+            if default_T is not None and DRIFT_INTEGRAL_TIMES * ti_c < default_T:
+                drift = max(DRIFT_INTEGRAL_TIMES * ti_c, MIN_DRIFT_SAMPLES * dt)
+        pf = identify_process(rec.u, pv, dt, integrating=integrating, drift_time_constant=drift)
+    elif isinstance(process, ProcessFit):
+        pf = process
+    else:
+        pf = process_fit(process, rec.u, pv, dt)
+    for what, r2 in (("controller", cf.fit_r2), ("process", pf.fit_r2)):
+        if r2 is not None and math.isfinite(r2) and r2 < LOW_FIT_R2:
+            warnings.append(f"{what} identification explains little of the data (R^2 = {r2:.2f})")
+    if cf.controller.gain * pf.process.gain < 0:
+        warnings.append(
+            "controller and process gains have opposite signs (positive feedback): "
+            "the replay is unstable; check the sign convention of op and pv"
+        )
+    return cf, pf, warnings
+
+
+def _replay_simulate(
+    rec: _Record,
+    cf: ControllerFit,
+    pf: ProcessFit,
+    S: float,
+    J: float,
+    valve: str,
+    noise_std: float,
+    seed: int | None,
+) -> _Simulated:
+    """Step 3: the closed loop with the data-driven valve from the recorded state
+    (see "Start-up" in the module docstring).  O(n)."""
+    from stictiondiag.models.loops import simulate_loop
+
+    pv, op, u, dt, n = rec.pv, rec.op, rec.u, rec.dt, rec.n
+    kc, gain = cf.controller.gain, pf.process.gain
+    # The simulator's op lives in [0, 100] % of span.  Data whose op leaves that
+    # range (scaled or mean-centred records) are replayed with op and mv shifted
+    # into it: the valve model and the linear blocks do not care about an offset,
+    # the clamp at 0 and 100 % is then out of the way.
+    op_lo = float(min(op.min(), u.min()))
+    op_hi = float(max(op.max(), u.max()))
+    offset = 0.0
+    if (op_lo < 0.0 or op_hi > 100.0) and op_hi - op_lo < 100.0:
+        offset = 50.0 - 0.5 * (op_lo + op_hi)
+    # The process operating point is the identification's input reference; one
+    # outside the span is clipped and the difference carried by the load, which also
+    # carries the free response of the recorded initial state (the simulator starts
+    # the process at rest, its dead-time line filled with the operating point).
+    op_bias_sim = float(np.clip(pf.u_bias + offset, 0.0, 100.0))
+    ref = op_bias_sim - offset  # the operating point in the units of the data
+    if pf.integrating:
+        pv_bias_sim = pf.pv_bias
+    else:
+        pv_bias_sim = pf.pv_bias + gain * (ref - pf.u_bias)
+    free = _open_loop_like_simulator(pf, u, dt, ref, pv_bias_sim)
+    load = pf.simulate(u, dt) - free
+    # Within the first dead time pv answers to inputs from before the record, which
+    # the replay cannot know: it takes the recorded pv there.
+    warm = min(pf.dead_time_samples + 1, n)
+    load[:warm] = pv[:warm] - free[:warm]
+    sp_used = rec.sp if rec.sp is not None else np.full(n, float(pv.mean()))
+    ti = cf.controller.integral_time
+    op0 = float(np.clip(op[0] + offset, 0.0, 100.0)) - offset
+    e0 = float(sp_used[0] - (pv_bias_sim + load[0]))
+    if math.isinf(ti):
+        # P-only: the simulator needs a finite Ti; a very long one with the integral
+        # set to give the identified manual reset acts as a pure gain.
+        ti = P_ONLY_INTEGRAL_FACTOR * max(n * dt, dt)
+        initial_integral = ti * (cf.op_bias - ref) / kc
+    else:
+        # The recorded op[0] already holds the first sample's integration step, which
+        # the simulator adds before computing its first output.
+        initial_integral = ti * ((op0 - ref) / kc - e0) - e0 * dt
+    sim = simulate_loop(
+        pf.process,
+        PI(gain=kc, integral_time=ti),
+        duration=n * dt,
+        dt=dt,
+        valve=valve,
+        S=S,
+        J=J,
+        sp=sp_used,
+        load=load,
+        op_bias=op_bias_sim,
+        pv_bias=pv_bias_sim,
+        initial_op=op0 + offset,
+        initial_mv=float(np.clip(u[0] + offset, 0.0, 100.0)),
+        initial_integral=initial_integral,
+        noise_std=noise_std,
+        seed=seed,
+        pv_filter_time=cf.pv_filter_time,
+    )
+    settings = {
+        "valve": valve,
+        "process_input": "mv" if rec.mv is not None else "mv_model",
+        "op_bias": ref,
+        "pv_bias": pv_bias_sim,
+        "initial_op": float(sim.settings["initial_op"]) - offset,
+        "initial_mv": float(sim.settings["initial_mv"]) - offset,
+        "op_offset": offset,
+        "integral_time_simulated_s": ti,
+        "sp_recorded": rec.sp is not None,
+        "start_sample": rec.start,
+        "noise_std": float(noise_std),
+    }
+    return _Simulated(sim.pv[:n], sim.op[:n] - offset, sim.mv[:n] - offset, sp_used, settings)
+
+
+def _replay_compare(rec: _Record, sim: _Simulated) -> dict[str, Any]:
+    """Step 4: fit, NRMSE, waveform, amplitude per signal and the period of pv (of
+    op when the recorded pv does not oscillate).  O(n log n) (the autocorrelations)."""
+    from stictiondiag.signals.oscillation import detect_oscillation
+
+    pairs = {"pv": (rec.pv, sim.pv), "op": (rec.op, sim.op)}
+    if rec.mv is not None:
+        pairs["mv"] = (rec.mv, sim.mv)
+    fit_pct: dict[str, float | None] = {}
+    err: dict[str, float | None] = {}
+    shape: dict[str, float | None] = {}
+    amplitude: dict[str, dict] = {}
+    osc: dict[str, tuple] = {}
+    for name, (y, yr) in pairs.items():
+        e = nrmse(y, yr)
+        err[name] = e
+        fit_pct[name] = None if e is None else 100.0 * (1.0 - e)
+        shape[name] = waveform_similarity(y, yr)
+        od, orp = detect_oscillation(y, rec.dt), detect_oscillation(yr, rec.dt)
+        osc[name] = (od, orp)
+        amplitude[name] = {"data": _amplitude(y, od), "replay": _amplitude(yr, orp)}
+    period_signal = "pv"
+    if not osc["pv"][0].present and osc["op"][0].present:
+        period_signal = "op"
+    od, orp = osc[period_signal]
+    warnings = []
+    if od.present and not orp.present:
+        warnings.append(f"the data oscillate but the replay does not ({orp.reason})")
+    return {
+        "fit": fit_pct,
+        "nrmse": err,
+        "waveform": shape,
+        "period_s": {"data": od.period_s, "replay": orp.period_s},
+        "period_signal": period_signal,
+        "amplitude": amplitude,
+        "warnings": warnings,
+    }
+
+
 def replay(
     tags,
     fit,
@@ -402,6 +677,13 @@ def replay(
     seed: int | None = 0,
 ) -> Replay:
     """Replay a recorded loop with the fitted valve and compare with the data.
+
+    The steps of the module docstring, one function each: the record and where
+    the replay starts (:func:`_replay_record`), the controller and the process
+    (:func:`_replay_models`), the closed-loop simulation (:func:`_replay_simulate`)
+    and the comparison (:func:`_replay_compare`).  Cost O(n log n) in the record
+    length n besides the identification (the autocorrelations of the comparison;
+    every other step of this module is O(n)).
 
     Parameters
     ----------
@@ -438,211 +720,34 @@ def replay(
     UsageError
         Bad arguments.
     """
-    from stictiondiag.models.loops import simulate_loop
-    from stictiondiag.signals.oscillation import detect_oscillation
-
     if valve not in ("choudhury", "kano"):
         raise UsageError(f"replay valve must be choudhury or kano, got {valve!r}")
-    dt = float(tags.ts)
-    pv = np.asarray(tags.pv, dtype=float)
-    op = np.asarray(tags.op, dtype=float)
-    n = pv.size
-    mv_rec = None if getattr(tags, "mv", None) is None else np.asarray(tags.mv, dtype=float)
-    sp_rec = None if getattr(tags, "sp", None) is None else np.asarray(tags.sp, dtype=float)
-    mv_model = getattr(fit, "mv_model", None)
-    mv_model = None if mv_model is None else np.asarray(mv_model, dtype=float)
+    rec = _replay_record(tags, fit)
     S, J = float(fit.S), float(fit.J)
-    if not (math.isfinite(S) and math.isfinite(J)):
-        raise DataError("the stiction fit has no finite S and J: nothing to replay")
-    u = mv_rec if mv_rec is not None else mv_model
-    if u is None or u.size != n:
-        raise DataError("replay needs the valve position: record mv or pass a fit with mv_model")
-    warnings: list[str] = []
-    # A fitted valve output may be defined only from some sample on (the fit starts
-    # its valve at a known state, e.g. the first extreme of op, and holds it before):
-    # without a recorded mv, the replay covers that part of the record only.
-    # With a recorded mv the simulated valve starts stuck where op turns (the state a
-    # sticky valve is known to be in there): started anywhere else, it would forget
-    # how far op had already travelled towards the next slip.
-    start = 0
-    why = "where the fitted valve model starts"
-    if mv_rec is None:
-        details = getattr(fit, "details", None)
-        if isinstance(details, dict):
-            start = int(details.get("start_sample") or 0)
-    elif S > 0.0:
-        from stictiondiag.stiction.hammerstein import first_extreme
-
-        osc_op = detect_oscillation(op, dt)
-        if osc_op.present and osc_op.period_s:
-            start, _ = first_extreme(op, max(4, int(round(osc_op.period_s / dt))))
-            why = "the first extreme of op, where the sticky valve's state is known"
-    if not 0 <= start <= n - MIN_REPLAY_SAMPLES:
-        start = 0
-    if start > 0:
-        pv, op, u = pv[start:], op[start:], u[start:]
-        sp_rec = None if sp_rec is None else sp_rec[start:]
-        mv_rec = None if mv_rec is None else mv_rec[start:]
-        mv_model = None if mv_model is None else mv_model[start:]
-        n = pv.size
-        if mv_rec is None:  # with mv, settings["start_sample"] records it
-            warnings.append(f"replay starts at sample {start}, {why}")
-
-    # 1. Controller.
-    if controller is None:
-        cf = identify_controller(sp_rec, pv, op, dt)
-    elif isinstance(controller, ControllerFit):
-        cf = controller
-    else:
-        cf = controller_fit(controller, sp_rec, pv, op, dt)
-    if cf.sp_assumed:
-        warnings.append("no setpoint recorded: taken as constant at the mean of pv")
-    # 2. Process.
-    if process is None:
-        # The loop rejects disturbances slower than some integral times; pv drifts
-        # on that scale are the load's, not the process's (identification/process.py, drift
-        # high-pass), so the high-pass is no slower than that.
-        drift = None
-        ti_c = cf.controller.integral_time
-        if math.isfinite(ti_c):
-            _, default_T = drift_pole(pv, dt, None)
-            if default_T is not None and DRIFT_INTEGRAL_TIMES * ti_c < default_T:
-                drift = max(DRIFT_INTEGRAL_TIMES * ti_c, MIN_DRIFT_SAMPLES * dt)
-        pf = identify_process(u, pv, dt, integrating=integrating, drift_time_constant=drift)
-    elif isinstance(process, ProcessFit):
-        pf = process
-    else:
-        pf = process_fit(process, u, pv, dt)
-    source = "mv" if mv_rec is not None else "mv_model"
-    for what, r2 in (("controller", cf.fit_r2), ("process", pf.fit_r2)):
-        if r2 is not None and math.isfinite(r2) and r2 < LOW_FIT_R2:
-            warnings.append(f"{what} identification explains little of the data (R^2 = {r2:.2f})")
-    kc, gain = cf.controller.gain, pf.process.gain
-    if kc * gain < 0:
-        warnings.append(
-            "controller and process gains have opposite signs (positive feedback): "
-            "the replay is unstable; check the sign convention of op and pv"
-        )
-
-    # 3. Simulator settings.  The simulator's op lives in [0, 100] % of span.  Data
-    # whose op leaves that range (scaled or mean-centred records) are replayed with
-    # op and mv shifted into it: the valve model and the linear blocks do not care
-    # about an offset, the clamp at 0 and 100 % is then out of the way.
-    op_lo = float(min(op.min(), u.min()))
-    op_hi = float(max(op.max(), u.max()))
-    offset = 0.0
-    if (op_lo < 0.0 or op_hi > 100.0) and op_hi - op_lo < 100.0:
-        offset = 50.0 - 0.5 * (op_lo + op_hi)
-    # The process operating point is the identification's input reference; one
-    # outside the span is clipped and the difference carried by the load, which also
-    # carries the free response of the recorded initial state (the simulator starts
-    # the process at rest, its dead-time line filled with the operating point).
-    op_bias_sim = float(np.clip(pf.u_bias + offset, 0.0, 100.0))
-    ref = op_bias_sim - offset  # the operating point in the units of the data
-    if pf.integrating:
-        pv_bias_sim = pf.pv_bias
-    else:
-        pv_bias_sim = pf.pv_bias + gain * (ref - pf.u_bias)
-    free = _open_loop_like_simulator(pf, u, dt, ref, pv_bias_sim)
-    load = pf.simulate(u, dt) - free
-    # Within the first dead time pv answers to inputs from before the record, which
-    # the replay cannot know: it takes the recorded pv there.
-    warm = min(pf.dead_time_samples + 1, n)
-    load[:warm] = pv[:warm] - free[:warm]
-    sp_used = sp_rec if sp_rec is not None else np.full(n, float(pv.mean()))
-    ti = cf.controller.integral_time
-    op0 = float(np.clip(op[0] + offset, 0.0, 100.0)) - offset
-    e0 = float(sp_used[0] - (pv_bias_sim + load[0]))
-    if math.isinf(ti):
-        # P-only: the simulator needs a finite Ti; a very long one with the integral
-        # set to give the identified manual reset acts as a pure gain.
-        ti = P_ONLY_INTEGRAL_FACTOR * max(n * dt, dt)
-        initial_integral = ti * (cf.op_bias - ref) / kc
-    else:
-        # The recorded op[0] already holds the first sample's integration step, which
-        # the simulator adds before computing its first output.
-        initial_integral = ti * ((op0 - ref) / kc - e0) - e0 * dt
-    sim_controller = PI(gain=kc, integral_time=ti)
-    sim = simulate_loop(
-        pf.process,
-        sim_controller,
-        duration=n * dt,
-        dt=dt,
-        valve=valve,
-        S=S,
-        J=J,
-        sp=sp_used,
-        load=load,
-        op_bias=op_bias_sim,
-        pv_bias=pv_bias_sim,
-        initial_op=op0 + offset,
-        initial_mv=float(np.clip(u[0] + offset, 0.0, 100.0)),
-        initial_integral=initial_integral,
-        noise_std=noise_std,
-        seed=seed,
-        pv_filter_time=cf.pv_filter_time,
-    )
-    pv_r, op_r, mv_r = sim.pv[:n], sim.op[:n] - offset, sim.mv[:n] - offset
-
-    # 4. Comparison.
-    pairs = {"pv": (pv, pv_r), "op": (op, op_r)}
-    if mv_rec is not None:
-        pairs["mv"] = (mv_rec, mv_r)
-    fit_pct: dict[str, float | None] = {}
-    err: dict[str, float | None] = {}
-    shape: dict[str, float | None] = {}
-    amplitude: dict[str, dict] = {}
-    osc: dict[str, tuple] = {}
-    for name, (y, yr) in pairs.items():
-        e = nrmse(y, yr)
-        err[name] = e
-        fit_pct[name] = None if e is None else 100.0 * (1.0 - e)
-        shape[name] = waveform_similarity(y, yr)
-        od, orp = detect_oscillation(y, dt), detect_oscillation(yr, dt)
-        osc[name] = (od, orp)
-        amplitude[name] = {"data": _amplitude(y, od), "replay": _amplitude(yr, orp)}
-    period_signal = "pv"
-    if not osc["pv"][0].present and osc["op"][0].present:
-        period_signal = "op"
-    od, orp = osc[period_signal]
-    period = {"data": od.period_s, "replay": orp.period_s}
-    if od.present and not orp.present:
-        warnings.append(f"the data oscillate but the replay does not ({orp.reason})")
-
-    data = {"pv": pv, "op": op, "sp": sp_used, "mv": mv_rec, "mv_model": mv_model}
-    settings = {
-        "valve": valve,
-        "process_input": source,
-        "op_bias": ref,
-        "pv_bias": pv_bias_sim,
-        "initial_op": float(sim.settings["initial_op"]) - offset,
-        "initial_mv": float(sim.settings["initial_mv"]) - offset,
-        "op_offset": offset,
-        "integral_time_simulated_s": ti,
-        "sp_recorded": sp_rec is not None,
-        "start_sample": start,
-        "noise_std": float(noise_std),
-    }
+    cf, pf, model_warnings = _replay_models(rec, controller, process, integrating)
+    sim = _replay_simulate(rec, cf, pf, S, J, valve, noise_std, seed)
+    measures = _replay_compare(rec, sim)
+    data = {"pv": rec.pv, "op": rec.op, "sp": sim.sp, "mv": rec.mv, "mv_model": rec.mv_model}
     return Replay(
-        time=(start + np.arange(n)) * dt,
-        sp=sp_used,
-        pv=pv_r,
-        op=op_r,
-        mv=mv_r,
+        time=(rec.start + np.arange(rec.n)) * rec.dt,
+        sp=sim.sp,
+        pv=sim.pv,
+        op=sim.op,
+        mv=sim.mv,
         data=data,
         process=pf.to_dict(),
         controller=cf.to_dict(),
-        fit=fit_pct,
-        nrmse=err,
-        waveform=shape,
-        period_s=period,
-        period_signal=period_signal,
-        amplitude=amplitude,
+        fit=measures["fit"],
+        nrmse=measures["nrmse"],
+        waveform=measures["waveform"],
+        period_s=measures["period_s"],
+        period_signal=measures["period_signal"],
+        amplitude=measures["amplitude"],
         S=S,
         J=J,
-        dt=dt,
-        settings=settings,
+        dt=rec.dt,
+        settings=sim.settings,
         process_fit=pf,
         controller_fit=cf,
-        warnings=tuple(warnings),
+        warnings=(*rec.warnings, *model_warnings, *measures["warnings"]),
     )

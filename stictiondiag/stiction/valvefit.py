@@ -438,6 +438,10 @@ def cycle_samples(x: np.ndarray) -> int:
     the window and the period are iterated to agreement.  Falls back to a tenth of
     the record.  The result sets time scales of the fits, not a reported period
     (that is :func:`stictiondiag.signals.oscillation.detect_oscillation`'s job).
+
+    Cost O(n log n): at most six running medians of O(n log w) each
+    (:func:`stictiondiag.core.filters.median_filter_nearest`; the first window is a
+    quarter of the record) and O(n) crossings.
     """
     from stictiondiag.core.filters import median_filter_nearest
 
