@@ -14,6 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from stictiondiag.core.errors import UsageError
+from stictiondiag.core.jit import jit
 
 #: Fewest usable samples for an identification.
 MIN_SAMPLES = 20
@@ -71,24 +72,76 @@ def golden_section(cost: Callable[[float], float], lo: float, hi: float, n_iter:
     return c if fc < fd else d
 
 
-def wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted linear least squares (weights 0/1) by the normal equations.
+@jit
+def _gram(X, y, w):  # pragma: no cover - compiled
+    """Weighted normal equations ``(X' W X, X' W y)`` in one pass over the samples.
 
-    Columns are scaled to unit norm and a tiny ridge keeps collinear columns
-    solvable; far faster than an SVD for the few columns used here.
+    O(n p^2) for n samples and p columns, with no temporary of the record's length;
+    samples of weight 0 are skipped.
     """
-    Xw = X * w[:, None]
-    A = Xw.T @ X
-    b = Xw.T @ y
-    d = np.sqrt(np.maximum(np.diag(A), 1e-300))
-    As = A / np.outer(d, d)
-    As[np.diag_indices_from(As)] += 1e-10
+    n, p = X.shape
+    A = np.zeros((p, p))
+    b = np.zeros(p)
+    for k in range(n):
+        wk = w[k]
+        if wk == 0.0:
+            continue
+        yk = wk * y[k]
+        for i in range(p):
+            xi = X[k, i]
+            b[i] += xi * yk
+            wxi = wk * xi
+            for j in range(i + 1):
+                A[i, j] += wxi * X[k, j]
+    for i in range(p):
+        for j in range(i):
+            A[j, i] = A[i, j]
+    return A, b
+
+
+@jit
+def _scaled_solve(A, b):  # pragma: no cover - compiled
+    """Solve ``A x = b`` with the columns scaled to unit norm and a tiny ridge."""
+    p = b.shape[0]
+    d = np.empty(p)
+    for i in range(p):
+        d[i] = math.sqrt(max(A[i, i], 1e-300))
+    As = np.empty((p, p))
+    for i in range(p):
+        for j in range(p):
+            As[i, j] = A[i, j] / (d[i] * d[j])
+        As[i, i] += 1e-10
+    return np.linalg.solve(As, b / d) / d
+
+
+def _weighted_problem(X, y, w):
+    return (
+        np.ascontiguousarray(X, dtype=float),
+        np.ascontiguousarray(y, dtype=float),
+        np.ascontiguousarray(w, dtype=float),
+    )
+
+
+def _solve_normal(A, b, X, y, w) -> np.ndarray:
+    """Solution of the normal equations ``A``, ``b`` of ``X``, ``y``, ``w`` (see :func:`wls`)."""
     try:
-        return np.linalg.solve(As, b / d) / d
+        return _scaled_solve(A, b)
     except np.linalg.LinAlgError:
         sw = np.sqrt(w)
         coef, *_ = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)
         return coef
+
+
+def wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted linear least squares (weights 0/1) by the normal equations.
+
+    Columns are scaled to unit norm and a tiny ridge keeps collinear columns
+    solvable; far faster than an SVD for the few columns used here.  The normal
+    equations are summed in one compiled pass (:func:`_gram`, O(n p^2)).
+    """
+    X, y, w = _weighted_problem(X, y, w)
+    A, b = _gram(X, y, w)
+    return _solve_normal(A, b, X, y, w)
 
 
 def fractional_delay_wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -101,16 +154,21 @@ def fractional_delay_wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndar
     a differentiator that answers the valve's slips instead of its position, fits a
     part of the record and fails elsewhere.  When the free solution has opposite
     signs, the constrained optimum lies on the boundary ``f = 0`` or ``f = 1``: the
-    better fit with one of the two columns alone.
+    better fit with one of the two columns alone.  The normal equations are summed
+    once; the fits with a column left out take their rows and columns of them.
     """
-    coef = wls(X, y, w)
+    X, y, w = _weighted_problem(X, y, w)
+    A, b = _gram(X, y, w)
+    coef = _solve_normal(A, b, X, y, w)
     if X.shape[1] < 2 or coef[0] * coef[1] >= 0.0:
         return coef
     best = None
     for drop in (1, 0):
-        keep = [j for j in range(X.shape[1]) if j != drop]
+        keep = np.array([j for j in range(X.shape[1]) if j != drop])
         c = np.zeros(X.shape[1])
-        c[keep] = wls(X[:, keep], y, w)
+        c[keep] = _solve_normal(
+            np.ascontiguousarray(A[np.ix_(keep, keep)]), b[keep], X[:, keep], y, w
+        )
         r = y - X @ c
         sse = float(np.dot(w, r * r))
         if best is None or sse < best[0]:

@@ -270,6 +270,34 @@ def _cached(cache: dict | None, kind: str, key, compute):
     return value[-1]
 
 
+def _pair_sse(G, g, ee, ii, jj) -> np.ndarray:
+    """Error left by the input at dead times ``d`` and ``d + 1`` for every dead time of
+    the grid at once (rows ``ii`` and ``jj`` of the Gram matrix ``G`` of the shifted
+    regressors, ``g`` their products with the innovations, ``ee`` the innovations' sum
+    of squares); inf where the 2 x 2 system is singular.
+
+    The two gains are solved in closed form (Cramer's rule) with a tiny ridge; a pair
+    of opposite signs (a dead time between d and d + 1 weighs both with one sign) is
+    replaced by the better single column, as in :func:`fractional_delay_wls`.
+    O(number of dead times).
+    """
+    a00 = G[ii, ii] + 1e-12 * (G[ii, ii] + 1e-300)
+    a11 = G[jj, jj] + 1e-12 * (G[jj, jj] + 1e-300)
+    a01, a10 = G[ii, jj], G[jj, ii]
+    r0, r1 = -g[ii], -g[jj]
+    det = a00 * a11 - a01 * a10
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c0 = (r0 * a11 - a01 * r1) / det
+        c1 = (a00 * r1 - a10 * r0) / det
+        explained = r0 * c0 + r1 * c1
+        # On the boundary: the better single column (the first on a tie).
+        e0, e1 = r0 * r0 / a00, r1 * r1 / a11
+    single = np.where(e1 > e0, e1, e0)
+    explained = np.where(c0 * c1 < 0.0, single, explained)
+    sse = ee - explained
+    return np.where((det != 0.0) & np.isfinite(sse), sse, np.inf)
+
+
 def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     """The one-step prediction-error fit on a grid of poles, dead times and load ratios.
 
@@ -291,6 +319,8 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     per_pole: dict = {}
     shifts = np.unique(np.concatenate([d_grid, d_grid + 1]))
     where = {int(d): i for i, d in enumerate(shifts)}
+    ii = np.array([where[int(d)] for d in d_grid])
+    jj = np.array([where[int(d) + 1] for d in d_grid])
     for pole in pole_grid:
         for lr in ratios:
             k1, k2 = kalman_gains(pole, lr)
@@ -304,28 +334,15 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
             G = Xw @ Xs.T
             g = Xw @ e0
             ee = float(np.dot(w * e0, e0))
-            for d in d_grid:
-                i, j = where[int(d)], where[int(d) + 1]
-                A = np.array([[G[i, i], G[i, j]], [G[j, i], G[j, j]]])
-                rhs = -np.array([g[i], g[j]])
-                A[0, 0] += 1e-12 * (A[0, 0] + 1e-300)
-                A[1, 1] += 1e-12 * (A[1, 1] + 1e-300)
-                try:
-                    coef = np.linalg.solve(A, rhs)
-                except np.linalg.LinAlgError:
-                    continue
-                if coef[0] * coef[1] < 0.0:
-                    # A dead time between d and d + 1 weighs both with one sign: on
-                    # the boundary, the better single column (see fractional_delay_wls).
-                    coef = max(
-                        (np.array([rhs[0] / A[0, 0], 0.0]), np.array([0.0, rhs[1] / A[1, 1]])),
-                        key=lambda c: float(rhs @ c),
-                    )
-                sse = ee + float(rhs @ coef) * -1.0
-                if best is None or sse < best[0]:
-                    best = (sse, ProcessModel(float(pole), int(d), float(lr)))
-                if pole not in per_pole or sse < per_pole[pole][0]:
-                    per_pole[pole] = (sse, ProcessModel(float(pole), int(d), float(lr)))
+            sse = _pair_sse(G, g, ee, ii, jj)
+            k = int(np.argmin(sse))
+            if not math.isfinite(sse[k]):
+                continue
+            cand = (float(sse[k]), ProcessModel(float(pole), int(d_grid[k]), float(lr)))
+            if best is None or cand[0] < best[0]:
+                best = cand
+            if pole not in per_pole or cand[0] < per_pole[pole][0]:
+                per_pole[pole] = cand
     return best, per_pole, d_grid
 
 
