@@ -144,6 +144,43 @@ def wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     return _solve_normal(A, b, X, y, w)
 
 
+@jit
+def _one_sign_pair(X, y, w, A, b, coef):  # pragma: no cover - compiled
+    """The better of the fits with the first or the second column left out (the
+    first on a tie), from the normal equations ``A``, ``b``; its error is summed
+    over the samples as the residual's (see :func:`fractional_delay_wls`)."""
+    n, p = X.shape
+    best = np.inf
+    out = coef.copy()
+    for drop in (1, 0):
+        keep = np.empty(p - 1, dtype=np.int64)
+        q = 0
+        for j in range(p):
+            if j != drop:
+                keep[q] = j
+                q += 1
+        As = np.empty((p - 1, p - 1))
+        bs = np.empty(p - 1)
+        for i in range(p - 1):
+            bs[i] = b[keep[i]]
+            for j in range(p - 1):
+                As[i, j] = A[keep[i], keep[j]]
+        c = np.zeros(p)
+        cs = _scaled_solve(As, bs)
+        for i in range(p - 1):
+            c[keep[i]] = cs[i]
+        sse = 0.0
+        for k in range(n):
+            r = y[k]
+            for j in range(p):
+                r -= X[k, j] * c[j]
+            sse += w[k] * (r * r)
+        if sse < best:
+            best = sse
+            out = c
+    return out
+
+
 def fractional_delay_wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     """:func:`wls` with the first two columns (the input at dead times d and d + 1)
     weighted with one sign.
@@ -155,20 +192,22 @@ def fractional_delay_wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndar
     part of the record and fails elsewhere.  When the free solution has opposite
     signs, the constrained optimum lies on the boundary ``f = 0`` or ``f = 1``: the
     better fit with one of the two columns alone.  The normal equations are summed
-    once; the fits with a column left out take their rows and columns of them.
+    once (O(n p^2)); the fits with a column left out take their rows and columns.
     """
     X, y, w = _weighted_problem(X, y, w)
     A, b = _gram(X, y, w)
     coef = _solve_normal(A, b, X, y, w)
     if X.shape[1] < 2 or coef[0] * coef[1] >= 0.0:
         return coef
+    try:
+        return _one_sign_pair(X, y, w, A, b, coef)
+    except np.linalg.LinAlgError:
+        pass
     best = None
     for drop in (1, 0):
         keep = np.array([j for j in range(X.shape[1]) if j != drop])
         c = np.zeros(X.shape[1])
-        c[keep] = _solve_normal(
-            np.ascontiguousarray(A[np.ix_(keep, keep)]), b[keep], X[:, keep], y, w
-        )
+        c[keep] = wls(X[:, keep], y, w)
         r = y - X @ c
         sse = float(np.dot(w, r * r))
         if best is None or sse < best[0]:

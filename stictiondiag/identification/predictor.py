@@ -86,6 +86,46 @@ def prediction_variance_ratio(pole: float, load_ratio: float, horizon: int) -> t
     return float(s1), float(Pm[0, 0] + 1.0)
 
 
+#: Samples between exact restarts of the running sum of :func:`_horizon_errors`.
+_RESTART = 1024
+
+
+@jit
+def _horizon_errors(z, yf, lf, drive, pole, horizon, err):  # pragma: no cover - compiled
+    """Errors of the ``horizon``-step predictions, written to ``err[horizon:]``.
+
+    The prediction of ``z[j + h]`` made at ``j`` runs the model ``h`` steps from the
+    filtered state with the load held: ``pole^h yf[j] + lf[j] (1 + pole + ... +
+    pole^(h-1)) + S[j]``, ``S[j] = sum_i pole^(h-1-i) drive[j+i]``.  ``S`` is a
+    sliding weighted sum, updated in O(1) per sample
+    (``S[j+1] = pole S[j] - pole^h drive[j] + drive[j+h]``) and summed afresh every
+    ``_RESTART`` samples so that rounding cannot build up: O(n) for any horizon
+    (stepping every prediction ``h`` times costs O(n h)).
+    """
+    n = z.shape[0]
+    q = n - horizon
+    ph = 1.0
+    geo = 0.0
+    for _ in range(horizon):
+        geo = geo * pole + 1.0
+        ph *= pole
+    moving = False
+    for j in range(n):
+        if drive[j] != 0.0:
+            moving = True
+            break
+    acc = 0.0
+    for j in range(q):
+        if moving:
+            if j % _RESTART == 0:
+                acc = 0.0
+                for i in range(horizon):
+                    acc = pole * acc + drive[j + i]
+            else:
+                acc = pole * acc - ph * drive[j - 1] + drive[j - 1 + horizon]
+        err[j + horizon] = z[j + horizon] - (ph * yf[j] + geo * lf[j] + acc)
+
+
 @jit
 def _prediction_errors(z, drive, pole, k1, k2, y0, horizon):  # pragma: no cover - compiled
     """Errors of the ``horizon``-step-ahead predictions of the steady-state filter.
@@ -109,16 +149,7 @@ def _prediction_errors(z, drive, pole, k1, k2, y0, horizon):  # pragma: no cover
         yh = pole * yf[k] + lf[k] + drive[k]
         lh = lf[k]
     if horizon > 1 and n > horizon:
-        # The prediction of z[j0 + horizon] made at j0, for every j0 at once: the same
-        # operations per prediction as a loop over it, but the inner loop runs over
-        # contiguous samples and is vectorised by the compiler.
-        m = n - horizon
-        y = yf[:m].copy()
-        for i in range(horizon):
-            for j0 in range(m):
-                y[j0] = pole * y[j0] + lf[j0] + drive[j0 + i]
-        for j0 in range(m):
-            err[j0 + horizon] = z[j0 + horizon] - y[j0]
+        _horizon_errors(z, yf, lf, drive, pole, horizon, err)
     return err
 
 
@@ -142,16 +173,8 @@ def _prediction_errors_many(Z, D, y0, pole, k1, k2, horizon):  # pragma: no cove
             yh[c] = pole * yf[c, k] + lf[c, k] + D[c, k]
             lh[c] = lf[c, k]
     if horizon > 1 and n > horizon:
-        q = n - horizon
-        y = np.empty(q)
         for c in range(m):
-            for j0 in range(q):
-                y[j0] = yf[c, j0]
-            for i in range(horizon):
-                for j0 in range(q):
-                    y[j0] = pole * y[j0] + lf[c, j0] + D[c, j0 + i]
-            for j0 in range(q):
-                err[c, j0 + horizon] = Z[c, j0 + horizon] - y[j0]
+            _horizon_errors(Z[c], yf[c], lf[c], D[c], pole, horizon, err[c])
     return err
 
 
