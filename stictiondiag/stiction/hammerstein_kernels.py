@@ -222,6 +222,86 @@ def same_sign_fit(A, b, yy, nb):
 
 
 @jit
+def _cholesky_subset(A, idx, k, L):
+    """Cholesky factor of ``A[idx, idx]`` (k <= 8) into ``L``; False when singular.
+
+    The operations of :func:`_solve_subset`, so a system factored here and solved by
+    :func:`_solve_factored` gives the very same numbers."""
+    for i in range(k):
+        for j in range(i + 1):
+            s = A[idx[i], idx[j]]
+            for p in range(j):
+                s -= L[i, p] * L[j, p]
+            if i == j:
+                if s <= 0.0:
+                    return False
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    return True
+
+
+@jit
+def _solve_factored(L, b, idx, k, theta, z):
+    """Solve with the factor of :func:`_cholesky_subset`; returns ``theta . b[idx]``."""
+    for i in range(k):
+        s = b[idx[i]]
+        for p in range(i):
+            s -= L[i, p] * z[p]
+        z[i] = s / L[i, i]
+    for i in range(k - 1, -1, -1):
+        s = z[i]
+        for p in range(i + 1, k):
+            s -= L[p, i] * theta[p]
+        theta[i] = s / L[i, i]
+    e = 0.0
+    for i in range(k):
+        e += theta[i] * b[idx[i]]
+    return e
+
+
+@jit
+def same_sign_fit_many(A, B, yy, nb, out):
+    """:func:`same_sign_fit` for every column of ``B`` (one right-hand side per dead
+    time) with the same ``A``: each active set is factored once, not once per column.
+    Writes the sums of squared residuals to ``out``; the same numbers as column by
+    column."""
+    m = A.shape[0]
+    nd = B.shape[1]
+    idx = np.empty(8, dtype=np.int64)
+    theta = np.empty(8)
+    z = np.empty(8)
+    L = np.zeros((8, 8))
+    for c in range(nd):
+        out[c] = yy[c]
+    for mask in range(0, 1 << nb):
+        k = 0
+        for i in range(nb):
+            if mask & (1 << i):
+                idx[k] = i
+                k += 1
+        kb = k
+        for i in range(nb, m):
+            idx[k] = i
+            k += 1
+        if not _cholesky_subset(A, idx, k, L):
+            continue
+        for c in range(nd):
+            e = _solve_factored(L, B[:, c], idx, k, theta, z)
+            pos = True
+            neg = True
+            for i in range(kb):
+                if theta[i] < 0.0:
+                    pos = False
+                if theta[i] > 0.0:
+                    neg = False
+            if (pos or neg) and yy[c] - e < out[c]:
+                out[c] = yy[c] - e
+    for c in range(nd):
+        out[c] = max(out[c], 0.0)
+
+
+@jit
 def batch_cost(
     x,
     S_arr,
@@ -256,6 +336,7 @@ def batch_cost(
     best_t = np.zeros(m, dtype=np.int64)
     nt = taus.shape[0]
     nd = Y.shape[1]
+    sse_d = np.empty(nd)
     for i in range(m):
         cost[i] = np.inf
         for io in range(offsets.shape[0]):
@@ -264,8 +345,9 @@ def batch_cost(
                 u = lag(u, pre_lag, k_start)
             A, B = normal_equations(u, taus, a_hp, k_start, j0, j1, stride, keep, Y, D)
             for t in range(nt):
+                same_sign_fit_many(A[t], B[t], yy, 2, sse_d)
                 for k in range(nd):
-                    sse = same_sign_fit(A[t], B[t, :, k], yy[k], 2)
+                    sse = sse_d[k]
                     if sse < cost[i]:
                         cost[i] = sse
                         best_d[i] = k
