@@ -11,7 +11,10 @@ compiled call; :class:`Problem` holds what those costs need for one fit.
 from __future__ import annotations
 
 import math
+import multiprocessing
+import os
 
+import numba
 import numpy as np
 
 from stictiondiag.core.jit import jit
@@ -302,6 +305,55 @@ def same_sign_fit_many(A, B, yy, nb, out):
 
 
 @jit
+def _pair_cost(
+    i,
+    x,
+    S_arr,
+    J_arr,
+    offsets,
+    taus,
+    kano,
+    k_start,
+    d_start,
+    a_hp,
+    j0,
+    j1,
+    stride,
+    keep,
+    Y,
+    yy,
+    pre_lag,
+    D,
+    cost,
+    best_d,
+    best_o,
+    best_t,
+):  # pragma: no cover - compiled
+    """Row ``i`` of :func:`batch_cost`, written to ``cost``, ``best_d``, ``best_o`` and
+    ``best_t`` (rows are independent, so they may run on several threads)."""
+    nt = taus.shape[0]
+    nd = Y.shape[1]
+    sse_d = np.empty(nd)
+    cost[i] = np.inf
+    for io in range(offsets.shape[0]):
+        u, _ = valve_run(x, S_arr[i], J_arr[i], kano, k_start, d_start, offsets[io])
+        if pre_lag > 0.0:
+            u = lag(u, pre_lag, k_start)
+        A, B = normal_equations(u, taus, a_hp, k_start, j0, j1, stride, keep, Y, D)
+        for t in range(nt):
+            same_sign_fit_many(A[t], B[t], yy, 2, sse_d)
+            for k in range(nd):
+                sse = sse_d[k]
+                if sse < cost[i]:
+                    cost[i] = sse
+                    best_d[i] = k
+                    best_o[i] = io
+                    best_t[i] = t
+        if S_arr[i] == 0.0:
+            break  # a linear valve has no stuck state to start from
+
+
+@jit
 def batch_cost(
     x,
     S_arr,
@@ -320,42 +372,123 @@ def batch_cost(
     yy,
     pre_lag,
     D,
-):
+):  # pragma: no cover - compiled
     """Best cost over start offsets, process time constants and delays for every (S, J).
 
     ``Y[r, i]`` is the high-passed pv at regression row ``r`` shifted by delay ``i``
     and ``yy[i]`` its sum of squares; ``pre_lag`` [samples] a lag applied to the valve
     output first (the same lag the target went through; 0: none).  Returns the cost
     and, for each pair, the indices of the best delay, start offset and time
-    constant.
+    constant.  O(pairs x offsets x n x time constants).
     """
     m = S_arr.shape[0]
     cost = np.empty(m)
     best_d = np.zeros(m, dtype=np.int64)
     best_o = np.zeros(m, dtype=np.int64)
     best_t = np.zeros(m, dtype=np.int64)
-    nt = taus.shape[0]
-    nd = Y.shape[1]
-    sse_d = np.empty(nd)
     for i in range(m):
-        cost[i] = np.inf
-        for io in range(offsets.shape[0]):
-            u, _ = valve_run(x, S_arr[i], J_arr[i], kano, k_start, d_start, offsets[io])
-            if pre_lag > 0.0:
-                u = lag(u, pre_lag, k_start)
-            A, B = normal_equations(u, taus, a_hp, k_start, j0, j1, stride, keep, Y, D)
-            for t in range(nt):
-                same_sign_fit_many(A[t], B[t], yy, 2, sse_d)
-                for k in range(nd):
-                    sse = sse_d[k]
-                    if sse < cost[i]:
-                        cost[i] = sse
-                        best_d[i] = k
-                        best_o[i] = io
-                        best_t[i] = t
-            if S_arr[i] == 0.0:
-                break  # a linear valve has no stuck state to start from
+        _pair_cost(
+            i,
+            x,
+            S_arr,
+            J_arr,
+            offsets,
+            taus,
+            kano,
+            k_start,
+            d_start,
+            a_hp,
+            j0,
+            j1,
+            stride,
+            keep,
+            Y,
+            yy,
+            pre_lag,
+            D,
+            cost,
+            best_d,
+            best_o,
+            best_t,
+        )
     return cost, best_d, best_o, best_t
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def batch_cost_threaded(
+    x,
+    S_arr,
+    J_arr,
+    offsets,
+    taus,
+    kano,
+    k_start,
+    d_start,
+    a_hp,
+    j0,
+    j1,
+    stride,
+    keep,
+    Y,
+    yy,
+    pre_lag,
+    D,
+):  # pragma: no cover - compiled
+    """:func:`batch_cost` with the pairs shared among numba's threads: the same
+    numbers (each pair is computed alone), less wall time when the process has
+    cores to spare (see :func:`kernel_threads`)."""
+    m = S_arr.shape[0]
+    cost = np.empty(m)
+    best_d = np.zeros(m, dtype=np.int64)
+    best_o = np.zeros(m, dtype=np.int64)
+    best_t = np.zeros(m, dtype=np.int64)
+    for i in numba.prange(m):
+        _pair_cost(
+            i,
+            x,
+            S_arr,
+            J_arr,
+            offsets,
+            taus,
+            kano,
+            k_start,
+            d_start,
+            a_hp,
+            j0,
+            j1,
+            stride,
+            keep,
+            Y,
+            yy,
+            pre_lag,
+            D,
+            cost,
+            best_d,
+            best_o,
+            best_t,
+        )
+    return cost, best_d, best_o, best_t
+
+
+#: Environment variable: threads for the batch kernels of a process that analyses
+#: one loop at a time by itself (``stiction analyze``); unset or 1: one thread.
+THREADS_VARIABLE = "STICTION_KERNEL_THREADS"
+
+
+def kernel_threads() -> int:
+    """Threads the batch kernels may use in this process.
+
+    ``STICTION_KERNEL_THREADS`` (default 1), at most numba's thread count; always 1
+    in a worker process (a child of a scan or report, local pool or Dask), where
+    one loop per core already keeps every core busy and threads would only contend.
+    """
+    try:
+        n = int(os.environ.get(THREADS_VARIABLE, "1"))
+    except ValueError:
+        return 1
+    if n <= 1 or multiprocessing.parent_process() is not None:
+        return 1
+    return min(n, numba.config.NUMBA_NUM_THREADS)
 
 
 def same_sign_lstsq(X: np.ndarray, y: np.ndarray, nb: int) -> np.ndarray:
@@ -485,7 +618,12 @@ class Problem:
 
     def _cost(self, S, J, variant: ValveVariant, off):
         x = self._input(variant)
-        c, bd, bo, bt = batch_cost(
+        threads = kernel_threads() if S.size > 1 else 1
+        kernel = batch_cost
+        if threads > 1:
+            numba.set_num_threads(threads)
+            kernel = batch_cost_threaded
+        c, bd, bo, bt = kernel(
             x,
             variant.model_S(S),
             J,
