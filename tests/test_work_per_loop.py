@@ -1,0 +1,178 @@
+"""The cheaper kernels give the numbers of the direct computations they replace.
+
+Each faster form is compared with the plain computation it stands for, written out
+here: the horizon predictions stepped sample by sample, least squares by numpy's
+lstsq, the one-sign fit column by column, the threaded batch cost against the
+serial one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stictiondiag.identification.numerics import fractional_delay_wls, wls
+from stictiondiag.identification.predictor import (
+    _pair_sse,
+    _prediction_errors,
+    _prediction_errors_many,
+    kalman_gains,
+)
+from stictiondiag.stiction import hammerstein_kernels as hk
+
+
+def _stepped_errors(z, drive, pole, k1, k2, y0, horizon):
+    """The horizon predictions by stepping each one ``horizon`` times (O(n h))."""
+    n = z.size
+    yf, lf, err = np.empty(n), np.empty(n), np.empty(n)
+    yh, lh = y0, 0.0
+    for k in range(n):
+        e = z[k] - yh
+        err[k] = e
+        yf[k] = yh + k1 * e
+        lf[k] = lh + k2 * e
+        yh = pole * yf[k] + lf[k] + drive[k]
+        lh = lf[k]
+    for j in range(n - horizon):
+        y = yf[j]
+        for i in range(horizon):
+            y = pole * y + lf[j] + drive[j + i]
+        err[j + horizon] = z[j + horizon] - y
+    return err
+
+
+@pytest.mark.parametrize("pole", [0.8, 0.99, 1.0])
+@pytest.mark.parametrize("horizon", [1, 2, 7, 60])
+def test_horizon_errors_match_stepped_predictions(pole, horizon):
+    rng = np.random.default_rng(3)
+    n = 3000  # three restarts of the running sum (every 1024 samples)
+    z = np.cumsum(rng.normal(size=n))
+    drive = np.cumsum(rng.normal(size=n)) * 0.1
+    k1, k2 = kalman_gains(pole, 1e-3)
+    ref = _stepped_errors(z, drive, pole, k1, k2, z[0], horizon)
+    got = _prediction_errors(z, drive, pole, k1, k2, z[0], horizon)
+    many = _prediction_errors_many(
+        np.stack([z, z]),
+        np.stack([drive, np.zeros(n)]),
+        np.array([z[0], z[0]]),
+        pole,
+        k1,
+        k2,
+        horizon,
+    )
+    # Rounding only: the running sum adds and removes terms instead of summing
+    # afresh, a few ulps of the largest value per restart interval.
+    tol = 1e-11 * np.max(np.abs(ref))
+    np.testing.assert_allclose(got, ref, rtol=0, atol=tol)
+    np.testing.assert_allclose(many[0], ref, rtol=0, atol=tol)
+    undriven = _stepped_errors(z, np.zeros(n), pole, k1, k2, z[0], horizon)
+    np.testing.assert_allclose(many[1], undriven, rtol=0, atol=tol)
+
+
+def test_wls_matches_lstsq():
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(500, 4))
+    y = X @ np.array([1.0, -2.0, 0.5, 3.0]) + 0.1 * rng.normal(size=500)
+    w = (rng.random(500) > 0.2).astype(float)
+    sw = np.sqrt(w)
+    ref, *_ = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)
+    # Normal equations of a well-conditioned problem with a 1e-10 ridge: 1e-8 relative.
+    np.testing.assert_allclose(wls(X, y, w), ref, rtol=1e-8)
+
+
+def test_fractional_delay_wls_keeps_one_sign():
+    rng = np.random.default_rng(5)
+    u = np.cumsum(rng.normal(size=800))
+    X = np.column_stack([u, np.r_[u[0], u[:-1]], rng.normal(size=800)])
+    # A differentiator: opposite weights on the two delayed columns.
+    y = 3.0 * (X[:, 0] - X[:, 1]) + 0.5 * X[:, 2] + 0.01 * rng.normal(size=800)
+    w = np.ones(800)
+    coef = fractional_delay_wls(X, y, w)
+    assert coef[0] * coef[1] >= 0.0
+    # The better single column, solved directly.
+    best = None
+    for keep in ([0, 2], [1, 2]):
+        c = np.zeros(3)
+        c[keep], *_ = np.linalg.lstsq(X[:, keep], y, rcond=None)
+        sse = float(np.sum((y - X @ c) ** 2))
+        if best is None or sse < best[0]:
+            best = (sse, c)
+    np.testing.assert_allclose(coef, best[1], rtol=1e-7, atol=1e-9)
+
+
+def test_pair_sse_matches_solve():
+    rng = np.random.default_rng(6)
+    M = rng.normal(size=(6, 200))
+    e0 = rng.normal(size=200)
+    G, g, ee = M @ M.T, M @ e0, float(e0 @ e0)
+    ii, jj = np.array([0, 1, 2, 3, 4]), np.array([1, 2, 3, 4, 5])
+    got = _pair_sse(G, g, ee, ii, jj)
+    for k, (i, j) in enumerate(zip(ii, jj, strict=True)):
+        A = np.array([[G[i, i], G[i, j]], [G[j, i], G[j, j]]])
+        rhs = -np.array([g[i], g[j]])
+        coef = np.linalg.solve(A, rhs)
+        if coef[0] * coef[1] < 0.0:
+            coef = max(
+                (np.array([rhs[0] / A[0, 0], 0.0]), np.array([0.0, rhs[1] / A[1, 1]])),
+                key=lambda c: float(rhs @ c),
+            )
+        # Cramer's rule against LU of a 2 x 2 system: rounding only.
+        assert got[k] == pytest.approx(ee - float(rhs @ coef), rel=1e-9)
+
+
+def test_same_sign_fit_many_equals_column_by_column():
+    rng = np.random.default_rng(7)
+    P = rng.normal(size=(300, 5))
+    A = P.T @ P
+    Y = rng.normal(size=(300, 6)) + P[:, :1] * np.linspace(-1, 1, 6)
+    B = P.T @ Y
+    yy = np.sum(Y**2, axis=0)
+    out = np.empty(6)
+    hk.same_sign_fit_many(A, B, yy, 2, out)
+    ref = [hk.same_sign_fit(A, np.ascontiguousarray(B[:, k]), yy[k], 2) for k in range(6)]
+    # The same operations in the same order: equal to the last bit.
+    assert out.tolist() == ref
+
+
+def test_threaded_batch_cost_equals_serial():
+    rng = np.random.default_rng(8)
+    n = 1500
+    x = 50.0 + np.cumsum(rng.normal(size=n)) * 0.3
+    yf = np.cumsum(rng.normal(size=n + 20)) * 0.1
+    prob = hk.Problem(x, yf, [5.0, 20.0], 0.9, 10, 0.0, 20, n - 20, 2, np.array([1, 3, 5]))
+    S = np.linspace(0.0, 3.0, 7)
+    J = np.linspace(0.0, 1.0, 7)
+    args = (
+        x,
+        S,
+        J,
+        np.array([0.0, 0.5]),
+        prob.taus,
+        True,
+        prob.k_start,
+        prob.d_start,
+        prob.a_hp,
+        prob.j0,
+        prob.j1,
+        prob.stride,
+        prob.keep,
+        prob.Y,
+        prob.yy,
+        0.0,
+        prob.D,
+    )
+    serial = hk.batch_cost(*args)
+    threaded = hk.batch_cost_threaded(*args)
+    for a, b in zip(serial, threaded, strict=True):
+        assert a.tolist() == b.tolist()  # each pair computed alone: the same numbers
+
+
+def test_kernel_threads_setting(monkeypatch):
+    monkeypatch.delenv(hk.THREADS_VARIABLE, raising=False)
+    assert hk.kernel_threads() == 1
+    monkeypatch.setenv(hk.THREADS_VARIABLE, "not a number")
+    assert hk.kernel_threads() == 1
+    monkeypatch.setenv(hk.THREADS_VARIABLE, "64")
+    import numba
+
+    assert hk.kernel_threads() == min(64, numba.config.NUMBA_NUM_THREADS)
