@@ -72,40 +72,28 @@ def golden_section(cost: Callable[[float], float], lo: float, hi: float, n_iter:
     return c if fc < fd else d
 
 
-@jit
-def _gram(X, y, w):  # pragma: no cover - compiled
-    """Weighted normal equations ``(X' W X, X' W y)`` in one pass over the samples.
+#: Largest system solved in the compiled :func:`_scaled_solve`: up to this size its
+#: LAPACK call gives numpy's numbers to the last bit (larger ones may differ in
+#: rounding, so they keep numpy's solve).
+_COMPILED_SOLVE_MAX = 5
 
-    O(n p^2) for n samples and p columns, with no temporary of the record's length;
-    samples of weight 0 are skipped.
-    """
-    n, p = X.shape
-    A = np.zeros((p, p))
-    b = np.zeros(p)
-    for k in range(n):
-        wk = w[k]
-        if wk == 0.0:
-            continue
-        yk = wk * y[k]
-        for i in range(p):
-            xi = X[k, i]
-            b[i] += xi * yk
-            wxi = wk * xi
-            for j in range(i + 1):
-                A[i, j] += wxi * X[k, j]
-    for i in range(p):
-        for j in range(i):
-            A[j, i] = A[i, j]
-    return A, b
+
+def _normal_equations(X: np.ndarray, y: np.ndarray, w: np.ndarray):
+    """Weighted normal equations ``(X' W X, X' W y)`` (BLAS; O(n p^2))."""
+    Xw = X * w[:, None]
+    return Xw.T @ X, Xw.T @ y
 
 
 @jit
 def _scaled_solve(A, b):  # pragma: no cover - compiled
-    """Solve ``A x = b`` with the columns scaled to unit norm and a tiny ridge."""
+    """Solve ``A x = b`` with the columns scaled to unit norm and a tiny ridge (the
+    operations of the numpy expression ``solve(A / outer(d, d) + 1e-10 I, b / d) / d``
+    in one compiled call: a small system costs less than numpy's call overhead)."""
     p = b.shape[0]
     d = np.empty(p)
     for i in range(p):
-        d[i] = math.sqrt(max(A[i, i], 1e-300))
+        v = A[i, i]
+        d[i] = math.sqrt(1e-300 if v < 1e-300 else v)  # NaN stays NaN
     As = np.empty((p, p))
     for i in range(p):
         for j in range(p):
@@ -114,18 +102,15 @@ def _scaled_solve(A, b):  # pragma: no cover - compiled
     return np.linalg.solve(As, b / d) / d
 
 
-def _weighted_problem(X, y, w):
-    return (
-        np.ascontiguousarray(X, dtype=float),
-        np.ascontiguousarray(y, dtype=float),
-        np.ascontiguousarray(w, dtype=float),
-    )
-
-
 def _solve_normal(A, b, X, y, w) -> np.ndarray:
     """Solution of the normal equations ``A``, ``b`` of ``X``, ``y``, ``w`` (see :func:`wls`)."""
     try:
-        return _scaled_solve(A, b)
+        if b.size <= _COMPILED_SOLVE_MAX:
+            return _scaled_solve(A, b)
+        d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+        As = A / np.outer(d, d)
+        As[np.diag_indices_from(As)] += 1e-10
+        return np.linalg.solve(As, b / d) / d
     except np.linalg.LinAlgError:
         sw = np.sqrt(w)
         coef, *_ = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)
@@ -136,49 +121,10 @@ def wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted linear least squares (weights 0/1) by the normal equations.
 
     Columns are scaled to unit norm and a tiny ridge keeps collinear columns
-    solvable; far faster than an SVD for the few columns used here.  The normal
-    equations are summed in one compiled pass (:func:`_gram`, O(n p^2)).
+    solvable; far faster than an SVD for the few columns used here.  O(n p^2).
     """
-    X, y, w = _weighted_problem(X, y, w)
-    A, b = _gram(X, y, w)
+    A, b = _normal_equations(X, y, w)
     return _solve_normal(A, b, X, y, w)
-
-
-@jit
-def _one_sign_pair(X, y, w, A, b, coef):  # pragma: no cover - compiled
-    """The better of the fits with the first or the second column left out (the
-    first on a tie), from the normal equations ``A``, ``b``; its error is summed
-    over the samples as the residual's (see :func:`fractional_delay_wls`)."""
-    n, p = X.shape
-    best = np.inf
-    out = coef.copy()
-    for drop in (1, 0):
-        keep = np.empty(p - 1, dtype=np.int64)
-        q = 0
-        for j in range(p):
-            if j != drop:
-                keep[q] = j
-                q += 1
-        As = np.empty((p - 1, p - 1))
-        bs = np.empty(p - 1)
-        for i in range(p - 1):
-            bs[i] = b[keep[i]]
-            for j in range(p - 1):
-                As[i, j] = A[keep[i], keep[j]]
-        c = np.zeros(p)
-        cs = _scaled_solve(As, bs)
-        for i in range(p - 1):
-            c[keep[i]] = cs[i]
-        sse = 0.0
-        for k in range(n):
-            r = y[k]
-            for j in range(p):
-                r -= X[k, j] * c[j]
-            sse += w[k] * (r * r)
-        if sse < best:
-            best = sse
-            out = c
-    return out
 
 
 def fractional_delay_wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -191,21 +137,14 @@ def fractional_delay_wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndar
     a differentiator that answers the valve's slips instead of its position, fits a
     part of the record and fails elsewhere.  When the free solution has opposite
     signs, the constrained optimum lies on the boundary ``f = 0`` or ``f = 1``: the
-    better fit with one of the two columns alone.  The normal equations are summed
-    once (O(n p^2)); the fits with a column left out take their rows and columns.
+    better fit with one of the two columns alone.  O(n p^2).
     """
-    X, y, w = _weighted_problem(X, y, w)
-    A, b = _gram(X, y, w)
-    coef = _solve_normal(A, b, X, y, w)
+    coef = wls(X, y, w)
     if X.shape[1] < 2 or coef[0] * coef[1] >= 0.0:
         return coef
-    try:
-        return _one_sign_pair(X, y, w, A, b, coef)
-    except np.linalg.LinAlgError:
-        pass
     best = None
     for drop in (1, 0):
-        keep = np.array([j for j in range(X.shape[1]) if j != drop])
+        keep = [j for j in range(X.shape[1]) if j != drop]
         c = np.zeros(X.shape[1])
         c[keep] = wls(X[:, keep], y, w)
         r = y - X @ c
