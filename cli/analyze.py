@@ -126,8 +126,14 @@ def analyze(
     gap: Annotated[bool, typer.Option(help="Run the sim-to-real gap diagnosis.")] = True,
 ) -> None:
     """Diagnose stiction in one loop: verdict, S and J, closed-loop replay, gap."""
-    from stictiondiag.analysis import AnalysisConfig, analyze_file
+    import os
 
+    from stictiondiag.analysis import AnalysisConfig, analyze_file
+    from stictiondiag.stiction.hammerstein_kernels import THREADS_VARIABLE
+
+    # One loop alone: its batch kernels may use every core (the same numbers; scan
+    # and report workers keep one thread each, see kernel_threads).
+    os.environ.setdefault(THREADS_VARIABLE, str(os.cpu_count() or 1))
     with friendly_errors():
         check_outputs(out, json_path, file)
         options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
