@@ -210,6 +210,40 @@ def _quiet_workers() -> Iterator[None]:
             os.environ.pop(name, None)
 
 
+#: Settings Dask's nanny puts in a worker's environment that the scan must not get.
+#: ``MALLOC_TRIM_THRESHOLD_=65536`` pins glibc's mmap threshold at 128 KiB, so every
+#: numpy temporary of that size or more is a fresh mmap and its pages fault in one by
+#: one: 13 M page faults in a 20-loop scan and 1.41-1.47x the local pool's CPU per
+#: loop (docs/performance.md, "Dask").  ``None`` removes a key from the nanny's list
+#: (``distributed.nanny.pre-spawn-environ``); a value the user set in the environment
+#: is still inherited by the workers.
+_NANNY_ENVIRON_DROPPED = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+
+
+@contextlib.contextmanager
+def _workers_without_trim_setting() -> Iterator[None]:
+    """Nannies created in this block start their workers without the allocator setting."""
+    import dask
+
+    with dask.config.set(_NANNY_ENVIRON_DROPPED):
+        yield
+
+
+def _restore_environ(saved: dict[str, str]) -> None:
+    """Make ``os.environ`` equal to ``saved`` again, key for key.
+
+    A Dask nanny writes its worker settings (``MALLOC_TRIM_THRESHOLD_``,
+    ``OMP_NUM_THREADS``, ``PYTHONHASHSEED`` ...) into the environment of the process
+    it runs in, which for a LocalCluster is the caller's: a later local pool in the
+    same process would inherit them (a local scan after a Dask scan ran 1.5x slower).
+    """
+    for key in [k for k in os.environ if k not in saved]:
+        del os.environ[key]
+    for key, value in saved.items():
+        if os.environ.get(key) != value:
+            os.environ[key] = value
+
+
 def _connect(workers: int, scheduler: str | None):
     """(client, cluster or None): a client of ``scheduler`` or of a new LocalCluster."""
     try:
@@ -225,7 +259,12 @@ def _connect(workers: int, scheduler: str | None):
         else:
             # The scheduler's HTTP server (health, dashboard) takes a free port: another
             # cluster on the default 8787 must not make the scan fail or warn.
-            with one_blas_thread(), children_ignore_sigint(), _quiet_workers():
+            with (
+                one_blas_thread(),
+                children_ignore_sigint(),
+                _quiet_workers(),
+                _workers_without_trim_setting(),
+            ):
                 cluster = LocalCluster(
                     n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
                 )
@@ -256,18 +295,26 @@ def run_dask(
     The LocalCluster has ``workers`` single-threaded worker processes; with a
     ``scheduler`` address its workers must have ``stiction`` installed and see the
     data at the same paths.  At most ``2 x`` (number of workers) loops are
-    submitted at a time.  On an interrupt the loops in flight are cancelled and a
+    submitted at a time.  The LocalCluster's workers run without the nanny's
+    ``MALLOC_TRIM_THRESHOLD_`` setting, and the caller's ``os.environ`` is the same
+    after the scan as before it.  On an interrupt the loops in flight are cancelled and a
     LocalCluster is closed (its worker processes end); a remote cluster is left
     running with nothing of this scan on it.
     """
     # Connected now, not at the first result: the cluster's processes start before
     # the caller starts anything else (a progress bar's thread), so a Ctrl-C while
     # they start is held for this thread (children_ignore_sigint), not lost.
-    client, cluster = _connect(workers, scheduler)
-    return _dask_results(client, cluster, todo, fn, args, workers, on_error)
+    # The caller's environment is restored once the workers run, and again when the
+    # cluster is closed (a nanny that restarts a dead worker writes it again).
+    saved = dict(os.environ)
+    try:
+        client, cluster = _connect(workers, scheduler)
+    finally:
+        _restore_environ(saved)
+    return _dask_results(client, cluster, todo, fn, args, workers, on_error, saved)
 
 
-def _dask_results(client, cluster, todo, fn, args, workers, on_error) -> Iterator:
+def _dask_results(client, cluster, todo, fn, args, workers, on_error, environ) -> Iterator:
     from distributed import as_completed
 
     pending: dict = {}
@@ -295,20 +342,28 @@ def _dask_results(client, cluster, todo, fn, args, workers, on_error) -> Iterato
                 ac.add(new)
         interrupted = False
     finally:
-        if interrupted:
-            with _quiet_dask_logs():
-                if cluster is None:
-                    # A remote cluster keeps running: take this scan's tasks off it.
-                    # (A LocalCluster is closed with its workers; cancelling there
-                    # only makes each worker log the cancelled task.)
-                    with contextlib.suppress(Exception):
-                        client.cancel(list(pending), force=True)
-                with contextlib.suppress(Exception):
-                    client.close(timeout=5)
-                if cluster is not None:
-                    with contextlib.suppress(Exception):
-                        cluster.close(timeout=10)
-        else:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+        try:
+            _close(client, cluster, pending, interrupted=interrupted)
+        finally:
+            _restore_environ(environ)
+
+
+def _close(client, cluster, pending, *, interrupted: bool) -> None:
+    """Close the client and a LocalCluster; after an interrupt quietly and with timeouts."""
+    if not interrupted:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+        return
+    with _quiet_dask_logs():
+        if cluster is None:
+            # A remote cluster keeps running: take this scan's tasks off it.
+            # (A LocalCluster is closed with its workers; cancelling there
+            # only makes each worker log the cancelled task.)
+            with contextlib.suppress(Exception):
+                client.cancel(list(pending), force=True)
+        with contextlib.suppress(Exception):
+            client.close(timeout=5)
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=10)
