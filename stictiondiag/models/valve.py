@@ -76,6 +76,75 @@ def _sign(v):
 
 
 @jit
+def _choudhury_next(x, S, J, y, xss, dirn, v_old, stuck, x_prev):
+    """One sample of the Fig. 10 flowchart on scalar state (Section 5.1).
+
+    Returns ``(y, xss, dirn, v_new, stuck)``: output, stuck input, direction of the
+    last movement, input slope sign, stuck flag.  Shared by :func:`choudhury_step`
+    and the open-loop kernel, where the state lives in local variables.
+    """
+    v_new = _sign(x - x_prev)
+    # Fig. 10: the valve sticks when the slope changes sign or stays zero for two
+    # consecutive samples.  x_ss is the input one sample before the change.
+    if v_new != v_old and v_new != 0.0 and v_old != 0.0:
+        stuck = True
+        xss = x_prev
+    elif v_new == 0.0 and v_old == 0.0:
+        if not stuck:
+            stuck = True
+            xss = x_prev
+    if stuck:
+        dx = x - xss
+        d = _sign(dx)
+        if d != 0.0:
+            # Reversal against the last movement: deadband + stickband (S).
+            # Same direction after a stop: stickband only (J).  Before the first
+            # movement the valve is treated as reversing (S).
+            if dirn == 0.0 or d != dirn:
+                thr = S
+            else:
+                thr = J
+            if abs(dx) > thr:
+                stuck = False
+                dirn = d
+                y = x - d * (S - J) / 2.0  # Eq. 4
+    elif v_new != 0.0:
+        dirn = v_new
+        y = x - v_new * (S - J) / 2.0  # Eq. 4
+    return y, xss, dirn, v_new, stuck
+
+
+@jit
+def _kano_next(x, S, J, y, xss, dirn, stuck, x_prev):
+    """One sample of Kano et al. (2004) on scalar state; see :func:`kano_step`.
+
+    Returns ``(y, xss, dirn, v_new, stuck)`` as :func:`_choudhury_next`.
+    """
+    v_new = _sign(x - x_prev)
+    if not stuck:
+        # Moving: the valve stops when the input reverses or stops changing.
+        if v_new == 0.0 or (dirn != 0.0 and v_new != dirn):
+            stuck = True
+            xss = x_prev
+        else:
+            dirn = v_new
+            y = x - v_new * (S - J) / 2.0
+    if stuck:
+        dx = x - xss
+        d = _sign(dx)
+        if d != 0.0:
+            if dirn == 0.0 or d != dirn:
+                thr = S
+            else:
+                thr = J
+            if abs(dx) > thr:
+                stuck = False
+                dirn = d
+                y = x - d * (S - J) / 2.0
+    return y, xss, dirn, v_new, stuck
+
+
+@jit
 def choudhury_step(x, st, S, J):
     """Advance the Choudhury model by one sample (Fig. 10, Section 5.1).
 
@@ -93,39 +162,16 @@ def choudhury_step(x, st, S, J):
     float
         Valve position [% of span].
     """
-    v_new = _sign(x - st[5])
-    v_old = st[3]
-    # Fig. 10: the valve sticks when the slope changes sign or stays zero for two
-    # consecutive samples.  x_ss is the input one sample before the change.
-    if v_new != v_old and v_new != 0.0 and v_old != 0.0:
-        st[4] = 1.0
-        st[1] = st[5]
-    elif v_new == 0.0 and v_old == 0.0:
-        if st[4] == 0.0:
-            st[4] = 1.0
-            st[1] = st[5]
-    if st[4] == 1.0:
-        dx = x - st[1]
-        d = _sign(dx)
-        if d != 0.0:
-            # Reversal against the last movement: deadband + stickband (S).
-            # Same direction after a stop: stickband only (J).  Before the first
-            # movement the valve is treated as reversing (S).
-            if st[2] == 0.0 or d != st[2]:
-                thr = S
-            else:
-                thr = J
-            if abs(dx) > thr:
-                st[4] = 0.0
-                st[2] = d
-                st[0] = x - d * (S - J) / 2.0  # Eq. 4
-    else:
-        if v_new != 0.0:
-            st[2] = v_new
-            st[0] = x - v_new * (S - J) / 2.0  # Eq. 4
+    y, xss, dirn, v_new, stuck = _choudhury_next(
+        x, S, J, st[0], st[1], st[2], st[3], st[4] == 1.0, st[5]
+    )
+    st[0] = y
+    st[1] = xss
+    st[2] = dirn
     st[3] = v_new
+    st[4] = 1.0 if stuck else 0.0
     st[5] = x
-    return st[0]
+    return y
 
 
 @jit
@@ -139,49 +185,67 @@ def kano_step(x, st, S, J):
     reversals while stuck therefore do not reset the stuck band, unlike
     :func:`choudhury_step`, where every change of slope sign re-arms ``x_ss``.
     """
-    v_new = _sign(x - st[5])
-    if st[4] == 0.0:
-        # Moving: the valve stops when the input reverses or stops changing.
-        if v_new == 0.0 or (st[2] != 0.0 and v_new != st[2]):
-            st[4] = 1.0
-            st[1] = st[5]
-        else:
-            st[2] = v_new
-            st[0] = x - v_new * (S - J) / 2.0
-    if st[4] == 1.0:
-        dx = x - st[1]
-        d = _sign(dx)
-        if d != 0.0:
-            if st[2] == 0.0 or d != st[2]:
-                thr = S
-            else:
-                thr = J
-            if abs(dx) > thr:
-                st[4] = 0.0
-                st[2] = d
-                st[0] = x - d * (S - J) / 2.0
+    y, xss, dirn, v_new, stuck = _kano_next(x, S, J, st[0], st[1], st[2], st[4] == 1.0, st[5])
+    st[0] = y
+    st[1] = xss
+    st[2] = dirn
     st[3] = v_new
+    st[4] = 1.0 if stuck else 0.0
     st[5] = x
-    return st[0]
+    return y
 
 
 @jit
-def _run_model(x, S, J, kano, stuck0, y0):
+def _saturate(v):
+    """``v`` limited to [0, 100] % of span (NaN stays NaN, as with ``np.clip``)."""
+    if v < 0.0:
+        return 0.0
+    if v > 100.0:
+        return 100.0
+    return v
+
+
+@jit
+def _choudhury_run(x, S, J, stuck0, y0):
+    """Open-loop Choudhury model over ``x`` [% of span], input and output saturated.
+
+    One pass, O(n) time, no temporary arrays: the state is in local variables and
+    the saturation of the input (fully closed / fully open) and of the output is
+    done per sample.  ``y0`` NaN: the valve starts at ``x[0]``.
+    """
     n = x.shape[0]
-    y = np.empty(n)
+    out = np.empty(n)
     if n == 0:
-        return y
-    st = valve_state(x[0], stuck0)
-    if not math.isnan(y0):
-        st[0] = y0
-    y[0] = st[0]
+        return out
+    x_prev = _saturate(x[0])
+    y = x_prev if math.isnan(y0) else y0
+    xss, dirn, v_old, stuck = x_prev, 0.0, 0.0, stuck0
+    out[0] = _saturate(y)
     for k in range(1, n):
-        xk = min(max(x[k], 0.0), 100.0)
-        if kano:
-            y[k] = kano_step(xk, st, S, J)
-        else:
-            y[k] = choudhury_step(xk, st, S, J)
-    return y
+        xk = _saturate(x[k])
+        y, xss, dirn, v_old, stuck = _choudhury_next(xk, S, J, y, xss, dirn, v_old, stuck, x_prev)
+        x_prev = xk
+        out[k] = _saturate(y)
+    return out
+
+
+@jit
+def _kano_run(x, S, J, stuck0, y0):
+    """Open-loop Kano model over ``x``; conventions of :func:`_choudhury_run`."""
+    n = x.shape[0]
+    out = np.empty(n)
+    if n == 0:
+        return out
+    x_prev = _saturate(x[0])
+    y = x_prev if math.isnan(y0) else y0
+    xss, dirn, stuck = x_prev, 0.0, stuck0
+    out[0] = _saturate(y)
+    for k in range(1, n):
+        xk = _saturate(x[k])
+        y, xss, dirn, _, stuck = _kano_next(xk, S, J, y, xss, dirn, stuck, x_prev)
+        x_prev = xk
+        out[k] = _saturate(y)
+    return out
 
 
 @jit
@@ -260,10 +324,12 @@ def _model(
         if not 0.0 < ewma_lambda <= 1.0:
             raise UsageError(f"ewma_lambda must be in (0, 1], got {ewma_lambda}")
         x = ewma(x, float(ewma_lambda))
-    x = np.clip(x, 0.0, 100.0)  # saturation: fully closed / fully open
     y0 = math.nan if initial_position is None else float(initial_position)
-    y = _run_model(x, S, J, kano, bool(start_stuck), y0)
-    y = valve_characteristic(y, characteristic)
+    # Input and output saturated inside the kernel: fully closed / fully open.
+    run = _kano_run if kano else _choudhury_run
+    y = run(x, S, J, bool(start_stuck), y0)
+    if characteristic != "linear":
+        y = valve_characteristic(y, characteristic)
     if op_units == "mA":
         y = percent_to_ma(y)
     return y
