@@ -67,6 +67,15 @@ def children_ignore_sigint() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
+def _warm_cache_here() -> None:
+    """Compile any kernel missing from numba's cache in this process, before the
+    workers start: they then load it instead of each compiling it (once per machine
+    rather than once per worker; :func:`stictiondiag.apps.warmup.warm_cache_once`)."""
+    from stictiondiag.apps.warmup import warm_cache_once
+
+    warm_cache_once()
+
+
 def _stop_pool(pool, *, interrupted: bool) -> None:
     """Shut a process pool down; on an interrupt terminate its running workers."""
     if not interrupted:
@@ -130,6 +139,7 @@ def run_local(
     from concurrent.futures.process import BrokenProcessPool
 
     ctx = mp.get_context("spawn")  # no forked numba/BLAS state in workers
+    _warm_cache_here()
     it = iter(todo)
     pool = None
     pending: dict = {}
@@ -257,6 +267,7 @@ def _connect(workers: int, scheduler: str | None):
         if scheduler:
             client = Client(scheduler, timeout="10s")
         else:
+            _warm_cache_here()
             # The scheduler's HTTP server (health, dashboard) takes a free port: another
             # cluster on the default 8787 must not make the scan fail or warn.
             with (
@@ -279,7 +290,30 @@ def _connect(workers: int, scheduler: str | None):
             f"cannot reach Dask scheduler {scheduler!r} ({reason}): give an address like "
             "tcp://host:8786, or leave --scheduler out for a local cluster"
         ) from None
+    if scheduler:
+        _warm_each_host(client)
     return client, cluster
+
+
+def _warm_each_host(client) -> None:
+    """Warm the kernel cache on one worker of each host of a remote cluster.
+
+    The workers of one host share numba's on-disk cache, so the others then load
+    the kernels instead of each compiling them.  Runs as ordinary tasks (in the
+    workers' threads, not their event loops); a failure here only means the
+    workers compile at first use, so it is not an error of the scan.
+    """
+    hosts: dict[str, str] = {}
+    for address, worker in client.scheduler_info().get("workers", {}).items():
+        hosts.setdefault(worker.get("host", address), address)
+    from stictiondiag.apps.warmup import warm_cache_once
+
+    futures = [
+        client.submit(warm_cache_once, workers=[address], allow_other_workers=False, pure=False)
+        for address in hosts.values()
+    ]
+    with contextlib.suppress(Exception):
+        client.gather(futures)
 
 
 def run_dask(

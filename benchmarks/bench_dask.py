@@ -1,0 +1,111 @@
+"""CPU per loop of a Dask scan against the local process pool, on the same plant.
+
+    python benchmarks/bench_dask.py [--loops 20] [--samples 10000] [--workers 2]
+        [--no-gap] [--with-trim]
+
+Generates a plant (``scripts/make_plant.py``: half the loops sticky, half with mv
+recorded), fills the numba cache with a scan of two loops first, then scans the
+plant once per engine, each scan in its own Python process started from this one
+and writing to an empty output folder.  The CPU time of a scan is that of its
+process and all its descendants (worker processes, Dask nannies and scheduler
+included: ``RUSAGE_CHILDREN``), so it holds start-up and teardown as well as the
+loops; it is divided by the number of loops.  Minor page faults are counted the
+same way.  On a machine shared with other work CPU time is the figure to compare;
+wall time grows with the load.
+
+``--with-trim`` adds a Dask scan whose workers get ``MALLOC_TRIM_THRESHOLD_=65536``
+(Dask's default, which the scan now removes): the cost before the fix.
+Results are in docs/performance.md, section "Dask".
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_SCAN = """
+import sys
+from stictiondiag.apps.scan import scan
+r = scan(sys.argv[1], out=sys.argv[2], engine=sys.argv[3], workers=int(sys.argv[4]),
+         gap=sys.argv[5] == "gap")
+assert r.n_failed == 0, r.n_failed
+"""
+
+
+def _make_plant(*args, **kwargs):
+    spec = importlib.util.spec_from_file_location("make_plant", ROOT / "scripts" / "make_plant.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.make_plant(*args, **kwargs)
+
+
+def run_scan(plant: Path, out: Path, engine: str, workers: int, gap: bool, env: dict) -> dict:
+    """Scan in a child process; its CPU seconds, page faults and wall time."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    args = [str(plant), str(out), engine, str(workers), "gap" if gap else "nogap"]
+    subprocess.run([sys.executable, "-c", _SCAN, *args], check=True, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {
+        "cpu": (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime),
+        "sys": after.ru_stime - before.ru_stime,
+        "faults": after.ru_minflt - before.ru_minflt,
+        "wall": wall,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--loops", type=int, default=20)
+    parser.add_argument("--samples", type=int, default=10_000)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--no-gap", action="store_true", help="scan without the gap diagnosis")
+    parser.add_argument("--with-trim", action="store_true", help="also Dask with the trim setting")
+    args = parser.parse_args()
+    gap = not args.no_gap
+    env = {k: v for k, v in os.environ.items() if k != "MALLOC_TRIM_THRESHOLD_"}
+    runs = [("local", "local", env), ("dask", "dask", env)]
+    if args.with_trim:
+        trim = env | {"MALLOC_TRIM_THRESHOLD_": "65536"}
+        runs.append(("dask, MALLOC_TRIM_THRESHOLD_=65536", "dask", trim))
+    with tempfile.TemporaryDirectory(prefix="bench_dask_") as tmp:
+        plant = Path(tmp) / "plant"
+        _make_plant(plant, args.loops, n_samples=args.samples, seed=11, mv_share=0.5)
+        # A scan of two loops in one process fills the numba cache first, as any
+        # installation's first run does; the timed scans then load the kernels.
+        _make_plant(Path(tmp) / "warm", 2, n_samples=args.samples, seed=12, mv_share=0.5)
+        run_scan(Path(tmp) / "warm", Path(tmp) / "warm_out", "local", 1, gap, env)
+        print(
+            f"machine: {platform.machine()}, {os.cpu_count()} cores, load average "
+            f"{os.getloadavg()[0]:.1f}; {args.loops} loops x {args.samples} samples, "
+            f"{args.workers} workers, gap {'on' if gap else 'off'}"
+        )
+        print("| engine | CPU s per loop | of which system | page faults per loop | wall s |")
+        print("|---|---:|---:|---:|---:|")
+        results = {}
+        for i, (label, engine, run_env) in enumerate(runs):
+            r = run_scan(plant, Path(tmp) / f"out{i}", engine, args.workers, gap, run_env)
+            results[label] = r
+            n = args.loops
+            print(
+                f"| {label} | {r['cpu'] / n:.3f} | {r['sys'] / n:.3f} | "
+                f"{r['faults'] / n:,.0f} | {r['wall']:.1f} |",
+                flush=True,
+            )
+        ratio = results["dask"]["cpu"] / results["local"]["cpu"]
+        print(f"Dask / local CPU per loop: {ratio:.2f}")
+
+
+if __name__ == "__main__":
+    main()

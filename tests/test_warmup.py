@@ -1,0 +1,86 @@
+"""``stiction warm-up`` and the cold-cache detection behind "compiled once per node"."""
+
+from __future__ import annotations
+
+import importlib
+import io
+import os
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+from stiction_cli.main import app
+from stictiondiag.core import jit
+
+KERNEL_SOURCE = """
+from stictiondiag.core.jit import jit
+
+
+@jit
+def plus_one(x):
+    return x + {k}
+"""
+
+
+@pytest.fixture
+def fresh_kernel(tmp_path, monkeypatch):
+    """A one-line kernel in a module of its own, so its cache starts empty."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    path = tmp_path / "warm_probe.py"
+
+    def load(k: int):
+        text = KERNEL_SOURCE.format(k=k)
+        if not path.exists() or path.read_text() != text:
+            path.write_text(text)
+        sys.modules.pop("warm_probe", None)
+        return importlib.import_module("warm_probe").plus_one
+
+    yield path, load
+    sys.modules.pop("warm_probe", None)
+
+
+def test_a_kernel_is_on_disk_once_compiled_and_stale_after_an_edit(fresh_kernel):
+    path, load = fresh_kernel
+    kernel = load(1)
+    assert not jit.on_disk(kernel)
+    assert kernel(1.0) == 2.0
+    assert jit.on_disk(kernel)
+    # Another process (a worker) sees the cache: a fresh import finds it.
+    assert jit.on_disk(load(1))
+    # An edited source makes the old entries stale (numba compares size and mtime).
+    stat = path.stat()
+    kernel = load(2)
+    os.utime(path, (stat.st_atime + 10, stat.st_mtime + 10))
+    assert not jit.on_disk(kernel)
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_first_compilation_is_announced_once_on_a_terminal(monkeypatch):
+    err = _Terminal()
+    monkeypatch.setattr(sys, "stderr", err)
+    monkeypatch.setattr(jit._note_first_compile, "done", False)
+    # Called by numba's compile event for each of this package's kernels.
+    jit._note_first_compile("stictiondiag.x.kernel")
+    jit._note_first_compile("stictiondiag.x.other")
+    assert err.getvalue() == jit.FIRST_COMPILE_NOTE + "\n"
+    # Output that is not a terminal (a pipe, a log file, a test) gets nothing.
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    monkeypatch.setattr(jit._note_first_compile, "done", False)
+    jit._note_first_compile("stictiondiag.x.kernel")
+    assert sys.stderr.getvalue() == ""
+
+
+def test_warm_up_command_caches_every_kernel():
+    result = CliRunner().invoke(app, ["warm-up"])
+    assert result.exit_code == 0, result.output
+    assert "kernels compiled in" in result.stdout
+    assert "[3/3]" in result.stderr
+    # Every kernel of the package the warm-up imported is in the cache afterwards:
+    # a kernel nothing reaches would make every scan warm the cache again.
+    assert "not reached" not in result.stderr
+    assert jit.cold_kernels() == []
