@@ -8,3 +8,4 @@ from . import validate  # noqa: F401
 from . import simulate  # noqa: F401
 from . import gap  # noqa: F401
 from . import benchmark  # noqa: F401
+from . import warmup  # noqa: F401
