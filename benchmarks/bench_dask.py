@@ -9,7 +9,10 @@ plant once per engine, each scan in its own Python process started from this one
 and writing to an empty output folder.  The CPU time of a scan is that of its
 process and all its descendants (worker processes, Dask nannies and scheduler
 included: ``RUSAGE_CHILDREN``), so it holds start-up and teardown as well as the
-loops; it is divided by the number of loops.  Minor page faults are counted the
+loops; it is divided by the number of loops.  The same scan of the first ``--small``
+loops separates the two: the CPU of the further loops, divided by their number, is
+the cost per loop of a long scan; the rest is the fixed cost of starting and
+stopping the workers (and, for Dask, the scheduler and nannies).  Minor page faults are counted the
 same way.  On a machine shared with other work CPU time is the figure to compare;
 wall time grows with the load.
 
@@ -68,6 +71,7 @@ def run_scan(plant: Path, out: Path, engine: str, workers: int, gap: bool, env: 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--loops", type=int, default=20)
+    parser.add_argument("--small", type=int, default=4, help="loops of the start-up run")
     parser.add_argument("--samples", type=int, default=10_000)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--no-gap", action="store_true", help="scan without the gap diagnosis")
@@ -79,32 +83,43 @@ def main() -> None:
     if args.with_trim:
         trim = env | {"MALLOC_TRIM_THRESHOLD_": "65536"}
         runs.append(("dask, MALLOC_TRIM_THRESHOLD_=65536", "dask", trim))
+    n, m = args.loops, args.small
     with tempfile.TemporaryDirectory(prefix="bench_dask_") as tmp:
-        plant = Path(tmp) / "plant"
-        _make_plant(plant, args.loops, n_samples=args.samples, seed=11, mv_share=0.5)
+        plant, small = Path(tmp) / "plant", Path(tmp) / "small"
+        _make_plant(plant, n, n_samples=args.samples, seed=11, mv_share=0.5)
+        _make_plant(small, m, n_samples=args.samples, seed=11, mv_share=0.5)
         # A scan of two loops in one process fills the numba cache first, as any
         # installation's first run does; the timed scans then load the kernels.
         _make_plant(Path(tmp) / "warm", 2, n_samples=args.samples, seed=12, mv_share=0.5)
         run_scan(Path(tmp) / "warm", Path(tmp) / "warm_out", "local", 1, gap, env)
         print(
             f"machine: {platform.machine()}, {os.cpu_count()} cores, load average "
-            f"{os.getloadavg()[0]:.1f}; {args.loops} loops x {args.samples} samples, "
+            f"{os.getloadavg()[0]:.1f}; {n} loops x {args.samples} samples, "
             f"{args.workers} workers, gap {'on' if gap else 'off'}"
         )
-        print("| engine | CPU s per loop | of which system | page faults per loop | wall s |")
-        print("|---|---:|---:|---:|---:|")
-        results = {}
+        print(
+            f"| engine | CPU s per loop ({n} loops) | per further loop | start-up CPU s "
+            "| page faults per loop | wall s |"
+        )
+        print("|---|---:|---:|---:|---:|---:|")
+        per_loop = {}
         for i, (label, engine, run_env) in enumerate(runs):
-            r = run_scan(plant, Path(tmp) / f"out{i}", engine, args.workers, gap, run_env)
-            results[label] = r
-            n = args.loops
+            big = run_scan(plant, Path(tmp) / f"out{i}", engine, args.workers, gap, run_env)
+            part = run_scan(small, Path(tmp) / f"sm{i}", engine, args.workers, gap, run_env)
+            # Marginal cost of a loop, and what is left: starting and stopping.
+            marginal = (big["cpu"] - part["cpu"]) / (n - m)
+            per_loop[label] = (big["cpu"] / n, marginal)
             print(
-                f"| {label} | {r['cpu'] / n:.3f} | {r['sys'] / n:.3f} | "
-                f"{r['faults'] / n:,.0f} | {r['wall']:.1f} |",
+                f"| {label} | {big['cpu'] / n:.2f} | {marginal:.2f} | "
+                f"{part['cpu'] - m * marginal:.1f} | {big['faults'] / n:,.0f} | "
+                f"{big['wall']:.0f} |",
                 flush=True,
             )
-        ratio = results["dask"]["cpu"] / results["local"]["cpu"]
-        print(f"Dask / local CPU per loop: {ratio:.2f}")
+        (dask_all, dask_m), (local_all, local_m) = per_loop["dask"], per_loop["local"]
+        print(
+            f"Dask / local: {dask_all / local_all:.2f} per loop of this scan, "
+            f"{dask_m / local_m:.2f} per further loop; load average {os.getloadavg()[0]:.1f}"
+        )
 
 
 if __name__ == "__main__":
