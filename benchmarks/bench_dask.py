@@ -8,7 +8,8 @@ recorded), fills the numba cache with a scan of two loops first, then scans the
 plant once per engine, each scan in its own Python process started from this one
 and writing to an empty output folder.  The CPU time of a scan is that of its
 process and all its descendants (worker processes, Dask nannies and scheduler
-included: ``RUSAGE_CHILDREN``), so it holds start-up and teardown as well as the
+included: ``RUSAGE_CHILDREN``; the calling process's own share, which holds
+Dask's scheduler and nannies, is printed apart), so it holds start-up and teardown as well as the
 loops; it is divided by the number of loops.  The same scan of the first ``--small``
 loops separates the two: the CPU of the further loops, divided by their number, is
 the cost per loop of a long scan; the rest is the fixed cost of starting and
@@ -42,6 +43,9 @@ from stictiondiag.apps.scan import scan
 r = scan(sys.argv[1], out=sys.argv[2], engine=sys.argv[3], workers=int(sys.argv[4]),
          gap=sys.argv[5] == "gap")
 assert r.n_failed == 0, r.n_failed
+import resource
+own = resource.getrusage(resource.RUSAGE_SELF)
+print("caller CPU s:", own.ru_utime + own.ru_stime, file=sys.stderr)
 """
 
 
@@ -57,7 +61,10 @@ def run_scan(plant: Path, out: Path, engine: str, workers: int, gap: bool, env: 
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     args = [str(plant), str(out), engine, str(workers), "gap" if gap else "nogap"]
-    subprocess.run([sys.executable, "-c", _SCAN, *args], check=True, env=env)
+    done = subprocess.run(
+        [sys.executable, "-c", _SCAN, *args], check=True, env=env, stderr=subprocess.PIPE, text=True
+    )
+    caller = float(done.stderr.rsplit("caller CPU s:", 1)[1].split()[0])
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return {
@@ -65,6 +72,7 @@ def run_scan(plant: Path, out: Path, engine: str, workers: int, gap: bool, env: 
         "sys": after.ru_stime - before.ru_stime,
         "faults": after.ru_minflt - before.ru_minflt,
         "wall": wall,
+        "caller": caller,
     }
 
 
@@ -99,9 +107,9 @@ def main() -> None:
         )
         print(
             f"| engine | CPU s per loop ({n} loops) | per further loop | start-up CPU s "
-            "| page faults per loop | wall s |"
+            f"| calling process CPU s ({n} loops) | page faults per loop | wall s |"
         )
-        print("|---|---:|---:|---:|---:|---:|")
+        print("|---|---:|---:|---:|---:|---:|---:|")
         per_loop = {}
         for i, (label, engine, run_env) in enumerate(runs):
             big = run_scan(plant, Path(tmp) / f"out{i}", engine, args.workers, gap, run_env)
@@ -111,7 +119,8 @@ def main() -> None:
             per_loop[label] = (big["cpu"] / n, marginal)
             print(
                 f"| {label} | {big['cpu'] / n:.2f} | {marginal:.2f} | "
-                f"{part['cpu'] - m * marginal:.1f} | {big['faults'] / n:,.0f} | "
+                f"{part['cpu'] - m * marginal:.1f} | {big['caller']:.1f} | "
+                f"{big['faults'] / n:,.0f} | "
                 f"{big['wall']:.0f} |",
                 flush=True,
             )
