@@ -7,7 +7,7 @@ Section 5.1, written the way one would by hand for numba: one function, the stat
 local variables, the input saturated to [0, 100] % inside the loop.  The public
 ``choudhury_model`` / ``kano_model`` are timed through their Python entry points
 (argument checks, saturation and output characteristic included), on the same input
-in the same process, best of ``--repeat`` alternated runs after a warm-up call (compilation is
+in the same process, thread CPU time, best of ``--repeat`` alternated runs after a warm-up call (compilation is
 excluded).  The outputs are checked equal before timing.  The ratio printed is the
 reference's time over the public function's (1.0 = as fast; the target is >= 0.9).
 Results are in docs/performance.md, section "Kernels".
@@ -99,14 +99,16 @@ def reference_kano(op, S, J):
 
 
 def best_of_interleaved(a, b, repeat: int) -> tuple[float, float]:
-    """Shortest wall times [s] of ``repeat`` calls of ``a`` and of ``b``, alternated so
-    that a burst of load from other processes falls on both alike."""
+    """Shortest CPU times [s] of this thread over ``repeat`` calls of ``a`` and of
+    ``b``, alternated so that a burst of load from other processes falls on both
+    alike.  CPU time, not wall time: on a shared machine the wall time of a call
+    holds the time other processes had the core."""
     ta, tb = [], []
     for _ in range(repeat):
         for fn, times in ((a, ta), (b, tb)):
-            t0 = time.perf_counter()
+            t0 = time.thread_time()
             fn()
-            times.append(time.perf_counter() - t0)
+            times.append(time.thread_time() - t0)
     return min(ta), min(tb)
 
 

@@ -86,13 +86,11 @@ def _choudhury_next(x, S, J, y, xss, dirn, v_old, stuck, x_prev):
     v_new = _sign(x - x_prev)
     # Fig. 10: the valve sticks when the slope changes sign or stays zero for two
     # consecutive samples.  x_ss is the input one sample before the change.
-    if v_new != v_old and v_new != 0.0 and v_old != 0.0:
+    if (v_new != v_old and v_new != 0.0 and v_old != 0.0) or (
+        v_new == 0.0 and v_old == 0.0 and not stuck
+    ):
         stuck = True
         xss = x_prev
-    elif v_new == 0.0 and v_old == 0.0:
-        if not stuck:
-            stuck = True
-            xss = x_prev
     if stuck:
         dx = x - xss
         d = _sign(dx)
