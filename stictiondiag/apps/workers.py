@@ -70,10 +70,15 @@ def children_ignore_sigint() -> Iterator[None]:
 def _warm_cache_here() -> None:
     """Compile any kernel missing from numba's cache in this process, before the
     workers start: they then load it instead of each compiling it (once per machine
-    rather than once per worker; :func:`stictiondiag.apps.warmup.warm_cache_once`)."""
+    rather than once per worker; :func:`stictiondiag.apps.warmup.warm_cache_once`).
+
+    Only an optimisation: should the warm-up fail, the workers compile at first use
+    as before (tests/test_warmup.py keeps the warm-up itself working).
+    """
     from stictiondiag.apps.warmup import warm_cache_once
 
-    warm_cache_once()
+    with contextlib.suppress(Exception):
+        warm_cache_once()
 
 
 def _stop_pool(pool, *, interrupted: bool) -> None:
@@ -281,11 +286,12 @@ def _connect(workers: int, scheduler: str | None):
             "the dask engine needs dask.distributed: pip install 'dask[distributed]'"
         ) from None
     cluster = None
+    if not scheduler:
+        _warm_cache_here()
     try:
         if scheduler:
             client = Client(scheduler, timeout="10s")
         else:
-            _warm_cache_here()
             # The scheduler's HTTP server (health, dashboard) takes a free port: another
             # cluster on the default 8787 must not make the scan fail or warn.
             with (
