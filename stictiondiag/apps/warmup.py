@@ -12,17 +12,21 @@ every later process reads.  The work:
 2. the closed loops of Section 4 (Eq. 3, Table 3) with the data-driven and the
    physical valve, and a generated benchmark case;
 3. :func:`stictiondiag.analysis.analyze` with the gap diagnosis on a sticky loop with
-   valve position recorded and on the same loop without it.
+   valve position recorded and on the same loop without it, with one thread per
+   kernel (a scan's workers) and, without mv, with two (``stiction analyze``).
 
 :func:`warm_cache_once` is what a scan calls before it starts its worker processes:
-if any kernel is missing from the cache it warms the cache in the calling process,
+if the cache is cold (:func:`stictiondiag.core.jit.cache_is_cold`) it warms it in the
+calling process,
 so the kernels are compiled once on the machine rather than once in every worker.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,6 +84,23 @@ def _closed_loops() -> None:
     generate_case("none", 1, n_samples=2000, physical=True)
 
 
+@contextlib.contextmanager
+def _kernel_threads(n: int) -> Iterator[None]:
+    """The batch kernels may use ``n`` threads in this block, as in ``stiction
+    analyze`` (their threaded variants compile too); the environment is restored."""
+    from stictiondiag.stiction.hammerstein_kernels import THREADS_VARIABLE
+
+    before = os.environ.get(THREADS_VARIABLE)
+    os.environ[THREADS_VARIABLE] = str(n)
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(THREADS_VARIABLE, None)
+        else:
+            os.environ[THREADS_VARIABLE] = before
+
+
 def _analyses() -> None:
     from stictiondiag.analysis import analyze
     from stictiondiag.io.tags import Tags
@@ -88,7 +109,9 @@ def _analyses() -> None:
     sim = simulate_paper_loop("level", 5.0, 2.0, duration=_DURATION_S, noise_std=0.05)
     for mv in (sim.mv, None):
         tags = Tags.from_arrays(sim.pv, sim.op, mv=mv, ts=sim.dt, loop_type="level")
-        analyze(tags)
+        analyze(tags)  # one thread per kernel, as in a scan's workers
+    with _kernel_threads(2):
+        analyze(Tags.from_arrays(sim.pv, sim.op, ts=sim.dt, loop_type="level"))
 
 
 #: The steps of :func:`warm_up`: (what, function).
@@ -132,6 +155,6 @@ def warm_cache_once(progress: Callable[[str], None] | None = None) -> WarmUp | N
     """
     import stictiondiag.analysis  # noqa: F401  (imports the kernels a worker runs)
 
-    if not jit.cold_kernels():
+    if not jit.cache_is_cold():
         return None
     return warm_up(progress)

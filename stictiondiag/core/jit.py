@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
 import sys
 from collections.abc import Callable, Iterator
 
@@ -83,10 +84,34 @@ def on_disk(dispatcher: Dispatcher) -> bool:
         return True
 
 
+def ever_cached(dispatcher: Dispatcher) -> bool:
+    """Whether numba's cache has an index for ``dispatcher`` at all (fresh or stale).
+
+    False for a kernel never compiled with this cache: on a fresh installation, or
+    a kernel that nothing calls."""
+    try:
+        return os.path.exists(dispatcher._cache._cache_file._index_path)
+    except Exception:  # a numba whose cache internals differ
+        return True
+
+
 def cold_kernels() -> list[str]:
     """Names of the imported kernels (:func:`kernels`) that would be compiled, not
     loaded, at their first call in a new process."""
     return [kernel_name(d) for d in kernels() if not on_disk(d)]
+
+
+def cache_is_cold() -> bool:
+    """Whether the imported kernels need compiling: none was ever cached (a fresh
+    installation), or one that was is stale (its source changed since).
+
+    A kernel never cached while others are does not count: nothing may call it,
+    and it would make every check answer "cold"."""
+    found = kernels()
+    cached = [d for d in found if ever_cached(d)]
+    if not cached:
+        return bool(found)
+    return not all(on_disk(d) for d in cached)
 
 
 class _CompileListener(event.Listener):
