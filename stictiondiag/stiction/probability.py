@@ -34,6 +34,16 @@ of the classic detection tests is reduced to a handful of well-defined numbers,
     stiction, -1 no stiction, 0 undecided or not applicable.
 ``short_record``
     The record holds fewer cycles than the oscillation test needs (1 or 0).
+``halves_s_low``, ``halves_s_agree``, ``halves_improvement``, ``halves_missing``
+    The steadiness of the estimate over the record: the Hammerstein fit repeated on
+    each half of the record (same cycle period).  A sticky valve keeps its S from
+    one half to the next (the friction is a property of the valve, Section 5.1), a
+    linear valve's fitted S wanders with the noise and the loads.  The smaller of
+    the two S over the spread of op (clipped to [0, 2]), the ratio of the smaller to
+    the larger S (0 when both are 0), the smaller of the two improvements (clipped
+    to [-0.5, 1]); ``halves_missing`` is 1 when the halves could not be fitted (a
+    half shorter than two cycles, or the valve position recorded) and the three
+    others are then 0.
 
 The model is fitted on simulated loops only (:mod:`stictiondiag.apps.family`,
 ``scripts/train_probability.py``), separately for loops with and without the valve
@@ -68,6 +78,10 @@ FEATURES: tuple[str, ...] = (
     "rossi_scali",
     "kano",
     "short_record",
+    "halves_s_low",
+    "halves_s_agree",
+    "halves_improvement",
+    "halves_missing",
 )
 
 #: The fitted model, written by ``scripts/train_probability.py``.
@@ -119,8 +133,13 @@ def evidence_features(
     op: np.ndarray,
     classic: dict,
     short_record: bool,
+    halves: tuple | None = None,
 ) -> dict:
-    """The features of :data:`FEATURES` for one loop (see module doc)."""
+    """The features of :data:`FEATURES` for one loop (see module doc).
+
+    ``halves`` is ``(S_1, S_2, improvement_1, improvement_2)`` of the fits on the two
+    halves of the record [% of span, % of span, -, -], or None.
+    """
     d = fit.details or {}
     S_iv = fit.S_interval
     S_open = "reaches the search limit" in str((d.get("determinacy") or {}).get("S", ""))
@@ -144,8 +163,29 @@ def evidence_features(
         "regularity": math.log1p(min(max(regs), MAX_REGULARITY)) if regs else 0.0,
         **{t: float(classic.get(t, 0.0)) for t in CLASSIC_TESTS},
         "short_record": float(bool(short_record)),
+        **halves_features(halves, spread),
     }
     return f
+
+
+def halves_features(halves: tuple | None, spread: float) -> dict:
+    """``halves_*`` features (module doc) from ``(S_1, S_2, improvement_1,
+    improvement_2)`` of the two half-record fits and the spread of op [% of span]."""
+    if halves is None or not all(math.isfinite(float(v)) for v in halves):
+        return {
+            "halves_s_low": 0.0,
+            "halves_s_agree": 0.0,
+            "halves_improvement": 0.0,
+            "halves_missing": 1.0,
+        }
+    s1, s2, f1, f2 = (float(v) for v in halves)
+    lo, hi = min(s1, s2), max(s1, s2)
+    return {
+        "halves_s_low": float(np.clip(lo / spread, 0.0, 2.0)) if spread > 0 else 0.0,
+        "halves_s_agree": lo / hi if hi > 0 else 0.0,
+        "halves_improvement": float(np.clip(min(f1, f2), -0.5, 1.0)),
+        "halves_missing": 0.0,
+    }
 
 
 @lru_cache(maxsize=4)
@@ -164,9 +204,9 @@ def load_model(path: str | None = None) -> dict:
     return model
 
 
-def design_row(features: dict) -> np.ndarray:
-    """The features as one row in the order of :data:`FEATURES`."""
-    return np.array([float(features[k]) for k in FEATURES])
+def design_row(features: dict, names: tuple[str, ...] = FEATURES) -> np.ndarray:
+    """The features as one row in the order of ``names`` (default :data:`FEATURES`)."""
+    return np.array([float(features[k]) for k in names])
 
 
 def logistic(z):

@@ -190,6 +190,19 @@ _FEATURE_WORDS = {
     "oscillating": ("the loop oscillates", "no regular oscillation"),
     "regularity": ("the cycle is regular", "the cycle is irregular"),
     "short_record": ("the record is short", "the record is long enough"),
+    "halves_s_low": (
+        "each half of the record gives a large S",
+        "one half of the record gives a small or no S",
+    ),
+    "halves_s_agree": (
+        "the two halves of the record give the same S",
+        "the two halves of the record give different S",
+    ),
+    "halves_improvement": (
+        "the stiction model fits better in both halves",
+        "the stiction model does not fit better in one half",
+    ),
+    "halves_missing": ("the halves could not be fitted", "both halves were fitted"),
     "horch": "Horch's test",
     "choudhury": "the bicoherence test and pv-op ellipse",
     "he": "He et al.'s shape test",
@@ -206,7 +219,7 @@ def _feature_text(name: str, value: float, mean: float) -> str:
         return f"{words} {_CALLS.get(float(value), 'is undecided')}"
     if name == "regularity" and value == 0.0:
         return "no cycle whose regularity could be measured"
-    binary = name in ("s_excludes_zero", "s_open", "oscillating", "short_record")
+    binary = name in ("s_excludes_zero", "s_open", "oscillating", "short_record", "halves_missing")
     high = value > 0.5 if binary else value > mean
     return words[0 if high else 1]
 
@@ -225,6 +238,60 @@ def _contributions(features: dict, has_mv: bool, model: dict) -> list[tuple[str,
 def _evidence_words(contrib: list[tuple[str, float, str]], sign: int, n: int = 3) -> str:
     words = [w for _, t, w in contrib if t * sign > 0.05]
     return "; ".join(words[:n]) if words else "nothing in particular"
+
+
+#: Loop types fitted as flow loops (``stictiondiag.analysis.FLOW_LIKE``, which this
+#: layer cannot import).
+_FLOW_TYPES = frozenset({"flow"})
+
+#: Fewest cycles each half of the record must hold for the split-half fit [-] (the
+#: analysis refuses a record of fewer, ``stictiondiag.analysis.MIN_ANALYSIS_CYCLES``).
+HALF_MIN_CYCLES = 2.0
+
+
+def split_half_estimates(fit: StictionFit, data) -> tuple[float, float, float, float] | None:
+    """S [% of span] and improvement over a linear valve [-] of the Hammerstein fit
+    repeated on each half of the record: ``(S_1, S_2, improvement_1, improvement_2)``.
+
+    The friction of a valve does not change within a record (Choudhury, Thornhill &
+    Shah 2005, Section 5.1: S and J are properties of the valve), so a sticky valve
+    gives the same S in both halves, while the S a linear valve's data lend the fit
+    wanders with the noise and the loads.  Both halves are fitted with the whole
+    record's cycle period, so they use the same time scales.
+
+    None when there is no Hammerstein fit (the valve position is recorded), when a
+    half holds fewer than :data:`HALF_MIN_CYCLES` cycles, or when a half cannot be
+    fitted.
+    """
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.stiction.hammerstein import fit_hammerstein
+
+    if data is None or getattr(data, "mv", None) is not None or fit.method != "hammerstein":
+        return None
+    op = np.asarray(data.op, dtype=float)
+    pv = np.asarray(data.pv, dtype=float)
+    dt = float(data.ts)
+    h = op.size // 2
+    period = (fit.details or {}).get("period_samples")
+    if not period or not period > 0 or h < HALF_MIN_CYCLES * float(period):
+        return None
+    out = []
+    for sl in (slice(0, h), slice(h, 2 * h)):
+        try:
+            half = fit_hammerstein(
+                op[sl],
+                pv[sl],
+                dt,
+                integrating=bool(getattr(data, "integrating", False)),
+                flow_loop=str(getattr(data, "loop_type", "")) in _FLOW_TYPES,
+                period_s=float(period) * dt,
+            )
+        except (StictionError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+            return None
+        f = 1.0 - half.cost / half.linear_cost if half.linear_cost > 0 else 0.0
+        out.append((float(half.S), float(f)))
+    (s1, f1), (s2, f2) = out
+    return s1, s2, f1, f2
 
 
 def verdict_features(
@@ -261,6 +328,7 @@ def verdict_features(
         op = data.op
     else:
         classic, op = {}, fit.mv_model
+    halves = split_half_estimates(fit, data)
     features = evidence_features(
         fit,
         oscillation,
@@ -270,6 +338,7 @@ def verdict_features(
         op=op,
         classic=classic,
         short_record=short_record,
+        halves=halves,
     )
     return features, (support, f, f_iv), classic
 
