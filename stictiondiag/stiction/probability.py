@@ -38,9 +38,11 @@ of the classic detection tests is reduced to a handful of well-defined numbers,
     The steadiness of the estimate over the record: the Hammerstein fit repeated on
     each half of the record (same cycle period).  A sticky valve keeps its S from
     one half to the next (the friction is a property of the valve, Section 5.1), a
-    linear valve's fitted S wanders with the noise and the loads.  The smaller of
-    the two S over the spread of op (clipped to [0, 2]), the ratio of the smaller to
-    the larger S (0 when both are 0), the smaller of the two improvements (clipped
+    linear valve's fitted S wanders with the noise and the loads.  Each half's S is
+    the lower end of its interval (the S the data insist on, as for
+    ``s_low_share``).  The smaller of the two S over the spread of op (clipped to
+    [0, 2]), the ratio of the smaller to the larger S (0 when both are 0), the
+    smaller of the two improvements (clipped
     to [-0.5, 1]); ``halves_missing`` is 1 when the halves could not be fitted (a
     half shorter than two cycles, or the valve position recorded) and the three
     others are then 0.

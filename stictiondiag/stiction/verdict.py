@@ -191,12 +191,12 @@ _FEATURE_WORDS = {
     "regularity": ("the cycle is regular", "the cycle is irregular"),
     "short_record": ("the record is short", "the record is long enough"),
     "halves_s_low": (
-        "each half of the record gives a large S",
-        "one half of the record gives a small or no S",
+        "each half of the record insists on a large S",
+        "one half of the record allows a small or no S",
     ),
     "halves_s_agree": (
-        "the two halves of the record give the same S",
-        "the two halves of the record give different S",
+        "the two halves of the record insist on the same S",
+        "the two halves of the record do not insist on the same S",
     ),
     "halves_improvement": (
         "the stiction model fits better in both halves",
@@ -250,14 +250,18 @@ HALF_MIN_CYCLES = 2.0
 
 
 def split_half_estimates(fit: StictionFit, data) -> tuple[float, float, float, float] | None:
-    """S [% of span] and improvement over a linear valve [-] of the Hammerstein fit
-    repeated on each half of the record: ``(S_1, S_2, improvement_1, improvement_2)``.
+    """The S the data insist on [% of span] (lower end of the S interval, 0 without
+    one) and the improvement over a linear valve [-] of the Hammerstein fit repeated on
+    each half of the record: ``(S_1, S_2, improvement_1, improvement_2)``.
 
     The friction of a valve does not change within a record (Choudhury, Thornhill &
     Shah 2005, Section 5.1: S and J are properties of the valve), so a sticky valve
     gives the same S in both halves, while the S a linear valve's data lend the fit
-    wanders with the noise and the loads.  Both halves are fitted with the whole
-    record's cycle period, so they use the same time scales.
+    wanders with the noise and the loads.  Only the lower end of each half's S
+    interval counts: against an op that hardly moves any S fits, and the point
+    estimate is then arbitrary (as for ``s_low_share`` of the whole record).  Both
+    halves are fitted with the whole record's cycle period, so they use the same
+    time scales.
 
     None when there is no Hammerstein fit (the valve position is recorded), when a
     half holds fewer than :data:`HALF_MIN_CYCLES` cycles, or when a half cannot be
@@ -289,7 +293,8 @@ def split_half_estimates(fit: StictionFit, data) -> tuple[float, float, float, f
         except (StictionError, ValueError, FloatingPointError, np.linalg.LinAlgError):
             return None
         f = 1.0 - half.cost / half.linear_cost if half.linear_cost > 0 else 0.0
-        out.append((float(half.S), float(f)))
+        s_low = float(half.S_interval[0]) if half.S_interval is not None else 0.0
+        out.append((max(s_low, 0.0), float(f)))
     (s1, f1), (s2, f2) = out
     return s1, s2, f1, f2
 
