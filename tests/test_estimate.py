@@ -51,8 +51,13 @@ def concentration(S, J, *, valve="choudhury", noise=0.0, load=None, duration=250
 
 
 def verdict_for(fit, op, pv, dt):
+    # With the record, as the analysis calls it: the classic tests and the split-half
+    # fits need op and pv.
+    from stictiondiag.io.tags import Tags
+
+    tags = Tags.from_arrays(pv, op, ts=dt, loop_type="other", integrating=False)
     return stiction_verdict(
-        fit, detect_oscillation(pv, dt), oscillation_op=detect_oscillation(op, dt)
+        fit, detect_oscillation(pv, dt), oscillation_op=detect_oscillation(op, dt), data=tags
     )
 
 
