@@ -447,7 +447,7 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         "in `docs/calibration.md`); `stiction` above 0.7, `no_stiction` below 0.3,",
         "`inconclusive` between, levels stated before any real record was analysed. No",
         "threshold, weight, feature or level was chosen by looking at these loops: the",
-        "model and the levels were fixed first, and the ISDB was then measured once.",
+        "model and the levels were fixed first, and the ISDB was then measured; every run is reported.",
         "",
         "Labels are the published ISDB comments (see `stictiondiag/apps/validation.py`):",
         "*stated* (stiction stated, no stiction stated, or another diagnosis stated),",
