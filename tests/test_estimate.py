@@ -112,7 +112,7 @@ def test_linear_valve_cycling_under_a_load_is_no_stiction():
         # calibrated on simulated loops where a sticky valve under a periodic load
         # can look much the same, may stay between the levels.
         # (Without mv the model refitted with the split-half features puts this loop at
-        # P = 0.51: the periodic load's regular cycle counts for stiction about as
+        # P = 0.50: the periodic load's regular cycle counts for stiction about as
         # much as the poor improvement counts against, so only "not called" holds.)
         assert v.status != "stiction"
         if fit.method == "mv_segments":
