@@ -79,7 +79,7 @@ def on_disk(dispatcher: Dispatcher) -> bool:
     caller that would compile ahead does nothing rather than compile every time.
     """
     try:
-        return bool(dispatcher._cache._cache_file._load_index())
+        return bool(dispatcher._cache._cache_file._load_index())  # type: ignore[attr-defined]
     except Exception:  # a numba whose cache internals differ
         return True
 
@@ -90,7 +90,7 @@ def ever_cached(dispatcher: Dispatcher) -> bool:
     False for a kernel never compiled with this cache: on a fresh installation, or
     a kernel that nothing calls."""
     try:
-        return os.path.exists(dispatcher._cache._cache_file._index_path)
+        return os.path.exists(dispatcher._cache._cache_file._index_path)  # type: ignore[attr-defined]
     except Exception:  # a numba whose cache internals differ
         return True
 

@@ -488,7 +488,7 @@ def kernel_threads() -> int:
         return 1
     if n <= 1 or multiprocessing.parent_process() is not None:
         return 1
-    return min(n, numba.config.NUMBA_NUM_THREADS)
+    return min(n, numba.get_num_threads())
 
 
 def same_sign_lstsq(X: np.ndarray, y: np.ndarray, nb: int) -> np.ndarray:
