@@ -124,7 +124,9 @@ def fit_time_varying_stiction(
     n = ctx.sig.n
     travel = demand_travel(ctx.sig.op)
     lower, upper = np.zeros(4), np.array([travel, 1.5 * travel] * 2)
-    prob = base_problem(ctx, w, base) if init is None else pick_problem(ctx, w, base, init, None)
+    prob = (
+        base_problem(ctx, w, base.valve) if init is None else pick_problem(ctx, w, base, init, None)
+    )
 
     def cost_h(h):
         def cost(X, bound):

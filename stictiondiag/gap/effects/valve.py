@@ -12,16 +12,12 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stictiondiag.gap.context import ReplayContext
 from stictiondiag.gap.effects.kernels import FAMILY_CODES, valve_series, valve_sse_batch
 from stictiondiag.gap.effects.search import needle_search
-
-if TYPE_CHECKING:  # the base replay holds a ValveFit: annotation only
-    from stictiondiag.gap.effects.base import BaseFit
 
 _CONSTANT = np.zeros(1)
 
@@ -370,8 +366,9 @@ def affine_map(v: np.ndarray, mv: np.ndarray, w: np.ndarray) -> tuple[float, flo
     return k, float(mm.mean() - k * vm)
 
 
-def base_problem(ctx: ReplayContext, w: np.ndarray, base: BaseFit) -> ValveProblem:
-    return ValveProblem.of(ctx, w, base.valve.kano, base.valve.initial_direction)
+def base_problem(ctx: ReplayContext, w: np.ndarray, valve: ValveFit) -> ValveProblem:
+    """The stuck-phase logic and start of the base fit's valve ``valve``."""
+    return ValveProblem.of(ctx, w, valve.kano, valve.initial_direction)
 
 
 def pick_problem(ctx, w, base, init, evaluate) -> ValveProblem:

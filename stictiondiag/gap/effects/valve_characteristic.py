@@ -138,7 +138,7 @@ def fit_valve_characteristic(
     forms = ["process_exponential", "process_power"]
     if sig.mv is not None:
         forms += ["valve_exponential", "valve_power"]
-        prob = base_problem(ctx, w, base)
+        prob = base_problem(ctx, w, base.valve)
         row = valve_rows(base.valve.params["S"], base.valve.params["J"])
         base_mv_cost = float(prob.costs(row)[0])
     if init is not None:
