@@ -23,10 +23,10 @@ from stictiondiag.core.errors import UsageError
 from stictiondiag.models.synthetic import (
     EFFECTS,
     KARNOPP_PARAMETERS,
-    _closed_loop,
     generate_case,
     write_benchmark,
 )
+from stictiondiag.models.synthetic_loop import closed_loop
 from stictiondiag.models.valve import (
     choudhury_model,
     kano_model,
@@ -374,8 +374,8 @@ def _paper_loop_period(loop: str, *, physical: bool, S: float, J: float, kick: f
         "h": kp["substep_s"],
         "v_eps": kp["stick_velocity_m_per_s"],
     }
-    assert list(settings) == list(inspect.signature(_closed_loop.py_func).parameters)
-    pv = _closed_loop(*settings.values())[0]
+    assert list(settings) == list(inspect.signature(closed_loop.py_func).parameters)
+    pv = closed_loop(*settings.values())[0]
     found = detect_oscillation(pv[n // 2 :], ts)
     return found.period_s if found.present else None
 
