@@ -569,3 +569,14 @@ def test_resume_keys_on_resolved_path_and_content(plant, tmp_path, monkeypatch):
     text = paths[0].read_text().splitlines()
     paths[0].write_text("\n".join(text[:-5]) + "\n")
     assert scan(Path("plant"), out=Path("out"), workers=1, gap=False).n_skipped == 1
+
+
+def test_severity_weighs_size_by_the_probability_of_stiction():
+    # P(stiction) x (S + J): 0.5 x 6 = 3 % (exact in binary); the verdict's
+    # confidence (0.9 here, 1 - P on a no-stiction call) is used only by rows
+    # written before the probability was recorded.
+    row = {"S": 4.0, "J": 2.0, "probability": 0.5, "confidence": 0.9}
+    assert severity(row) == 3.0
+    assert severity({"S": 4.0, "J": 2.0, "probability": float("nan"), "confidence": 0.9}) == (
+        pytest.approx(5.4, rel=1e-12)
+    )

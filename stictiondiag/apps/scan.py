@@ -3,8 +3,8 @@
 A plant has hundreds or thousands of loops (Section 1 of Choudhury et al. 2005); the
 question is which valves to send maintenance to first.  :func:`scan` runs
 :func:`stictiondiag.analysis.analyze` on every loop, on a local process pool or a Dask
-cluster (``dask.distributed``), and ranks the loops by stiction severity and
-confidence.
+cluster (``dask.distributed``), and ranks the loops by verdict, P(stiction) and
+severity.
 
 Design:
 
@@ -402,12 +402,15 @@ def worker_failure(source: LoopSource, exc: BaseException) -> dict:
 
 
 def severity(row: dict) -> float:
-    """Maintenance priority of a loop: confidence times stiction size (S + J) [% of span].
+    """Maintenance priority of a loop: P(stiction) times stiction size (S + J) [% of span].
 
     Loops called ``stiction`` rank above ``inconclusive``, above ``no_stiction``,
-    above failed loops; within a verdict, higher severity first.
+    above failed loops; within a verdict, higher severity first.  (A row without a
+    probability, written by an older scan, uses its confidence.)
     """
-    conf = row.get("confidence")
+    conf = row.get("probability")
+    if conf is None or (isinstance(conf, float) and math.isnan(conf)):
+        conf = row.get("confidence")
     s, j = row.get("S"), row.get("J")
     if conf is None or s is None or j is None:
         return 0.0

@@ -11,6 +11,10 @@ from stictiondiag.apps.pages import safe_name as _safe_name
 __all__ = ["scan_html"]
 
 
+#: Column headings that differ from the column names.
+_HEADINGS = {"probability": "P(stiction)", "S": "S [%]", "J": "J [%]", "severity": "severity [%]"}
+
+
 def scan_html(table: pd.DataFrame, file_names: dict | None = None) -> str:
     """Self-contained HTML page with the ranked table and per-loop links."""
     from html import escape
@@ -21,7 +25,7 @@ def scan_html(table: pd.DataFrame, file_names: dict | None = None) -> str:
             "rank",
             "loop",
             "verdict",
-            "confidence",
+            "probability",
             "S",
             "J",
             "severity",
@@ -33,7 +37,7 @@ def scan_html(table: pd.DataFrame, file_names: dict | None = None) -> str:
         )
         if c in table.columns
     ]
-    head = "".join(f"<th>{escape(c)}</th>" for c in cols)
+    head = "".join(f"<th>{escape(_HEADINGS.get(c, c))}</th>" for c in cols)
     body = []
     for _, r in table.iterrows():
         cells = []
@@ -67,7 +71,7 @@ tr.error{{background:#eee;color:#777}} a.j{{font-size:11px;color:#777}}
 </style></head><body>
 <h1>Stiction scan</h1>
 <p>{n} loops, {n_st} with stiction, ranked by verdict then severity
-(confidence &times; (S + J), % of span).</p>
+(P(stiction) &times; (S + J), % of span).</p>
 <table><thead><tr>{head}</tr></thead><tbody>
 {"".join(body)}
 </tbody></table></body></html>
