@@ -215,6 +215,7 @@ def generate_case(
     w = _draw_sampling(rng, use_physical, n_samples, ts, KARNOPP_PARAMETERS)
     _draw_process_and_tuning(rng, w)
     _draw_disturbances(rng, w)
+    # "none": the base valve alone.
     if effect in PRE_RUN_EFFECTS:
         PRE_RUN_EFFECTS[effect](rng, w)
     elif effect in PILOT_EFFECTS:
@@ -223,19 +224,8 @@ def generate_case(
     pv, op, valve_out, position, flow, pv_clean = _run(w, w.pv_quantum_instrument, w.load_out)
 
     keep = slice(_WARMUP_SAMPLES, w.n_total)
-    hidden = {
-        "valve_output": valve_out[keep].copy(),
-        "position": position[keep].copy(),
-        "flow": flow[keep].copy(),
-        "load_input": w.load_in[keep].copy(),
-        "output_disturbance": w.load_out[keep].copy(),
-        "pv_clean": pv_clean[keep].copy(),
-        "S_open": w.S_open[keep].copy(),
-        "J_open": w.J_open[keep].copy(),
-        "S_close": w.S_close[keep].copy(),
-        "J_close": w.J_close[keep].copy(),
-    }
     data = _recorded_data(w, pv[keep].copy(), op[keep], position[keep])
+    hidden = _hidden(w, valve_out, position, flow, pv_clean)
     return SyntheticCase(data=data, truth=_plain(_truth(w, effect, seed)), hidden=hidden)
 
 
@@ -254,6 +244,25 @@ def _recorded_data(w: _Case, pv: np.ndarray, op: np.ndarray, position: np.ndarra
         {"time": time, "sp": w.sp[keep], "pv": pv, "op": op, "mv": mv},
         columns=["time", "sp", "pv", "op", "mv"],
     )
+
+
+def _hidden(
+    w: _Case, valve_out: np.ndarray, position: np.ndarray, flow: np.ndarray, pv_clean: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Noise-free internal signals over the record (see :class:`SyntheticCase`)."""
+    keep = slice(_WARMUP_SAMPLES, w.n_total)
+    return {
+        "valve_output": valve_out[keep].copy(),
+        "position": position[keep].copy(),
+        "flow": flow[keep].copy(),
+        "load_input": w.load_in[keep].copy(),
+        "output_disturbance": w.load_out[keep].copy(),
+        "pv_clean": pv_clean[keep].copy(),
+        "S_open": w.S_open[keep].copy(),
+        "J_open": w.J_open[keep].copy(),
+        "S_close": w.S_close[keep].copy(),
+        "J_close": w.J_close[keep].copy(),
+    }
 
 
 def _karnopp_truth(w: _Case, effect: str) -> dict | None:
