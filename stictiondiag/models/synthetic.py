@@ -89,14 +89,14 @@ import pyarrow.csv as pa_csv
 from stictiondiag.core.atomic import write_atomic
 from stictiondiag.core.errors import UsageError
 from stictiondiag.models.synthetic_effects import (
-    _WARMUP_SAMPLES,
     PILOT_EFFECTS,
     PRE_RUN_EFFECTS,
-    _Case,
-    _draw_disturbances,
-    _draw_process_and_tuning,
-    _draw_sampling,
-    _run,
+    WARMUP_SAMPLES,
+    CaseDraft,
+    draw_disturbances,
+    draw_process_and_tuning,
+    draw_sampling,
+    run_case,
 )
 
 #: Names of the hidden effects, in the order used for balancing a benchmark.
@@ -212,27 +212,29 @@ def generate_case(
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), EFFECTS.index(effect)]))
 
     use_physical = bool(rng.random() < PHYSICAL_SHARE) if physical is None else bool(physical)
-    w = _draw_sampling(rng, use_physical, n_samples, ts, KARNOPP_PARAMETERS)
-    _draw_process_and_tuning(rng, w)
-    _draw_disturbances(rng, w)
+    w = draw_sampling(rng, use_physical, n_samples, ts, KARNOPP_PARAMETERS)
+    draw_process_and_tuning(rng, w)
+    draw_disturbances(rng, w)
     # "none": the base valve alone.
     if effect in PRE_RUN_EFFECTS:
         PRE_RUN_EFFECTS[effect](rng, w)
     elif effect in PILOT_EFFECTS:
         # A pilot run of the same loop sizes the effect against what the loop does.
-        PILOT_EFFECTS[effect](rng, w, _run(w, 0.0, w.load_out))
-    pv, op, valve_out, position, flow, pv_clean = _run(w, w.pv_quantum_instrument, w.load_out)
+        PILOT_EFFECTS[effect](rng, w, run_case(w, 0.0, w.load_out))
+    pv, op, valve_out, position, flow, pv_clean = run_case(w, w.pv_quantum_instrument, w.load_out)
 
-    keep = slice(_WARMUP_SAMPLES, w.n_total)
+    keep = slice(WARMUP_SAMPLES, w.n_total)
     data = _recorded_data(w, pv[keep].copy(), op[keep], position[keep])
     hidden = _hidden(w, valve_out, position, flow, pv_clean)
     return SyntheticCase(data=data, truth=_plain(_truth(w, effect, seed)), hidden=hidden)
 
 
-def _recorded_data(w: _Case, pv: np.ndarray, op: np.ndarray, position: np.ndarray) -> pd.DataFrame:
+def _recorded_data(
+    w: CaseDraft, pv: np.ndarray, op: np.ndarray, position: np.ndarray
+) -> pd.DataFrame:
     """What the diagnosis sees: ``mv`` with transmitter noise, clipped to the span and
     quantised, ``pv`` quantised in the historian (arguments and result over the record)."""
-    keep = slice(_WARMUP_SAMPLES, w.n_total)
+    keep = slice(WARMUP_SAMPLES, w.n_total)
     mv = position + w.mv_noise[keep]
     mv = np.clip(mv, 0.0, 100.0)
     if w.mv_quantum > 0.0:
@@ -247,10 +249,14 @@ def _recorded_data(w: _Case, pv: np.ndarray, op: np.ndarray, position: np.ndarra
 
 
 def _hidden(
-    w: _Case, valve_out: np.ndarray, position: np.ndarray, flow: np.ndarray, pv_clean: np.ndarray
+    w: CaseDraft,
+    valve_out: np.ndarray,
+    position: np.ndarray,
+    flow: np.ndarray,
+    pv_clean: np.ndarray,
 ) -> dict[str, np.ndarray]:
     """Noise-free internal signals over the record (see :class:`SyntheticCase`)."""
-    keep = slice(_WARMUP_SAMPLES, w.n_total)
+    keep = slice(WARMUP_SAMPLES, w.n_total)
     return {
         "valve_output": valve_out[keep].copy(),
         "position": position[keep].copy(),
@@ -265,7 +271,7 @@ def _hidden(
     }
 
 
-def _karnopp_truth(w: _Case, effect: str) -> dict | None:
+def _karnopp_truth(w: CaseDraft, effect: str) -> dict | None:
     """Karnopp valve constants and the forces at the start of the record (None for the
     stick-slip element)."""
     if not w.use_physical:
@@ -288,7 +294,7 @@ def _karnopp_truth(w: _Case, effect: str) -> dict | None:
     }
 
 
-def _truth(w: _Case, effect: str, seed: int) -> dict:
+def _truth(w: CaseDraft, effect: str, seed: int) -> dict:
     """The truth of a case (see :class:`SyntheticCase`); times relative to the record."""
     ts = w.ts
     return {
@@ -332,15 +338,15 @@ def _truth(w: _Case, effect: str, seed: int) -> dict:
             "enters": "process input [% of span]",
             # Steps at negative times came before the record starts.
             "steps": [
-                {"time_s": (t - _WARMUP_SAMPLES) * ts, "size": s} for t, s in w.load_step_list
+                {"time_s": (t - WARMUP_SAMPLES) * ts, "size": s} for t, s in w.load_step_list
             ],
             "random_walk_range": w.walk_range,
             "lag_s": w.load_time,
         },
         "setpoint_changes": [
-            {"time_s": (t - _WARMUP_SAMPLES) * ts, "size": s}
+            {"time_s": (t - WARMUP_SAMPLES) * ts, "size": s}
             for t, s in w.sp_list
-            if t >= _WARMUP_SAMPLES
+            if t >= WARMUP_SAMPLES
         ],
         "effect_parameters": w.effect_params,
     }

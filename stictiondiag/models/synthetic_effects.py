@@ -1,7 +1,7 @@
 """Steps of the withheld-effect benchmark generator (:mod:`stictiondiag.models.synthetic`).
 
 :func:`stictiondiag.models.synthetic.generate_case` runs these in order on one working
-record (:class:`_Case`): sampling and friction, process and PI tuning, disturbances,
+record (:class:`CaseDraft`): sampling and friction, process and PI tuning, disturbances,
 then the hidden effect (before the run, or sized on a pilot run of the same loop), then
 the closed-loop run. Every random draw comes from the one generator the caller passes
 in, in the order of the steps, so a seed gives the same case whatever the layout of the
@@ -25,7 +25,7 @@ from stictiondiag.models.synthetic_loop import closed_loop, flow_characteristic
 _DEFAULT_N_RANGE = (5000, 10000)
 _TS_CHOICES = (0.5, 1.0, 2.0, 5.0)
 _TS_CHOICES_PHYSICAL = (0.5, 1.0, 2.0)
-_WARMUP_SAMPLES = 1500
+WARMUP_SAMPLES = 1500
 
 # Characteristic codes understood by the kernel.
 _CHAR_LINEAR, _CHAR_EQUAL_PERCENTAGE, _CHAR_QUICK_OPENING = 0, 1, 2
@@ -156,12 +156,12 @@ def _dominant_period(x: np.ndarray, ts: float) -> float:
 
 
 @dataclass
-class _Case:
+class CaseDraft:
     """One case while it is drawn; each step fills or changes its own fields.
 
     Mutable on purpose and private: the frozen result is
     :class:`stictiondiag.models.synthetic.SyntheticCase`. Arrays run over the warm-up
-    and the record, ``n + _WARMUP_SAMPLES`` samples.
+    and the record, ``n + WARMUP_SAMPLES`` samples.
     """
 
     # Sampling and base valve.
@@ -225,7 +225,7 @@ class _Case:
     @property
     def n_total(self) -> int:
         """Samples simulated: warm-up plus record."""
-        return self.n + _WARMUP_SAMPLES
+        return self.n + WARMUP_SAMPLES
 
 
 # --------------------------------------------------------------------------------------
@@ -233,13 +233,13 @@ class _Case:
 # --------------------------------------------------------------------------------------
 
 
-def _draw_sampling(
+def draw_sampling(
     rng: np.random.Generator,
     use_physical: bool,
     n_samples: int | None,
     ts: float | None,
     karnopp: dict[str, float],
-) -> _Case:
+) -> CaseDraft:
     """Sample time, record length, S and J; ``n_samples``/``ts`` override the draws."""
     ts_choice = float(rng.choice(_TS_CHOICES_PHYSICAL if use_physical else _TS_CHOICES))
     n_draw = int(rng.integers(_DEFAULT_N_RANGE[0], _DEFAULT_N_RANGE[1] + 1))
@@ -248,10 +248,10 @@ def _draw_sampling(
 
     S = float(rng.uniform(0.8, 6.0))
     J = float(S * rng.uniform(0.25, 1.0) if use_physical else S * rng.uniform(0.25, 1.4))
-    return _Case(karnopp=karnopp, use_physical=use_physical, ts=ts, n=n, S=S, J=J)
+    return CaseDraft(karnopp=karnopp, use_physical=use_physical, ts=ts, n=n, S=S, J=J)
 
 
-def _draw_process_and_tuning(rng: np.random.Generator, w: _Case) -> None:
+def draw_process_and_tuning(rng: np.random.Generator, w: CaseDraft) -> None:
     """Process and PI tuning (SIMC rules, randomly detuned), filter and operating point."""
     ts = w.ts
     w.integrating = bool(rng.random() < 0.35)
@@ -281,7 +281,7 @@ def _draw_process_and_tuning(rng: np.random.Generator, w: _Case) -> None:
     w.pv0 = float(np.round(rng.uniform(20.0, 80.0), 1))
 
 
-def _draw_disturbances(rng: np.random.Generator, w: _Case) -> None:
+def draw_disturbances(rng: np.random.Generator, w: CaseDraft) -> None:
     """Load steps and random walk at the process input, set-point steps, noise."""
     ts, n_total = w.ts, w.n_total
     # Load steps move the operating point across at least 15 % of the valve span,
@@ -313,7 +313,7 @@ def _draw_disturbances(rng: np.random.Generator, w: _Case) -> None:
     w.mv_noise = rng.standard_normal(n_total) * w.mv_noise_std
 
 
-def _run(w: _Case, pv_quantum: float, output_disturbance: np.ndarray) -> tuple:
+def run_case(w: CaseDraft, pv_quantum: float, output_disturbance: np.ndarray) -> tuple:
     """The closed loop as drawn so far: ``(pv, op, valve_out, position, flow, pv_clean)``."""
     kp = w.karnopp
     return closed_loop(
@@ -359,7 +359,7 @@ def _run(w: _Case, pv_quantum: float, output_disturbance: np.ndarray) -> tuple:
 # --------------------------------------------------------------------------------------
 
 
-def _actuator_lag(rng: np.random.Generator, w: _Case) -> None:
+def _actuator_lag(rng: np.random.Generator, w: CaseDraft) -> None:
     """First-order positioner lag of 2-6 samples after the friction element."""
     w.lag_time = float(rng.uniform(2.0, 6.0) * w.ts)
     # A lag shows on slips: keep them clear of the position-transmitter noise.
@@ -369,7 +369,7 @@ def _actuator_lag(rng: np.random.Generator, w: _Case) -> None:
     w.effect_params = {"lag_time_constant_s": w.lag_time, "lag_samples": w.lag_time / w.ts}
 
 
-def _miscalibration(rng: np.random.Generator, w: _Case) -> None:
+def _miscalibration(rng: np.random.Generator, w: CaseDraft) -> None:
     """Positioner span error ``pivot + gain (op - pivot)`` (Section 4.2.1, Fig. 8)."""
     # The slope shows in the moving phase, which a valve with J >= S in an
     # integrating loop hardly has: keep some deadband.
@@ -392,7 +392,7 @@ def _miscalibration(rng: np.random.Generator, w: _Case) -> None:
     }
 
 
-def _asymmetry(rng: np.random.Generator, w: _Case) -> None:
+def _asymmetry(rng: np.random.Generator, w: CaseDraft) -> None:
     """Different S and J opening and closing (Loop 1, Section 3)."""
     S, J = w.S, w.J
     s_o, s_c = _equal_split(rng, float(rng.uniform(1.8, 3.0)))
@@ -438,13 +438,13 @@ def _asymmetry(rng: np.random.Generator, w: _Case) -> None:
     )
 
 
-def _time_varying_stiction(rng: np.random.Generator, w: _Case) -> None:
+def _time_varying_stiction(rng: np.random.Generator, w: CaseDraft) -> None:
     """S and J scaled by 2-3 (or 1/3-1/2) during the record, as a step or a ramp."""
     n, n_total = w.n, w.n_total
     factor = float(rng.uniform(2.0, 3.0))
     if rng.random() < 0.5:
         factor = 1.0 / factor
-    start = int(_WARMUP_SAMPLES + rng.uniform(0.3, 0.5) * n)
+    start = int(WARMUP_SAMPLES + rng.uniform(0.3, 0.5) * n)
     if rng.random() < 0.5:
         kind = "step"
         profile = np.where(np.arange(n_total) >= start, factor, 1.0)
@@ -458,8 +458,8 @@ def _time_varying_stiction(rng: np.random.Generator, w: _Case) -> None:
     w.effect_params = {
         "change": kind,
         "factor": factor,
-        "start_s": (start - _WARMUP_SAMPLES) * w.ts,
-        "end_s": (end - _WARMUP_SAMPLES) * w.ts,
+        "start_s": (start - WARMUP_SAMPLES) * w.ts,
+        "end_s": (end - WARMUP_SAMPLES) * w.ts,
         "S_start": w.S,
         "J_start": w.J,
         "S_end": w.S * factor,
@@ -472,13 +472,13 @@ def _time_varying_stiction(rng: np.random.Generator, w: _Case) -> None:
 # --------------------------------------------------------------------------------------
 
 
-def _valve_characteristic(rng: np.random.Generator, w: _Case, pilot: tuple) -> None:
+def _valve_characteristic(rng: np.random.Generator, w: CaseDraft, pilot: tuple) -> None:
     """Equal-percentage or quick-opening installed characteristic, drawn until the
     installed gain differs by half between the ends of the travel the loop visits
     (5th-95th percentile of the pilot's valve position)."""
-    lo, hi = np.percentile(pilot[3][_WARMUP_SAMPLES:], [5.0, 95.0])
+    lo, hi = np.percentile(pilot[3][WARMUP_SAMPLES:], [5.0, 95.0])
     position0 = w.cal_pivot + w.cal_gain * (w.op_bias - w.cal_pivot)
-    need_lo, need_hi = np.percentile(pilot[3][_WARMUP_SAMPLES:] - position0, [1.0, 99.0])
+    need_lo, need_hi = np.percentile(pilot[3][WARMUP_SAMPLES:] - position0, [1.0, 99.0])
     for _ in range(200):
         if rng.random() < 0.6:
             char_kind = _CHAR_EQUAL_PERCENTAGE
@@ -515,10 +515,10 @@ def _valve_characteristic(rng: np.random.Generator, w: _Case, pilot: tuple) -> N
     }
 
 
-def _quantization(rng: np.random.Generator, w: _Case, pilot: tuple) -> None:
+def _quantization(rng: np.random.Generator, w: CaseDraft, pilot: tuple) -> None:
     """``mv`` to 0.5-2 % of span, ``pv`` to 12-40 levels of its pilot range, or both
     (Loop 4, Section 3); ``pv`` at the instrument or in the historian."""
-    pilot_pv = pilot[0][_WARMUP_SAMPLES:]
+    pilot_pv = pilot[0][WARMUP_SAMPLES:]
     where = str(rng.choice(["mv", "pv", "both"]))
     levels = float(rng.uniform(12.0, 40.0))
     spread = float(np.percentile(pilot_pv, 99) - np.percentile(pilot_pv, 1))
@@ -540,10 +540,10 @@ def _quantization(rng: np.random.Generator, w: _Case, pilot: tuple) -> None:
     }
 
 
-def _external_disturbance(rng: np.random.Generator, w: _Case, pilot: tuple) -> None:
+def _external_disturbance(rng: np.random.Generator, w: CaseDraft, pilot: tuple) -> None:
     """Periodic load at the process output, its period at least 40 % away from the
     pilot's own cycle, sized by what gets through the controller to pv."""
-    pilot_err = pilot[0][_WARMUP_SAMPLES:] - w.sp[_WARMUP_SAMPLES:]
+    pilot_err = pilot[0][WARMUP_SAMPLES:] - w.sp[WARMUP_SAMPLES:]
     ts = w.ts
     own_period = _dominant_period(pilot_err, ts)
     for _ in range(100):
@@ -575,7 +575,7 @@ def _external_disturbance(rng: np.random.Generator, w: _Case, pilot: tuple) -> N
 
 
 #: Effects drawn before the loop runs.
-PRE_RUN_EFFECTS: dict[str, Callable[[np.random.Generator, _Case], None]] = {
+PRE_RUN_EFFECTS: dict[str, Callable[[np.random.Generator, CaseDraft], None]] = {
     "actuator_lag": _actuator_lag,
     "miscalibration": _miscalibration,
     "asymmetry": _asymmetry,
@@ -583,7 +583,7 @@ PRE_RUN_EFFECTS: dict[str, Callable[[np.random.Generator, _Case], None]] = {
 }
 
 #: Effects sized against a pilot run of the loop without them.
-PILOT_EFFECTS: dict[str, Callable[[np.random.Generator, _Case, tuple], None]] = {
+PILOT_EFFECTS: dict[str, Callable[[np.random.Generator, CaseDraft, tuple], None]] = {
     "valve_characteristic": _valve_characteristic,
     "quantization": _quantization,
     "external_disturbance": _external_disturbance,
