@@ -369,6 +369,212 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     return best, per_pole, d_grid
 
 
+class _Replay:
+    """The linear part of :func:`fit_predictor` for one record: for a given structure,
+    the filter's innovations of pv and the responses of the input (and of any extra
+    columns), then the weighted least-squares coefficients (Section 4.2.2, Eq. 3).
+
+    Terms that depend on the structure only (the innovations of pv, the input's
+    response) are shared with the other fits of this context through ``cache``: the
+    searches over an effect's parameter refit the linear coefficients many times with
+    one structure.  Keys hold the arrays they name (an identity stays unique while it
+    is held).  Solved structures are remembered for this fit (:meth:`solve`).
+    """
+
+    def __init__(self, u, pv, w, extra, cache):
+        self.n = n = u.size
+        self.u = u = np.ascontiguousarray(u, dtype=float)
+        self.pv = pv = np.ascontiguousarray(pv, dtype=float)
+        self.w = w
+        self.cache = cache
+        self.zeros = np.zeros(n)
+        extra_cols = None if extra is None else np.atleast_2d(extra.T).T
+        self.u_key = (id(u), id(pv))
+        self.memo: dict = {}
+        self.extra_rows = None if extra_cols is None else np.ascontiguousarray(extra_cols.T)
+        self.u0 = np.ascontiguousarray(u - u[0])
+
+    def terms(self, m: ProcessModel):
+        """Innovations of pv, the input's response and the extra columns' responses
+        for the filter of ``m``: whatever is not shared yet, in one compiled call."""
+        cache, pv, zeros, n = self.cache, self.pv, self.zeros, self.n
+        k1, k2 = kalman_gains(m.pole, m.load_ratio)
+        fkey = (m.pole, m.load_ratio, m.horizon)
+        e_key, b_key = (id(pv), *fkey), (*self.u_key, *fkey)
+        e0 = _cache_get(cache, "innovations", e_key)
+        base = _cache_get(cache, "input_response", b_key)
+        rows, drives, starts = [], [], []
+        if e0 is None:
+            rows.append(pv)
+            drives.append(zeros)
+            starts.append(float(pv[0]))
+        if base is None:
+            rows.append(zeros)
+            drives.append(self.u0)
+            starts.append(0.0)
+        n_extra = 0 if self.extra_rows is None else self.extra_rows.shape[0]
+        E = None
+        if rows or n_extra:
+            Z = np.empty((len(rows) + n_extra, n))
+            D = np.zeros((len(rows) + n_extra, n))
+            for i, (z_, d_) in enumerate(zip(rows, drives, strict=True)):
+                Z[i] = z_
+                D[i] = d_
+            if n_extra:
+                Z[len(rows) :] = self.extra_rows
+            y0 = np.zeros(Z.shape[0])
+            y0[: len(starts)] = starts
+            R = _prediction_errors_many(Z, D, y0, m.pole, k1, k2, m.horizon)
+            i = 0
+            if e0 is None:
+                e0 = R[i].copy()
+                _cache_put(cache, "innovations", e_key, (pv, e0))
+                i += 1
+            if base is None:
+                base = R[i].copy()
+                _cache_put(cache, "input_response", b_key, (self.u, pv, base))
+                i += 1
+            E = R[i:]
+        X = np.empty((n, 2 + n_extra))
+        X[:, 0] = delayed(base, m.delay)
+        X[:, 1] = delayed(base, m.delay + 1)
+        if n_extra:
+            # pv = y + d + e: the disturbance enters like a measurement offset.
+            X[:, 2:] = -E.T
+        return e0, X
+
+    def solve(self, m: ProcessModel):
+        """``(sse, coef, residual)`` of the structure ``m``.
+
+        The searches come back to points already solved (a golden section's last
+        point, the chosen structure): the same model, the same numbers.
+        """
+        hit = self.memo.get(m)
+        if hit is None:
+            hit = self.memo[m] = self._solve(m)
+        return hit
+
+    def _solve(self, m: ProcessModel):
+        e0, X = self.terms(m)
+        coef = fractional_delay_wls(X, -e0, self.w)
+        r = e0 + X @ coef
+        return float(np.dot(self.w, r * r)), coef, r
+
+    def sse(self, m: ProcessModel) -> float:
+        """Weighted sum of squared errors of the structure ``m`` [pv^2]."""
+        return self.solve(m)[0]
+
+
+def _refine_one_step(rep: _Replay, best: tuple, d_grid: np.ndarray) -> tuple:
+    """The best one-step structure of the grid refined: the dead time to the sample,
+    then the pole (golden section on the log time constant).  Returns ``(sse, model)``.
+    """
+    m = best[1]
+    i = int(np.searchsorted(d_grid, m.delay))
+    for d in range(int(d_grid[max(i - 1, 0)]), int(d_grid[min(i + 1, d_grid.size - 1)]) + 1):
+        cand = ProcessModel(m.pole, d, m.load_ratio)
+        sse = rep.sse(cand)
+        if sse < best[0]:
+            best = (sse, cand)
+    m = best[1]
+    if m.pole < 1.0:
+        lt0 = math.log(-1.0 / math.log(m.pole))
+        lt = golden_section(
+            lambda v: rep.sse(ProcessModel(math.exp(-1.0 / math.exp(v)), m.delay, m.load_ratio)),
+            lt0 - 0.6,
+            lt0 + 0.6,
+            12,
+        )
+        cand = ProcessModel(math.exp(-1.0 / math.exp(lt)), m.delay, m.load_ratio)
+        sse = rep.sse(cand)
+        if sse < best[0]:
+            best = (sse, cand)
+    return best
+
+
+def _prediction_horizon(m: ProcessModel, n: int) -> int:
+    """Samples pv is predicted ahead: as far as the process takes to answer a valve
+    step, dead time plus one time constant (an integrator answers with a ramp at once;
+    a few samples show its slope).  One step ahead, the load tracking hides most of a
+    wrong gain or a slow disturbance."""
+    tau = 5.0 if m.pole >= 1.0 else min(-1.0 / math.log(max(m.pole, 1e-12)), 40.0)
+    return int(min(max(round(m.delay + tau), 2), 60, max(n // 20, 2)))
+
+
+def _tune_at_horizon(rep: _Replay, cm: ProcessModel, horizon: int) -> tuple[float, ProcessModel]:
+    """Load ratio (coarse grid, then golden) and dead time (+-2) at the horizon."""
+    grid = [ProcessModel(cm.pole, cm.delay, 10.0**e, horizon) for e in range(-9, 1)]
+    sse, cm = min(((rep.sse(g), g) for g in grid), key=lambda v: v[0])
+    c0 = math.log10(cm.load_ratio)
+    ll = golden_section(
+        lambda v: rep.sse(ProcessModel(cm.pole, cm.delay, 10.0**v, horizon)),
+        c0 - 1.0,
+        c0 + 1.0,
+        10,
+    )
+    cand = ProcessModel(cm.pole, cm.delay, 10.0**ll, horizon)
+    c = rep.sse(cand)
+    if c < sse:
+        sse, cm = c, cand
+    for dd in (-2, -1, 1, 2):
+        if cm.delay + dd < 0:
+            continue
+        cand = ProcessModel(cm.pole, cm.delay + dd, cm.load_ratio, horizon)
+        c = rep.sse(cand)
+        if c < sse:
+            sse, cm = c, cand
+    return sse, cm
+
+
+def _judge_at_horizon(rep: _Replay, m: ProcessModel, per_pole: dict, horizon: int) -> ProcessModel:
+    """The structure is judged where the replay is: the refined structure ``m``, the
+    best lags of the one-step grid and the integrator, each tuned at the horizon (a
+    lag and an integrator can predict one step ahead equally well, not further)."""
+    best_h = _tune_at_horizon(rep, m, horizon)
+    others = sorted(per_pole.values(), key=lambda v: v[0])[:3]
+    if 1.0 in per_pole:
+        others.append(per_pole[1.0])
+    for _, cm in others:
+        if cm.pole == m.pole:
+            continue
+        cand = _tune_at_horizon(rep, cm, horizon)
+        if cand[0] < best_h[0]:
+            best_h = cand
+    return best_h[1]
+
+
+def _search_structure(rep: _Replay, cache: dict | None) -> ProcessModel:
+    """The structure of the replay: the one-step grid (:func:`_structure_grid`),
+    refined (:func:`_refine_one_step`), then judged at the prediction horizon
+    (:func:`_judge_at_horizon`)."""
+    u, pv, w = rep.u, rep.pv, rep.w
+    # The grid of structures fits the input alone: shared by every fit of this
+    # context with the same input and weights (the extra columns come after).
+    best, per_pole, d_grid = _cached(
+        cache,
+        "structure_grid",
+        (*rep.u_key, id(w)),
+        lambda: (u, pv, w, _structure_grid(u, pv, w)),
+    )
+    per_pole = dict(per_pole)
+    m = _refine_one_step(rep, best, d_grid)[1]
+    horizon = _prediction_horizon(m, rep.n)
+    return _judge_at_horizon(rep, m, per_pole, horizon)
+
+
+def _retune_load(rep: _Replay, m0: ProcessModel) -> ProcessModel:
+    """``m0`` with its load-to-noise ratio searched again (golden section over two
+    decades below and one above), kept only where it lowers the error."""
+    lo, hi = math.log10(m0.load_ratio) - 2.0, math.log10(m0.load_ratio) + 1.0
+    ll = golden_section(
+        lambda v: rep.sse(ProcessModel(m0.pole, m0.delay, 10.0**v, m0.horizon)), lo, hi, 12
+    )
+    cand = ProcessModel(m0.pole, m0.delay, 10.0**ll, m0.horizon)
+    if rep.sse(cand) < rep.sse(m0):
+        return cand
+    return m0
+
+
 def fit_predictor(
     u: np.ndarray,
     pv: np.ndarray,
@@ -417,176 +623,14 @@ def fit_predictor(
         response), shared by the fits of one record: keyed by the identity of the
         arrays they come from, which the cache holds (see :func:`_cached`).
     """
-    n = u.size
-    u = np.ascontiguousarray(u, dtype=float)
-    pv = np.ascontiguousarray(pv, dtype=float)
-    zeros = np.zeros(n)
-    extra_cols = None if extra is None else np.atleast_2d(extra.T).T
-    # Terms that depend on the structure only (the innovations of pv, the input's
-    # response) are shared with the other fits of this context: the searches over an
-    # effect's parameter refit the linear coefficients many times with one structure.
-    # Keys hold the arrays they name (an identity stays unique while it is held).
-    u_key = (id(u), id(pv))
-    memo: dict = {}
-
-    extra_rows = None if extra_cols is None else np.ascontiguousarray(extra_cols.T)
-    u0 = np.ascontiguousarray(u - u[0])
-
-    def terms(m: ProcessModel):
-        """Innovations of pv, the input's response and the extra columns' responses
-        for the filter of ``m``: whatever is not shared yet, in one compiled call."""
-        k1, k2 = kalman_gains(m.pole, m.load_ratio)
-        fkey = (m.pole, m.load_ratio, m.horizon)
-        e_key, b_key = (id(pv), *fkey), (*u_key, *fkey)
-        e0 = _cache_get(cache, "innovations", e_key)
-        base = _cache_get(cache, "input_response", b_key)
-        rows, drives, starts = [], [], []
-        if e0 is None:
-            rows.append(pv)
-            drives.append(zeros)
-            starts.append(float(pv[0]))
-        if base is None:
-            rows.append(zeros)
-            drives.append(u0)
-            starts.append(0.0)
-        n_extra = 0 if extra_rows is None else extra_rows.shape[0]
-        E = None
-        if rows or n_extra:
-            Z = np.empty((len(rows) + n_extra, n))
-            D = np.zeros((len(rows) + n_extra, n))
-            for i, (z_, d_) in enumerate(zip(rows, drives, strict=True)):
-                Z[i] = z_
-                D[i] = d_
-            if n_extra:
-                Z[len(rows) :] = extra_rows
-            y0 = np.zeros(Z.shape[0])
-            y0[: len(starts)] = starts
-            R = _prediction_errors_many(Z, D, y0, m.pole, k1, k2, m.horizon)
-            i = 0
-            if e0 is None:
-                e0 = R[i].copy()
-                _cache_put(cache, "innovations", e_key, (pv, e0))
-                i += 1
-            if base is None:
-                base = R[i].copy()
-                _cache_put(cache, "input_response", b_key, (u, pv, base))
-                i += 1
-            E = R[i:]
-        X = np.empty((n, 2 + n_extra))
-        X[:, 0] = delayed(base, m.delay)
-        X[:, 1] = delayed(base, m.delay + 1)
-        if n_extra:
-            # pv = y + d + e: the disturbance enters like a measurement offset.
-            X[:, 2:] = -E.T
-        return e0, X
-
-    def solve(m: ProcessModel):
-        # The searches come back to points already solved (a golden section's last
-        # point, the chosen structure): the same model, the same numbers.
-        hit = memo.get(m)
-        if hit is None:
-            hit = memo[m] = _solve(m)
-        return hit
-
-    def _solve(m: ProcessModel):
-        e0, X = terms(m)
-        coef = fractional_delay_wls(X, -e0, w)
-        r = e0 + X @ coef
-        return float(np.dot(w, r * r)), coef, r
-
+    rep = _Replay(u, pv, w, extra, cache)
     if model is None:
-        # The grid of structures fits the input alone: shared by every fit of this
-        # context with the same input and weights (the extra columns come after).
-        best, per_pole, d_grid = _cached(
-            cache,
-            "structure_grid",
-            (*u_key, id(w)),
-            lambda: (u, pv, w, _structure_grid(u, pv, w)),
-        )
-        per_pole = dict(per_pole)
-        m = best[1]
-        # Refine the dead time to the sample, then the pole and the load ratio.
-        i = int(np.searchsorted(d_grid, m.delay))
-        for d in range(int(d_grid[max(i - 1, 0)]), int(d_grid[min(i + 1, d_grid.size - 1)]) + 1):
-            cand = ProcessModel(m.pole, d, m.load_ratio)
-            sse = solve(cand)[0]
-            if sse < best[0]:
-                best = (sse, cand)
-        m = best[1]
-        if m.pole < 1.0:
-            lt0 = math.log(-1.0 / math.log(m.pole))
-            lt = golden_section(
-                lambda v: solve(ProcessModel(math.exp(-1.0 / math.exp(v)), m.delay, m.load_ratio))[
-                    0
-                ],
-                lt0 - 0.6,
-                lt0 + 0.6,
-                12,
-            )
-            cand = ProcessModel(math.exp(-1.0 / math.exp(lt)), m.delay, m.load_ratio)
-            sse = solve(cand)[0]
-            if sse < best[0]:
-                best = (sse, cand)
-        m = best[1]
-        # Predict as far ahead as the process takes to answer a valve step (dead time
-        # plus one time constant): one step ahead, the load tracking hides most of a
-        # wrong gain or a slow disturbance.
-        # Predict as far ahead as the process takes to answer a valve step: dead time
-        # plus one time constant (an integrator answers with a ramp at once; a few
-        # samples show its slope).
-        tau = 5.0 if m.pole >= 1.0 else min(-1.0 / math.log(max(m.pole, 1e-12)), 40.0)
-        horizon = int(min(max(round(m.delay + tau), 2), 60, max(n // 20, 2)))
-
-        def tune(cm: ProcessModel) -> tuple[float, ProcessModel]:
-            """Load ratio (coarse grid, then golden) and dead time (+-2) at the horizon."""
-            grid = [ProcessModel(cm.pole, cm.delay, 10.0**e, horizon) for e in range(-9, 1)]
-            sse, cm = min(((solve(g)[0], g) for g in grid), key=lambda v: v[0])
-            c0 = math.log10(cm.load_ratio)
-            ll = golden_section(
-                lambda v: solve(ProcessModel(cm.pole, cm.delay, 10.0**v, horizon))[0],
-                c0 - 1.0,
-                c0 + 1.0,
-                10,
-            )
-            cand = ProcessModel(cm.pole, cm.delay, 10.0**ll, horizon)
-            c = solve(cand)[0]
-            if c < sse:
-                sse, cm = c, cand
-            for dd in (-2, -1, 1, 2):
-                if cm.delay + dd < 0:
-                    continue
-                cand = ProcessModel(cm.pole, cm.delay + dd, cm.load_ratio, horizon)
-                c = solve(cand)[0]
-                if c < sse:
-                    sse, cm = c, cand
-            return sse, cm
-
-        # The structure is judged where the replay is: the best lags of the one-step
-        # grid and the integrator, each tuned at the horizon (a lag and an integrator
-        # can predict one step ahead equally well, not further).
-        best_h = tune(m)
-        others = sorted(per_pole.values(), key=lambda v: v[0])[:3]
-        if 1.0 in per_pole:
-            others.append(per_pole[1.0])
-        for _, cm in others:
-            if cm.pole == m.pole:
-                continue
-            cand = tune(cm)
-            if cand[0] < best_h[0]:
-                best_h = cand
-        model = best_h[1]
+        model = _search_structure(rep, cache)
     elif retune:
-        m0 = model
-        lo, hi = math.log10(m0.load_ratio) - 2.0, math.log10(m0.load_ratio) + 1.0
-        ll = golden_section(
-            lambda v: solve(ProcessModel(m0.pole, m0.delay, 10.0**v, m0.horizon))[0], lo, hi, 12
-        )
-        cand = ProcessModel(m0.pole, m0.delay, 10.0**ll, m0.horizon)
-        if solve(cand)[0] < solve(m0)[0]:
-            model = cand
-    _, coef, r = solve(model)
+        model = _retune_load(rep, model)
+    _, coef, r = rep.solve(model)
     params = _process_params(model, coef, dt)
-    return PredictorFit(pv=pv - r, model=model, coef=coef, params=params)
+    return PredictorFit(pv=rep.pv - r, model=model, coef=coef, params=params)
 
 
 def _process_params(model: ProcessModel, coef: np.ndarray, dt: float) -> dict:

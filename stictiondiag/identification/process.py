@@ -420,6 +420,79 @@ def drift_pole(pv: np.ndarray, dt: float, drift_time_constant: float | None):
     return math.exp(-dt / T), T
 
 
+def _checked_inputs(u, pv, dt, integrating, max_dead_time):
+    """The arguments of :func:`identify_process` checked: ``(dt, u, pv, d_max)`` with
+    ``d_max`` the longest dead time searched [samples].  Bad input raises
+    :class:`UsageError` or :class:`DataError` with a one-line message."""
+    dt = check_dt(dt)
+    u = as_signal(u, "u")
+    pv = as_signal(pv, "pv")
+    if u.size != pv.size:
+        raise UsageError(f"u and pv must have the same length, got {u.size} and {pv.size}")
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(pv))):
+        raise DataError("u and pv must be finite for process identification: fill or drop gaps")
+    n = u.size
+    if n < MIN_SAMPLES:
+        raise DataError(f"{n} samples are too few for process identification (need {MIN_SAMPLES})")
+    if np.ptp(u) == 0.0:
+        raise DataError("the process input is constant: the process cannot be identified")
+    if integrating not in (None, True, False):
+        raise UsageError(f"integrating must be True, False or None, got {integrating!r}")
+    d_max = int(MAX_DEAD_TIME_FRACTION * n)
+    if max_dead_time is not None:
+        if not (math.isfinite(max_dead_time) and max_dead_time >= 0):
+            raise UsageError(f"max_dead_time must be >= 0 s, got {max_dead_time}")
+        d_max = min(d_max, int(max_dead_time / dt))
+    return dt, u, pv, max(d_max, 0)
+
+
+def _chosen_structure(results: dict, integrating: bool | None) -> str:
+    """``"integrating"`` or ``"foptd"``: the forced structure, or by fit (the
+    integrator wins unless the lag explains :data:`INTEGRATING_R2_MARGIN` more)."""
+    if integrating is None:
+        return (
+            "integrating"
+            if results["integrating"]["r2"] >= results["foptd"]["r2"] - INTEGRATING_R2_MARGIN
+            else "foptd"
+        )
+    return "integrating" if integrating else "foptd"
+
+
+def _refit_integrating_differenced(result, uc, pc, pv, dt, b, d_max, drift_time_constant):
+    """Replace the integrator's fit in ``result`` by the fit to pv's differences
+    (:func:`_fit_integrating_differenced`) where that fit finds a response; the
+    replay then starts from the operating point of the record's first cycles
+    (``window`` [samples])."""
+    n = pv.size
+    period = _oscillation_samples(pv, dt)
+    smooth = math.exp(-1.0 / max(1.0, (period or 100.0) / SMOOTH_PER_PERIOD))
+    b_diff = b
+    if drift_time_constant is None and period is not None:
+        b_diff = math.exp(-1.0 / max(2.0, DIFFERENCED_DRIFT_PERIODS * period))
+    d, gain, r2_diff = _fit_integrating_differenced(uc, pc, dt, b_diff, d_max, smooth)
+    if math.isfinite(gain) and gain != 0.0:
+        window = int(START_WINDOW_PERIODS * (period or n / START_WINDOW_PERIODS))
+        result.update(d=d, gain=gain, u_bias=None, r2=r2_diff, window=max(window, MIN_SAMPLES))
+
+
+def _chosen_process(chosen: str, p: dict, u, pv, dt):
+    """The process of the chosen structure's parameters ``p`` and its biases and
+    initial state from the unfiltered data, dynamics fixed (:func:`_biases`)."""
+    if p["gain"] == 0.0 or not math.isfinite(p["gain"]):
+        raise DataError(f"pv does not respond to the process input: no {chosen} model")
+    d = p["d"]
+    if chosen == "integrating":
+        process = Integrating(gain=p["gain"], dead_time=d * dt)
+    else:
+        process = FOPTD(gain=p["gain"], time_constant=p["tau"], dead_time=d * dt)
+    if "window" in p:
+        # A wandering balance input: the operating point of the record's start, from
+        # its first cycles, is where a replay from the recorded start begins.
+        m = min(u.size, p["window"] + d + 1)
+        return process, _biases(process, u[:m], pv[:m], dt, d)
+    return process, _biases(process, u, pv, dt, d, u_bias=p.get("u_bias"))
+
+
 def identify_process(
     u: np.ndarray,
     pv: np.ndarray,
@@ -458,26 +531,8 @@ def identify_process(
         The process, biases and fit measures.  Dead time is a whole number of
         samples; the FOPTD time constant is searched in [0.2 dt, 20 x record].
     """
-    dt = check_dt(dt)
-    u = as_signal(u, "u")
-    pv = as_signal(pv, "pv")
-    if u.size != pv.size:
-        raise UsageError(f"u and pv must have the same length, got {u.size} and {pv.size}")
-    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(pv))):
-        raise DataError("u and pv must be finite for process identification: fill or drop gaps")
+    dt, u, pv, d_max = _checked_inputs(u, pv, dt, integrating, max_dead_time)
     n = u.size
-    if n < MIN_SAMPLES:
-        raise DataError(f"{n} samples are too few for process identification (need {MIN_SAMPLES})")
-    if np.ptp(u) == 0.0:
-        raise DataError("the process input is constant: the process cannot be identified")
-    if integrating not in (None, True, False):
-        raise UsageError(f"integrating must be True, False or None, got {integrating!r}")
-    d_max = int(MAX_DEAD_TIME_FRACTION * n)
-    if max_dead_time is not None:
-        if not (math.isfinite(max_dead_time) and max_dead_time >= 0):
-            raise UsageError(f"max_dead_time must be >= 0 s, got {max_dead_time}")
-        d_max = min(d_max, int(max_dead_time / dt))
-    d_max = max(d_max, 0)
     b, drift_T = drift_pole(pv, dt, drift_time_constant)
     # Centre the signals: the normal equations are then well conditioned.
     uc = u - u.mean()
@@ -496,46 +551,18 @@ def identify_process(
     if integrating in (None, True):
         d, gain, ub_c, mse = _fit_integrating(uc, y_f, dt, b, d_max)
         results["integrating"] = dict(d=d, gain=gain, u_bias=ub_c + u.mean(), r2=r2_of(mse, d))
-    if integrating is None:
-        chosen = (
-            "integrating"
-            if results["integrating"]["r2"] >= results["foptd"]["r2"] - INTEGRATING_R2_MARGIN
-            else "foptd"
-        )
-    else:
-        chosen = "integrating" if integrating else "foptd"
+    chosen = _chosen_structure(results, integrating)
     if chosen == "integrating" and results["integrating"]["r2"] < LEVEL_FIT_R2_MIN:
         # The level of pv is not explained (a wandering balance input integrated into
         # it): the integrator's parameters come from pv's differences instead, which
         # that wander does not bias.  Where the level fit holds it is kept: it is the
         # more efficient of the two under measurement noise.
-        period = _oscillation_samples(pv, dt)
-        smooth = math.exp(-1.0 / max(1.0, (period or 100.0) / SMOOTH_PER_PERIOD))
-        b_diff = b
-        if drift_time_constant is None and period is not None:
-            b_diff = math.exp(-1.0 / max(2.0, DIFFERENCED_DRIFT_PERIODS * period))
-        d, gain, r2_diff = _fit_integrating_differenced(uc, pc, dt, b_diff, d_max, smooth)
-        if math.isfinite(gain) and gain != 0.0:
-            window = int(START_WINDOW_PERIODS * (period or n / START_WINDOW_PERIODS))
-            results["integrating"].update(
-                d=d, gain=gain, u_bias=None, r2=r2_diff, window=max(window, MIN_SAMPLES)
-            )
+        _refit_integrating_differenced(
+            results["integrating"], uc, pc, pv, dt, b, d_max, drift_time_constant
+        )
     p = results[chosen]
-    if p["gain"] == 0.0 or not math.isfinite(p["gain"]):
-        raise DataError(f"pv does not respond to the process input: no {chosen} model")
     d = p["d"]
-    if chosen == "integrating":
-        process = Integrating(gain=p["gain"], dead_time=d * dt)
-    else:
-        process = FOPTD(gain=p["gain"], time_constant=p["tau"], dead_time=d * dt)
-    # Biases and initial state from the unfiltered data, dynamics fixed.
-    if "window" in p:
-        # A wandering balance input: the operating point of the record's start, from
-        # its first cycles, is where a replay from the recorded start begins.
-        m = min(n, p["window"] + d + 1)
-        fit = _biases(process, u[:m], pv[:m], dt, d)
-    else:
-        fit = _biases(process, u, pv, dt, d, u_bias=p.get("u_bias"))
+    process, fit = _chosen_process(chosen, p, u, pv, dt)
     return ProcessFit(
         process=process,
         u_bias=fit.u_bias,
