@@ -277,3 +277,21 @@ def test_valve_sse_many_is_valve_sse_batch():
         for kano in (False, True):
             expected = valve_sse_batch(op, mv, S, J, kano, 11, 10, 1.0, -1.0)
             assert np.array_equal(valve_sse_many(op, mv, S, J, kano, 11, 10, 1.0, -1.0), expected)
+
+
+def test_determinacy_reads_interval_width_against_the_estimate_and_resolution():
+    from stictiondiag.stiction.valvefit import RESOLUTION_PCT, determinacy
+
+    # Relative width: 0.4 of 5 % is well, 6 of 5 % poorly, and an interval at the
+    # search limit is poorly determined whatever its width.
+    d = determinacy(5.0, (4.8, 5.2), False, 2.0, (0.0, 8.0), False)
+    assert d == {"S": "well determined", "J": "poorly determined"}
+    assert determinacy(5.0, (4.9, 5.0), True, 1.0, (0.8, 1.9), False) == {
+        "S": "poorly determined (interval reaches the search limit)",
+        "J": "moderately determined",
+    }
+    # A healthy valve: S = 0 within 0.004 % of span is well determined (it was
+    # "poorly", since any width is large relative to 0); an interval wider than the
+    # positioner resolution around 0 is still poorly determined.
+    d = determinacy(0.0, (0.0, 0.004), False, 0.0, (0.0, 2 * RESOLUTION_PCT), False)
+    assert d == {"S": "well determined", "J": "poorly determined"}

@@ -581,14 +581,24 @@ def block_sse(residual: np.ndarray, block: int, start: int = 0) -> np.ndarray:
     return (r[: nb * block] ** 2).reshape(nb, block).sum(axis=1)
 
 
+#: Interval width [% of span] that determines S or J whatever its size: about the
+#: resolution of a valve positioner, below which no maintenance decision changes.
+RESOLUTION_PCT = 0.1
+
+
 def determinacy(S, S_iv, S_open, J, J_iv, J_open) -> dict:
-    """How well S and J are determined: interval width relative to the estimate."""
+    """How well S and J are determined: interval width relative to the estimate.
+
+    An interval narrower than :data:`RESOLUTION_PCT` determines the value even when
+    the estimate is at or near zero (a healthy valve: S = 0 within 0.004 % is well
+    determined, not poorly).
+    """
 
     def one(v, iv, open_hi):
         width = iv[1] - iv[0]
         if open_hi:
             return "poorly determined (interval reaches the search limit)"
-        if v > 0 and width <= 0.5 * v:
+        if width <= RESOLUTION_PCT or (v > 0 and width <= 0.5 * v):
             return "well determined"
         if v > 0 and width <= 1.5 * v:
             return "moderately determined"
