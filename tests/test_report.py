@@ -289,3 +289,19 @@ def test_index_and_markdown_mark_poorly_determined_parameters():
     assert "<th>P(stiction)</th>" in html and "0.55" in html
     md = render_markdown(rows)
     assert r"5.78 \(2.89-5.78\) poorly determined" in md and "P(stiction)" in md
+
+
+def test_index_names_each_loop_type_and_what_decided_it():
+    base = {"verdict": "stiction", "probability": 0.9, "S": 3.0, "J": 1.0}
+    rows = [
+        {**base, "loop": "LIC101", "loop_type": "level", "loop_type_source": "tag"},
+        {**base, "loop": "A", "loop_type": "other", "integrating": True, "loop_type_source": "data"},
+        {**base, "loop": "B", "loop_type": "other", "integrating": False},
+        {**base, "loop": "C"},  # a row of an older report: no loop type recorded
+    ]
+    html = render_index_html(rows)
+    assert "<th>loop type</th>" in html
+    assert "<td>level (tag)</td>" in html
+    assert "<td>integrating (data)</td>" in html
+    assert "<td>self-regulating</td>" in html
+    assert "<tr><td>C</td><td></td>" in html  # nothing recorded, nothing claimed

@@ -592,11 +592,24 @@ def _row_param(r: dict, sym: str, *, html: bool = True) -> str:
     return f"{text} poorly determined"
 
 
+def _loop_type(r: dict) -> str:
+    """``level (tag)``: an index row's loop type and what decided it."""
+    kind = r.get("loop_type")
+    if not kind:
+        return ""
+    if kind == "other":  # no named type: say what the replay assumes
+        kind = "integrating" if r.get("integrating") else "self-regulating"
+    source = r.get("loop_type_source")
+    text = f"{kind} ({source})" if source else str(kind)
+    return _text(text)
+
+
 def render_index_html(rows: Sequence[dict]) -> str:
     """Index page over all loops of a report (stiction first, most confident first)."""
     head = (
-        "<tr><th>loop</th><th>verdict</th><th>P(stiction)</th><th>S [%] (interval)</th>"
-        "<th>J [%] (interval)</th><th>period [s]</th><th>gap effect</th><th>warnings</th></tr>"
+        "<tr><th>loop</th><th>loop type</th><th>verdict</th><th>P(stiction)</th>"
+        "<th>S [%] (interval)</th><th>J [%] (interval)</th><th>period [s]</th>"
+        "<th>gap effect</th><th>warnings</th></tr>"
     )
     body = []
     for r in sorted(rows, key=sort_key):
@@ -607,13 +620,13 @@ def render_index_html(rows: Sequence[dict]) -> str:
         cell = f'<a href="{escape(str(page))}">{loop}</a>' if page else loop
         if v == "error":
             body.append(
-                f"<tr><td>{cell}</td><td><span class='verdict error'>failed</span></td>"
+                f"<tr><td>{cell}</td><td></td><td><span class='verdict error'>failed</span></td>"
                 f"<td colspan='6'>{_text(r.get('error'))}</td></tr>"
             )
             continue
         n_warn = r.get("n_warnings") or 0
         body.append(
-            f"<tr><td>{cell}</td>"
+            f"<tr><td>{cell}</td><td>{_loop_type(r)}</td>"
             f"<td><span class='verdict {v_class}'>{_text(v.replace('_', ' '))}</span></td>"
             f"<td class='num'>{_num(_probability(r), '.2f')}</td>"
             f"<td class='num'>{_row_param(r, 'S')}</td>"
