@@ -76,6 +76,24 @@ def _sign(v):
 
 
 @jit
+def _breakaway(x, S, J, y, xss, dirn):
+    """A stuck valve at input ``x``, stuck since input ``xss``: ``(y, dirn, stuck)``.
+
+    Shared by both data-driven models.  A reversal against the last movement must
+    overcome deadband + stickband (S); the same direction after a stop, the
+    stickband only (J); before the first movement the valve is treated as
+    reversing (S).  On breakaway the output jumps to ``x - d (S - J)/2`` (Eq. 4).
+    """
+    dx = x - xss
+    d = _sign(dx)
+    if d != 0.0:
+        thr = S if (dirn == 0.0 or d != dirn) else J
+        if abs(dx) > thr:
+            return x - d * (S - J) / 2.0, d, False
+    return y, dirn, True
+
+
+@jit
 def _choudhury_next(x, S, J, y, xss, dirn, v_old, stuck, x_prev):
     """One sample of the Fig. 10 flowchart on scalar state (Section 5.1).
 
@@ -92,20 +110,7 @@ def _choudhury_next(x, S, J, y, xss, dirn, v_old, stuck, x_prev):
         stuck = True
         xss = x_prev
     if stuck:
-        dx = x - xss
-        d = _sign(dx)
-        if d != 0.0:
-            # Reversal against the last movement: deadband + stickband (S).
-            # Same direction after a stop: stickband only (J).  Before the first
-            # movement the valve is treated as reversing (S).
-            if dirn == 0.0 or d != dirn:
-                thr = S
-            else:
-                thr = J
-            if abs(dx) > thr:
-                stuck = False
-                dirn = d
-                y = x - d * (S - J) / 2.0  # Eq. 4
+        y, dirn, stuck = _breakaway(x, S, J, y, xss, dirn)
     elif v_new != 0.0:
         dirn = v_new
         y = x - v_new * (S - J) / 2.0  # Eq. 4
@@ -128,17 +133,7 @@ def _kano_next(x, S, J, y, xss, dirn, stuck, x_prev):
             dirn = v_new
             y = x - v_new * (S - J) / 2.0
     if stuck:
-        dx = x - xss
-        d = _sign(dx)
-        if d != 0.0:
-            if dirn == 0.0 or d != dirn:
-                thr = S
-            else:
-                thr = J
-            if abs(dx) > thr:
-                stuck = False
-                dirn = d
-                y = x - d * (S - J) / 2.0
+        y, dirn, stuck = _breakaway(x, S, J, y, xss, dirn)
     return y, xss, dirn, v_new, stuck
 
 
