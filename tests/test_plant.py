@@ -217,6 +217,45 @@ def test_long_export_is_resampled_to_the_coarsest_step(tmp_path):
     assert tags.loop_type == "flow" and tags.loop_type_source == "tag"
 
 
+def _long_frame(frame: pd.DataFrame, start: pd.Timestamp) -> pd.DataFrame:
+    stamps = start + pd.to_timedelta(frame["time"], unit="s")
+    return pd.concat(
+        pd.DataFrame({"timestamp": stamps, "tag": f"FIC7.{role.upper()}", "value": frame[role]})
+        for role in ("pv", "op")
+    ).reset_index(drop=True)
+
+
+def test_long_export_gap_rule_and_grid_ceiling_are_the_wide_files(tmp_path):
+    # The long export goes through the clock rules of every other file
+    # (io.timebase.onto_grid): a tag's hole longer than the interpolation limit is
+    # missing data (here op loses 200 s in the middle, far beyond MAX_GAP_SAMPLES = 10
+    # steps, and the loop keeps the longest stretch without it; timestamps are epoch
+    # seconds, where a relative "on a sample" tolerance used to hide every clock gap),
+    # and a mistyped year is a one-line data error, not a grid of billions of points.
+    from stictiondiag.io.timebase import MAX_GAP_SAMPLES
+
+    frame = pd.read_csv(SAMPLES / "healthy_flow.csv").iloc[:1200]
+    long = _long_frame(frame, pd.Timestamp("2024-01-01"))
+    hole = (long["tag"] == "FIC7.OP") & long["timestamp"].between(
+        pd.Timestamp("2024-01-01 00:08:00"), pd.Timestamp("2024-01-01 00:11:20")
+    )
+    assert hole.sum() > 2 * MAX_GAP_SAMPLES
+    path = tmp_path / "holed.csv"
+    long[~hole].to_csv(path, index=False)
+    tags = read_plant_loop(plant_loops(path)[0])
+    assert tags.n < 1200 - hole.sum()  # the hole is not bridged by a straight line
+
+    # Both tags' last rows stamped a century ahead (a year mistyped in the export):
+    # the tags then overlap over a century at 1 s.
+    far = long.copy()
+    last = far.groupby("tag").tail(1).index
+    far.loc[last, "timestamp"] = pd.Timestamp("2124-01-01")
+    path = tmp_path / "typo.csv"
+    far.to_csv(path, index=False)
+    with pytest.raises(DataError, match="needs a grid of"):
+        read_plant_loop(plant_loops(path)[0])
+
+
 def test_wide_export_lists_incomplete_and_ambiguous_loops(tmp_path):
     frame = pd.read_csv(SAMPLES / "healthy_flow.csv")
     wide = pd.DataFrame(

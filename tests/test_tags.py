@@ -363,6 +363,18 @@ def test_hole_in_the_clock_is_a_long_gap(tmp_path):
     assert any("longest complete stretch" in note for note in tags.warnings)
 
 
+def test_hole_in_a_timestamped_clock_is_a_long_gap(tmp_path):
+    # The same hole with ISO time stamps (epoch seconds near 1.7e9 inside): a relative
+    # tolerance on "grid point on a sample" spanned hours there, so the hole used to
+    # be bridged by a straight line over 100 s.
+    time = np.concatenate((np.arange(300.0), 400.0 + np.arange(150.0)))
+    stamps = pd.Timestamp("2024-03-01 06:00:00") + pd.to_timedelta(time, unit="s")
+    frame = pd.DataFrame({"time": stamps, "pv": np.sin(time / 7), "op": np.cos(time / 9)})
+    tags = read_tags(write_csv(frame, tmp_path / "hole.csv"))
+    assert tags.n == 300
+    np.testing.assert_allclose(tags.pv, np.sin(np.arange(300.0) / 7), atol=ARITHMETIC_TOL)
+
+
 def test_rows_without_time_stamp_are_dropped(tmp_path):
     frame = loop_frame()
     frame["time"] = frame["time"].astype(object)

@@ -242,7 +242,7 @@ def _resample_long(
     """Role columns on one grid (time [s] from the first grid point) and a note."""
     import pandas as pd
 
-    from stictiondiag.io.timebase import MAX_GAP_SAMPLES, time_seconds
+    from stictiondiag.io.timebase import check_grid, onto_grid, time_seconds
 
     seconds = time_seconds(frame[long["time"]], long["time"], label)
     values = pd.to_numeric(frame[long["value"]], errors="coerce").to_numpy(dtype=float)
@@ -263,17 +263,15 @@ def _resample_long(
     stop = min(t[-1] for t, _ in series.values())
     if not (math.isfinite(step) and step > 0 and stop > start):
         raise DataError(f"{label}: the tags of the loop do not overlap in time")
-    grid = start + step * np.arange(int(math.floor((stop - start) / step + 1e-9)) + 1)
+    n_grid = int(math.floor((stop - start) / step + 1e-9)) + 1
+    check_grid(n_grid, step, f"{long['time']} ({label})")
+    grid = start + step * np.arange(n_grid)
     out = {"time": grid - grid[0]}
     for role, (t, v) in series.items():
         good = np.isfinite(v)
-        t, v = t[good], v[good]
-        column = np.interp(grid, t, v)
-        # Grid points far from any sample of the tag are gaps, not interpolation.
-        idx = np.clip(np.searchsorted(t, grid), 1, t.size - 1)
-        nearest = np.minimum(np.abs(grid - t[idx - 1]), np.abs(t[idx] - grid))
-        column[nearest > MAX_GAP_SAMPLES * step] = np.nan
-        out[role] = column
+        # The gap rule of a wide file's clock: a tag's hole longer than the
+        # interpolation limit is missing data, not a straight line.
+        out[role] = onto_grid({role: v[good]}, t[good], grid, step)[role]
     tagged = ", ".join(f"{tags[r]} {steps[r]:g} s" for r in series)
     note = (
         f"long export: tags resampled to a common grid of {grid.size} points every {step:g} s "

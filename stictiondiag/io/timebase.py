@@ -219,7 +219,8 @@ def _parse_stamps(text: pd.Series, column: str, file: str) -> pd.Series:
     return stamps
 
 
-def _check_grid(n_grid: int, ts: float, column: str) -> None:
+def check_grid(n_grid: int, ts: float, column: str) -> None:
+    """Refuse a grid longer than :data:`MAX_GRID_SAMPLES` (memory bounded by the data)."""
     if n_grid > MAX_GRID_SAMPLES:
         raise DataError(
             f"time column {column!r} needs a grid of {n_grid:,} samples at {ts:.6g} s, more "
@@ -233,16 +234,30 @@ def _on_grid(
 ) -> dict[str, np.ndarray]:
     """Linear interpolation onto ``seconds[0] + k ts``; points inside long gaps are NaN."""
     n_grid = int(math.floor((seconds[-1] - seconds[0]) / ts + 1e-9)) + 1
-    grid = seconds[0] + ts * np.arange(n_grid)
+    return onto_grid(arrays, seconds, seconds[0] + ts * np.arange(n_grid), ts)
+
+
+def onto_grid(
+    arrays: dict[str, np.ndarray], seconds: np.ndarray, grid: np.ndarray, ts: float
+) -> dict[str, np.ndarray]:
+    """Signals sampled at increasing ``seconds``, linearly interpolated onto ``grid``
+    (step ``ts`` [s]); grid points inside a clock gap longer than
+    :data:`MAX_GAP_SAMPLES` steps are NaN.  O(n log n) in the grid's length."""
     # Grid points inside a time gap too long to interpolate become missing values,
     # so the gap rules treat a hole in the clock like a hole in the data.
     right = np.clip(np.searchsorted(seconds, grid, side="left"), 1, max(seconds.size - 1, 1))
     if seconds.size > 1:
         bracket = seconds[right] - seconds[right - 1]
-        exact = np.isclose(grid, seconds[right]) | np.isclose(grid, seconds[right - 1])
+        # On a sample: within rounding of the stamp (1 us, or a millionth of a step).
+        # A relative tolerance would not do: on epoch seconds (about 1.7e9) numpy's
+        # default one spans hours, and no clock gap was ever found in a timestamped file.
+        near = 1e-6 * (1.0 + ts)
+        exact = (np.abs(grid - seconds[right]) <= near) | (
+            np.abs(grid - seconds[right - 1]) <= near
+        )
         in_gap = (bracket > (MAX_GAP_SAMPLES + 1) * ts) & ~exact
     else:
-        in_gap = np.zeros(n_grid, dtype=bool)
+        in_gap = np.zeros(grid.size, dtype=bool)
     resampled = {}
     for role, values in arrays.items():
         on_grid = np.interp(grid, seconds, values)
@@ -263,7 +278,7 @@ def _split_at_gaps(
         for a, b in zip(bounds[:-1], bounds[1:], strict=True)
     ]
     marker = MAX_GAP_SAMPLES + 1
-    _check_grid(sum(sizes) + marker * (len(sizes) - 1), ts, column)
+    check_grid(sum(sizes) + marker * (len(sizes) - 1), ts, column)
     pieces: dict[str, list[np.ndarray]] = {role: [] for role in arrays}
     for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
         part = _on_grid({role: v[a:b] for role, v in arrays.items()}, seconds[a:b], ts)
@@ -332,7 +347,7 @@ def uniform(
         f"median {ts:.6g} s): resampled linearly onto a uniform {ts:.6g} s grid"
     )
     if span <= _GRID_PER_ROW * seconds.size:
-        _check_grid(int(span) + 1, ts, column)
+        check_grid(int(span) + 1, ts, column)
         resampled = _on_grid(arrays, seconds, ts)
         notes.append(irregular)
         return resampled, ts
