@@ -95,12 +95,14 @@ from stictiondiag.gap.context import (
     LoopSignals,
     ReplayContext,
     build_context,
+    noise_variance,
     signals_of,
 )
-from stictiondiag.gap.effects import EFFECT_MODELS, EFFECTS, assessable_effects
+from stictiondiag.gap.effects import EFFECT_MODELS, EFFECTS, REGISTRY, assessable_effects
 from stictiondiag.gap.effects.base import BaseFit, fit_base
 from stictiondiag.gap.selection import (
     N_BLOCKS,
+    Measure,
     Score,
     choose_quantization,
     combined_predictions,
@@ -216,6 +218,10 @@ class GapDiagnosis:
     not_assessed : tuple of str
         Effects that cannot be assessed with the data (e.g. valve-side effects
         without a recorded mv).
+    within_noise : tuple of str
+        Effects not fitted because they cannot lower the gap: they act on mv alone and
+        the base replay of mv is already within its noise (its excess is 0), so no
+        fit of theirs can be named (:func:`mv_within_noise`).
     heldout_before : float
         Gap of the two-parameter replay on held-out data [%] (the score of ``none``).
     base : dict
@@ -237,6 +243,7 @@ class GapDiagnosis:
     candidates: tuple
     breakdown: dict
     not_assessed: tuple = ()
+    within_noise: tuple = ()
     heldout_before: float = 0.0
     base: dict = field(default_factory=dict)
     series: dict = field(default_factory=dict, repr=False, compare=False)
@@ -257,6 +264,7 @@ class GapDiagnosis:
                 "candidates": [c.to_dict() for c in self.candidates],
                 "breakdown": self.breakdown,
                 "not_assessed": list(self.not_assessed),
+                "within_noise": list(self.within_noise),
                 "heldout_before": self.heldout_before,
                 "base": self.base,
             }
@@ -291,6 +299,7 @@ def diagnose_gap(
     *,
     n_blocks: int = N_BLOCKS,
     effects: tuple[str, ...] | None = None,
+    fit_all: bool = False,
 ) -> GapDiagnosis:
     """Measure and locate the sim-to-real gap and name the effect that explains it.
 
@@ -311,6 +320,11 @@ def diagnose_gap(
     effects : tuple of str, optional
         Effects to assess (default: all of :data:`stictiondiag.gap.effects.EFFECTS`
         that the data allow).
+    fit_all : bool
+        Fit every assessable effect, also those that cannot lower the gap (by default
+        the effects acting on mv alone are skipped when the base replay of mv is
+        within its noise; the winner, the gap before and after and the shrink are the
+        same either way, only the losing candidates listed differ).
 
     Returns
     -------
@@ -328,8 +342,11 @@ def diagnose_gap(
 
     # Whole-record fits.
     base = fit_base(ctx, ctx.w_eval)
+    within_noise = [] if fit_all else mv_only_within_noise(ctx, base, assessable)
     fits = {}
     for name in assessable:
+        if name in within_noise:
+            continue
         ef = EFFECT_MODELS[name](ctx, ctx.w_eval, base)
         if ef is not None:
             fits[name] = ef
@@ -397,10 +414,38 @@ def diagnose_gap(
             breakdown(sig, ctx, sel.measure, base, preds_before, preds_after, replay)
         ),
         not_assessed=tuple(not_assessed),
+        within_noise=tuple(within_noise),
         heldout_before=as_gap(errors["none"]),
         base=to_plain(_base_info(ctx, base, sel.measure.floor)),
         series=_series(sig, preds_before, preds_after),
     )
+
+
+def mv_within_noise(ctx: ReplayContext, base: BaseFit) -> bool:
+    """True when the base replay of mv is within its noise: its excess in the gap
+    (mean squared error on the judged samples less the white-noise variance of mv) is 0.
+
+    Computed as :func:`stictiondiag.gap.selection.record_gaps` computes it, so the
+    answer is exact: an effect that acts on mv alone then leaves every signal's excess
+    as the base has it or raises mv's, so its gap on the record is never below the
+    base's and :func:`select_winner` can never name it.
+    """
+    sig = ctx.sig
+    if sig.mv is None or base.valve is None:
+        return False
+    meas = Measure(norm=ctx.norm, floor={"mv": noise_variance(sig.mv)}, w=ctx.w_eval)
+    return meas.excess("mv", meas.nmse("mv", base.valve.mv, sig.mv)) == 0.0
+
+
+def mv_only_within_noise(ctx: ReplayContext, base: BaseFit, names) -> list[str]:
+    """The effects among ``names`` that act on mv alone (and explain no measurement
+    error), when the base replay of mv is within its noise (:func:`mv_within_noise`):
+    their fits cannot lower the gap, so they need not be made (their threshold
+    searches are most of the work of a loop with mv)."""
+    mv_only = [n for n in names if tuple(REGISTRY[n].acts_on) == ("mv",) and n != "quantization"]
+    if not mv_only or not mv_within_noise(ctx, base):
+        return []
+    return mv_only
 
 
 def _starting_point(fit, sig: LoopSignals) -> dict:
