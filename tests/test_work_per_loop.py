@@ -134,6 +134,31 @@ def test_same_sign_fit_many_equals_column_by_column():
     assert out.tolist() == ref
 
 
+@pytest.mark.parametrize("n_taus", [1, 3, 4, 5, 9])
+def test_normal_equations_match_the_columns_one_at_a_time(n_taus):
+    """The four-at-a-time recursions give the columns of :func:`regressors` (one
+    time constant at a time) at the kept rows: the same operations in the same order,
+    so the same numbers; the products are compared within 1e-12 of their size (numba
+    and numpy may call the matrix product differently)."""
+    rng = np.random.default_rng(5)
+    n, k0, j0, j1, stride = 3000, 20, 40, 2900, 3
+    u = np.cumsum(rng.normal(size=n))
+    taus = np.geomspace(2.0, 90.0, n_taus)
+    rows_all = np.arange(j0, j1, stride)
+    keep = rng.random(rows_all.size) > 0.2
+    rows = rows_all[keep]
+    Y = np.ascontiguousarray(rng.normal(size=(rows.size, 4)))
+    D = np.zeros((rows.size, 0))
+    A, B = hk.normal_equations(u, taus, 0.97, k0, j0, j1, stride, keep, Y, D)
+    for t, tau in enumerate(taus):
+        P = hk.regressors(u, tau, 0.97, k0)[rows]
+        At = P.T @ P
+        At[np.diag_indices(hk.NCOL)] += 1e-10 * np.trace(At) / hk.NCOL + 1e-300
+        scale = np.abs(At).max()
+        np.testing.assert_allclose(A[t], At, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(B[t], P.T @ Y, rtol=0, atol=1e-12 * np.abs(P.T @ Y).max())
+
+
 def test_threaded_batch_cost_equals_serial():
     rng = np.random.default_rng(8)
     n = 1500

@@ -84,53 +84,111 @@ def regressors(u, tau, a_hp, k0):
 
 
 @jit
+def _row_samples(n, k0, j0, j1, stride, keep, nr):  # pragma: no cover - compiled
+    """Samples of the kept regression rows ``j = j0, j0 + stride, ... < j1`` (at most
+    ``nr``, from ``k0`` on) and how many there are."""
+    rows = np.empty(max(nr, 1), dtype=np.int64)
+    r = 0
+    if j0 < k0:
+        return rows, 0
+    row = 0
+    k = j0
+    while k < n:
+        if r >= nr or k >= j1:
+            break
+        row += 1
+        if keep[row - 1]:
+            rows[r] = k
+            r += 1
+        k += stride
+    return rows, r
+
+
+@jit
+def _four_lags(u, rows, nrow, k0, a_hp, bl, t0, m, phi, first):  # pragma: no cover
+    """Columns 1 and 4 of :func:`regressors` (and with ``first`` columns 0, 2 and 3)
+    at the kept rows for the time constants ``t0 .. t0 + m - 1`` (m <= 4), written to
+    ``phi``; the chains of a missing fourth repeat the last one and are not written."""
+    b0 = bl[t0]
+    b1 = bl[t0 + min(1, m - 1)]
+    b2 = bl[t0 + min(2, m - 1)]
+    b3 = bl[t0 + min(3, m - 1)]
+    u0 = u[k0]
+    l0 = l1 = l2 = l3 = u0
+    h0 = h1 = h2 = h3 = 0.0
+    f0 = f1 = f2 = f3 = 1.0
+    g0 = 0.0
+    e = 1.0
+    k = k0
+    for r in range(nrow):
+        target = rows[r]
+        while k < target:
+            k += 1
+            uk = u[k]
+            if first:
+                g0 = a_hp * g0 + uk - u[k - 1]
+                e *= a_hp
+            p0, p1, p2, p3 = l0, l1, l2, l3
+            l0 = b0 * p0 + (1.0 - b0) * uk
+            l1 = b1 * p1 + (1.0 - b1) * uk
+            l2 = b2 * p2 + (1.0 - b2) * uk
+            l3 = b3 * p3 + (1.0 - b3) * uk
+            h0 = a_hp * h0 + l0 - p0
+            h1 = a_hp * h1 + l1 - p1
+            h2 = a_hp * h2 + l2 - p2
+            h3 = a_hp * h3 + l3 - p3
+            f0 *= b0
+            f1 *= b1
+            f2 *= b2
+            f3 *= b3
+        phi[t0, r, 1] = h0
+        phi[t0, r, 4] = f0
+        if m > 1:
+            phi[t0 + 1, r, 1] = h1
+            phi[t0 + 1, r, 4] = f1
+        if m > 2:
+            phi[t0 + 2, r, 1] = h2
+            phi[t0 + 2, r, 4] = f2
+        if m > 3:
+            phi[t0 + 3, r, 1] = h3
+            phi[t0 + 3, r, 4] = f3
+        if first:
+            for t in range(phi.shape[0]):
+                phi[t, r, 0] = g0
+                phi[t, r, 2] = 1.0
+                phi[t, r, 3] = e
+
+
+@jit
 def normal_equations(u, taus, a_hp, k0, j0, j1, stride, keep, Y, D):
-    """Normal equations of the linear part for every time constant and delay, in one pass.
+    """Normal equations of the linear part for every time constant and delay.
 
     The columns are those of :func:`regressors`, computed on the fly and kept only at
     the regression rows ``j = j0, j0 + stride, ... < j1`` whose ``keep`` flag is set;
     ``Y[r, i]`` is the target ``yf[j_r + delays[i]]`` of the r-th kept row.  Returns
     ``A[t]`` (5 x 5) and ``B[t]`` (5 x delays).
+
+    The recursions run over the record four time constants at a time, in scalars
+    (:func:`_four_lags`): each is a chain of dependent operations whose latency, not
+    the arithmetic, sets the time, and four independent chains overlap.  The same
+    operations in the same order per column as one time constant at a time, so the
+    same numbers.
     """
     nt = taus.shape[0]
     n = u.shape[0]
     nr = Y.shape[0]
     phi = np.empty((nt, nr, NCOL))
+    rows, nrow = _row_samples(n, k0, j0, j1, stride, keep, nr)
     bl = np.empty(nt)
     for t in range(nt):
         bl[t] = math.exp(-1.0 / taus[t]) if taus[t] > 0.0 else 0.0
-    lag = np.full(nt, u[k0])
-    g1 = np.zeros(nt)
-    free = np.ones(nt)
-    g0 = 0.0
-    e = 1.0
-    r = 0
-    row = 0
-    next_row = j0
-    for k in range(k0, n):
-        if k > k0:
-            uk = u[k]
-            g0 = a_hp * g0 + uk - u[k - 1]
-            for t in range(nt):
-                prev = lag[t]
-                lag[t] = bl[t] * prev + (1.0 - bl[t]) * uk
-                g1[t] = a_hp * g1[t] + lag[t] - prev
-                free[t] *= bl[t]
-            e *= a_hp
-        if k == next_row:
-            if r >= nr or k >= j1:
-                break
-            next_row += stride
-            row += 1
-            if not keep[row - 1]:
-                continue
-            for t in range(nt):
-                phi[t, r, 0] = g0
-                phi[t, r, 1] = g1[t]
-                phi[t, r, 2] = 1.0
-                phi[t, r, 3] = e
-                phi[t, r, 4] = free[t]
-            r += 1
+    # Four time constants per pass (the first pass also carries the columns that do
+    # not depend on the time constant); a pass with fewer repeats its last one.
+    for t0 in range(0, max(nt, 1), 4):
+        m = min(nt - t0, 4)
+        if m <= 0:
+            break
+        _four_lags(u, rows, nrow, k0, a_hp, bl, t0, m, phi, t0 == 0)
     A = np.empty((nt, NCOL, NCOL))
     B = np.empty((nt, NCOL, Y.shape[1]))
     for t in range(nt):

@@ -37,7 +37,7 @@ def _sinusoids(n: int, omega: float, harmonics: int) -> np.ndarray:
 REFINED_PEAKS = 2
 
 
-def _screen_peaks(peaks: list, cost_at: Callable[[int], float], keep: int = REFINED_PEAKS) -> list:
+def _screen_peaks(peaks: list, cost_at: Callable[[int], float], keep: int) -> list:
     """The ``keep`` peaks whose sinusoid, fitted at the peak's own frequency, leaves the
     smallest process-replay error, in their original order.
 
@@ -137,7 +137,7 @@ def fit_external_disturbance(
         pvc = (pv - np.sum(pv * w) / max(np.sum(w), 1.0)) * w
         spec_pv = np.abs(np.fft.rfft(pvc, nfft)) ** 2
         peaks = list(dict.fromkeys(top_peaks(spec, 3) + top_peaks(spec_pv, 3)))
-        peaks = _screen_peaks(peaks, lambda i: cost(omega[i], 1)[0])
+        peaks = _screen_peaks(peaks, lambda i: cost(omega[i], 1)[0], REFINED_PEAKS)
         best = None
         width = 2.0 * math.pi / nfft * 4.0
         for i in peaks:
