@@ -42,6 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CHILD = r"""
 import json, sys, time
 from pathlib import Path
+import stictiondiag
 from stictiondiag.apps.scan import scan
 plant, out = Path(sys.argv[1]), Path(sys.argv[2])
 warm = out / "warm"
@@ -54,7 +55,8 @@ result = scan(plant, out=out / "scan", workers=1, gap=True)
 cpu = time.process_time() - t0
 cols = [c for c in ("loop", "verdict", "S", "J", "gap_effect") if c in result.table.columns]
 rows = result.table[cols].to_dict(orient="records")
-print(json.dumps({"cpu": cpu, "loops": result.n_loops, "failed": result.n_failed, "rows": rows}))
+print(json.dumps({"cpu": cpu, "loops": result.n_loops, "failed": result.n_failed, "rows": rows,
+                  "package": stictiondiag.__file__}))
 """
 
 
@@ -73,8 +75,11 @@ def run(code: Path, plant: Path, out: Path) -> dict:
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
     env.setdefault("MKL_NUM_THREADS", "1")
     env.pop("STICTION_KERNEL_THREADS", None)
+    # Run in the checkout: ``python -c`` puts the working directory first on the
+    # path, before PYTHONPATH, so from another checkout it would import that one.
     done = subprocess.run(
         [sys.executable, "-c", CHILD, str(plant), str(out)],
+        cwd=str(code),
         env=env,
         capture_output=True,
         text=True,
@@ -82,7 +87,10 @@ def run(code: Path, plant: Path, out: Path) -> dict:
     )
     if done.returncode != 0:
         raise SystemExit(f"scan with {code} failed:\n{done.stderr[-2000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    if not Path(result["package"]).resolve().is_relative_to(code.resolve()):
+        raise SystemExit(f"the scan of {code} imported {result['package']}")
+    return result
 
 
 def compare(a: list[dict], b: list[dict]) -> str:
