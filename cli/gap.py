@@ -56,6 +56,10 @@ def render_gap(d: dict) -> str:
         lines.append(
             "not assessed " + ", ".join(d["not_assessed"]) + " (no valve position recorded)"
         )
+    if d.get("within_noise"):
+        lines.append(
+            "not fitted  " + ", ".join(d["within_noise"]) + " (mv replay within its noise)"
+        )
     return "\n".join(lines)
 
 
