@@ -125,11 +125,13 @@ def fit_external_disturbance(
             cand = np.arange(1, spec.size)
 
         def top_peaks(spec_x, k):
+            # Local maxima of the spectrum over the candidates, largest first (ties
+            # in frequency order).
             sx = spec_x[cand]
-            pk = [
-                cand[i] for i in range(1, sx.size - 1) if sx[i] >= sx[i - 1] and sx[i] >= sx[i + 1]
-            ]
-            return sorted(pk, key=lambda i: -spec_x[i])[:k] or [cand[int(np.argmax(sx))]]
+            inner = (sx[1:-1] >= sx[:-2]) & (sx[1:-1] >= sx[2:])
+            pk = cand[np.flatnonzero(inner) + 1]
+            pk = pk[np.argsort(-spec_x[pk], kind="stable")[:k]]
+            return [int(i) for i in pk] or [int(cand[int(np.argmax(sx))])]
 
         # Candidate frequencies: the largest peaks of the replay's residual and of pv
         # itself (the load tracking follows part of a slow disturbance, so its peak
