@@ -26,6 +26,7 @@ from stictiondiag.stiction.probability import (
     logistic,
     stiction_probability,
 )
+from stictiondiag.stiction.probability_evidence import NEUTRAL
 from stictiondiag.stiction.valvefit import StictionFit
 from stictiondiag.stiction.verdict import (
     NO_STICTION_LEVEL,
@@ -222,7 +223,9 @@ def test_verdict_follows_the_probability(p, status):
 def test_probability_of_the_packaged_model_orders_the_evidence():
     # Clear stick-slip evidence in a regular cycle scores higher than none, with and
     # without mv.
-    strong = dict.fromkeys(FEATURES, 0.0) | {
+    # The continuous statistics sit at their neutral values (a test that could not run).
+    base = dict.fromkeys(FEATURES, 0.0) | {k: NEUTRAL[k] for k in FEATURES if k in NEUTRAL}
+    strong = base | {
         "improvement": 0.9,
         "support": 1.0,
         "s_excludes_zero": 1.0,
@@ -230,7 +233,7 @@ def test_probability_of_the_packaged_model_orders_the_evidence():
         "oscillating": 1.0,
         "regularity": math.log1p(5.0),
     }
-    none = dict.fromkeys(FEATURES, 0.0) | {"s_open": 1.0, "oscillating": 1.0, "regularity": 1.0}
+    none = base | {"s_open": 1.0, "oscillating": 1.0, "regularity": 1.0}
     for has_mv in (False, True):
         hi = stiction_probability(strong, has_mv)
         lo = stiction_probability(none, has_mv)

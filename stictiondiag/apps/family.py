@@ -378,14 +378,16 @@ def family_loop(seed: int) -> FamilyLoop:
     )
 
 
-def loop_features(loop: FamilyLoop) -> dict | None:
+def loop_features(loop: FamilyLoop, *, with_classic: bool = False):
     """The probability model's features of one family loop, computed by the steps
     of :func:`stictiondiag.analysis.analyze` (oscillation of pv, else of the control
     error; of op; record length; the mv or Hammerstein fit) and
     :func:`stictiondiag.stiction.verdict.verdict_features`.
 
-    Returns None for a loop the analysis refuses (a record too short for its
-    cycle, or data it cannot use), as it would refuse a plant record.
+    Returns the features (a dict of :data:`~stictiondiag.stiction.probability.CANDIDATES`),
+    or with ``with_classic`` the pair (features, the classic tests' statistics and the
+    shape statistics); None for a loop the analysis refuses (a record too short for
+    its cycle, or data it cannot use), as it would refuse a plant record.
     """
     from stictiondiag.analysis import FLOW_LIKE, check_record_length
     from stictiondiag.core.errors import StictionError
@@ -414,7 +416,9 @@ def loop_features(loop: FamilyLoop) -> dict | None:
                 integrating=bool(tags.integrating),
                 flow_loop=tags.loop_type in FLOW_LIKE,
             )
-        features, _, _ = verdict_features(fit, osc_pv, osc_op, short_record=bool(short), data=tags)
+        features, _, classic = verdict_features(
+            fit, osc_pv, osc_op, short_record=bool(short), data=tags
+        )
     except StictionError:
         return None
-    return features
+    return (features, classic) if with_classic else features

@@ -31,7 +31,8 @@ of the classic detection tests is reduced to a handful of well-defined numbers,
     Thornhill (2004) bicoherence and pv-op ellipse; He et al. (2007) triangle versus
     sine fit (the oscillation's shape); Rossi & Scali (2005) relay versus sine fit;
     Kano et al. (2004) stuck sections (pv as the valve's proxy in flow loops).  +1
-    stiction, -1 no stiction, 0 undecided or not applicable.
+    stiction, -1 no stiction, 0 undecided or not applicable.  Computed for every loop
+    but not in the model, which takes the tests' continuous statistics instead (below).
 ``short_record``
     The record holds fewer cycles than the oscillation test needs (1 or 0).
 ``halves_s_low``, ``halves_s_agree``, ``halves_improvement``, ``halves_missing``
@@ -46,6 +47,20 @@ of the classic detection tests is reduced to a handful of well-defined numbers,
     to [-0.5, 1]); ``halves_missing`` is 1 when the halves could not be fitted (a
     half shorter than two cycles, or the valve position recorded) and the three
     others are then 0.
+
+``he_si``, ``horch_phase``, ..., ``op_slope_kurtosis``
+    The classic tests' continuous statistics and the oscillation's shape
+    (:data:`~stictiondiag.stiction.probability_evidence.CONTINUOUS`): He et al.'s
+    index, Horch's phase index and second-derivative kurtosis, the bicoherence's NLI
+    and NGI, the pv-op ellipse's axis ratio and apparent stiction over op's spread,
+    Kano's stuck share, Rossi & Scali's relay-versus-sine score, and the odd
+    harmonics and slope kurtosis of pv and op; defined, with their neutral values
+    where a test cannot run, in :mod:`stictiondiag.stiction.probability_evidence`.
+    A ternary call throws away how far its statistic lies from the thresholds.
+
+Every feature of :data:`CANDIDATES` is computed for each loop; the model uses
+:data:`FEATURES`, the set chosen by cross-validated log loss on the simulated
+training loops (``docs/calibration.md``, "Choice of model").
 
 The model is fitted on simulated loops only (:mod:`stictiondiag.apps.family`,
 ``scripts/train_probability.py``), separately for loops with and without the valve
@@ -64,9 +79,15 @@ from pathlib import Path
 import numpy as np
 
 from stictiondiag.core.errors import StictionError
+from stictiondiag.stiction.probability_evidence import (
+    CONTINUOUS,
+    continuous_features,
+    shape_statistics,
+)
 
-#: The features, in the order of the model's coefficients.
-FEATURES: tuple[str, ...] = (
+#: The features of the earlier model (the fit, the oscillation, the classic tests'
+#: calls, the split-half fits); computed for every loop.
+BASE_FEATURES: tuple[str, ...] = (
     "improvement",
     "support",
     "s_excludes_zero",
@@ -86,6 +107,21 @@ FEATURES: tuple[str, ...] = (
     "halves_missing",
 )
 
+#: Every feature :func:`evidence_features` computes: :data:`BASE_FEATURES` and the
+#: continuous statistics of :mod:`stictiondiag.stiction.probability_evidence`.
+CANDIDATES: tuple[str, ...] = BASE_FEATURES + CONTINUOUS
+
+#: The classic tests whose calls are computed (as features of :data:`BASE_FEATURES`),
+#: by their name in :func:`stictiondiag.stiction.classic.classic_features`
+#: (``<test>_call``).
+CLASSIC_TESTS = ("horch", "choudhury", "he", "rossi_scali", "kano")
+
+#: The features of the model, in the order of its coefficients: every candidate but
+#: the classic tests' calls, whose statistics the model takes instead (the set with
+#: the lowest cross-validated log loss on the simulated training loops,
+#: ``docs/calibration.md``, "Choice of model").
+FEATURES: tuple[str, ...] = tuple(k for k in CANDIDATES if k not in CLASSIC_TESTS)
+
 #: The fitted model, written by ``scripts/train_probability.py``.
 MODEL_FILE = Path(__file__).with_name("probability_model.json")
 
@@ -93,9 +129,6 @@ MODEL_FILE = Path(__file__).with_name("probability_model.json")
 MAX_REGULARITY = 20.0
 
 
-#: The classic tests whose calls enter the model, by their name in
-#: :func:`stictiondiag.stiction.classic.classic_features` (``<test>_call``).
-CLASSIC_TESTS = ("horch", "choudhury", "he", "rossi_scali", "kano")
 
 
 def _vote(verdict) -> float:
@@ -110,7 +143,8 @@ def classic_votes(
 
     The tests are those of :mod:`stictiondiag.stiction.classic`
     (:func:`~stictiondiag.stiction.classic.classic_features`); all their statistics are
-    returned too, under their own names, for the record.
+    returned too, under their own names, with the oscillation's shape in pv and op
+    (:func:`~stictiondiag.stiction.probability_evidence.shape_statistics`).
     """
     from stictiondiag.stiction.classic import classic_features
 
@@ -119,6 +153,7 @@ def classic_votes(
     except (StictionError, ValueError, FloatingPointError, np.linalg.LinAlgError):
         feats = {}
     out = {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in feats.items()}
+    out.update(shape_statistics(pv, op, ts, out.get("oscillation_period_s")))
     for test in CLASSIC_TESTS:
         v = feats.get(f"{test}_call")
         out[test] = float(v) if v is not None and math.isfinite(v) else 0.0
@@ -166,6 +201,7 @@ def evidence_features(
         **{t: float(classic.get(t, 0.0)) for t in CLASSIC_TESTS},
         "short_record": float(bool(short_record)),
         **halves_features(halves, spread),
+        **continuous_features(classic, spread),
     }
     return f
 

@@ -203,6 +203,40 @@ _FEATURE_WORDS = {
         "the stiction model does not fit better in one half",
     ),
     "halves_missing": ("the halves could not be fitted", "both halves were fitted"),
+    "he_si": (
+        "the cycle of the integrated signal is triangular (He et al.'s index)",
+        "the cycle of the integrated signal is sinusoidal (He et al.'s index)",
+    ),
+    "horch_phase": (
+        "op and pv are out of phase as behind a sticky valve (Horch's index)",
+        "op and pv are in phase as behind a linear valve (Horch's index)",
+    ),
+    "horch_d2_kurtosis": (
+        "pv's second derivative is spiky (Horch 2000)",
+        "pv's second derivative is smooth (Horch 2000)",
+    ),
+    "choudhury_nli": (
+        "the bicoherence finds the loop nonlinear",
+        "the bicoherence finds it linear",
+    ),
+    "choudhury_ngi": (
+        "the control error is non-Gaussian",
+        "the control error is near Gaussian",
+    ),
+    "ellipse_axis_ratio": ("the pv-op plot is an open ellipse", "the pv-op plot is a narrow band"),
+    "ellipse_share": (
+        "the pv-op ellipse is wide along op",
+        "the pv-op ellipse is narrow along op",
+    ),
+    "kano_rho": ("the valve proxy sticks while op moves", "the valve proxy follows op"),
+    "rossi_scali_delta_e": (
+        "pv's cycle is relay-like (Rossi & Scali)",
+        "pv's cycle is sinusoidal (Rossi & Scali)",
+    ),
+    "pv_odd_harmonics": ("pv's cycle has strong odd harmonics", "pv's cycle is nearly sinusoidal"),
+    "op_odd_harmonics": ("op's cycle has strong odd harmonics", "op's cycle is nearly sinusoidal"),
+    "pv_slope_kurtosis": ("pv moves in jumps", "pv moves smoothly"),
+    "op_slope_kurtosis": ("op moves in jumps", "op moves smoothly"),
     "horch": "Horch's test",
     "choudhury": "the bicoherence test and pv-op ellipse",
     "he": "He et al.'s shape test",
