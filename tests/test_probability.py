@@ -19,8 +19,10 @@ from stictiondiag.apps.family import (
     loop_features,
 )
 from stictiondiag.stiction.probability import (
+    CANDIDATES,
     FEATURES,
     MODEL_FILE,
+    PART_FEATURES,
     apply_part,
     load_model,
     logistic,
@@ -136,8 +138,9 @@ def test_packaged_model():
     model = load_model()
     assert tuple(model["features"]) == FEATURES
     assert set(model["parts"]) == {"op_pv", "mv"}
-    for part in model["parts"].values():
-        assert len(part["coef"]) == len(FEATURES)
+    for name, part in model["parts"].items():
+        assert tuple(part["features"]) == PART_FEATURES[name]
+        assert len(part["coef"]) == len(PART_FEATURES[name])
         assert all(s > 0 for s in part["scale"])
     assert json.loads(MODEL_FILE.read_text()) == model
 
@@ -224,7 +227,7 @@ def test_probability_of_the_packaged_model_orders_the_evidence():
     # Clear stick-slip evidence in a regular cycle scores higher than none, with and
     # without mv.
     # The continuous statistics sit at their neutral values (a test that could not run).
-    base = dict.fromkeys(FEATURES, 0.0) | {k: NEUTRAL[k] for k in FEATURES if k in NEUTRAL}
+    base = dict.fromkeys(CANDIDATES, 0.0) | NEUTRAL
     strong = base | {
         "improvement": 0.9,
         "support": 1.0,

@@ -16,6 +16,7 @@ from scipy.signal import sawtooth
 from test_classic_shape import LOAD_PERIOD, STICKY, loop
 
 from stictiondiag.stiction.probability import (
+    CANDIDATES,
     FEATURES,
     classic_votes,
     load_model,
@@ -106,7 +107,7 @@ def test_packaged_model_predicts_probabilities():
     assert tuple(model["features"]) == FEATURES
     rng = np.random.default_rng(3)
     for _ in range(50):
-        feats = {k: float(rng.uniform(-0.5, 2.0)) for k in FEATURES}
+        feats = {k: float(rng.uniform(-0.5, 2.0)) for k in CANDIDATES}
         for has_mv in (False, True):
             p = stiction_probability(feats, has_mv, model)
             assert 0.0 < p < 1.0

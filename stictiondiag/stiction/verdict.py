@@ -24,10 +24,10 @@ import numpy as np
 
 from stictiondiag.core.serialize import to_plain as _plain
 from stictiondiag.stiction.probability import (
-    FEATURES,
     classic_votes,
     evidence_features,
     load_model,
+    part_features,
     part_name,
     stiction_probability,
 )
@@ -261,9 +261,10 @@ def _feature_text(name: str, value: float, mean: float) -> str:
 def _contributions(features: dict, has_mv: bool, model: dict) -> list[tuple[str, float, str]]:
     """Each feature's term in the log-odds relative to the training mean, with its
     words, largest first."""
-    part = model["parts"][part_name(features, has_mv)]
+    name = part_name(features, has_mv)
+    part = model["parts"][name]
     terms = []
-    for i, k in enumerate(FEATURES):
+    for i, k in enumerate(part_features(model, name)):
         t = part["coef"][i] * (features[k] - part["mean"][i]) / part["scale"][i]
         terms.append((k, float(t), _feature_text(k, features[k], part["mean"][i])))
     return sorted(terms, key=lambda kv: -abs(kv[1]))
