@@ -120,6 +120,40 @@ def test_fit_logistic_recovers_known_coefficients():
     assert abs(float(p.mean()) - float(y.mean())) < 0.01
 
 
+def test_roc_auc_counts_pairs():
+    # Mann-Whitney: every sticky score above every healthy one gives 1, below 0, a
+    # score that ties everywhere 0.5; one swapped pair of 2 x 2 gives 3/4 (exact).
+    train = _train_module()
+    y = np.array([1, 1, 0, 0], dtype=bool)
+    assert train.roc_auc(y, np.array([3.0, 4.0, 1.0, 2.0])) == 1.0
+    assert train.roc_auc(y, np.array([1.0, 2.0, 3.0, 4.0])) == 0.0
+    assert train.roc_auc(y, np.zeros(4)) == 0.5
+    assert train.roc_auc(y, np.array([2.0, 4.0, 3.0, 1.0])) == 0.75
+    assert math.isnan(train.roc_auc(np.ones(3, dtype=bool), np.arange(3.0)))
+
+
+def test_cross_validate_per_part_features():
+    # Giving both parts the same features by a dict is the same model as by a tuple
+    # (same folds, same fits: equal to rounding).
+    train = _train_module()
+    rng = np.random.default_rng(5)
+    rows = []
+    for i in range(200):
+        x = rng.normal(size=3)
+        rows.append(
+            {
+                "sticky": bool(rng.random() < 1 / (1 + math.exp(-2 * x[0]))),
+                "has_mv": i % 3 == 0,
+                "features": {"a": x[0], "b": x[1], "c": x[2], "oscillating": 1.0},
+            }
+        )
+    names = ("a", "b", "c")
+    by_tuple = train.cross_validate(rows, 1.0, False, names=names)
+    by_dict = train.cross_validate(rows, 1.0, False, names={"op_pv": names, "mv": names})
+    assert by_dict == pytest.approx(by_tuple, abs=1e-12)
+    assert by_tuple < math.log(2.0)  # the first feature carries the label
+
+
 def test_reliability_of_a_calibrated_predictor():
     # y ~ Bernoulli(p) with p uniform: every band of width 0.2 holds ~8000 draws, so
     # its observed frequency has a standard error below 0.006; 0.03 is 5 of them.
