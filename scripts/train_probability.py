@@ -11,6 +11,13 @@ regression separately for loops with and without mv (standardised features, pena
 ``||w||^2 / (2 C)`` with :data:`C`; no real-plant data anywhere), writes
 ``stictiondiag/stiction/probability_model.json`` and the reliability table of the
 held-out loops to ``docs/calibration.md``.  Deterministic for given seeds and counts.
+
+Which features ship is decided by a stated rule (:func:`held_out_gate`): the feature
+set the cross-validation on the training loops prefers replaces the shipped one only
+if it also has the lower log loss on the held-out loops, by more than
+:data:`GATE_SE` standard errors; otherwise the simpler set is kept.  The script
+reports both and exits with 2 when the rule's outcome differs from
+:data:`~stictiondiag.stiction.probability.PART_FEATURES`.
 """
 
 from __future__ import annotations
@@ -146,8 +153,8 @@ def _partition(r: dict, by_cycle: bool) -> str:
 
 
 def feature_sets() -> dict[str, tuple[str, ...]]:
-    """The nested feature sets compared by cross-validated log loss (the model's
-    :data:`~stictiondiag.stiction.probability.FEATURES` is the one chosen)."""
+    """The nested feature sets compared by cross-validated log loss; the one that
+    ships is decided by the held-out rule (:func:`held_out_gate`)."""
     from stictiondiag.stiction.probability import BASE_FEATURES, CANDIDATES, CLASSIC_TESTS
     from stictiondiag.stiction.probability_evidence import CONTINUOUS, SHAPE_FEATURES
 
@@ -268,7 +275,6 @@ def main(argv=None) -> int:
     ap.add_argument("--doc", type=Path, default=ROOT / "docs" / "calibration.md")
     a = ap.parse_args(argv)
     from stictiondiag.stiction.probability import (
-        BASE_FEATURES,
         FEATURES,
         PART_FEATURES,
         apply_part,
@@ -303,20 +309,7 @@ def main(argv=None) -> int:
         for name, names in feature_sets().items()
         for c in C_GRID
     }
-    mv_mask = np.array([bool(r["has_mv"]) for r in train])
-    shipped = {}
-    for label, names in (
-        ("earlier features in both parts", {"op_pv": BASE_FEATURES, "mv": BASE_FEATURES}),
-        ("shipped (per part)", PART_FEATURES),
-    ):
-        loss = cross_validate(train, C, False, names=names, per_loop=True)
-        shipped[label] = (loss.mean(), loss[~mv_mask].mean(), loss[mv_mask].mean())
-    best = min(cv, key=lambda k: cv[k][0])
-    chosen = feature_sets()[best[0]] == FEATURES and best[1] == C
-    if not chosen:
-        print(
-            f"note: lowest CV log loss is {best}, not the model's features and C", file=sys.stderr
-        )
+    choice, same_folds = cv_choice(train)
     aucs = auc_table(train)
     boosted = cross_validate_boosting(train) if a.compare_boosting else None
     text = json.dumps(model, indent=1) + "\n"
@@ -340,7 +333,15 @@ def main(argv=None) -> int:
     p = predict(test)
     y = np.array([float(r["sticky"]) for r in test])
     table = reliability(p, y)
-    compare = held_out_comparison(train, test, p)
+    sets = feature_sets()
+    gate = held_out_gate(train, test, PART_FEATURES, {k: sets[v] for k, v in choice.items()})
+    mismatch = [part for part, g in gate["parts"].items() if g["ships"] != PART_FEATURES[part]]
+    for part in mismatch:
+        print(
+            f"note: by the held-out rule the part {part} ships {gate['parts'][part]['verdict']};"
+            " PART_FEATURES in stictiondiag/stiction/probability.py differs: change it and rerun",
+            file=sys.stderr,
+        )
     ok = all(r["n"] == 0 or abs(r["observed"] - r["mean_p"]) <= TOLERANCE for r in table)
     subsets = {
         "without mv": [not r["has_mv"] for r in test],
@@ -361,11 +362,11 @@ def main(argv=None) -> int:
         time.time() - t0,
         t_feat,
         cv,
-        (aucs, boosted, compare, shipped),
+        (aucs, boosted, gate, (choice, same_folds), mismatch),
     )
     a.doc.write_text(doc + kept_sections(a.doc))
     print(doc)
-    return 0 if ok else 1
+    return 2 if mismatch else (0 if ok else 1)
 
 
 #: Heading from which the written-by-hand part of the calibration doc starts; the
@@ -404,7 +405,7 @@ def _table_lines(table) -> list[str]:
 def _choice_lines(cv, extra) -> list[str]:
     from stictiondiag.stiction.probability import PART_FEATURES
 
-    (table, n_strata), boosted, compare, shipped = extra
+    (table, n_strata), boosted, gate, (choice, same_folds), mismatch = extra
     used = {k for names in PART_FEATURES.values() for k in names}
     heads = [f"{lo:g}-{hi:g}" if math.isfinite(hi) else f"> {lo:g}" for lo, hi in S_STRATA]
     lines = [
@@ -435,76 +436,210 @@ def _choice_lines(cv, extra) -> list[str]:
         lines.append(f"| {name} | {c:g} | {v_all:.4f} | {v_nomv:.4f} | {v_mv:.4f} |")
     for name, (v_all, v_nomv) in (boosted or {}).items():
         lines.append(f"| {name} | - | {v_all:.4f} | {v_nomv:.4f} | |")
-    best = min(cv, key=lambda k: cv[k][0])
-    best_mv = min(cv, key=lambda k: cv[k][2])
+    cand = gate["candidate"]
     lines += [
         "",
-        f"The shipped combination against the earlier model, C = {C:g}, on the same folds"
-        " of all training loops (the columns above for the loops with and without mv"
-        " draw their own folds, which moves a log loss by about 0.005):",
+        "**Which set ships.** A feature set ships only if it beats the shipped one in log",
+        "loss on the held-out simulated loops, not only in cross-validation on the",
+        "training loops: per part of the model, the cross-validation's choice (the set",
+        f"with the lowest 5-fold log loss over that part's training loops, C = {C:g}, the"
+        " same folds of all training loops for every set) is refitted on all training"
+        " loops and compared with the shipped set on the held-out loops; it replaces the"
+        f" shipped set only if its mean log loss is lower by more than {GATE_SE:g} standard"
+        " errors of the paired per-loop difference. Within that margin simulation cannot"
+        " tell the two apart and the simpler set (fewer features) is kept.",
         "",
-        "| model | log loss, all | log loss, no mv | log loss, mv |",
+        f"Cross-validated log loss per set, C = {C:g}, on the same folds of all training"
+        " loops (the columns above for the loops with and without mv draw their own folds,"
+        " which moves a log loss by about 0.005):",
+        "",
+        "| features | log loss, all | log loss, no mv | log loss, mv |",
         "|---|---|---|---|",
-        *[f"| {k} | {a:.4f} | {b:.4f} | {m:.4f} |" for k, (a, b, m) in shipped.items()],
-    ]
-    lines += [
+        *[f"| {k} | {a:.4f} | {b:.4f} | {m:.4f} |" for k, (a, b, m) in same_folds.items()],
+        "",
+        f"Cross-validation's choice: without mv {_set_name(cand['op_pv'])}; with mv"
+        f" {_set_name(cand['mv'])}.",
         "",
         "On the held-out loops (log loss, area under the ROC curve of P, Brier score; loops",
-        "without mv: also how many fall between the decision levels), the shipped model",
-        "against the earlier feature set refitted on the same training loops:",
+        "without mv: also how many fall between the decision levels; all held-out loops:",
+        "the calls and the share of them that is right), the shipped set and the",
+        "cross-validation's choice, both refitted on the same training loops:",
         "",
         "| model | log loss, all | log loss, no mv | AUC, no mv | Brier, all |"
-        " no mv: 0.3 < P < 0.7 |",
-        "|---|---|---|---|---|---|",
-        *[
-            f"| {name} | {v['ll']:.4f} | {v['ll_nomv']:.4f} | {v['auc_nomv']:.3f} |"
+        " no mv: 0.3 < P < 0.7 | called stiction (sticky) | called no stiction (healthy) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for key, label in (("shipped", "shipped set"), ("candidate", "cross-validation's choice")):
+        v = gate["models"][key]
+        lines.append(
+            f"| {label} | {v['ll']:.4f} | {v['ll_nomv']:.4f} | {v['auc_nomv']:.3f} |"
             f" {v['brier']:.3f} | {v['between']} of {v['n_nomv']} |"
-            for name, v in compare.items()
-        ],
-    ]
-    lines += [
-        "",
-        f"Lowest log loss of the logistic models over all loops: {best[0]}, C = {best[1]:g}"
-        f" ({cv[best][0]:.4f}); over the loops with mv: {best_mv[0]}, C = {best_mv[1]:g}"
-        f" ({cv[best_mv][2]:.4f}). The part for loops without mv uses"
-        f" {len(PART_FEATURES['op_pv'])} features (all but the calls), the part for loops"
-        f" with mv the {len(PART_FEATURES['mv'])} earlier ones; C = {C:g}.",
-    ]
+            f" {v['called']} ({v['called_right']:.2f}) | {v['cleared']} ({v['cleared_right']:.2f}) |"
+        )
+    lines.append("")
+    for part, label in (("op_pv", "without mv"), ("mv", "with mv")):
+        g = gate["parts"][part]
+        if gate["shipped"][part] == cand[part]:
+            lines.append(
+                f"* Part {label}: the cross-validation's choice is the shipped set,"
+                f" {g['verdict']}; it ships."
+            )
+            continue
+        how = (
+            f"lower by more than {GATE_SE:g} standard errors"
+            if g["diff"] < -GATE_SE * g["se"]
+            else f"higher by more than {GATE_SE:g} standard errors"
+            if g["diff"] > GATE_SE * g["se"]
+            else f"within {GATE_SE:g} standard errors (simulation cannot tell them apart)"
+        )
+        lines.append(
+            f"* Part {label} ({g['n']} held-out loops): held-out log loss"
+            f" {g['ll']['candidate']:.4f} for the cross-validation's choice,"
+            f" {_set_name(cand[part])}, against {g['ll']['shipped']:.4f} for the shipped"
+            f" {_set_name(gate['shipped'][part])}: difference {g['diff']:+.4f}, standard"
+            f" error {g['se']:.4f}, {how}. By the rule, {g['verdict']} ships."
+        )
+    lines.append("")
+    if mismatch:
+        lines.append(
+            "**The rule's outcome differs from the features the model ships"
+            f" (`PART_FEATURES` in `stictiondiag/stiction/probability.py`) for the part(s)"
+            f" {', '.join(mismatch)}: change them and rerun.**"
+        )
+    else:
+        lines.append(
+            f"The model ships the rule's outcome: without mv {len(PART_FEATURES['op_pv'])}"
+            f" features, with mv {len(PART_FEATURES['mv'])}; C = {C:g}."
+        )
     return lines
 
 
-def held_out_comparison(train: list[dict], test: list[dict], p: np.ndarray) -> dict:
-    """Held-out log loss, AUC and Brier score of the shipped model's predictions ``p``
-    and of the earlier feature set (:data:`~stictiondiag.stiction.probability.BASE_FEATURES`)
-    refitted on ``train``."""
-    from stictiondiag.stiction.probability import BASE_FEATURES, apply_part, design_row
+#: Parts of the model, by :func:`~stictiondiag.stiction.probability.part_name`.
+PARTS = ("op_pv", "mv")
+
+#: A feature set counts as better than another on the held-out loops only when its
+#: mean log loss is lower by more than this many standard errors of the paired
+#: per-loop difference (about a 95 % two-sided margin); within it simulation cannot
+#: tell the two apart and the simpler set (fewer features) is kept.
+GATE_SE = 2.0
+
+
+def _log_loss(y: np.ndarray, q: np.ndarray) -> np.ndarray:
+    q = np.clip(np.asarray(q, dtype=float), 1e-9, 1 - 1e-9)
+    return -(y * np.log(q) + (1 - y) * np.log(1 - q))
+
+
+def cv_choice(train: list[dict], c: float = C) -> tuple[dict, dict]:
+    """The cross-validation's choice: per part of the model, the set of
+    :func:`feature_sets` with the lowest 5-fold cross-validated log loss over that
+    part's training loops (the same folds of all training loops for every set, C =
+    ``c``); and each set's log loss over all, without mv and with mv."""
+    mv = np.array([bool(r["has_mv"]) for r in train])
+    losses = {}
+    for name, names in feature_sets().items():
+        loss = cross_validate(train, c, False, names=names, per_loop=True)
+        losses[name] = (float(loss.mean()), float(loss[~mv].mean()), float(loss[mv].mean()))
+    choice = {
+        "op_pv": min(losses, key=lambda k: losses[k][1]),
+        "mv": min(losses, key=lambda k: losses[k][2]),
+    }
+    return choice, losses
+
+
+def _fit_predict(train: list[dict], test: list[dict], sets: dict) -> np.ndarray:
+    """P of the ``test`` loops by a model fitted on ``train`` with the features
+    ``sets[part]`` in each part (C = :data:`C`)."""
+    from stictiondiag.stiction.probability import apply_part, design_row, part_name
+
+    p = np.full(len(test), 0.5)
+    for part in PARTS:
+        rows = [r for r in train if part_name(r["features"], r["has_mv"]) == part]
+        idx = [i for i, r in enumerate(test) if part_name(r["features"], r["has_mv"]) == part]
+        if not rows or not idx:
+            continue
+        fit = fit_logistic(
+            np.array([design_row(r["features"], sets[part]) for r in rows]),
+            np.array([float(r["sticky"]) for r in rows]),
+        )
+        X = np.array([design_row(test[i]["features"], sets[part]) for i in idx])
+        p[idx] = apply_part(fit, X)
+    return p
+
+
+def gate_part(
+    loss_shipped: np.ndarray, loss_candidate: np.ndarray, n_shipped: int, n_candidate: int
+) -> tuple[str, float, float]:
+    """The held-out rule for one part: ``shipped`` or ``candidate``, from the per-loop
+    held-out log losses of the two sets (same loops) and their numbers of features;
+    with the mean difference (candidate minus shipped) and its standard error.
+
+    A set wins when its mean log loss is lower by more than :data:`GATE_SE` standard
+    errors of the paired difference; otherwise simulation cannot tell them apart and
+    the set with fewer features is kept (the shipped one on a tie)."""
+    d = np.asarray(loss_candidate, dtype=float) - np.asarray(loss_shipped, dtype=float)
+    mean = float(d.mean()) if d.size else 0.0
+    se = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else 0.0
+    if mean < -GATE_SE * se:
+        return "candidate", mean, se
+    if mean > GATE_SE * se:
+        return "shipped", mean, se
+    return ("candidate" if n_candidate < n_shipped else "shipped"), mean, se
+
+
+def held_out_gate(train: list[dict], test: list[dict], shipped: dict, candidate: dict) -> dict:
+    """The rule by which a feature set ships, on the held-out loops: per part, the
+    shipped set and the candidate (the cross-validation's choice) refitted on
+    ``train`` and compared by their log loss on ``test`` (:func:`gate_part`); with
+    each model's held-out log loss, area under the ROC curve, Brier score and calls."""
+    from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL
 
     y = np.array([float(r["sticky"]) for r in test])
     mv = np.array([bool(r["has_mv"]) for r in test])
-    p0 = np.zeros(len(test))
-    for part in (False, True):
-        rows = [r for r in train if bool(r["has_mv"]) == part]
-        fit = fit_logistic(
-            np.array([design_row(r["features"], BASE_FEATURES) for r in rows]),
-            np.array([float(r["sticky"]) for r in rows]),
-        )
-        idx = np.flatnonzero(mv == part)
-        if idx.size:
-            X = np.array([design_row(test[i]["features"], BASE_FEATURES) for i in idx])
-            p0[idx] = apply_part(fit, X)
-    out = {}
-    for name, q in (("earlier features", p0), ("shipped", np.asarray(p, dtype=float))):
-        q = np.clip(q, 1e-9, 1 - 1e-9)
-        loss = -(y * np.log(q) + (1 - y) * np.log(1 - q))
-        out[name] = {
-            "ll": float(loss.mean()),
-            "ll_nomv": float(loss[~mv].mean()),
+    p = {"shipped": _fit_predict(train, test, shipped)}
+    p["candidate"] = p["shipped"] if candidate == shipped else _fit_predict(train, test, candidate)
+    loss = {k: _log_loss(y, q) for k, q in p.items()}
+    parts = {}
+    for part, m in (("op_pv", ~mv), ("mv", mv)):
+        if shipped[part] == candidate[part]:
+            pick, mean, se = "shipped", 0.0, 0.0
+        else:
+            pick, mean, se = gate_part(
+                loss["shipped"][m], loss["candidate"][m], len(shipped[part]), len(candidate[part])
+            )
+        sets = {"shipped": shipped[part], "candidate": candidate[part]}
+        parts[part] = {
+            "pick": pick,
+            "ships": sets[pick],
+            "verdict": _set_name(sets[pick]),
+            "n": int(m.sum()),
+            "ll": {k: float(v[m].mean()) if m.any() else math.nan for k, v in loss.items()},
+            "diff": mean,
+            "se": se,
+        }
+    models = {}
+    for k, q in p.items():
+        called, cleared = q > STICTION_LEVEL, q < NO_STICTION_LEVEL
+        models[k] = {
+            "ll": float(loss[k].mean()),
+            "ll_nomv": float(loss[k][~mv].mean()),
             "auc_nomv": roc_auc(y[~mv], q[~mv]),
             "brier": float(np.mean((q - y) ** 2)),
-            "between": int(np.sum((q[~mv] > 0.3) & (q[~mv] < 0.7))),
+            "between": int(np.sum((q[~mv] > NO_STICTION_LEVEL) & (q[~mv] < STICTION_LEVEL))),
             "n_nomv": int((~mv).sum()),
+            "called": int(called.sum()),
+            "called_right": float(y[called].mean()) if called.any() else math.nan,
+            "cleared": int(cleared.sum()),
+            "cleared_right": float(1 - y[cleared].mean()) if cleared.any() else math.nan,
         }
-    return out
+    return {"parts": parts, "models": models, "shipped": shipped, "candidate": candidate}
+
+
+def _set_name(names: tuple) -> str:
+    """The name of a feature set in :func:`feature_sets` (or its size)."""
+    for k, v in feature_sets().items():
+        if tuple(v) == tuple(names):
+            return f"{k} ({len(names)} features)"
+    return f"{len(names)} features"
 
 
 def cross_validate_boosting(rows: list[dict], k: int = 5) -> dict[str, tuple[float, float]]:
@@ -579,7 +714,7 @@ def render(a, model, table, ok, p, y, subsets, n_train, n_test, seconds, t_feat,
         "",
         f"Run time: {seconds / 60:.1f} min on {a.workers} worker(s), of which"
         f" {t_feat / 60:.1f} min computing the features of {sum(COMPUTED)} loops not yet"
-        " cached (under `--cache`; a fully cached run takes seconds). " + MEASURED_RUN,
+        " cached (under `--cache`; a fully cached run takes minutes: the cross-validation). " + MEASURED_RUN,
         f"Training loops: {n_train} analysed of {a.n_train} drawn (seed {a.seed}); held-out"
         f" loops: {n_test} analysed of {a.n_test} drawn (seed {a.test_seed}). Loops the"
         " analysis refuses (a record shorter than two cycles) are left out, as the tool"

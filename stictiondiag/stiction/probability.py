@@ -31,8 +31,7 @@ of the classic detection tests is reduced to a handful of well-defined numbers,
     Thornhill (2004) bicoherence and pv-op ellipse; He et al. (2007) triangle versus
     sine fit (the oscillation's shape); Rossi & Scali (2005) relay versus sine fit;
     Kano et al. (2004) stuck sections (pv as the valve's proxy in flow loops).  +1
-    stiction, -1 no stiction, 0 undecided or not applicable.  Computed for every loop
-    but not in the model, which takes the tests' continuous statistics instead (below).
+    stiction, -1 no stiction, 0 undecided or not applicable.
 ``short_record``
     The record holds fewer cycles than the oscillation test needs (1 or 0).
 ``halves_s_low``, ``halves_s_agree``, ``halves_improvement``, ``halves_missing``
@@ -56,11 +55,15 @@ of the classic detection tests is reduced to a handful of well-defined numbers,
     Kano's stuck share, Rossi & Scali's relay-versus-sine score, and the odd
     harmonics and slope kurtosis of pv and op; defined, with their neutral values
     where a test cannot run, in :mod:`stictiondiag.stiction.probability_evidence`.
-    A ternary call throws away how far its statistic lies from the thresholds.
+    Computed for every loop and kept in its record, but not in the model: with them
+    the cross-validated log loss on the simulated training loops was lower, the log
+    loss on the held-out simulated loops was not (``docs/calibration.md``).
 
 Every feature of :data:`CANDIDATES` is computed for each loop; the model uses
-:data:`FEATURES`, the set chosen by cross-validated log loss on the simulated
-training loops (``docs/calibration.md``, "Choice of model").
+:data:`FEATURES` (:data:`PART_FEATURES`), the set that passed the rule of
+``scripts/train_probability.py``: a set ships only if it has the lower log loss on
+the held-out simulated loops by more than simulation can resolve, else the simpler
+set is kept (``docs/calibration.md``, "Choice of model").
 
 The model is fitted on simulated loops only (:mod:`stictiondiag.apps.family`,
 ``scripts/train_probability.py``), separately for loops with and without the valve
@@ -116,18 +119,16 @@ CANDIDATES: tuple[str, ...] = BASE_FEATURES + CONTINUOUS
 #: (``<test>_call``).
 CLASSIC_TESTS = ("horch", "choudhury", "he", "rossi_scali", "kano")
 
-#: The features of the model, in the order of its coefficients: every candidate but
-#: the classic tests' calls, whose statistics the model takes instead (the set with
-#: the lowest cross-validated log loss on the simulated training loops,
-#: ``docs/calibration.md``, "Choice of model").
-FEATURES: tuple[str, ...] = tuple(k for k in CANDIDATES if k not in CLASSIC_TESTS)
+#: The features of the model, in the order of its coefficients: the earlier set.  The
+#: continuous statistics are computed and kept in each loop's record, but a feature set
+#: ships only if it beats the shipped one in log loss on the held-out simulated loops
+#: (not only in cross-validation on the training loops), and the simpler set is kept
+#: when simulation cannot tell two apart; the continuous set did not pass
+#: (``docs/calibration.md``, "Choice of model"; ``scripts/train_probability.py``).
+FEATURES: tuple[str, ...] = BASE_FEATURES
 
-#: The features of each part of the model: :data:`FEATURES` for loops without mv; the
-#: earlier set for loops with mv, whose part the new statistics do not improve (the
-#: lower cross-validated log loss on the training loops with mv; with them, Kano's
-#: stuck share, near 1 for most of the family's healthy valves, pushed a linear valve
-#: with rho = 0 towards stiction, ``docs/calibration.md``).
-PART_FEATURES: dict[str, tuple[str, ...]] = {"op_pv": FEATURES, "mv": BASE_FEATURES}
+#: The features of each part of the model (loops without mv, ``op_pv``; with mv, ``mv``).
+PART_FEATURES: dict[str, tuple[str, ...]] = {"op_pv": BASE_FEATURES, "mv": BASE_FEATURES}
 
 #: The fitted model, written by ``scripts/train_probability.py``.
 MODEL_FILE = Path(__file__).with_name("probability_model.json")
@@ -177,7 +178,7 @@ def evidence_features(
     short_record: bool,
     halves: tuple | None = None,
 ) -> dict:
-    """The features of :data:`FEATURES` for one loop (see module doc).
+    """The features of :data:`CANDIDATES` for one loop (see module doc).
 
     ``halves`` is ``(S_1, S_2, improvement_1, improvement_2)`` of the fits on the two
     halves of the record [% of span, % of span, -, -], or None.
