@@ -19,6 +19,7 @@ from stictiondiag.apps.family import (
     loop_features,
 )
 from stictiondiag.stiction.probability import (
+    BASE_FEATURES,
     CANDIDATES,
     FEATURES,
     MODEL_FILE,
@@ -28,7 +29,7 @@ from stictiondiag.stiction.probability import (
     logistic,
     stiction_probability,
 )
-from stictiondiag.stiction.probability_evidence import NEUTRAL
+from stictiondiag.stiction.probability_evidence import CONTINUOUS, NEUTRAL
 from stictiondiag.stiction.valvefit import StictionFit
 from stictiondiag.stiction.verdict import (
     NO_STICTION_LEVEL,
@@ -154,6 +155,69 @@ def test_cross_validate_per_part_features():
     assert by_tuple < math.log(2.0)  # the first feature carries the label
 
 
+def test_gate_part_follows_the_rule():
+    # The held-out rule on per-loop losses built to known differences: 400 paired
+    # losses whose difference has mean m and standard deviation 0.1 (standard error
+    # 0.005 exactly, by construction), against a margin of 2 standard errors (0.01).
+    train = _train_module()
+    base = np.linspace(0.2, 1.0, 400)
+    noise = 0.1 * np.tile([1.0, -1.0], 200)  # mean 0, std 0.1 (ddof 1: 0.10013)
+
+    def pick(m, n_shipped, n_candidate):
+        return train.gate_part(base, base + m + noise, n_shipped, n_candidate)
+
+    # Lower by 0.02 (4 s.e.): the candidate wins even with more features.
+    assert pick(-0.02, 17, 25)[0] == "candidate"
+    # Higher by 0.02: the shipped set stays even if the candidate is simpler.
+    assert pick(0.02, 17, 10)[0] == "shipped"
+    # Within the margin (0.004 = 0.8 s.e., either sign): the simpler set is kept.
+    assert pick(-0.004, 17, 25)[0] == "shipped"
+    assert pick(0.004, 25, 17)[0] == "candidate"
+    assert pick(-0.004, 17, 17)[0] == "shipped"
+    _, mean, se = pick(-0.02, 17, 25)
+    assert mean == pytest.approx(-0.02, abs=1e-12)
+    assert se == pytest.approx(0.1 * math.sqrt(400 / 399) / 20, rel=1e-9)
+
+
+def _synthetic_rows(n, seed):
+    # Loops whose label follows feature "a" (log-odds 2a); "b" is pure noise.
+    rng = np.random.default_rng(seed)
+    rows = []
+    for i in range(n):
+        a, b = rng.normal(size=2)
+        rows.append(
+            {
+                "sticky": bool(rng.random() < 1 / (1 + math.exp(-2 * a))),
+                "has_mv": i % 4 == 0,
+                "features": {"a": a, "b": b, "oscillating": 1.0},
+            }
+        )
+    return rows
+
+
+def test_held_out_gate_ships_only_what_the_held_out_loops_confirm():
+    # A candidate that adds the informative feature "a" to a shipped set holding only
+    # noise lowers the held-out log loss by far more than 2 standard errors (about
+    # 0.69 -> 0.45 on 600 loops without mv) and ships; a candidate that adds the
+    # noise feature "b" to the informative set is not better on the held-out loops by
+    # the margin (the added weight is near 0), so the simpler set stays.
+    train_mod = _train_module()
+    train, test = _synthetic_rows(1200, 11), _synthetic_rows(800, 12)
+    gate = train_mod.held_out_gate(
+        train, test, {"op_pv": ("b",), "mv": ("b",)}, {"op_pv": ("a", "b"), "mv": ("b",)}
+    )
+    g = gate["parts"]["op_pv"]
+    assert g["pick"] == "candidate" and g["ships"] == ("a", "b")
+    assert g["diff"] < -2 * g["se"] and g["ll"]["shipped"] > 0.6
+    assert gate["parts"]["mv"]["pick"] == "shipped"  # the same set
+    gate = train_mod.held_out_gate(
+        train, test, {"op_pv": ("a",), "mv": ("a",)}, {"op_pv": ("a", "b"), "mv": ("a",)}
+    )
+    g = gate["parts"]["op_pv"]
+    assert g["pick"] == "shipped" and g["ships"] == ("a",)
+    assert g["diff"] > -2 * g["se"]
+
+
 def test_reliability_of_a_calibrated_predictor():
     # y ~ Bernoulli(p) with p uniform: every band of width 0.2 holds ~8000 draws, so
     # its observed frequency has a standard error below 0.006; 0.03 is 5 of them.
@@ -169,6 +233,12 @@ def test_reliability_of_a_calibrated_predictor():
 
 
 def test_packaged_model():
+    # The shipped model is the earlier feature set in both parts, the set that passed
+    # the held-out rule of scripts/train_probability.py; the continuous statistics are
+    # candidates only (computed and kept in the record, below).
+    assert FEATURES == BASE_FEATURES
+    assert PART_FEATURES == {"op_pv": BASE_FEATURES, "mv": BASE_FEATURES}
+    assert not set(CONTINUOUS) & set(FEATURES)
     model = load_model()
     assert tuple(model["features"]) == FEATURES
     assert set(model["parts"]) == {"op_pv", "mv"}
@@ -188,6 +258,8 @@ def test_features_are_those_of_the_analysis():
         loop = family_loop(seed)
         a = analyze(loop.tags(), config=AnalysisConfig(gap=False, replay=False))
         assert a.verdict.evidence["features"] == loop_features(loop)
+        # The continuous statistics stay in the loop's record, though not in the model.
+        assert set(CANDIDATES) <= set(a.verdict.evidence["features"])
 
 
 # --------------------------------------------------------------------------------------

@@ -101,7 +101,8 @@ def test_missing_statistics_take_neutral_values():
 
 
 def test_packaged_model_predicts_probabilities():
-    # The shipped model loads, and any feature vector in the features' ranges gets a
+    # The shipped model (the earlier features; the continuous statistics are candidates
+    # only) loads, and any feature vector in the features' ranges gets a
     # probability strictly inside (0, 1).
     model = load_model()
     assert tuple(model["features"]) == FEATURES
