@@ -714,7 +714,8 @@ def render(a, model, table, ok, p, y, subsets, n_train, n_test, seconds, t_feat,
         "",
         f"Run time: {seconds / 60:.1f} min on {a.workers} worker(s), of which"
         f" {t_feat / 60:.1f} min computing the features of {sum(COMPUTED)} loops not yet"
-        " cached (under `--cache`; a fully cached run takes minutes: the cross-validation). " + MEASURED_RUN,
+        " cached (under `--cache`; a fully cached run takes minutes: the cross-validation). "
+        + MEASURED_RUN,
         f"Training loops: {n_train} analysed of {a.n_train} drawn (seed {a.seed}); held-out"
         f" loops: {n_test} analysed of {a.n_test} drawn (seed {a.test_seed}). Loops the"
         " analysis refuses (a record shorter than two cycles) are left out, as the tool"
