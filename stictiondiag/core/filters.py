@@ -75,18 +75,51 @@ def _fast_length(m: int) -> int:
     return best
 
 
+#: :func:`correlate_lags` splits ``w`` into blocks of at least this many samples ...
+CORRELATE_MIN_BLOCK = 4096
+#: ... and of at least this many times the number of lags asked for [-].
+CORRELATE_BLOCK_LAGS = 4
+
+
 def correlate_lags(v: np.ndarray, w: np.ndarray, max_lag: int) -> np.ndarray:
     """``c[d] = sum_k v[k] w[k - d]`` for ``d = 0 .. max_lag`` (real 1-D inputs).
 
     Equals ``scipy.signal.correlate(v, w, mode="full")[w.size - 1 + d]``; computed,
     like scipy's choice for long signals, by FFT, so both carry rounding errors of
     order ``eps * |v| |w|`` (not relative to each lag's own value).
+
+    Cost: one FFT of ``v.size + w.size`` samples, O(n log n), when the lags asked for
+    span a good part of the signal.  When they are few against the signal (``w``
+    longer than two blocks of ``max(CORRELATE_MIN_BLOCK, CORRELATE_BLOCK_LAGS *
+    (max_lag + 1))`` samples), ``w`` is cut into such blocks and each block
+    correlated, by one batched FFT of about ``block + max_lag`` samples, with the
+    stretch of ``v`` it meets at those lags (overlap-add; the circular correlation
+    does not wrap onto lags ``0 .. max_lag`` because the FFT is at least
+    ``block + max_lag`` long): O(n log max_lag) time, linear in the signal for a
+    fixed number of lags, and O(n) memory.  The block sums differ from the single
+    FFT's only by rounding (smaller: each block's error scales with its own norms).
     """
     v = np.asarray(v, dtype=float)
     w = np.asarray(w, dtype=float)
-    length = _fast_length(v.size + w.size - 1)
-    c = np.fft.irfft(np.fft.rfft(v, length) * np.conj(np.fft.rfft(w, length)), length)
-    return c[: max_lag + 1]
+    max_lag = int(max_lag)
+    block = max(CORRELATE_MIN_BLOCK, CORRELATE_BLOCK_LAGS * (max_lag + 1))
+    if w.size <= 2 * block or max_lag < 0:
+        length = _fast_length(v.size + w.size - 1)
+        c = np.fft.irfft(np.fft.rfft(v, length) * np.conj(np.fft.rfft(w, length)), length)
+        return c[: max_lag + 1]
+    n_blocks = -(-w.size // block)
+    w_blocks = np.zeros(n_blocks * block)
+    w_blocks[: w.size] = w
+    w_blocks = w_blocks.reshape(n_blocks, block)
+    # Block j (w[j B .. j B + B - 1]) meets v[j B .. j B + B - 1 + max_lag].
+    span = block + max_lag
+    v_pad = np.zeros(n_blocks * block + max_lag)
+    m = min(v.size, v_pad.size)
+    v_pad[:m] = v[:m]
+    v_blocks = np.lib.stride_tricks.sliding_window_view(v_pad, span)[::block]
+    length = _fast_length(span)
+    spectra = np.fft.rfft(v_blocks, length, axis=1) * np.conj(np.fft.rfft(w_blocks, length, axis=1))
+    return np.fft.irfft(spectra, length, axis=1)[:, : max_lag + 1].sum(axis=0)
 
 
 def _polyfit_edge(t: np.ndarray, x: np.ndarray, order: int) -> np.ndarray:

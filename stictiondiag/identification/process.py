@@ -74,8 +74,19 @@ DRIFT_PERIODS = 1.0
 DRIFT_RECORD_FRACTION = 0.2
 
 
-#: Longest dead time searched, as a fraction of the record [-].
+#: Longest dead time searched, as a fraction of the search span [-] (the record, or
+#: :data:`SPAN_PERIODS` periods of pv's oscillation when that is shorter).
 MAX_DEAD_TIME_FRACTION = 0.25
+
+
+#: Longest FOPTD time constant searched, in search spans [-].
+MAX_TIME_CONSTANT_SPANS = 20.0
+
+
+#: The search ranges of the dead time and of the time constant are those of a record
+#: of at most this many periods of pv's dominant oscillation [-] (see
+#: :func:`search_span`).
+SPAN_PERIODS = 80.0
 
 
 #: The integrator's differenced fit smooths pv's differences with a first-order lag of
@@ -394,24 +405,26 @@ def _fit_integrating_differenced(u, pv, dt, b, d_max, smooth):
     return d, gain, r2
 
 
-def _oscillation_samples(pv: np.ndarray, dt: float) -> float | None:
-    """pv's dominant period in samples, or None."""
+def _period_s(pv: np.ndarray, dt: float) -> float | None:
+    """pv's dominant period [s], or None.  O(n log n) (the autocorrelation by FFT)."""
     from stictiondiag.signals.oscillation import dominant_period
 
-    period = dominant_period(pv, dt)
-    return None if period is None else period / dt
+    return dominant_period(pv, dt)
 
 
 def drift_pole(pv: np.ndarray, dt: float, drift_time_constant: float | None):
     """Pole ``b`` of the drift high-pass and its time constant [s] (None: no filter)."""
-    if drift_time_constant is None:
-        from stictiondiag.signals.oscillation import dominant_period
+    period = _period_s(pv, dt) if drift_time_constant is None else None
+    return _drift_pole(period, pv.size, dt, drift_time_constant)
 
-        period = dominant_period(pv, dt)
+
+def _drift_pole(period: float | None, n: int, dt: float, drift_time_constant: float | None):
+    """:func:`drift_pole` given pv's dominant period [s] (None: none)."""
+    if drift_time_constant is None:
         if period is not None:
             drift_time_constant = DRIFT_PERIODS * period
         else:
-            drift_time_constant = DRIFT_RECORD_FRACTION * pv.size * dt
+            drift_time_constant = DRIFT_RECORD_FRACTION * n * dt
     T = float(drift_time_constant)
     if math.isnan(T) or T <= 0.0:
         raise UsageError(f"drift_time_constant must be > 0 s (inf: no filter), got {T}")
@@ -420,10 +433,37 @@ def drift_pole(pv: np.ndarray, dt: float, drift_time_constant: float | None):
     return math.exp(-dt / T), T
 
 
+def search_span(n: int, period_samples: float | None) -> int:
+    """Samples the identification's search ranges are scaled on: the record's ``n``,
+    or :data:`SPAN_PERIODS` periods of pv's oscillation when that is shorter.
+
+    The dead time is searched up to :data:`MAX_DEAD_TIME_FRACTION` of the span and
+    the FOPTD time constant up to :data:`MAX_TIME_CONSTANT_SPANS` spans.  Both are
+    time scales of the loop, not of the record: when a loop's own feedback makes it
+    cycle, the phase lag around the loop is 180 degrees at the cycle, and the dead
+    time alone must then stay below half a period (a PI controller and a sticky
+    valve only add lag; Choudhury, Thornhill & Shah 2005, Section 5 on the limit
+    cycle's phase condition), while a dead time ``d + P`` is an alias of ``d`` on
+    periodic data (the module docstring); 20 periods leave room for an oscillation
+    from outside the loop and for a period detected at a harmonic.  A time
+    constant of many periods (1600 at the cap) acts as an integrator on everything
+    the drift-filtered data carry (the high-pass keeps periods up to a few of the
+    cycle's): the fit's cost is flat beyond, and its gain over time constant is what
+    the data determine.  A longer record adds cycles, not longer time scales: with
+    the span capped the search takes a number of O(n) cost evaluations that does
+    not grow with the record.  Without a dominant period the record is the only
+    time scale and the span is ``n``.
+    """
+    if period_samples is None or not math.isfinite(period_samples) or period_samples <= 0:
+        return int(n)
+    return int(min(n, max(SPAN_PERIODS * period_samples, MIN_SAMPLES)))
+
+
 def _checked_inputs(u, pv, dt, integrating, max_dead_time):
     """The arguments of :func:`identify_process` checked: ``(dt, u, pv, d_max)`` with
-    ``d_max`` the longest dead time searched [samples].  Bad input raises
-    :class:`UsageError` or :class:`DataError` with a one-line message."""
+    ``d_max`` the longest dead time asked for [samples] (None: no limit asked).  Bad
+    input raises :class:`UsageError` or :class:`DataError` with a one-line
+    message."""
     dt = check_dt(dt)
     u = as_signal(u, "u")
     pv = as_signal(pv, "pv")
@@ -438,12 +478,12 @@ def _checked_inputs(u, pv, dt, integrating, max_dead_time):
         raise DataError("the process input is constant: the process cannot be identified")
     if integrating not in (None, True, False):
         raise UsageError(f"integrating must be True, False or None, got {integrating!r}")
-    d_max = int(MAX_DEAD_TIME_FRACTION * n)
+    d_max = None
     if max_dead_time is not None:
         if not (math.isfinite(max_dead_time) and max_dead_time >= 0):
             raise UsageError(f"max_dead_time must be >= 0 s, got {max_dead_time}")
-        d_max = min(d_max, int(max_dead_time / dt))
-    return dt, u, pv, max(d_max, 0)
+        d_max = max(int(max_dead_time / dt), 0)
+    return dt, u, pv, d_max
 
 
 def _chosen_structure(results: dict, integrating: bool | None) -> str:
@@ -458,13 +498,12 @@ def _chosen_structure(results: dict, integrating: bool | None) -> str:
     return "integrating" if integrating else "foptd"
 
 
-def _refit_integrating_differenced(result, uc, pc, pv, dt, b, d_max, drift_time_constant):
+def _refit_integrating_differenced(result, uc, pc, period, dt, b, d_max, drift_time_constant):
     """Replace the integrator's fit in ``result`` by the fit to pv's differences
     (:func:`_fit_integrating_differenced`) where that fit finds a response; the
     replay then starts from the operating point of the record's first cycles
-    (``window`` [samples])."""
-    n = pv.size
-    period = _oscillation_samples(pv, dt)
+    (``window`` [samples]).  ``period``: pv's dominant period [samples] or None."""
+    n = pc.size
     smooth = math.exp(-1.0 / max(1.0, (period or 100.0) / SMOOTH_PER_PERIOD))
     b_diff = b
     if drift_time_constant is None and period is not None:
@@ -516,7 +555,9 @@ def identify_process(
     integrating : bool or None
         Force the integrating (True) or FOPTD (False) structure; None chooses by fit.
     max_dead_time : float, optional
-        Longest dead time searched [s]; default a quarter of the record.
+        Longest dead time searched [s]; default a quarter of the search span
+        (:func:`search_span`: the record, or :data:`SPAN_PERIODS` periods of pv's
+        oscillation when that is shorter).
     drift_time_constant : float, optional
         Time constant of the high-pass applied to model and data before they are
         compared [s]: slow drifts of plant data (unmeasured disturbances) then do not
@@ -529,16 +570,30 @@ def identify_process(
     -------
     ProcessFit
         The process, biases and fit measures.  Dead time is a whole number of
-        samples; the FOPTD time constant is searched in [0.2 dt, 20 x record].
+        samples; the FOPTD time constant is searched in [0.2 dt, 20 x span].
+
+    Notes
+    -----
+    Cost O(n log n) for pv's period, then O(n) per cost evaluation: 25 delay scans
+    (each O(n log d_max), :func:`stictiondiag.core.filters.correlate_lags` in
+    blocks) and a few tens of output-error fits (:func:`_foptd_oe`, O(n) each).  The
+    number of evaluations depends on the search ranges, which :func:`search_span`
+    bounds by the loop's period: for a cycling loop it does not grow with the record,
+    so the fit is O(n log n) (the FFTs), in practice linear.  Memory O(n).
     """
-    dt, u, pv, d_max = _checked_inputs(u, pv, dt, integrating, max_dead_time)
+    dt, u, pv, d_asked = _checked_inputs(u, pv, dt, integrating, max_dead_time)
     n = u.size
-    b, drift_T = drift_pole(pv, dt, drift_time_constant)
+    period_s = _period_s(pv, dt)
+    period = None if period_s is None else period_s / dt
+    span = search_span(n, period)
+    d_max = int(MAX_DEAD_TIME_FRACTION * span)
+    if d_asked is not None:
+        d_max = min(d_max, d_asked)
+    b, drift_T = _drift_pole(period_s, n, dt, drift_time_constant)
     # Centre the signals: the normal equations are then well conditioned.
     uc = u - u.mean()
     pc = pv - pv.mean()
     y_f = _highpass(pc, b)
-    record = n * dt
     sst_dy = float(np.sum((np.diff(pc) - np.diff(pc).mean()) ** 2)) or 1e-300
 
     def r2_of(mse: float, d: int) -> float:
@@ -546,7 +601,8 @@ def identify_process(
 
     results: dict[str, dict] = {}
     if integrating in (None, False):
-        d, tau, gain, mse = _fit_foptd(uc, y_f, dt, b, d_max, 20.0 * record)
+        tau_max = MAX_TIME_CONSTANT_SPANS * span * dt
+        d, tau, gain, mse = _fit_foptd(uc, y_f, dt, b, d_max, tau_max)
         results["foptd"] = dict(d=d, tau=tau, gain=gain, r2=r2_of(mse, d))
     if integrating in (None, True):
         d, gain, ub_c, mse = _fit_integrating(uc, y_f, dt, b, d_max)
@@ -558,7 +614,7 @@ def identify_process(
         # that wander does not bias.  Where the level fit holds it is kept: it is the
         # more efficient of the two under measurement noise.
         _refit_integrating_differenced(
-            results["integrating"], uc, pc, pv, dt, b, d_max, drift_time_constant
+            results["integrating"], uc, pc, period, dt, b, d_max, drift_time_constant
         )
     p = results[chosen]
     d = p["d"]
