@@ -81,6 +81,23 @@ def test_correlate_lags_matches_scipy_correlate(n):
     )
 
 
+@pytest.mark.parametrize(
+    "n_v,n_w,max_lag", [(30_000, 30_000, 50), (30_000, 20_000, 7), (15_000, 20_000, 1200)]
+)
+def test_correlate_lags_in_blocks_matches_scipy_correlate(n_v, n_w, max_lag):
+    # Few lags against a long w: correlated block by block (overlap-add), here 3-5
+    # blocks with a partial last one, and v longer or shorter than w.  The block
+    # sums round like one FFT or better: the same tolerance.
+    rng = np.random.default_rng(n_v + max_lag)
+    v, w = rng.standard_normal(n_v).cumsum(), rng.standard_normal(n_w)
+    expected = signal.correlate(v, w, mode="full", method="fft")[(n_w - 1) + np.arange(max_lag + 1)]
+    got = correlate_lags(v, w, max_lag)
+    assert got.shape == (max_lag + 1,)
+    np.testing.assert_allclose(
+        got, expected, rtol=0.0, atol=RTOL * np.linalg.norm(v) * np.linalg.norm(w)
+    )
+
+
 @pytest.mark.parametrize("window,order", [(5, 3), (11, 3), (101, 3), (8, 2), (31, 0), (9, 5)])
 def test_savgol_smooth_matches_scipy_savgol_filter(window, order):
     rng = np.random.default_rng(window)

@@ -21,7 +21,13 @@ from stictiondiag.identification.controller import (
     identify_controller,
     saturated_samples,
 )
-from stictiondiag.identification.process import identify_process, process_fit
+from stictiondiag.identification.process import (
+    MAX_DEAD_TIME_FRACTION,
+    SPAN_PERIODS,
+    identify_process,
+    process_fit,
+    search_span,
+)
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import (
     FOPTD,
@@ -440,3 +446,69 @@ def test_controller_quantised_pv_with_small_filter():
     assert fit.controller.gain == pytest.approx(kc, rel=0.03)
     assert fit.controller.integral_time == pytest.approx(ti, rel=0.03)
     assert fit.pv_filter_time == 0.0
+
+
+# ------------------------------------------------------------------ growth with length
+
+
+def test_process_search_span_is_the_record_or_80_periods():
+    assert search_span(5000, 100.0) == 5000  # 50 periods: the record
+    assert search_span(50_000, 100.0) == int(SPAN_PERIODS * 100.0)
+    assert search_span(50_000, None) == 50_000  # no cycle: no other time scale
+
+
+def test_process_search_ranges_follow_the_cycle_not_the_record(monkeypatch):
+    """Issue 19: on a record of many cycles the dead time and the time constant are
+    searched over the ranges of 80 periods of the cycle, not of the record, so a
+    record four times as long takes no more cost evaluations (each O(n)) and gives
+    the same process.  The loop of benchmarks/scaling.py (concentration loop at
+    1 s, period about 140 s: 20 000 samples are 140 periods).  Tolerances: the
+    ranges are those of the detected period, which moves by well under 1 % between
+    the two records (1 %); the fits of the two records differ by their noise
+    (measured 2e-5 on the gain and 2.4e-4 on the time constant; 1e-3); evaluations: the walk along
+    the dead time may take one more step (at most 10 more evaluations; the record's
+    range took twice as many at 500 000 samples as at 50 000).
+    """
+    import stictiondiag.identification.process as proc
+
+    sim = simulate_loop(
+        CONC["process"],
+        CONC["controller"],
+        duration=80_500.0,
+        dt=1.0,
+        S=5.0,
+        J=2.0,
+        noise_std=0.05,
+        seed=11,
+    )
+    ranges: list[tuple[int, float]] = []
+    calls = [0]
+    fit_foptd, foptd_oe = proc._fit_foptd, proc._foptd_oe
+
+    def spy_fit(u, y_f, dt, b, d_max, tau_max):
+        ranges.append((d_max, tau_max))
+        return fit_foptd(u, y_f, dt, b, d_max, tau_max)
+
+    def spy_oe(*args):
+        calls[0] += 1
+        return foptd_oe(*args)
+
+    monkeypatch.setattr(proc, "_fit_foptd", spy_fit)
+    monkeypatch.setattr(proc, "_foptd_oe", spy_oe)
+    fits, counts = [], []
+    for n in (20_000, 80_000):
+        calls[0] = 0
+        fits.append(
+            identify_process(sim.mv[500 : 500 + n], sim.pv[500 : 500 + n], 1.0, integrating=False)
+        )
+        counts.append(calls[0])
+    (d_short, tau_short), (d_long, tau_long) = ranges
+    assert 100 < d_short / (MAX_DEAD_TIME_FRACTION * SPAN_PERIODS) < 200  # a period
+    assert d_long == pytest.approx(d_short, rel=0.01)
+    assert tau_long == pytest.approx(tau_short, rel=0.01)
+    assert d_short < MAX_DEAD_TIME_FRACTION * 20_000 and tau_short < 20.0 * 20_000
+    assert counts[1] <= counts[0] + 10
+    short, long = fits
+    assert long.dead_time_samples == short.dead_time_samples == 10
+    assert long.process.gain == pytest.approx(short.process.gain, rel=1e-3)
+    assert long.process.time_constant == pytest.approx(short.process.time_constant, rel=1e-3)

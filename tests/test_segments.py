@@ -12,6 +12,8 @@ from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import LOOP_PARAMETERS
 from stictiondiag.models.valve import choudhury_model
 from stictiondiag.stiction.segments import (
+    BOOTSTRAP_CHUNK_VALUES,
+    _median_ci,
     estimate_from_mv,
     quantum,
     segment_valve,
@@ -209,3 +211,17 @@ def test_play_variant_band_below_play_width_is_the_raw_flowchart():
     at_zero = C_all[(S_all == 0) & (J_all == 0)]
     assert at_zero.size and float(at_zero.min()) == pytest.approx(0.0, abs=1e-9)
     assert S_ls < v.play_width
+
+
+@pytest.mark.parametrize("m", [12, 700, 3001])
+def test_median_ci_in_chunks_is_the_one_draw_bootstrap(m):
+    # Issue 19: the bootstrap draws its resamples chunk by chunk (a few rows for
+    # thousands of slips) from the one generator; the interval is that of drawing
+    # all n_boot x m indices at once, to the bit (the same stream in the same order).
+    # 12 slips take one chunk, 700 and 3001 several, the last one partial.
+    assert 2000 * 12 <= BOOTSTRAP_CHUNK_VALUES < 2000 * 700
+    x = np.random.default_rng(m).standard_normal(m)
+    rng = np.random.default_rng(0)
+    med = np.median(x[rng.integers(0, m, size=(2000, m))], axis=1)
+    expected = tuple(float(v) for v in np.percentile(med, [2.5, 97.5]))
+    assert _median_ci(x) == expected
