@@ -166,8 +166,8 @@ class ProcessFit:
             )
         a = math.exp(-dt / self.process.time_constant)
         z = _lag_response(u, d, a)
-        k = np.arange(u.size)
-        return self.pv_bias + self.process.gain * (z - self.u_bias) + self.initial_deviation * a**k
+        free = self.initial_deviation * _powers(a, 0, u.size)
+        return self.pv_bias + self.process.gain * (z - self.u_bias) + free
 
     def to_dict(self) -> dict:
         """JSON-able dict: the process parameters plus biases and fit measures."""
@@ -187,6 +187,30 @@ class ProcessFit:
             }
         )
         return out
+
+
+#: ``a^k`` with ``k ln a < UNDERFLOW_LOG`` is below 2^-1080, a 64th of the smallest
+#: subnormal double: it rounds to 0 [-].
+UNDERFLOW_LOG = -1080.0 * math.log(2.0)
+
+
+def _powers(a: float, start: int, stop: int) -> np.ndarray:
+    """``a ** np.arange(start, stop)``, the same numbers, for a pole ``0 <= a <= 1``.
+
+    Powers far below the smallest subnormal are zero whatever the rounding and are
+    not computed: pow's underflow path costs ten times its normal one, and the
+    free responses of a fast pole (``a^k`` for a time constant of a few samples)
+    underflow after a few thousand samples, so on a long record almost every
+    power took that path.  O(n), about 5 ns per computed power.
+    """
+    k = np.arange(start, stop)
+    if not 0.0 < a < 1.0:
+        return a**k
+    last = math.ceil(UNDERFLOW_LOG / math.log(a))  # a^k == 0 from k = last on
+    m = min(max(last - start, 0), k.size)
+    out = np.zeros(k.size)
+    out[:m] = a ** k[:m]
+    return out
 
 
 def _lag_response(u: np.ndarray, d: int, a: float) -> np.ndarray:
@@ -241,15 +265,21 @@ def _foptd_oe(u: np.ndarray, y_f: np.ndarray, d: int, a: float, b: float):
     Returns the mean squared error and the coefficients.
     """
     n = u.size
-    k = np.arange(d + 1, n)
+    rows = slice(d + 1, n)
     X = np.column_stack(
-        [_highpass(_lag_response(u, d, a), b)[k], _highpass(a ** np.arange(n), b)[k], b**k]
+        [
+            _highpass(_lag_response(u, d, a), b)[rows],
+            _highpass(_powers(a, 0, n), b)[rows],
+            _powers(b, d + 1, n),
+        ]
     )
     A = X.T @ X
+    m = n - d - 1
     # Free responses vanish for fast poles: a tiny ridge keeps the solve regular.
-    A[1, 1] += 1e-12 * k.size
-    A[2, 2] += 1e-12 * k.size
-    mse, coef = _solve_normal(A, X.T @ y_f[k], float(y_f[k] @ y_f[k]), k.size)
+    A[1, 1] += 1e-12 * m
+    A[2, 2] += 1e-12 * m
+    y = y_f[rows]
+    mse, coef = _solve_normal(A, X.T @ y, float(y @ y), m)
     return float(mse), coef
 
 
@@ -268,7 +298,7 @@ def _delay_scan(w: np.ndarray, r: np.ndarray, y_f: np.ndarray, b: float, d_max: 
     """
     n = w.size
     dd = np.arange(d_max + 1)
-    q = b ** np.arange(n)
+    q = _powers(b, 0, n)
     first = dd + 1  # rows k = d+1 .. n-1
     top = n - dd  # w[1 .. n-1-d] appear
     cww, cwq = _prefix(w * w), _prefix(w * q)
@@ -291,8 +321,8 @@ def _delay_scan(w: np.ndarray, r: np.ndarray, y_f: np.ndarray, b: float, d_max: 
 
 def _oe_delay_scan(u: np.ndarray, y_f: np.ndarray, a: float, b: float, d_max: int):
     """:func:`_foptd_oe` for every dead time 0..d_max at a fixed pole (vectorised)."""
-    k = np.arange(u.size)
-    return _delay_scan(_highpass(_lag_response(u, 0, a), b), _highpass(a**k, b), y_f, b, d_max)
+    w = _highpass(_lag_response(u, 0, a), b)
+    return _delay_scan(w, _highpass(_powers(a, 0, u.size), b), y_f, b, d_max)
 
 
 def _fit_foptd(u, y_f, dt, b, d_max, tau_max):
@@ -354,12 +384,16 @@ def _integrating_oe(u, y_f, dt, d, b):
     (high-passed) ``dt sum u`` (gain) and ``dt k`` (minus gain x balance input), and
     the filter's free response ``b^k``; rows ``k > d``."""
     n = u.size
-    k = np.arange(d + 1, n)
+    rows = slice(d + 1, n)
     cols = _integrating_regressors(u, d, dt)
-    X = np.column_stack([_highpass(cols[:, 1], b)[k], _highpass(cols[:, 2], b)[k], b**k])
+    X = np.column_stack(
+        [_highpass(cols[:, 1], b)[rows], _highpass(cols[:, 2], b)[rows], _powers(b, d + 1, n)]
+    )
     A = X.T @ X
-    A[2, 2] += 1e-12 * k.size
-    mse, coef = _solve_normal(A, X.T @ y_f[k], float(y_f[k] @ y_f[k]), k.size)
+    m = n - d - 1
+    A[2, 2] += 1e-12 * m
+    y = y_f[rows]
+    mse, coef = _solve_normal(A, X.T @ y, float(y @ y), m)
     return float(mse), coef
 
 
@@ -655,7 +689,8 @@ def _biases(process, u, pv, dt, d, *, u_bias=None) -> ProcessFit:
     a = math.exp(-dt / float(process.time_constant))
     u_bias = float(u.mean())
     target = pv[k] - gain * (_lag_response(u, d, a)[k] - u_bias)
-    coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(k.size), a**k]), target, rcond=None)
+    free = _powers(a, d + 1, u.size)
+    coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(k.size), free]), target, rcond=None)
     return ProcessFit(process, u_bias, float(coef[0]), float(coef[1]), math.nan, math.nan, False, d)
 
 
