@@ -229,13 +229,20 @@ def identify_controller(
 TRIM_KEEP_REGRESSOR = 0.1
 
 
-def _loses_regressor(X: np.ndarray, keep: np.ndarray, inlier: np.ndarray) -> bool:
+def _active_rows(X: np.ndarray) -> np.ndarray:
+    """Rows where each column of ``X`` is not zero (beyond rounding), column-major
+    (one contiguous row mask per column)."""
+    magnitude = np.abs(X)
+    return np.ascontiguousarray((magnitude > 1e-12 * np.max(magnitude, axis=0)).T)
+
+
+def _loses_regressor(active: np.ndarray, keep: np.ndarray, inlier: np.ndarray) -> bool:
     """Whether going from the rows ``keep`` to ``inlier`` keeps less than
     :data:`TRIM_KEEP_REGRESSOR` of the rows where a column of ``X`` is not zero
-    (a quantised pv: the error changes at its steps only)."""
-    active = np.abs(X) > 1e-12 * np.max(np.abs(X), axis=0)
-    total = active[keep].sum(axis=0)
-    kept = active[inlier].sum(axis=0)
+    (``active``, :func:`_active_rows`; a quantised pv: the error changes at its steps
+    only).  O(n) per column, no copies of ``X``."""
+    total = np.array([np.count_nonzero(col & keep) for col in active])
+    kept = np.array([np.count_nonzero(col & inlier) for col in active])
     return bool(np.any((total > 0) & (kept < TRIM_KEEP_REGRESSOR * total)))
 
 
@@ -271,6 +278,7 @@ def _identify_pi(sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: floa
     if np.ptp(ek) == 0.0 and np.ptp(de) == 0.0:
         raise DataError("the control error is constant: pv and sp carry no information")
     X = np.column_stack([de, ek])
+    active = _active_rows(X)
     keep = np.ones(dop.size, dtype=bool)
     floor = 1e-9 * max(float(np.std(dop)), 1e-300)
     for _ in range(TRIM_ROUNDS):
@@ -284,7 +292,7 @@ def _identify_pi(sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: floa
         # A quantised pv changes at a few samples only, where a small pv filter of
         # the controller leaves the largest residuals: trimming them would leave
         # the proportional term nothing to be fitted on (Kc = 0, no PI law).
-        if _loses_regressor(X, keep, inlier):
+        if _loses_regressor(active, keep, inlier):
             break
         keep = inlier
     coef, t_int, _ = _lstsq_t(X[keep], dop[keep])
