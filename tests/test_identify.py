@@ -512,3 +512,36 @@ def test_process_search_ranges_follow_the_cycle_not_the_record(monkeypatch):
     assert long.dead_time_samples == short.dead_time_samples == 10
     assert long.process.gain == pytest.approx(short.process.gain, rel=1e-3)
     assert long.process.time_constant == pytest.approx(short.process.time_constant, rel=1e-3)
+
+
+def test_loop_type_lag_at_the_top_of_the_range_is_an_integrator(monkeypatch):
+    """The level loop (Table 3) with mv: the self-regulating fit's time constant runs
+    past the record, so the process is integrating.  On a record of thousands of
+    cycles the time constant is searched up to 1600 periods only, shorter than the
+    record; a fit at the top of that range is read the same way.  Shown here with
+    the span cut to 2 periods (time constants up to 40 periods, 320 s, against a
+    record of 600 s): without the top-of-range rule the two fits are alike and the
+    loop was left undecided."""
+    import stictiondiag.identification.process as proc
+    from stictiondiag.identification.looptype import infer_integrating
+    from stictiondiag.io.tags import Tags
+
+    sim = simulate_loop(
+        LEVEL["process"],
+        LEVEL["controller"],
+        duration=650.0,
+        dt=DT,
+        S=3.0,
+        J=3.0,
+        noise_std=0.01,
+        seed=3,
+        op_bias=40.0,
+        pv_bias=10.0,
+    )
+    k = slice(500, None)
+    tags = Tags.from_arrays(sim.pv[k], sim.op[k], mv=sim.mv[k], sp=sim.sp[k], ts=DT)
+    decided, why = infer_integrating(tags)
+    assert decided is True and "exceeds the record" in why
+    monkeypatch.setattr(proc, "SPAN_PERIODS", 2.0)
+    decided, why = infer_integrating(tags)
+    assert decided is True and "top of the range searched" in why

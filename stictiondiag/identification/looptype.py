@@ -17,7 +17,10 @@ principles choose:
    only one structure is consistent, it is chosen.
 2. **A lag slower than the record is an integrator.**  ``K/(tau s + 1)`` with
    ``tau`` beyond the record acts as ``(K/tau)/s`` over it (both fit alike): with mv
-   recorded, the process is taken as integrating.
+   recorded, the process is taken as integrating.  On a record of thousands of
+   cycles the fit searches time constants up to 1600 periods of the cycle only
+   (:func:`stictiondiag.identification.process.search_span`); a lag at the top of
+   that range (within :data:`TOP_OF_RANGE`) counts as slower than the record.
 3. **pv's rate follows mv, or pv's level does.**  With mv recorded, the structure
    that explains clearly more of pv (R^2 higher by :data:`R2_MARGIN`) is chosen.
 
@@ -57,6 +60,11 @@ __all__ = ["R2_MARGIN", "infer_integrating", "settle_loop_type"]
 R2_MARGIN = 0.10
 
 
+#: A fitted time constant within this fraction of the longest one searched counts as
+#: at the top of the range [-] (the bounded search stops within 1e-4 of it in log tau).
+TOP_OF_RANGE = 0.01
+
+
 def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
     """Whether the data say the process integrates (None: they cannot tell), and why.
 
@@ -71,7 +79,11 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
         The decision and a one-line reason.
     """
     from stictiondiag.identification.controller import identify_controller
-    from stictiondiag.identification.process import FOPTD, identify_process
+    from stictiondiag.identification.process import (
+        FOPTD,
+        identify_process,
+        longest_time_constant,
+    )
     from stictiondiag.signals.oscillation import detect_oscillation
 
     has_mv = tags.mv is not None
@@ -109,10 +121,18 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
         )
     if len(consistent) < 2:
         return None, "no structure closes a negative feedback loop with the identified controller"
-    if has_mv and lag >= tags.duration:
+    slow = tags.duration
+    if has_mv and math.isfinite(lag):
+        slow = min(slow, (1.0 - TOP_OF_RANGE) * longest_time_constant(tags.pv, dt))
+    if has_mv and lag >= slow:
+        beyond = (
+            f"exceeds the record ({tags.duration:.3g} s)"
+            if lag >= tags.duration
+            else f"is at the top of the range searched ({slow:.3g} s, a record of thousands of cycles)"
+        )
         return True, (
-            f"the self-regulating fit's time constant ({lag:.3g} s) exceeds the record "
-            f"({tags.duration:.3g} s): over it the process is an integrator ({what} -> pv)"
+            f"the self-regulating fit's time constant ({lag:.3g} s) {beyond}: "
+            f"over it the process is an integrator ({what} -> pv)"
         )
     gap = fits[True][1] - fits[False][1]
     if has_mv and abs(gap) >= R2_MARGIN:

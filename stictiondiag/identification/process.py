@@ -493,6 +493,14 @@ def search_span(n: int, period_samples: float | None) -> int:
     return int(min(n, max(SPAN_PERIODS * period_samples, MIN_SAMPLES)))
 
 
+def longest_time_constant(pv: np.ndarray, dt: float) -> float:
+    """Longest FOPTD time constant :func:`identify_process` searches for ``pv`` [s]:
+    :data:`MAX_TIME_CONSTANT_SPANS` search spans (:func:`search_span`).  O(n log n)."""
+    period = _period_s(pv, dt)
+    span = search_span(pv.size, None if period is None else period / dt)
+    return MAX_TIME_CONSTANT_SPANS * span * dt
+
+
 def _checked_inputs(u, pv, dt, integrating, max_dead_time):
     """The arguments of :func:`identify_process` checked: ``(dt, u, pv, d_max)`` with
     ``d_max`` the longest dead time asked for [samples] (None: no limit asked).  Bad
