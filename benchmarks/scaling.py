@@ -4,8 +4,9 @@ The loop is the concentration loop of Eq. 3 / Table 3 (Choudhury, Thornhill & Sh
 2005) at 1 s, S = 5 %, J = 2 %, measurement noise 0.05: the loop of
 ``benchmarks/bench_analyze.py``, simulated for 10^4 .. 10^7 samples and written as
 Parquet (a CSV of 10^7 rows takes longer to write than the analysis runs).  Each
-record is analysed the way ``stiction analyze FILE`` does it (read, oscillation,
-S and J, verdict, replay, the compensation study where the checkout has it and,
+record is analysed the way ``stiction analyze FILE`` does it (read, the loop type
+from the data, oscillation, S and J, verdict, replay, the compensation study where
+the checkout has it and,
 with ``--gap``, the sim-to-real gap; no figures), in a fresh process per size that first analyses a 5000-sample loop so that the loading
 of numba's cache is not counted.
 
@@ -26,7 +27,7 @@ Usage::
 
     python benchmarks/scaling.py                        # 1e4 1e5 1e6, both variants
     python benchmarks/scaling.py --sizes 5e4 5e5 --variants mv --ratio
-    python benchmarks/scaling.py --sizes 1e7 --variants mv --no-memory
+    python benchmarks/scaling.py --sizes 1e7 --variants nomv --no-memory
 
 Run another checkout's code with ``PYTHONPATH=/path/to/checkout python
 benchmarks/scaling.py``; the children inherit the environment.
@@ -47,6 +48,7 @@ from pathlib import Path
 #: it calls (name in ``stictiondiag.analysis`` -> step).
 STEPS = {
     "read_tags": "read",
+    "settle_loop_type": "loop type",
     "find_oscillations": "oscillation",
     "estimate_stiction": "fit",
     "stiction_verdict": "verdict",
