@@ -23,6 +23,7 @@ from stictiondiag.identification.controller import (
 )
 from stictiondiag.identification.process import (
     MAX_DEAD_TIME_FRACTION,
+    MIN_SPAN_SAMPLES,
     SPAN_PERIODS,
     identify_process,
     process_fit,
@@ -452,9 +453,12 @@ def test_controller_quantised_pv_with_small_filter():
 
 
 def test_process_search_span_is_the_record_or_80_periods():
-    assert search_span(5000, 100.0) == 5000  # 50 periods: the record
-    assert search_span(50_000, 100.0) == int(SPAN_PERIODS * 100.0)
+    assert search_span(15_000, 200.0) == 15_000  # 75 periods: the record
+    assert search_span(50_000, 200.0) == int(SPAN_PERIODS * 200.0)
     assert search_span(50_000, None) == 50_000  # no cycle: no other time scale
+    # A short period (noise, a harmonic) does not cut the ranges below 10 000 samples.
+    assert search_span(50_000, 4.0) == MIN_SPAN_SAMPLES
+    assert search_span(8000, 4.0) == 8000
 
 
 def test_process_search_ranges_follow_the_cycle_not_the_record(monkeypatch):
@@ -519,7 +523,7 @@ def test_loop_type_lag_at_the_top_of_the_range_is_an_integrator(monkeypatch):
     past the record, so the process is integrating.  On a record of thousands of
     cycles the time constant is searched up to 1600 periods only, shorter than the
     record; a fit at the top of that range is read the same way.  Shown here with
-    the span cut to 2 periods (time constants up to 40 periods, 320 s, against a
+    the span cut to 2 periods and no floor (time constants up to 40 periods, 320 s, against a
     record of 600 s): without the top-of-range rule the two fits are alike and the
     loop was left undecided."""
     import stictiondiag.identification.process as proc
@@ -543,5 +547,6 @@ def test_loop_type_lag_at_the_top_of_the_range_is_an_integrator(monkeypatch):
     decided, why = infer_integrating(tags)
     assert decided is True and "exceeds the record" in why
     monkeypatch.setattr(proc, "SPAN_PERIODS", 2.0)
+    monkeypatch.setattr(proc, "MIN_SPAN_SAMPLES", 0)
     decided, why = infer_integrating(tags)
     assert decided is True and "top of the range searched" in why

@@ -85,8 +85,12 @@ MAX_TIME_CONSTANT_SPANS = 20.0
 
 #: The search ranges of the dead time and of the time constant are those of a record
 #: of at most this many periods of pv's dominant oscillation [-] (see
-#: :func:`search_span`).
+#: :func:`search_span`) ...
 SPAN_PERIODS = 80.0
+
+
+#: ... and of at least this many samples [samples].
+MIN_SPAN_SAMPLES = 10_000
 
 
 #: The integrator's differenced fit smooths pv's differences with a first-order lag of
@@ -469,7 +473,8 @@ def _drift_pole(period: float | None, n: int, dt: float, drift_time_constant: fl
 
 def search_span(n: int, period_samples: float | None) -> int:
     """Samples the identification's search ranges are scaled on: the record's ``n``,
-    or :data:`SPAN_PERIODS` periods of pv's oscillation when that is shorter.
+    or :data:`SPAN_PERIODS` periods of pv's oscillation when that is shorter, but
+    not less than :data:`MIN_SPAN_SAMPLES`.
 
     The dead time is searched up to :data:`MAX_DEAD_TIME_FRACTION` of the span and
     the FOPTD time constant up to :data:`MAX_TIME_CONSTANT_SPANS` spans.  Both are
@@ -486,11 +491,16 @@ def search_span(n: int, period_samples: float | None) -> int:
     the data determine.  A longer record adds cycles, not longer time scales: with
     the span capped the search takes a number of O(n) cost evaluations that does
     not grow with the record.  Without a dominant period the record is the only
-    time scale and the span is ``n``.
+    time scale and the span is ``n``.  The floor of :data:`MIN_SPAN_SAMPLES`
+    guards against a period found on noise or at a harmonic of a loop that does
+    not cycle (the period is not checked for regularity here): records of up to
+    that length, the length the identification was designed and tested on (plant
+    records of hours to days, the accuracy benchmark's 3000-10 000 samples), are
+    searched over the record's ranges, as before the cap.  O(1).
     """
     if period_samples is None or not math.isfinite(period_samples) or period_samples <= 0:
         return int(n)
-    return int(min(n, max(SPAN_PERIODS * period_samples, MIN_SAMPLES)))
+    return int(min(n, max(SPAN_PERIODS * period_samples, MIN_SPAN_SAMPLES)))
 
 
 def longest_time_constant(pv: np.ndarray, dt: float) -> float:
