@@ -189,6 +189,9 @@ def identify_controller(
     the filter's time constant [s]; None or 0 means no filter.  A filter the
     controller applies and the fit ignores biases ``Kc`` and ``Ti`` badly (the
     filtered error lags the recorded one).  See :func:`_identify_pi` for the law.
+
+    Cost O(n): one fit per filter of the grid (12 with ``"auto"``), each at most
+    :data:`TRIM_ROUNDS` least-squares fits and medians of the record's residuals.
     """
     dt = check_dt(dt)
     pv = as_signal(pv, "pv")

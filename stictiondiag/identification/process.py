@@ -266,7 +266,8 @@ def _foptd_oe(u: np.ndarray, y_f: np.ndarray, d: int, a: float, b: float):
     gain) and the free response ``a^k`` (the initial state); plus ``b^k``, the
     filter's own free response, which carries whatever the rows ``k <= d`` (where pv
     answers to inputs from before the record) leave in the filter.  Rows ``k > d``.
-    Returns the mean squared error and the coefficients.
+    Returns the mean squared error and the coefficients.  O(n): a few passes over
+    the record.
     """
     n = u.size
     rows = slice(d + 1, n)
@@ -299,6 +300,8 @@ def _delay_scan(w: np.ndarray, r: np.ndarray, y_f: np.ndarray, b: float, d_max: 
     the response, and the high-pass started at rest keeps the shift), ``r[k]`` (a
     delay-free column) and ``b^k`` (the filter's free response).  The normal
     equations come from prefix sums and two correlations for all delays at once.
+    O(n log d_max) (the correlations, :func:`correlate_lags`) plus O(d_max) 3 x 3
+    solves; O(n) memory.
     """
     n = w.size
     dd = np.arange(d_max + 1)
@@ -332,7 +335,14 @@ def _oe_delay_scan(u: np.ndarray, y_f: np.ndarray, a: float, b: float, d_max: in
 def _fit_foptd(u, y_f, dt, b, d_max, tau_max):
     """Filtered output-error FOPTD fit: a coarse grid over the time constant with every
     dead time (vectorised), then a walk along the dead time with the time constant
-    refined at each step.  Returns (dead time [samples], tau [s], gain, mse)."""
+    refined at each step.  Returns (dead time [samples], tau [s], gain, mse).
+
+    Cost: 25 delay scans (:func:`_delay_scan`, O(n log d_max) each) and about ten
+    O(n) output-error fits per bounded search of the time constant, one search per
+    step of the walk.  With ``d_max`` and ``tau_max`` from :func:`search_span` (the
+    loop's period, not the record) the grid's spacing and so the walk's length do
+    not grow with the record: O(n log d_max) in all.
+    """
     log_lo, log_hi = math.log(0.2 * dt), math.log(tau_max)
 
     def mse(d: int, log_tau: float) -> float:
@@ -404,7 +414,7 @@ def _integrating_oe(u, y_f, dt, d, b):
 def _fit_integrating(u, y_f, dt, b, d_max):
     """Filtered output-error integrator fit; every dead time at once (the model is
     linear in its parameters, so the scan is exact).  Returns (dead time, gain,
-    balance input, mse)."""
+    balance input, mse).  O(n log d_max): one delay scan and one fit."""
     # With the input shifted to start at zero the integrated input for dead time d is
     # the one for no dead time shifted by d; the shift moves into the balance input.
     cols = _integrating_regressors(u - u[0], 0, dt)
@@ -426,6 +436,7 @@ def _fit_integrating_differenced(u, pv, dt, b, d_max, smooth):
     lag ``smooth`` (against the noise that differencing amplifies): the relation is
     linear, so the filters leave the gain unchanged.  Every dead time is scanned at
     once.  Returns (dead time, gain, R^2 of the filtered differences).
+    O(n log d_max).
     """
     dy = np.diff(pv)
     x = u[:-1] - u[0]

@@ -500,7 +500,10 @@ def _replay_models(
 ) -> tuple[ControllerFit, ProcessFit, list[str]]:
     """Steps 1 and 2: the PI controller from sp, pv, op and the process from the
     valve position to pv (given, completed from the data, or identified), with
-    notes on a poor identification or inconsistent signs."""
+    notes on a poor identification or inconsistent signs.  O(n log n): the
+    controller is O(n), the process fit O(n log n) with a number of O(n) cost
+    evaluations that does not grow with the record (its search ranges follow the
+    loop's period, :func:`stictiondiag.identification.process.search_span`)."""
     warnings: list[str] = []
     pv, op, dt = rec.pv, rec.op, rec.dt
     if controller is None:
