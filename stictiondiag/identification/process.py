@@ -490,11 +490,12 @@ def search_span(n: int, period_samples: float | None) -> int:
     The dead time is searched up to :data:`MAX_DEAD_TIME_FRACTION` of the span and
     the FOPTD time constant up to :data:`MAX_TIME_CONSTANT_SPANS` spans.  Both are
     time scales of the loop, not of the record: when a loop's own feedback makes it
-    cycle, the phase lag around the loop is 180 degrees at the cycle, and the dead
-    time alone must then stay below half a period (a PI controller and a sticky
-    valve only add lag; Choudhury, Thornhill & Shah 2005, Section 5 on the limit
-    cycle's phase condition), while a dead time ``d + P`` is an alias of ``d`` on
-    periodic data (the module docstring); 20 periods leave room for an oscillation
+    cycle, the cycle sits where ``G0(i w) = -1/N(X_m)`` (Choudhury, Thornhill & Shah
+    2005, Section 6.1, Eq. 5: ``G0`` the process with the PI controller, ``N`` the sticky
+    valve's describing function, whose output lags its input), so the phase lag of
+    ``G0`` at the cycle is below 180 degrees, and the dead time's share ``w theta``
+    of it keeps the dead time below half a period; a dead time ``d + P`` is an alias
+    of ``d`` on periodic data (the module docstring); 20 periods leave room for an oscillation
     from outside the loop and for a period detected at a harmonic.  A time
     constant of many periods (1600 at the cap) acts as an integrator on everything
     the drift-filtered data carry (the high-pass keeps periods up to a few of the
