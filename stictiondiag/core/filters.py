@@ -108,9 +108,9 @@ def correlate_lags(v: np.ndarray, w: np.ndarray, max_lag: int) -> np.ndarray:
         c = np.fft.irfft(np.fft.rfft(v, length) * np.conj(np.fft.rfft(w, length)), length)
         return c[: max_lag + 1]
     n_blocks = -(-w.size // block)
-    w_blocks = np.zeros(n_blocks * block)
-    w_blocks[: w.size] = w
-    w_blocks = w_blocks.reshape(n_blocks, block)
+    w_flat = np.zeros(n_blocks * block)
+    w_flat[: w.size] = w
+    w_blocks = w_flat.reshape(n_blocks, block)
     # Block j (w[j B .. j B + B - 1]) meets v[j B .. j B + B - 1 + max_lag].
     span = block + max_lag
     v_pad = np.zeros(n_blocks * block + max_lag)
