@@ -274,6 +274,11 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--doc", type=Path, default=ROOT / "docs" / "calibration.md")
     a = ap.parse_args(argv)
+    if a.compare_boosting:
+        import importlib.util
+
+        if importlib.util.find_spec("sklearn") is None:
+            ap.error("--compare-boosting needs scikit-learn (pip install scikit-learn)")
     from stictiondiag.stiction.probability import (
         FEATURES,
         PART_FEATURES,
