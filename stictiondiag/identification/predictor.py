@@ -344,6 +344,9 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     where = {int(d): i for i, d in enumerate(shifts)}
     ii = np.array([where[int(d)] for d in d_grid])
     jj = np.array([where[int(d) + 1] for d in d_grid])
+    s_max = int(shifts.max())
+    padded = np.empty(s_max + n)
+    gather = (s_max - shifts)[:, None] + np.arange(n)[None, :]
     for pole in pole_grid:
         for lr in ratios:
             k1, k2 = kalman_gains(pole, lr)
@@ -351,8 +354,11 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
             base_reg = _prediction_errors(
                 zeros, np.ascontiguousarray(u - u[0]), pole, k1, k2, 0.0, 1
             )
-            # All dead times at once: Gram matrix of the shifted regressors.
-            Xs = np.stack([delayed(base_reg, int(d)) for d in shifts])
+            # All dead times at once: Gram matrix of the shifted regressors (row i:
+            # ``delayed(base_reg, shifts[i])``, gathered in one call).
+            padded[:s_max] = base_reg[0]
+            padded[s_max:] = base_reg
+            Xs = padded[gather]
             Xw = Xs * w
             G = Xw @ Xs.T
             g = Xw @ e0
