@@ -347,13 +347,12 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     s_max = int(shifts.max())
     padded = np.empty(s_max + n)
     gather = (s_max - shifts)[:, None] + np.arange(n)[None, :]
+    u0 = np.ascontiguousarray(u - u[0])
     for pole in pole_grid:
         for lr in ratios:
             k1, k2 = kalman_gains(pole, lr)
             e0 = _prediction_errors(pv, zeros, pole, k1, k2, float(pv[0]), 1)
-            base_reg = _prediction_errors(
-                zeros, np.ascontiguousarray(u - u[0]), pole, k1, k2, 0.0, 1
-            )
+            base_reg = _prediction_errors(zeros, u0, pole, k1, k2, 0.0, 1)
             # All dead times at once: Gram matrix of the shifted regressors (row i:
             # ``delayed(base_reg, shifts[i])``, gathered in one call).
             padded[:s_max] = base_reg[0]
