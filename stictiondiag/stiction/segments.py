@@ -669,7 +669,9 @@ def _mv_fit_details(
     }
 
 
-def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
+def estimate_from_mv(
+    op: np.ndarray, mv: np.ndarray, dt: float, segments: Segments | None = None
+) -> StictionFit:
     """S and J from the valve's recorded position (Sections 2.3 and 3, Fig. 2).
 
     Two estimates are made and both reported:
@@ -702,6 +704,9 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
         Valve position [% of span].
     dt : float
         Sampling time [s].
+    segments : Segments, optional
+        ``segment_valve(op, mv, dt)`` when the caller has it already (it is then
+        not computed again; the result is the same).
 
     Returns
     -------
@@ -711,7 +716,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     """
     op, mv, dt = _check_pair(op, mv, dt)
     n = op.size
-    segs = segment_valve(op, mv, dt)
+    segs = segment_valve(op, mv, dt) if segments is None else segments
     op_std = float(np.std(op))
     lo, hi = np.percentile(op, [0.5, 99.5])
     S_max = float(max(hi - lo, 1e-12))
