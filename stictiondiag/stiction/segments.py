@@ -266,6 +266,21 @@ def _intervals(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2).astype(np.int64)
 
 
+def _median(x: np.ndarray) -> float:
+    """``np.median`` of a short finite 1-D array, the same number without its overhead.
+
+    The middle element of the sorted values, or for an even count the two middle
+    ones added and halved (what ``np.median`` computes: the mean of the two).
+    """
+    k = x.size
+    if k == 0:
+        return float(np.median(x))
+    s = np.sort(x)
+    if k % 2:
+        return float(s[k // 2])
+    return float((s[k // 2 - 1] + s[k // 2]) / 2.0)
+
+
 def _stuck_runs(op, mv, h, op_tol):
     """Runs of still mv (within ``h``) and which of them are stuck intervals (op
     travels more than ``op_tol`` meanwhile); labels the stuck samples."""
@@ -275,7 +290,7 @@ def _stuck_runs(op, mv, h, op_tol):
     run_stuck = np.zeros(starts.size, dtype=bool)
     run_level = np.empty(starts.size)
     for i, (a, e) in enumerate(zip(starts, ends, strict=True)):
-        level = float(np.median(mv[a:e]))
+        level = _median(mv[a:e])
         # A flat run that starts at the tail of a moving phase: drop its leading
         # samples that are off the stuck level.
         while e - a > 3 and abs(mv[a] - level) > 0.5 * h:
@@ -344,7 +359,7 @@ def _measure_slips(op, mv, h, pull_tol, runs, labels) -> dict[str, list]:
         else:
             w_end = min(nxt_start, slip_end + 20, n)
             offs = mv[slip_end - 1 : w_end] - op[slip_end - 1 : w_end]
-            mv_after = float(op[e] + np.median(offs))
+            mv_after = float(op[e] + _median(offs))
         seg = op[max(a - 1, 0) : e]
         op_stop = float(seg[np.argmin(d * seg)])
         run_max = np.maximum.accumulate(d * op[a : e + 1])
