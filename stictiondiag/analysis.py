@@ -49,7 +49,7 @@ from stictiondiag.signals.oscillation import (
     dominant_period,
 )
 from stictiondiag.stiction.hammerstein import fit_hammerstein
-from stictiondiag.stiction.segments import estimate_from_mv
+from stictiondiag.stiction.segments import Segments, estimate_from_mv, segment_valve
 from stictiondiag.stiction.valvefit import StictionFit
 from stictiondiag.stiction.verdict import Verdict, stiction_verdict
 
@@ -422,7 +422,9 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         warnings.append(short)
 
     # 3. S and J: from the valve's own signal when recorded, else the Hammerstein fit.
-    fit = estimate_stiction(tags)
+    # The stick and slip segments of the mv-op plot serve the gap diagnosis too.
+    segments = segment_valve(tags.op, tags.mv, float(tags.ts)) if tags.mv is not None else None
+    fit = estimate_stiction(tags, segments=segments)
 
     # 4. Verdict.
     verdict = stiction_verdict(
@@ -461,7 +463,9 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
     if config.gap and rep is not None:
         replayed = rep
         gap = _or_warn(
-            "gap diagnosis not possible", warnings, lambda: diagnose_gap(tags, fit, replayed)
+            "gap diagnosis not possible",
+            warnings,
+            lambda: diagnose_gap(tags, fit, replayed, segments=segments),
         )
 
     return Analysis(
@@ -498,15 +502,16 @@ def find_oscillations(tags: Tags, warnings: list[str]) -> tuple[Oscillation, Osc
     return osc_pv, detect_oscillation(tags.op, dt)
 
 
-def estimate_stiction(tags: Tags) -> StictionFit:
+def estimate_stiction(tags: Tags, segments: Segments | None = None) -> StictionFit:
     """Step 3: S and J [% of op span] of the data-driven model (Section 5.1).
 
     From the stick and slip segments of the mv-op plot when mv is recorded (Figs. 3
     and 6), otherwise from the valve model and a linear process fitted together to
-    op and pv (Section 5.3.1).
+    op and pv (Section 5.3.1).  ``segments``: :func:`segment_valve` of op, mv and
+    ts when the caller has it already.
     """
     if tags.mv is not None:
-        return estimate_from_mv(tags.op, tags.mv, float(tags.ts))
+        return estimate_from_mv(tags.op, tags.mv, float(tags.ts), segments=segments)
     return fit_hammerstein(
         tags.op,
         tags.pv,

@@ -225,3 +225,16 @@ def test_median_ci_in_chunks_is_the_one_draw_bootstrap(m):
     med = np.median(x[rng.integers(0, m, size=(2000, m))], axis=1)
     expected = tuple(float(v) for v in np.percentile(med, [2.5, 97.5]))
     assert _median_ci(x) == expected
+
+
+def test_short_median_is_numpys_bit_for_bit():
+    # The per-run median of segment_valve replaces np.median for speed; the numbers
+    # must be the very same (tolerance zero), odd and even counts, repeated values.
+    from stictiondiag.stiction.segments import _median
+
+    rng = np.random.default_rng(11)
+    for _ in range(3000):
+        k = int(rng.integers(1, 40))
+        x = np.round(rng.normal(50.0, rng.uniform(1e-3, 10.0), k), int(rng.integers(0, 6)))
+        assert _median(x) == float(np.median(x))
+    assert _median(np.array([1.0, 2.0])) == 1.5

@@ -205,16 +205,17 @@ class ReplayContext:
     cache: dict = field(default_factory=dict, compare=False, repr=False)
 
 
-def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float) -> dict | None:
+def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float, segments=None) -> dict | None:
     """S and J of every slip read off the data (the stick and slip segments of Fig. 2).
 
-    Uses :func:`stictiondiag.stiction.segments.segment_valve`; the values only seed the
-    least-squares searches, so a failure there is not an error (None).
+    Uses :func:`stictiondiag.stiction.segments.segment_valve` (or ``segments``, its
+    result for these op, mv and dt when the caller has it already); the values only
+    seed the least-squares searches, so a failure there is not an error (None).
     """
     try:
         from stictiondiag.stiction.segments import segment_valve
 
-        seg = segment_valve(op, mv, dt)
+        seg = segment_valve(op, mv, dt) if segments is None else segments
     except Exception:  # noqa: BLE001 - seeds are optional; the searches have grids too
         return None
     if seg.n_slips == 0:
@@ -244,6 +245,7 @@ def build_context(
     start: tuple[float, float] | None = None,
     mv_model: np.ndarray | None = None,
     load_spacing: float | None = None,
+    segments=None,
 ) -> ReplayContext:
     """Everything the fits share: slow-load basis, judged samples, normalisers, slips.
 
@@ -259,6 +261,9 @@ def build_context(
         Knot spacing of the slow load [samples]; default a sixteenth of the record
         (at least 40 samples), so the eight validation blocks of
         :mod:`stictiondiag.gap.diagnose` hold two knots each.
+    segments : Segments, optional
+        ``segment_valve(sig.op, sig.mv, sig.dt)`` when the caller has it already
+        (:func:`measure_slips`).
 
     Notes
     -----
@@ -269,7 +274,7 @@ def build_context(
     n = sig.n
     spacing = max(n / 16.0, 40.0) if load_spacing is None else float(load_spacing)
     load = SlowLoad(n, min(spacing, max(n - 1, 2)))
-    slips = measure_slips(sig.op, sig.mv, sig.dt) if sig.mv is not None else None
+    slips = measure_slips(sig.op, sig.mv, sig.dt, segments) if sig.mv is not None else None
     warm = max(n // 50, 20)
     if slips is not None and slips["time"].size:
         warm = max(warm, min(int(slips["time"][0]) + 10, n // 5))

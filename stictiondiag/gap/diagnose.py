@@ -300,6 +300,7 @@ def diagnose_gap(
     n_blocks: int = N_BLOCKS,
     effects: tuple[str, ...] | None = None,
     fit_all: bool = False,
+    segments=None,
 ) -> GapDiagnosis:
     """Measure and locate the sim-to-real gap and name the effect that explains it.
 
@@ -325,6 +326,11 @@ def diagnose_gap(
         the effects acting on mv alone are skipped when the base replay of mv is
         within its noise; the winner, the gap before and after and the shrink are the
         same either way, only the losing candidates listed differ).
+    segments : Segments, optional
+        The stick and slip segments of the mv-op plot
+        (:func:`stictiondiag.stiction.segments.segment_valve` of the tags' op, mv and
+        ts) when the caller has them already, e.g. from the stiction estimate; they
+        are not computed again.
 
     Returns
     -------
@@ -337,7 +343,7 @@ def diagnose_gap(
     """
     sig = signals_of(tags)
     n_blocks = max(int(n_blocks), 4)
-    ctx = build_context(sig, **_starting_point(fit, sig))
+    ctx = build_context(sig, segments=segments, **_starting_point(fit, sig))
     assessable, not_assessed = _assessable(sig, effects)
 
     # Whole-record fits.
@@ -523,11 +529,13 @@ def diagnose_file(path, **read_options) -> GapDiagnosis:
 def diagnose_tags(tags) -> GapDiagnosis:
     """Estimate S and J from the tags and diagnose the gap (no closed-loop replay)."""
     fit = None
+    segments = None
     try:
         if tags.mv is not None:
-            from stictiondiag.stiction.segments import estimate_from_mv
+            from stictiondiag.stiction.segments import estimate_from_mv, segment_valve
 
-            fit = estimate_from_mv(tags.op, tags.mv, tags.ts)
+            segments = segment_valve(tags.op, tags.mv, tags.ts)
+            fit = estimate_from_mv(tags.op, tags.mv, tags.ts, segments=segments)
         else:
             from stictiondiag.stiction.hammerstein import fit_hammerstein
 
@@ -540,4 +548,4 @@ def diagnose_tags(tags) -> GapDiagnosis:
             )
     except (ImportError, ValueError):
         fit = None
-    return diagnose_gap(tags, fit)
+    return diagnose_gap(tags, fit, segments=segments)

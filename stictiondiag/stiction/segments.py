@@ -266,6 +266,21 @@ def _intervals(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2).astype(np.int64)
 
 
+def _median(x: np.ndarray) -> float:
+    """``np.median`` of a short finite 1-D array, the same number without its overhead.
+
+    The middle element of the sorted values, or for an even count the two middle
+    ones added and halved (what ``np.median`` computes: the mean of the two).
+    """
+    k = x.size
+    if k == 0:
+        return float(np.median(x))
+    s = np.sort(x)
+    if k % 2:
+        return float(s[k // 2])
+    return float((s[k // 2 - 1] + s[k // 2]) / 2.0)
+
+
 def _stuck_runs(op, mv, h, op_tol):
     """Runs of still mv (within ``h``) and which of them are stuck intervals (op
     travels more than ``op_tol`` meanwhile); labels the stuck samples."""
@@ -275,7 +290,7 @@ def _stuck_runs(op, mv, h, op_tol):
     run_stuck = np.zeros(starts.size, dtype=bool)
     run_level = np.empty(starts.size)
     for i, (a, e) in enumerate(zip(starts, ends, strict=True)):
-        level = float(np.median(mv[a:e]))
+        level = _median(mv[a:e])
         # A flat run that starts at the tail of a moving phase: drop its leading
         # samples that are off the stuck level.
         while e - a > 3 and abs(mv[a] - level) > 0.5 * h:
@@ -344,7 +359,7 @@ def _measure_slips(op, mv, h, pull_tol, runs, labels) -> dict[str, list]:
         else:
             w_end = min(nxt_start, slip_end + 20, n)
             offs = mv[slip_end - 1 : w_end] - op[slip_end - 1 : w_end]
-            mv_after = float(op[e] + np.median(offs))
+            mv_after = float(op[e] + _median(offs))
         seg = op[max(a - 1, 0) : e]
         op_stop = float(seg[np.argmin(d * seg)])
         run_max = np.maximum.accumulate(d * op[a : e + 1])
@@ -669,7 +684,9 @@ def _mv_fit_details(
     }
 
 
-def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
+def estimate_from_mv(
+    op: np.ndarray, mv: np.ndarray, dt: float, segments: Segments | None = None
+) -> StictionFit:
     """S and J from the valve's recorded position (Sections 2.3 and 3, Fig. 2).
 
     Two estimates are made and both reported:
@@ -702,6 +719,9 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
         Valve position [% of span].
     dt : float
         Sampling time [s].
+    segments : Segments, optional
+        ``segment_valve(op, mv, dt)`` when the caller has it already (it is then
+        not computed again; the result is the same).
 
     Returns
     -------
@@ -711,7 +731,7 @@ def estimate_from_mv(op: np.ndarray, mv: np.ndarray, dt: float) -> StictionFit:
     """
     op, mv, dt = _check_pair(op, mv, dt)
     n = op.size
-    segs = segment_valve(op, mv, dt)
+    segs = segment_valve(op, mv, dt) if segments is None else segments
     op_std = float(np.std(op))
     lo, hi = np.percentile(op, [0.5, 99.5])
     S_max = float(max(hi - lo, 1e-12))

@@ -29,11 +29,7 @@ import numpy as np
 
 from stictiondiag.core.jit import jit
 from stictiondiag.core.serialize import to_plain as _plain
-from stictiondiag.models.valve import (
-    choudhury_step,
-    kano_step,
-    valve_state,
-)
+from stictiondiag.models.valve import _choudhury_next, _kano_next
 
 #: Width of the play operator that keeps noise reversals of op away from the valve
 #: model, in robust noise standard deviations of op (see :func:`valve_variants`).
@@ -252,31 +248,22 @@ def valve_variants(op: np.ndarray) -> list[ValveVariant]:
 
 
 @jit
-def _valve_step(x, st, S, J, kano):
-    if kano:
-        return kano_step(x, st, S, J)
-    return choudhury_step(x, st, S, J)
-
-
-@jit
 def _start_state(op, S, J, k_start, d_start, offset):
-    """Valve state at sample ``k_start``.
+    """Valve state at sample ``k_start`` as local scalars.
 
     ``offset < 0``: moving in direction ``d_start`` (Eq. 4 output).  ``offset >= 0``:
     stuck since the demand was ``op[k_start] - d_start * offset``, its last movement in
     direction ``d_start``.
+
+    Returns ``(y, xss, dirn, v_old, stuck, x_prev)``, the state of
+    :func:`stictiondiag.models.valve.choudhury_step` (kept in local variables by the
+    kernels below, as in :func:`stictiondiag.models.valve._choudhury_run`).
     """
-    st = valve_state(op[k_start], False)
-    st[2] = d_start
-    st[3] = d_start
+    x0 = op[k_start]
     if offset < 0.0:
-        st[0] = op[k_start] - d_start * (S - J) / 2.0
-    else:
-        x_ss = op[k_start] - d_start * offset
-        st[1] = x_ss
-        st[4] = 1.0
-        st[0] = x_ss - d_start * (S - J) / 2.0
-    return st
+        return x0 - d_start * (S - J) / 2.0, x0, d_start, d_start, False, x0
+    x_ss = x0 - d_start * offset
+    return x_ss - d_start * (S - J) / 2.0, x_ss, d_start, d_start, True, x0
 
 
 @jit
@@ -304,19 +291,27 @@ def valve_run(op, S, J, kano, k_start, d_start, offset):
         Number of breakaways (stuck -> moving transitions) after ``k_start``.
     """
     n = op.shape[0]
-    y = np.empty(n)
+    out = np.empty(n)
     if n == 0:
-        return y, 0
-    st = _start_state(op, S, J, k_start, d_start, offset)
+        return out, 0
+    y, xss, dirn, v_old, stuck, x_prev = _start_state(op, S, J, k_start, d_start, offset)
     for k in range(k_start + 1):
-        y[k] = st[0]
+        out[k] = y
     slips = 0
     for k in range(k_start + 1, n):
-        was_stuck = st[4] == 1.0
-        y[k] = _valve_step(op[k], st, S, J, kano)
-        if was_stuck and st[4] == 0.0:
+        x = op[k]
+        was_stuck = stuck
+        if kano:
+            y, xss, dirn, v_old, stuck = _kano_next(x, S, J, y, xss, dirn, stuck, x_prev)
+        else:
+            y, xss, dirn, v_old, stuck = _choudhury_next(
+                x, S, J, y, xss, dirn, v_old, stuck, x_prev
+            )
+        x_prev = x
+        out[k] = y
+        if was_stuck and not stuck:
             slips += 1
-    return y, slips
+    return out, slips
 
 
 @jit
@@ -332,11 +327,20 @@ def valve_sse_batch(op, mv, S_arr, J_arr, kano, k0, k_start, d_start, offset):
     out = np.empty(m)
     cnt = n - k0
     for i in range(m):
-        st = _start_state(op, S_arr[i], J_arr[i], k_start, d_start, offset)
+        S = S_arr[i]
+        J = J_arr[i]
+        y, xss, dirn, v_old, stuck, x_prev = _start_state(op, S, J, k_start, d_start, offset)
         s1 = 0.0
         s2 = 0.0
         for k in range(k_start + 1, n):
-            y = _valve_step(op[k], st, S_arr[i], J_arr[i], kano)
+            x = op[k]
+            if kano:
+                y, xss, dirn, v_old, stuck = _kano_next(x, S, J, y, xss, dirn, stuck, x_prev)
+            else:
+                y, xss, dirn, v_old, stuck = _choudhury_next(
+                    x, S, J, y, xss, dirn, v_old, stuck, x_prev
+                )
+            x_prev = x
             if k >= k0:
                 r = mv[k] - y
                 s1 += r
