@@ -163,3 +163,25 @@ def test_slip_features_without_slips_or_moves():
         "moving_slope": None,
         "corner_rise_samples": None,
     }
+
+
+def test_shared_segments_give_the_same_diagnosis():
+    # analyze segments the mv-op plot once and hands the result to the gap diagnosis;
+    # the diagnosis must be the one it computes from its own segmentation, to the bit
+    # (the same function on the same arrays), on a loop where valve effects are fitted.
+    from stictiondiag.stiction.segments import segment_valve
+
+    case = generate_case("miscalibration", 3, n_samples=N)
+    tags = _tags(case)
+    segs = segment_valve(tags.op, tags.mv, tags.ts)
+    own = diagnose_gap(tags)
+    shared = diagnose_gap(tags, segments=segs)
+    assert shared.effect == own.effect
+    assert (shared.before, shared.after, shared.shrink_pct) == (
+        own.before,
+        own.after,
+        own.shrink_pct,
+    )
+    assert [(c.effect, c.after) for c in shared.candidates] == [
+        (c.effect, c.after) for c in own.candidates
+    ]

@@ -12,8 +12,6 @@ from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import LOOP_PARAMETERS
 from stictiondiag.models.valve import choudhury_model
 from stictiondiag.stiction.segments import (
-    BOOTSTRAP_CHUNK_VALUES,
-    _median_ci,
     estimate_from_mv,
     quantum,
     segment_valve,
@@ -215,6 +213,8 @@ def test_play_variant_band_below_play_width_is_the_raw_flowchart():
 
 @pytest.mark.parametrize("m", [12, 700, 3001])
 def test_median_ci_in_chunks_is_the_one_draw_bootstrap(m):
+    from stictiondiag.core.stats import BOOTSTRAP_CHUNK_VALUES, bootstrap_median_ci
+
     # Issue 19: the bootstrap draws its resamples chunk by chunk (a few rows for
     # thousands of slips) from the one generator; the interval is that of drawing
     # all n_boot x m indices at once, to the bit (the same stream in the same order).
@@ -224,13 +224,13 @@ def test_median_ci_in_chunks_is_the_one_draw_bootstrap(m):
     rng = np.random.default_rng(0)
     med = np.median(x[rng.integers(0, m, size=(2000, m))], axis=1)
     expected = tuple(float(v) for v in np.percentile(med, [2.5, 97.5]))
-    assert _median_ci(x) == expected
+    assert bootstrap_median_ci(x) == expected
 
 
 def test_short_median_is_numpys_bit_for_bit():
     # The per-run median of segment_valve replaces np.median for speed; the numbers
     # must be the very same (tolerance zero), odd and even counts, repeated values.
-    from stictiondiag.stiction.segments import _median
+    from stictiondiag.core.stats import median_small as _median
 
     rng = np.random.default_rng(11)
     for _ in range(3000):

@@ -18,8 +18,7 @@ import numba
 import numpy as np
 
 from stictiondiag.core.jit import jit
-from stictiondiag.models.valve import _choudhury_next, _kano_next
-from stictiondiag.stiction.valvefit import ValveVariant, _start_state, valve_run
+from stictiondiag.stiction.valvefit import ValveVariant, valve_run
 
 
 @jit
@@ -364,42 +363,6 @@ def same_sign_fit_many(A, B, yy, nb, out):
 
 
 @jit
-def valve_output(op, S, J, kano, k_start, d_start, offset):  # pragma: no cover - compiled
-    """The valve position of :func:`~stictiondiag.stiction.valvefit.valve_run` (Fig. 10
-    of Choudhury et al. 2005, or Kano et al. 2004), without the slip count.
-
-    The state lives in local variables (the one-sample flowcharts ``_kano_next`` and
-    ``_choudhury_next`` that ``valve_run`` reaches through ``kano_step`` and
-    ``choudhury_step``), not in a state array in memory, and the model is chosen
-    once, not at every sample: the same operations in the same order, so the same
-    numbers, at less cost per sample.
-    """
-    n = op.shape[0]
-    y = np.empty(n)
-    if n == 0:
-        return y
-    st = _start_state(op, S, J, k_start, d_start, offset)
-    for k in range(k_start + 1):
-        y[k] = st[0]
-    yk, xss, dirn, v_old, stuck, x_prev = st[0], st[1], st[2], st[3], st[4] == 1.0, st[5]
-    if kano:
-        for k in range(k_start + 1, n):
-            x = op[k]
-            yk, xss, dirn, v_old, stuck = _kano_next(x, S, J, yk, xss, dirn, stuck, x_prev)
-            x_prev = x
-            y[k] = yk
-    else:
-        for k in range(k_start + 1, n):
-            x = op[k]
-            yk, xss, dirn, v_old, stuck = _choudhury_next(
-                x, S, J, yk, xss, dirn, v_old, stuck, x_prev
-            )
-            x_prev = x
-            y[k] = yk
-    return y
-
-
-@jit
 def _pair_cost(
     i,
     x,
@@ -431,7 +394,7 @@ def _pair_cost(
     sse_d = np.empty(nd)
     cost[i] = np.inf
     for io in range(offsets.shape[0]):
-        u = valve_output(x, S_arr[i], J_arr[i], kano, k_start, d_start, offsets[io])
+        u = valve_run(x, S_arr[i], J_arr[i], kano, k_start, d_start, offsets[io])[0]
         if pre_lag > 0.0:
             u = lag(u, pre_lag, k_start)
         A, B = normal_equations(u, taus, a_hp, k_start, j0, j1, stride, keep, Y, D)

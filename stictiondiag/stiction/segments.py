@@ -37,6 +37,7 @@ import numpy as np
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
 from stictiondiag.core.serialize import to_plain
+from stictiondiag.core.stats import bootstrap_median_ci, median_small
 from stictiondiag.stiction.valvefit import (
     StictionFit,
     block_sse,
@@ -266,21 +267,6 @@ def _intervals(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2).astype(np.int64)
 
 
-def _median(x: np.ndarray) -> float:
-    """``np.median`` of a short finite 1-D array, the same number without its overhead.
-
-    The middle element of the sorted values, or for an even count the two middle
-    ones added and halved (what ``np.median`` computes: the mean of the two).
-    """
-    k = x.size
-    if k == 0:
-        return float(np.median(x))
-    s = np.sort(x)
-    if k % 2:
-        return float(s[k // 2])
-    return float((s[k // 2 - 1] + s[k // 2]) / 2.0)
-
-
 def _stuck_runs(op, mv, h, op_tol):
     """Runs of still mv (within ``h``) and which of them are stuck intervals (op
     travels more than ``op_tol`` meanwhile); labels the stuck samples."""
@@ -290,7 +276,7 @@ def _stuck_runs(op, mv, h, op_tol):
     run_stuck = np.zeros(starts.size, dtype=bool)
     run_level = np.empty(starts.size)
     for i, (a, e) in enumerate(zip(starts, ends, strict=True)):
-        level = _median(mv[a:e])
+        level = median_small(mv[a:e])
         # A flat run that starts at the tail of a moving phase: drop its leading
         # samples that are off the stuck level.
         while e - a > 3 and abs(mv[a] - level) > 0.5 * h:
@@ -359,7 +345,7 @@ def _measure_slips(op, mv, h, pull_tol, runs, labels) -> dict[str, list]:
         else:
             w_end = min(nxt_start, slip_end + 20, n)
             offs = mv[slip_end - 1 : w_end] - op[slip_end - 1 : w_end]
-            mv_after = float(op[e] + _median(offs))
+            mv_after = float(op[e] + median_small(offs))
         seg = op[max(a - 1, 0) : e]
         op_stop = float(seg[np.argmin(d * seg)])
         run_max = np.maximum.accumulate(d * op[a : e + 1])
@@ -474,36 +460,6 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
 # --------------------------------------------------------------------------------------
 # S and J from mv
 # --------------------------------------------------------------------------------------
-
-
-#: The bootstrap of :func:`_median_ci` draws its resamples in chunks of about this
-#: many values (half a MiB of float64: the chunk stays in the core's cache).
-BOOTSTRAP_CHUNK_VALUES = 1 << 16
-
-
-def _median_ci(x: np.ndarray, seed: int = 0, n_boot: int = 2000) -> tuple[float, float] | None:
-    """95 % bootstrap interval of the median of ``x`` (percentile method, fixed seed).
-
-    Cost O(n_boot m) time for ``m`` events (one selection per resample) and
-    O(:data:`BOOTSTRAP_CHUNK_VALUES` + n_boot + m) memory: the resamples are drawn
-    chunk by chunk from the one generator, which gives the same draws as drawing
-    them all at once (the generator's stream is consumed in the same order), so the
-    interval is the same to the bit; the ``n_boot x m`` index array of one draw
-    left the cache at long records and made the step grow faster than the record.
-    """
-    x = np.asarray(x, dtype=float)
-    m = x.size
-    if m < MIN_EVENTS_FOR_INTERVAL:
-        return None
-    rng = np.random.default_rng(seed)
-    rows = max(1, BOOTSTRAP_CHUNK_VALUES // m)
-    med = np.empty(n_boot)
-    for start in range(0, n_boot, rows):
-        stop = min(start + rows, n_boot)
-        idx = rng.integers(0, m, size=(stop - start, m))
-        med[start:stop] = np.median(x[idx], axis=1)
-    lo, hi = np.percentile(med, [2.5, 97.5])
-    return float(lo), float(hi)
 
 
 def _grid_search(op, mv, sync, variant, S_max, J_max, seeds=(), n_grid=31, n_zoom=3, zoom=11):
@@ -765,8 +721,8 @@ def estimate_from_mv(
     S_iv, S_lo_edge, S_hi_edge = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, J_lo_edge, J_hi_edge = profile_interval(J_all, C_all, thr, 0.0, J_max)
 
-    S_ci = _median_ci(ev.band)
-    J_ci = _median_ci(ev.jump)
+    S_ci = bootstrap_median_ci(ev.band, min_count=MIN_EVENTS_FOR_INTERVAL)
+    J_ci = bootstrap_median_ci(ev.jump, min_count=MIN_EVENTS_FOR_INTERVAL)
     S_interval = _hull(S_iv, S_ci)
     J_interval = _hull(J_iv, J_ci)
     seg_cost = _segment_cost(op, mv, searches[best][0], ev, (k0, k_start, d_start))

@@ -298,19 +298,27 @@ def valve_run(op, S, J, kano, k_start, d_start, offset):
     for k in range(k_start + 1):
         out[k] = y
     slips = 0
-    for k in range(k_start + 1, n):
-        x = op[k]
-        was_stuck = stuck
-        if kano:
+    # The model is chosen once, not at every sample (the same operations per sample).
+    if kano:
+        for k in range(k_start + 1, n):
+            x = op[k]
+            was_stuck = stuck
             y, xss, dirn, v_old, stuck = _kano_next(x, S, J, y, xss, dirn, stuck, x_prev)
-        else:
+            x_prev = x
+            out[k] = y
+            if was_stuck and not stuck:
+                slips += 1
+    else:
+        for k in range(k_start + 1, n):
+            x = op[k]
+            was_stuck = stuck
             y, xss, dirn, v_old, stuck = _choudhury_next(
                 x, S, J, y, xss, dirn, v_old, stuck, x_prev
             )
-        x_prev = x
-        out[k] = y
-        if was_stuck and not stuck:
-            slips += 1
+            x_prev = x
+            out[k] = y
+            if was_stuck and not stuck:
+                slips += 1
     return out, slips
 
 
