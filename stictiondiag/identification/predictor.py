@@ -346,7 +346,10 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     jj = np.array([where[int(d) + 1] for d in d_grid])
     s_max = int(shifts.max())
     padded = np.empty(s_max + n)
-    gather = (s_max - shifts)[:, None] + np.arange(n)[None, :]
+    # Row i of ``windows[starts]`` is ``padded[starts[i] : starts[i] + n]``: a view of
+    # every window, whose rows are copied whole (no index per sample).
+    windows = np.lib.stride_tricks.sliding_window_view(padded, n)
+    starts = s_max - shifts
     u0 = np.ascontiguousarray(u - u[0])
     for pole in pole_grid:
         for lr in ratios:
@@ -357,7 +360,7 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
             # ``delayed(base_reg, shifts[i])``, gathered in one call).
             padded[:s_max] = base_reg[0]
             padded[s_max:] = base_reg
-            Xs = padded[gather]
+            Xs = windows[starts]
             Xw = Xs * w
             G = Xw @ Xs.T
             g = Xw @ e0
