@@ -377,6 +377,13 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     return best, per_pole, d_grid
 
 
+def _put_delayed(out: np.ndarray, u: np.ndarray, shift: int) -> None:
+    """Write :func:`delayed` ``(u, shift)`` into ``out`` (the same values, no temporary)."""
+    shift = max(shift, 0)
+    out[:shift] = u[0]
+    out[shift:] = u[: u.size - shift]
+
+
 class _Replay:
     """The linear part of :func:`fit_predictor` for one record: for a given structure,
     the filter's innovations of pv and the responses of the input (and of any extra
@@ -444,8 +451,8 @@ class _Replay:
                 i += 1
             E = R[i:]
         X = np.empty((n, 2 + n_extra))
-        X[:, 0] = delayed(base, m.delay)
-        X[:, 1] = delayed(base, m.delay + 1)
+        for j, shift in enumerate((m.delay, m.delay + 1)):
+            _put_delayed(X[:, j], base, shift)
         if n_extra:
             # pv = y + d + e: the disturbance enters like a measurement offset.
             X[:, 2:] = -E.T
