@@ -16,18 +16,10 @@ import math
 import numpy as np
 
 from stictiondiag.core.jit import jit
+from stictiondiag.models.valve import _sign as _sgn
 
 # Stick-slip state layout (float64 array).
 _POS, _XSTICK, _STUCK, _LASTDIR, _PREVX, _PREVSLOPE = range(6)
-
-
-@jit
-def _sgn(v):
-    if v > 0.0:
-        return 1.0
-    if v < 0.0:
-        return -1.0
-    return 0.0
 
 
 @jit
