@@ -41,7 +41,10 @@ What varies (each loop draws one option of each line):
   have pv, op and sp only).
 
 The label is the simulated valve: ``sticky`` is True for every valve with friction,
-whatever the record shows.
+whatever the record shows.  How much the friction shows is kept beside it:
+``truth["stiction_share"]``, the variance of the difference between the loop's
+noise-free pv and that of its twin with a linear valve (same process, tuning, loads
+and set point), over the variance of the recorded pv (:func:`stiction_share`).
 """
 
 from __future__ import annotations
@@ -263,6 +266,16 @@ def _record(rng, pv, op, how: str):
     return pv, op
 
 
+def stiction_share(effect: np.ndarray, pv: np.ndarray) -> float:
+    """How much of the recorded pv the valve's friction accounts for [-]: the variance
+    of ``effect`` (the noise-free pv of the loop minus that of its twin with a linear
+    valve) over the variance of the recorded pv.  It can exceed 1 where the twin's pv
+    moves in ways the sticky loop's does not.
+    """
+    v = float(np.var(pv))
+    return float(np.var(effect) / v) if v > 0 else 0.0
+
+
 def _pick(rng, options: dict) -> str:
     keys = list(options)
     p = np.array([options[k] for k in keys], dtype=float)
@@ -318,16 +331,16 @@ def family_loop(seed: int) -> FamilyLoop:
     op_bias = float(rng.uniform(30.0, 70.0))
     sim_seed = int(rng.integers(2**31))
 
-    def run(noise_std: float):
+    def run(noise_std: float, linear: bool = False):
         return simulate_loop(
             process,
             controller,
             duration=float(n),
             dt=1.0,
-            valve=valve,
-            S=S,
-            J=J,
-            physical=physical,
+            valve="linear" if linear else valve,
+            S=0.0 if linear else S,
+            J=0.0 if linear else J,
+            physical=None if linear else physical,
             sp=sp,
             load=load,
             noise_std=noise_std,
@@ -342,6 +355,10 @@ def family_loop(seed: int) -> FamilyLoop:
     sl = slice(WARMUP, n, decim)
     pv, op, mv, spv = sim.pv[sl].copy(), sim.op[sl].copy(), sim.mv[sl].copy(), sim.sp[sl].copy()
     pv, op = _record(rng, pv, op, record)
+    share = 0.0
+    if sticky:
+        # Its twin with a linear valve: same process, tuning, loads and set point.
+        share = stiction_share((clean.pv - run(0.0, linear=True).pv)[sl], pv)
     if has_mv:
         mv = mv + rng.normal(0.0, rng.uniform(0.02, 0.2), mv.size)
     truth = {
@@ -361,6 +378,7 @@ def family_loop(seed: int) -> FamilyLoop:
         "decimation": decim,
         "n": int(pv.size),
         "saturated": float(np.mean((op <= 0.0) | (op >= 100.0))),
+        "stiction_share": share,
     }
     loop_type = {"flow": "flow", "slave": "flow", "integrating": "level"}.get(
         kind, "pressure" if t_loop < 40 else "temperature"

@@ -1,0 +1,244 @@
+"""What limits the evidence of the fit without mv, measured on the simulated family.
+
+    python scripts/evidence_probe.py [--cache /tmp/stiction_family] [--n-rich 120] [--workers 2]
+
+Two questions, simulated loops only (no real-plant record, no ISDB label):
+
+1. **Does the label hide a separable class?**  The family labels every valve with
+   friction sticky, whatever the record shows.  Each sticky loop has a twin with a
+   linear valve (same process, tuning, loads, set point); ``stiction_share`` is the
+   variance of the difference of their noise-free pv over the recorded pv's
+   (:func:`stictiondiag.apps.family.stiction_share`).  The script prints the area
+   under the ROC curve of the fit's features, sticky against healthy, by that share;
+   then refits the probability model with the label "friction that accounts for at
+   least :data:`MATERIAL` of pv's variance" (the verdict's own materiality level,
+   :data:`stictiondiag.stiction.verdict.MIN_IMPROVEMENT`) and prints its held-out
+   reliability and how many loops it leaves between the decision levels.
+2. **Is the linear part too stiff?**  The improvement compares the stiction valve
+   with a linear valve through a first-order process.  If healthy loops gained
+   improvement because that process is too stiff for closed-loop data, a richer
+   linear part (four time constants, gains of one sign: a monotone step response)
+   given to both valves would take it away.  On ``--n-rich`` healthy loops and as
+   many sticky ones with S above 0.4 of op's 5-95 % spread (loops without mv of the
+   training draw), the script prints the improvement's area under the ROC curve with
+   the fitted first-order part and with the richer part (the stiction valve held at
+   its fitted S and J), by loop kind.
+
+The features come from the cache of ``scripts/train_probability.py`` (computed there
+if missing); the shares and the richer fits are computed here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from train_probability import (  # noqa: E402
+    family_features,
+    fit_logistic,
+    reliability,
+    roc_auc,
+)
+
+#: Share of pv's variance above which the friction counts as material [-].
+MATERIAL = 0.1
+
+#: Strata of the stiction share for the area table [-].
+SHARE_STRATA = ((0.0, 0.02), (0.02, 0.1), (0.1, 0.3), (0.3, np.inf))
+
+#: Features whose separation the first probe prints.
+PROBE_FEATURES = ("improvement", "support", "halves_improvement", "oscillating")
+
+
+def _share(seed: int) -> tuple[int, float]:
+    from stictiondiag.apps.family import family_loop
+
+    return seed, float(family_loop(seed).truth["stiction_share"])
+
+
+def shares(rows: list[dict], workers: int) -> dict[int, float]:
+    seeds = [r["seed"] for r in rows if r["sticky"]]
+    with ProcessPoolExecutor(workers) as pool:
+        return dict(pool.map(_share, seeds, chunksize=8))
+
+
+def share_table(rows: list[dict], share: dict[int, float]) -> list[str]:
+    out = []
+    for mv in (False, True):
+        part = [r for r in rows if r["has_mv"] == mv]
+        healthy = [r for r in part if not r["sticky"]]
+        out.append(f"loops {'with' if mv else 'without'} mv ({len(healthy)} healthy):")
+        for lo, hi in SHARE_STRATA:
+            sticky = [r for r in part if r["sticky"] and lo <= share[r["seed"]] < hi]
+            if not sticky:
+                continue
+            y = np.array([1] * len(sticky) + [0] * len(healthy), bool)
+            cells = [
+                f"{f} {roc_auc(y, np.array([r['features'][f] for r in sticky + healthy])):.2f}"
+                for f in PROBE_FEATURES
+            ]
+            out.append(f"  share {lo:g}-{hi:g} ({len(sticky)} sticky): " + ", ".join(cells))
+    return out
+
+
+def relabelled(train, test, share) -> list[str]:
+    from stictiondiag.stiction.probability import PART_FEATURES, apply_part, design_row, part_name
+
+    def label(r):
+        return float(r["sticky"] and share[r["seed"]] >= MATERIAL)
+
+    out = []
+    for name, lab in (("any friction (shipped)", lambda r: float(r["sticky"])), ("material", label)):
+        parts = {}
+        for part in ("op_pv", "mv"):
+            rows = [r for r in train if part_name(r["features"], r["has_mv"]) == part]
+            X = np.array([design_row(r["features"], PART_FEATURES[part]) for r in rows])
+            parts[part] = fit_logistic(X, np.array([lab(r) for r in rows]))
+        p = np.array(
+            [
+                float(
+                    apply_part(
+                        parts[pn := part_name(r["features"], r["has_mv"])],
+                        design_row(r["features"], PART_FEATURES[pn]),
+                    )[0]
+                )
+                for r in test
+            ]
+        )
+        y = np.array([lab(r) for r in test])
+        no_mv = np.array([not r["has_mv"] for r in test])
+        undecided = int(np.sum(no_mv & (p > 0.3) & (p < 0.7)))
+        worst = max(abs(b["observed"] - b["mean_p"]) for b in reliability(p, y) if b["n"])
+        called, cleared = p > 0.7, p < 0.3
+        out.append(
+            f"label {name}: positives {y.mean():.2f} of held-out loops; without mv"
+            f" {undecided} of {int(no_mv.sum())} between 0.3 and 0.7; calls right"
+            f" {np.mean(y[called] == 1):.2f} of {int(called.sum())} stiction,"
+            f" {np.mean(y[cleared] == 0):.2f} of {int(cleared.sum())} no stiction;"
+            f" worst band gap {worst:.3f}"
+        )
+    return out
+
+
+def _rich_cost(prob, u, taus, delays) -> float:
+    """Least cost of the linear part with four time constants (gains of one sign)."""
+    from stictiondiag.stiction.hammerstein_kernels import lag, regressors, same_sign_lstsq
+
+    uf = lag(u, prob.pre_lag, prob.k_start) if prob.pre_lag > 0 else u
+    phis = [regressors(uf, float(t), prob.a_hp, prob.k_start) for t in taus]
+    gains = [phis[0][:, 0]] + [phi[:, 1] for phi in phis]
+    X0 = np.column_stack(gains + [phis[0][:, 2], phis[0][:, 3], phis[0][:, 4]])
+    best = np.inf
+    for d in delays:
+        X, y = X0[prob.rows], prob.yf[prob.rows + int(d)]
+        theta = same_sign_lstsq(X, y, len(gains))
+        best = min(best, float(np.sum((y - X @ theta) ** 2)))
+    return best
+
+
+def _rich_one(seed: int) -> dict | None:
+    from stictiondiag.apps.family import family_loop
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.stiction import hammerstein as hs
+    from stictiondiag.stiction.hammerstein_kernels import valve_run
+    from stictiondiag.stiction.hammerstein_search import fit_linear
+    from stictiondiag.stiction.valvefit import ValveVariant
+
+    loop = family_loop(seed)
+    tags = loop.tags()
+    op, pv, dt = hs._check(tags.op, tags.pv, float(tags.ts))
+    op, pv = op[: hs.MAX_SAMPLES], pv[: hs.MAX_SAMPLES]
+    try:
+        setup = hs._setup(op, pv, dt, bool(tags.integrating), None)
+        start, search, _, tau_range = hs._search(setup)
+    except StictionError:
+        return None
+    prob = setup.problem
+    S_all, J_all, C_all, D_all, O_all, T_all = search.arrays()
+    i = int(np.argmin(C_all))
+    S, J, cost, offset, tau = (float(v[i]) for v in (S_all, J_all, C_all, O_all, T_all))
+    delay = int(D_all[i])
+    lin_cost, lin_delay, _ = fit_linear(setup, tau, tau_range)
+    variant = start.variant.for_band(S)
+    u, _ = valve_run(
+        prob._input(variant),
+        float(variant.model_S(S)),
+        J,
+        variant.kano,
+        prob.k_start,
+        prob.d_start,
+        offset,
+    )
+    taus = np.geomspace(max(0.3, setup.period * 0.02), float(setup.period), 4)
+
+    def around(d):
+        return sorted({int(np.clip(round(f * max(d, 1)), 1, setup.d_max)) for f in (0.5, 0.75, 1, 1.5, 2)})
+
+    rich_lin = _rich_cost(prob, prob._input(ValveVariant("linear", False)), taus, around(lin_delay))
+    rich_st = _rich_cost(prob, u, taus, around(delay))
+    return {
+        "sticky": loop.sticky,
+        "kind": loop.truth["kind"],
+        "improvement": 1.0 - cost / lin_cost,
+        "improvement_rich": 1.0 - rich_st / rich_lin,
+    }
+
+
+def rich_table(train: list[dict], n: int, workers: int) -> list[str]:
+    rng = np.random.default_rng(0)
+    rows = [r for r in train if not r["has_mv"]]
+    healthy = [r["seed"] for r in rows if not r["sticky"]]
+    sticky = [
+        r["seed"]
+        for r in rows
+        if r["sticky"] and r["truth"]["S"] / max(r["op_spread"], 1e-9) > 0.4
+    ]
+    seeds = list(rng.choice(healthy, min(n, len(healthy)), replace=False))
+    seeds += list(rng.choice(sticky, min(n, len(sticky)), replace=False))
+    with ProcessPoolExecutor(workers) as pool:
+        res = [r for r in pool.map(_rich_one, [int(s) for s in seeds], chunksize=4) if r]
+    out = []
+    for kind in ("all", "flow", "self", "integrating", "slave"):
+        sel = [r for r in res if kind == "all" or r["kind"] == kind]
+        y = np.array([r["sticky"] for r in sel], bool)
+        if y.sum() < 3 or (~y).sum() < 3:
+            continue
+        a = roc_auc(y, np.array([r["improvement"] for r in sel]))
+        b = roc_auc(y, np.array([r["improvement_rich"] for r in sel]))
+        out.append(
+            f"  {kind} ({int((~y).sum())} healthy, {int(y.sum())} sticky): area of the"
+            f" improvement {a:.2f} with the first-order part, {b:.2f} with the richer one"
+        )
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/stiction_family"))
+    ap.add_argument("--n-train", type=int, default=1200)
+    ap.add_argument("--n-test", type=int, default=400)
+    ap.add_argument("--n-rich", type=int, default=120)
+    ap.add_argument("--workers", type=int, default=2)
+    a = ap.parse_args(argv)
+    train = family_features(1, a.n_train, a.cache, a.workers)
+    test = family_features(2, a.n_test, a.cache, a.workers)
+    share = shares(train + test, a.workers)
+    st = np.array([share[r["seed"]] for r in train + test if r["sticky"]])
+    q = np.quantile(st, [0.1, 0.25, 0.5, 0.75, 0.9])
+    print(f"stiction share of the sticky loops, 10/25/50/75/90 %: {np.round(q, 3).tolist()}")
+    print(f"sticky loops whose friction is material (share >= {MATERIAL}): {np.mean(st >= MATERIAL):.2f}")
+    print("\n".join(share_table(train + test, share)))
+    print("\n".join(relabelled(train, test, share)))
+    print("richer linear part:")
+    print("\n".join(rich_table(train, a.n_rich, a.workers)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
