@@ -94,7 +94,10 @@ def relabelled(train, test, share) -> list[str]:
         return float(r["sticky"] and share[r["seed"]] >= MATERIAL)
 
     out = []
-    for name, lab in (("any friction (shipped)", lambda r: float(r["sticky"])), ("material", label)):
+    for name, lab in (
+        ("any friction (shipped)", lambda r: float(r["sticky"])),
+        ("material", label),
+    ):
         parts = {}
         for part in ("op_pv", "mv"):
             rows = [r for r in train if part_name(r["features"], r["has_mv"]) == part]
@@ -178,7 +181,9 @@ def _rich_one(seed: int) -> dict | None:
     taus = np.geomspace(max(0.3, setup.period * 0.02), float(setup.period), 4)
 
     def around(d):
-        return sorted({int(np.clip(round(f * max(d, 1)), 1, setup.d_max)) for f in (0.5, 0.75, 1, 1.5, 2)})
+        return sorted(
+            {int(np.clip(round(f * max(d, 1)), 1, setup.d_max)) for f in (0.5, 0.75, 1, 1.5, 2)}
+        )
 
     rich_lin = _rich_cost(prob, prob._input(ValveVariant("linear", False)), taus, around(lin_delay))
     rich_st = _rich_cost(prob, u, taus, around(delay))
@@ -195,9 +200,7 @@ def rich_table(train: list[dict], n: int, workers: int) -> list[str]:
     rows = [r for r in train if not r["has_mv"]]
     healthy = [r["seed"] for r in rows if not r["sticky"]]
     sticky = [
-        r["seed"]
-        for r in rows
-        if r["sticky"] and r["truth"]["S"] / max(r["op_spread"], 1e-9) > 0.4
+        r["seed"] for r in rows if r["sticky"] and r["truth"]["S"] / max(r["op_spread"], 1e-9) > 0.4
     ]
     seeds = list(rng.choice(healthy, min(n, len(healthy)), replace=False))
     seeds += list(rng.choice(sticky, min(n, len(sticky)), replace=False))
@@ -232,7 +235,9 @@ def main(argv=None) -> int:
     st = np.array([share[r["seed"]] for r in train + test if r["sticky"]])
     q = np.quantile(st, [0.1, 0.25, 0.5, 0.75, 0.9])
     print(f"stiction share of the sticky loops, 10/25/50/75/90 %: {np.round(q, 3).tolist()}")
-    print(f"sticky loops whose friction is material (share >= {MATERIAL}): {np.mean(st >= MATERIAL):.2f}")
+    print(
+        f"sticky loops whose friction is material (share >= {MATERIAL}): {np.mean(st >= MATERIAL):.2f}"
+    )
     print("\n".join(share_table(train + test, share)))
     print("\n".join(relabelled(train, test, share)))
     print("richer linear part:")
