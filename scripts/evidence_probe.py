@@ -37,6 +37,13 @@ Two questions, simulated loops only (no real-plant record, no ISDB label):
    driven by op (a linear valve) and by the Hammerstein fit's valve output, and the
    relative drop of its squared error is printed beside the fit's improvement.
 
+5. **How far could a null fitted to each loop go?**  Parts 2 to 4 change the fit.
+   An upper bound for any test that calibrates the improvement loop by loop (for
+   example, against surrogate records of the same loop with a linear valve): the
+   fit's improvement on each sticky loop of the sample against that on its exact
+   twin with a linear valve (:func:`stictiondiag.apps.family.family_loop` with
+   ``twin=True``: same loads, noise and recording).  No real test knows the twin.
+
 The features come from the cache of ``scripts/train_probability.py`` (computed there
 if missing); the shares and the richer fits are computed here.
 """
@@ -317,6 +324,46 @@ def pe_table(seeds: list[int], workers: int) -> list[str]:
     return out
 
 
+def _twin_one(seed: int) -> dict | None:
+    from stictiondiag.apps.family import family_loop
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.stiction.hammerstein import fit_hammerstein
+
+    out = {}
+    for twin in (False, True):
+        loop = family_loop(seed, twin=twin)
+        tags = loop.tags()
+        try:
+            fit = fit_hammerstein(
+                tags.op,
+                tags.pv,
+                float(tags.ts),
+                integrating=bool(tags.integrating),
+                flow_loop=tags.loop_type == "flow",
+            )
+        except StictionError:
+            return None
+        out["twin" if twin else "sticky"] = fit.improvement
+        out["kind"] = loop.truth["kind"]
+    return out
+
+
+def twin_table(seeds: list[int], workers: int) -> list[str]:
+    with ProcessPoolExecutor(workers) as pool:
+        res = [r for r in pool.map(_twin_one, seeds, chunksize=4) if r]
+    out = []
+    for kind in ("all", "flow", "self", "integrating", "slave"):
+        sel = [r for r in res if kind == "all" or r["kind"] == kind]
+        a, b = np.array([r["sticky"] for r in sel]), np.array([r["twin"] for r in sel])
+        y = np.r_[np.ones(a.size), np.zeros(b.size)].astype(bool)
+        out.append(
+            f"  {kind} ({a.size} pairs): improvement median {np.median(a):.3f} sticky,"
+            f" {np.median(b):.3f} twin; sticky above its twin in {np.mean(a > b):.2f},"
+            f" by more than 0.05 in {np.mean(a > b + 0.05):.2f}; area {roc_auc(y, np.r_[a, b]):.2f}"
+        )
+    return out
+
+
 def probe_seeds(train: list[dict], n: int) -> list[int]:
     """``n`` healthy loops without mv and ``n`` sticky ones with S above 0.4 of op's
     5-95 % spread, drawn from the training loops (seed 0)."""
@@ -375,6 +422,8 @@ def main(argv=None) -> int:
     print("\n".join(overshoot_table(seeds, a.workers)))
     print("prediction-error replay:")
     print("\n".join(pe_table(seeds, a.workers)))
+    print("each sticky loop against its linear twin:")
+    print("\n".join(twin_table(seeds[len(seeds) // 2 :], a.workers)))
     return 0
 
 

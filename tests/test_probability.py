@@ -103,6 +103,21 @@ def test_stiction_share_against_the_linear_twin():
     assert rho > 0.3
 
 
+def test_family_twin_changes_only_the_valve():
+    # A healthy loop's twin is the loop itself, sample for sample; a sticky loop's
+    # twin keeps every draw (set point, length, sample time, loop kind) and only its
+    # valve, hence its pv and op, differ.
+    loops = [family_loop(80_000 + i) for i in range(12)]
+    healthy = next(lp for lp in loops if not lp.sticky)
+    twin = family_loop(healthy.truth["seed"], twin=True)
+    assert np.array_equal(twin.pv, healthy.pv) and np.array_equal(twin.op, healthy.op)
+    sticky = next(lp for lp in loops if lp.sticky)
+    twin = family_loop(sticky.truth["seed"], twin=True)
+    assert not twin.sticky and twin.truth["twin"] and twin.truth["S"] == sticky.truth["S"]
+    assert np.array_equal(twin.sp, sticky.sp) and twin.ts == sticky.ts
+    assert twin.pv.size == sticky.pv.size and not np.array_equal(twin.pv, sticky.pv)
+
+
 def test_historian_compression_stays_within_its_band():
     # Both archives reproduce the signal within the compression band d (the property
     # that defines them); exactly at d up to rounding, hence the 1e-9.

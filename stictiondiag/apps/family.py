@@ -282,8 +282,13 @@ def _pick(rng, options: dict) -> str:
     return str(keys[int(rng.choice(len(keys), p=p / p.sum()))])
 
 
-def family_loop(seed: int) -> FamilyLoop:
-    """One loop of the family, a deterministic function of ``seed``."""
+def family_loop(seed: int, *, twin: bool = False) -> FamilyLoop:
+    """One loop of the family, a deterministic function of ``seed``.
+
+    With ``twin`` the loop's twin with a linear valve: every draw the same (process,
+    tuning, loads, set point, noise and its level, recording), only the valve
+    linear; ``sticky`` is then False and ``truth["twin"]`` True.
+    """
     rng = np.random.default_rng(seed)
     sticky = bool(rng.random() < STICKY_SHARE)
     kind = _pick(rng, {"flow": 0.25, "self": 0.3, "integrating": 0.25, "slave": 0.2})
@@ -351,19 +356,20 @@ def family_loop(seed: int) -> FamilyLoop:
 
     clean = run(0.0)
     spread = float(np.std(clean.pv[WARMUP:])) or scale * 0.01
-    sim = run(noise_ratio * spread)
+    sim = run(noise_ratio * spread, linear=twin)
     sl = slice(WARMUP, n, decim)
     pv, op, mv, spv = sim.pv[sl].copy(), sim.op[sl].copy(), sim.mv[sl].copy(), sim.sp[sl].copy()
     pv, op = _record(rng, pv, op, record)
     share = 0.0
-    if sticky:
+    if sticky and not twin:
         # Its twin with a linear valve: same process, tuning, loads and set point.
         share = stiction_share((clean.pv - run(0.0, linear=True).pv)[sl], pv)
     if has_mv:
         mv = mv + rng.normal(0.0, rng.uniform(0.02, 0.2), mv.size)
     truth = {
         "seed": int(seed),
-        "sticky": sticky,
+        "sticky": sticky and not twin,
+        "twin": twin,
         "valve": valve,
         "S": S,
         "J": J,
@@ -391,7 +397,7 @@ def family_loop(seed: int) -> FamilyLoop:
         ts=float(decim),
         integrating=kind == "integrating",
         loop_type=loop_type,
-        sticky=sticky,
+        sticky=sticky and not twin,
         truth=truth,
     )
 
