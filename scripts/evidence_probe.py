@@ -149,6 +149,35 @@ def relabelled(train, test, share) -> list[str]:
     return out
 
 
+def _searched(tags):
+    """The Hammerstein fit's setup, start, search points and range of time constants
+    on ``tags`` (as :func:`stictiondiag.stiction.hammerstein.fit_hammerstein` runs
+    them), or None where the fit refuses the record."""
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.stiction import hammerstein as hs
+
+    op, pv, dt = hs._check(tags.op, tags.pv, float(tags.ts))
+    op, pv = op[: hs.MAX_SAMPLES], pv[: hs.MAX_SAMPLES]
+    try:
+        setup = hs._setup(op, pv, dt, bool(tags.integrating), None)
+        start, search, _, tau_range = hs._search(setup)
+    except StictionError:
+        return None
+    return setup, start, search, tau_range
+
+
+def _fitted(tags):
+    """The Hammerstein fit of ``tags`` (a record without mv) as ``analyze`` runs it
+    (:func:`stictiondiag.analysis.estimate_stiction`); None where it refuses."""
+    from stictiondiag.analysis import estimate_stiction
+    from stictiondiag.core.errors import StictionError
+
+    try:
+        return estimate_stiction(tags)
+    except StictionError:
+        return None
+
+
 def _rich_cost(prob, u, taus, delays) -> float:
     """Least cost of the linear part with four time constants (gains of one sign)."""
     from stictiondiag.stiction.hammerstein_kernels import lag, regressors, same_sign_lstsq
@@ -167,21 +196,15 @@ def _rich_cost(prob, u, taus, delays) -> float:
 
 def _rich_one(seed: int) -> dict | None:
     from stictiondiag.apps.family import family_loop
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction import hammerstein as hs
     from stictiondiag.stiction.hammerstein_kernels import valve_run
     from stictiondiag.stiction.hammerstein_search import fit_linear
     from stictiondiag.stiction.valvefit import ValveVariant
 
     loop = family_loop(seed)
-    tags = loop.tags()
-    op, pv, dt = hs._check(tags.op, tags.pv, float(tags.ts))
-    op, pv = op[: hs.MAX_SAMPLES], pv[: hs.MAX_SAMPLES]
-    try:
-        setup = hs._setup(op, pv, dt, bool(tags.integrating), None)
-        start, search, _, tau_range = hs._search(setup)
-    except StictionError:
+    found = _searched(loop.tags())
+    if found is None:
         return None
+    setup, start, search, tau_range = found
     prob = setup.problem
     S_all, J_all, C_all, D_all, O_all, T_all = search.arrays()
     i = int(np.argmin(C_all))
@@ -219,8 +242,6 @@ def _overshoot_one(args) -> dict | None:
     """Improvement of the free search and of the search held to J <= S."""
     seed, held = args
     from stictiondiag.apps.family import family_loop
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction import hammerstein as hs
     from stictiondiag.stiction import hammerstein_search as hsearch
 
     if held:
@@ -234,14 +255,10 @@ def _overshoot_one(args) -> dict | None:
 
         hsearch.grid = held_grid  # this worker process only
     loop = family_loop(seed)
-    tags = loop.tags()
-    op, pv, dt = hs._check(tags.op, tags.pv, float(tags.ts))
-    op, pv = op[: hs.MAX_SAMPLES], pv[: hs.MAX_SAMPLES]
-    try:
-        setup = hs._setup(op, pv, dt, bool(tags.integrating), None)
-        _, search, _, tau_range = hs._search(setup)
-    except StictionError:
+    found = _searched(loop.tags())
+    if found is None:
         return None
+    setup, _, search, tau_range = found
     S_all, J_all, C_all, _, _, T_all = search.arrays()
     ok = J_all <= S_all + 1e-9 if held else np.ones(S_all.size, bool)
     ok = ok if ok.any() else J_all == J_all.min()
@@ -277,22 +294,13 @@ def overshoot_table(seeds: list[int], workers: int) -> list[str]:
 
 def _pe_one(seed: int) -> dict | None:
     from stictiondiag.apps.family import family_loop
-    from stictiondiag.core.errors import StictionError
     from stictiondiag.identification.predictor import fit_predictor
-    from stictiondiag.stiction.hammerstein import fit_hammerstein
 
     loop = family_loop(seed)
     tags = loop.tags()
     dt = float(tags.ts)
-    try:
-        fit = fit_hammerstein(
-            tags.op,
-            tags.pv,
-            dt,
-            integrating=bool(tags.integrating),
-            flow_loop=tags.loop_type == "flow",
-        )
-    except StictionError:
+    fit = _fitted(tags)
+    if fit is None:
         return None
     pv, w = np.asarray(tags.pv, float), np.ones(tags.pv.size)
     sse = {}
@@ -326,22 +334,12 @@ def pe_table(seeds: list[int], workers: int) -> list[str]:
 
 def _twin_one(seed: int) -> dict | None:
     from stictiondiag.apps.family import family_loop
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction.hammerstein import fit_hammerstein
 
     out = {}
     for twin in (False, True):
         loop = family_loop(seed, twin=twin)
-        tags = loop.tags()
-        try:
-            fit = fit_hammerstein(
-                tags.op,
-                tags.pv,
-                float(tags.ts),
-                integrating=bool(tags.integrating),
-                flow_loop=tags.loop_type == "flow",
-            )
-        except StictionError:
+        fit = _fitted(loop.tags())
+        if fit is None:
             return None
         out["twin" if twin else "sticky"] = fit.improvement
         out["kind"] = loop.truth["kind"]
