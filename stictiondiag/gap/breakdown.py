@@ -7,6 +7,7 @@ B-C stuck, C-D slip, D-E moving), read from the base valve replay.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -72,7 +73,7 @@ def _by_phase(sig, meas, phase, before, after) -> dict:
     """Share of the mv (and pv) squared error in each valve phase (Fig. 2: A-B reversal,
     B-C stuck, C-D slip, D-E moving)."""
     lab = _phase_labels(phase)
-    res = {}
+    res: dict[str, dict[str, float | None]] = {}
     for s in ("mv", "pv"):
         if s not in before:
             continue
@@ -103,7 +104,7 @@ def _by_frequency(sig, meas, before, after) -> dict:
     """Share of each signal's replay-error energy at the loop's fundamental, at its
     harmonics (2nd to 10th) and elsewhere."""
     period = _fundamental(sig)
-    res = {"fundamental_period_s": None if period is None else period * sig.dt}
+    res: dict[str, Any] = {"fundamental_period_s": None if period is None else period * sig.dt}
     if period is None:
         return res
     f0 = 1.0 / period
@@ -132,7 +133,7 @@ def _by_time(sig, meas, before, after) -> dict:
     """Gap of each signal in the first and the second half of the record [%]."""
     n = sig.n
     halves = {"early": np.arange(n) < n // 2, "late": np.arange(n) >= n // 2}
-    res = {}
+    res: dict[str, dict[str, float]] = {}
     for s in before:
         x = getattr(sig, s)
         for when, preds in (("before", before), ("after", after)):
@@ -206,10 +207,10 @@ def _moving_slope(op, mv, moving) -> float | None:
 def _by_feature(sig, base, before, after, phase, replay) -> dict:
     """Period, amplitude, jump up and down, moving-phase slope and corner shape of the
     data against the replay before and after."""
-    res = {}
+    res: dict[str, dict[str, Any]] = {}
     for s in before:
         x = getattr(sig, s)
-        entry = {"amplitude_data": _half_range(x)}
+        entry: dict[str, float | None] = {"amplitude_data": _half_range(x)}
         for when, preds in (("before", before), ("after", after)):
             entry[f"amplitude_{when}"] = _half_range(preds[s])
         p = dominant_period_samples(x)

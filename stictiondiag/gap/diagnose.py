@@ -502,7 +502,7 @@ def _base_info(ctx: ReplayContext, base: BaseFit, floors: dict) -> dict:
 
 def _series(sig: LoopSignals, before: dict, after: dict) -> dict:
     """Recorded signals and the replays before and after, for plots."""
-    series = {"time": np.arange(sig.n) * sig.dt}
+    series: dict[str, np.ndarray | None] = {"time": np.arange(sig.n) * sig.dt}
     for s in SIGNALS:
         series[s] = getattr(sig, s)
         series[f"{s}_before"] = before.get(s)
