@@ -143,6 +143,13 @@ class BaseFit:
             out["mv"] = self.valve.mv
         return out
 
+    def recorded_valve(self) -> ValveFit:
+        """The valve replay, for the valve-side effects: they are fitted only on loops
+        with a recorded mv, where :func:`fit_base` always fits one."""
+        if self.valve is None:
+            raise ValueError("the base fit has no valve replay: mv is not recorded")
+        return self.valve
+
 
 def fit_process(
     u: np.ndarray,
@@ -170,10 +177,14 @@ def pv_noise_floor(
 
 
 def process_input(ctx: ReplayContext, base: BaseFit | None = None) -> np.ndarray:
+    """The input of the process replay: the recorded mv, else the base fit's modelled
+    mv, else the context's ``mv_model`` [% of span]."""
     if ctx.sig.mv is not None:
         return ctx.sig.mv
     if base is not None:
         return base.mv_model
+    if ctx.mv_model is None:
+        raise ValueError("no process input: mv is not recorded and there is no modelled mv")
     return ctx.mv_model
 
 
@@ -194,11 +205,11 @@ def fit_base(ctx: ReplayContext, w: np.ndarray, *, like: BaseFit | None = None) 
     if sig.mv is not None:
         valve = fit_valve(ctx, w, like=None if like is None else like.valve)
         mvm = valve.mv
-    else:
+    elif ctx.mv_model is not None:
         mvm = ctx.mv_model
-        if mvm is None:
-            S, J = ctx.start if ctx.start is not None else (0.0, 0.0)
-            mvm, _ = valve_replay(sig.op, S, J)
+    else:
+        S, J = ctx.start if ctx.start is not None else (0.0, 0.0)
+        mvm, _ = valve_replay(sig.op, S, J)
     u = sig.mv if sig.mv is not None else mvm
     process = fit_process(u, ctx, w, model=None if like is None else like.process.model)
     op_hat, ctrl = fit_controller_replay(sig.sp, sig.pv, sig.op, sig.dt, w)

@@ -59,7 +59,7 @@ class ValveProblem:
 
     @classmethod
     def of(cls, ctx: ReplayContext, w: np.ndarray, kano: bool, d0: float) -> ValveProblem:
-        mv = ctx.sig.mv
+        mv = recorded_mv(ctx)
         y0 = _rest_level_before_first_slip(ctx)
         return cls(ctx.sig.op, mv, w, ctx.norm["mv"], kano, d0, y0)
 
@@ -131,6 +131,15 @@ class ValveProblem:
         )
 
 
+def recorded_mv(ctx: ReplayContext) -> np.ndarray:
+    """The recorded mv of ``ctx`` [% of span]: the valve replay is fitted only on loops
+    that have one."""
+    mv = ctx.sig.mv
+    if mv is None:
+        raise ValueError("the valve replay needs a recorded mv")
+    return mv
+
+
 def _rest_level_before_first_slip(ctx: ReplayContext) -> float:
     """Valve position at the start of the replay [% of span].
 
@@ -138,7 +147,7 @@ def _rest_level_before_first_slip(ctx: ReplayContext) -> float:
     the position has settled (after any actuator lag) and the valve is stuck, as the
     replay starts.  Without measured slips, the first few samples.
     """
-    mv = ctx.sig.mv
+    mv = recorded_mv(ctx)
     if ctx.slips is not None and ctx.slips["time"].size:
         k = int(ctx.slips["time"][0])
         if k >= 4:
@@ -330,7 +339,7 @@ def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None
     extra += travel_seeds(ctx.slips)
     # The stuck-phase logic from the coarse grid and the seeds (the two differ only
     # in how noise reversals re-arm a stuck valve), then the fine search.
-    best = None
+    best: tuple[float, bool, tuple] | None = None
     for kano in (False, True):
         prob = ValveProblem.of(ctx, w, kano, 1.0)
         X = np.vstack([coarse, np.array(extra).reshape(-1, 2)])
@@ -338,6 +347,7 @@ def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None
         i = int(np.argmin(c))
         if best is None or c[i] < best[0]:
             best = (float(c[i]), kano, tuple(X[i]))
+    assert best is not None  # the loop above scored both logics
     _, kano, top = best
     prob = ValveProblem.of(ctx, w, kano, 1.0)
     seeds = list(dict.fromkeys([top, *extra]))
