@@ -46,17 +46,20 @@ def fit_actuator_lag(
     and J are searched with a provisional lag, then tau by golden-section search,
     then S and J again.
     """
-    seeds = [(base.valve.params["S"], base.valve.params["J"])]
+    valve = base.recorded_valve()
+    seeds = [(valve.params["S"], valve.params["J"])]
     med = slip_medians(ctx.slips)
     if med is not None:
         seeds.append(med)
     seeds += travel_seeds(ctx.slips)
+    # Every seed is an (S, J) pair: two columns.
+    S_seeds, J_seeds = np.array(seeds).T
     prob = pick_problem(
         ctx,
         w,
         base,
         init,
-        lambda pr: float(np.min(pr.costs(valve_rows(*np.array(seeds).T, lag=_lag_weight(2.0))))),
+        lambda pr: float(np.min(pr.costs(valve_rows(S_seeds, J_seeds, lag=_lag_weight(2.0))))),
     )
     travel = demand_travel(ctx.sig.op)
     dt = ctx.sig.dt
@@ -71,7 +74,7 @@ def fit_actuator_lag(
     else:
         # The breakaways do not depend on the lag: S and J with a few provisional lags
         # (a lag hides the size of the slips, so J can be far from the base fit's).
-        best = None
+        best: tuple[float, np.ndarray, float] | None = None
         for tau in (1.0, 3.0, 6.0):
 
             def cost2(X, bound, tau=tau):
@@ -81,6 +84,7 @@ def fit_actuator_lag(
             x, c = grid_search_nd(cost2, x, (0, 1), stages=WIDE_STAGES[1:])
             if best is None or c < best[0]:
                 best = (c, x, tau)
+        assert best is not None  # the loop above tried three lags
         _, (S, J), tau = best
         (S, J), _ = needle_sj(prob, [(S, J)], travel, rel=0.05, n_grid=15, lag=_lag_weight(tau))
         lt = golden_section(

@@ -41,7 +41,8 @@ def fit_asymmetry(
     """
     travel = demand_travel(ctx.sig.op)
     lower, upper = np.zeros(4), np.array([travel, 1.5 * travel] * 2)
-    S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    valve = base.recorded_valve()
+    S0, J0 = valve.params["S"], valve.params["J"]
     seeds = [np.array([S0, J0, S0, J0])]
     ups = travel_seeds(ctx.slips, 1.0) or [(S0, J0)]
     dns = travel_seeds(ctx.slips, -1.0) or [(S0, J0)]

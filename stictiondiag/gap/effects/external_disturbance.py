@@ -23,6 +23,7 @@ from stictiondiag.gap.effects.base import (
     pv_noise_floor,
 )
 from stictiondiag.identification.numerics import golden_section
+from stictiondiag.identification.predictor import PredictorFit
 
 
 def _sinusoids(n: int, omega: float, harmonics: int) -> np.ndarray:
@@ -140,7 +141,7 @@ def fit_external_disturbance(
         spec_pv = np.abs(np.fft.rfft(pvc, nfft)) ** 2
         peaks = list(dict.fromkeys(top_peaks(spec, 3) + top_peaks(spec_pv, 3)))
         peaks = _screen_peaks(peaks, lambda i: cost(omega[i], 1)[0], REFINED_PEAKS)
-        best = None
+        best: tuple[float, float, int, PredictorFit] | None = None
         width = 2.0 * math.pi / nfft * 4.0
         for i in peaks:
             om0 = omega[i]
@@ -153,6 +154,8 @@ def fit_external_disturbance(
                 c, f = cost(om, harmonics, retune=True)
                 if best is None or c < best[0]:
                     best = (c, om, harmonics, f)
+        # top_peaks returns at least one peak, and the screen keeps some of them.
+        assert best is not None
         c, om, harmonics, f = best
         # The process dynamics refitted with the disturbance in the model, and the
         # load tracking retuned: the disturbance is no longer load to follow.

@@ -31,6 +31,7 @@ from stictiondiag.gap.effects.valve import (
     demand_travel,
     logic_name,
     pick_problem,
+    recorded_mv,
     sj_bounds,
     sj_wide,
     travel_seeds,
@@ -103,7 +104,9 @@ def fit_miscalibration(
     axis are searched, slope and offset solved in closed form for every trial.
     """
     travel = demand_travel(ctx.sig.op)
-    S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    mv = recorded_mv(ctx)
+    valve = base.recorded_valve()
+    S0, J0 = valve.params["S"], valve.params["J"]
     slopes = np.geomspace(0.4, 2.5, 41)
     prob = pick_problem(
         ctx,
@@ -123,7 +126,7 @@ def fit_miscalibration(
         # The element starts at the recorded rest level in its own units: map it back
         # with the slope and offset of the best scanned point before the search.
         v, _ = prob.series(valve_rows(S0 / slopes[i], J0 / slopes[i])[0])
-        prob = prob.with_output_map(*affine_map(v, ctx.sig.mv, w))
+        prob = prob.with_output_map(*affine_map(v, mv, w))
         c = prob.costs(valve_rows(S0 / slopes, J0 / slopes), affine=True)
         seeds = [(S0 / slopes[i], J0 / slopes[i]) for i in np.argsort(c)[:2]]
         # The demand travel of the slips is on the op axis already.
@@ -134,12 +137,12 @@ def fit_miscalibration(
         )
         x, _ = _needle_sj_affine(prob, [*seeds, tuple(wide)], travel * 3)
     v, _ = prob.series(valve_rows(x[0], x[1])[0])
-    slope, offset = affine_map(v, ctx.sig.mv, w)
+    slope, offset = affine_map(v, mv, w)
     for _ in range(2 if init is None else 0):
         prob = prob.with_output_map(slope, offset)
         x, _ = _needle_sj_affine(prob, [x], travel * 3, rel=0.03, zooms=1, n_grid=11)
         v, _ = prob.series(valve_rows(x[0], x[1])[0])
-        slope, offset = affine_map(v, ctx.sig.mv, w)
+        slope, offset = affine_map(v, mv, w)
     # The signature (whole-record fit only): the slope of the position after each
     # slip against the demand at its breakaway, measured in the data, differs from 1
     # in the fitted direction (:func:`slip_slope_test`, one-sided).

@@ -28,6 +28,7 @@ from stictiondiag.gap.effects.valve import (
     logic_name,
     needle_sj,
     pick_problem,
+    recorded_mv,
     slip_medians,
     threshold_scale,
     travel_seeds,
@@ -70,11 +71,13 @@ def _window_fits(ctx: ReplayContext, w: np.ndarray, base: BaseFit, n_win: int) -
     sig = ctx.sig
     n = sig.n
     travel = demand_travel(sig.op)
-    S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    valve = base.recorded_valve()
+    mv = recorded_mv(ctx)
+    S0, J0 = valve.params["S"], valve.params["J"]
     edges = np.linspace(0, n, n_win + 1).astype(int)
     slip_t = ctx.slips["time"] if ctx.slips is not None else np.zeros(0)
     slip_d = ctx.slips["direction"] if ctx.slips is not None else np.zeros(0)
-    out = []
+    out: list[tuple[float, float, float, float] | None] = []
     for i in range(n_win):
         a, b = edges[i], edges[i + 1]
         ww = w[a:b].copy()
@@ -85,15 +88,15 @@ def _window_fits(ctx: ReplayContext, w: np.ndarray, base: BaseFit, n_win: int) -
             out.append(None)
             continue
         before = slip_d[slip_t < a]
-        d0 = float(before[-1]) if before.size else base.valve.initial_direction
+        d0 = float(before[-1]) if before.size else valve.initial_direction
         prob = ValveProblem(
             sig.op[a:b],
-            sig.mv[a:b],
+            mv[a:b],
             ww,
             ctx.norm["mv"],
-            base.valve.kano,
+            valve.kano,
             d0,
-            float(np.median(sig.mv[a : a + 3])),
+            float(np.median(mv[a : a + 3])),
         )
         seeds = [(S0, J0)]
         med = slip_medians(ctx.slips, inside)
@@ -124,9 +127,8 @@ def fit_time_varying_stiction(
     n = ctx.sig.n
     travel = demand_travel(ctx.sig.op)
     lower, upper = np.zeros(4), np.array([travel, 1.5 * travel] * 2)
-    prob = (
-        base_problem(ctx, w, base.valve) if init is None else pick_problem(ctx, w, base, init, None)
-    )
+    valve = base.recorded_valve()
+    prob = base_problem(ctx, w, valve) if init is None else pick_problem(ctx, w, base, init, None)
 
     def cost_h(h):
         def cost(X, bound):
@@ -157,7 +159,7 @@ def fit_time_varying_stiction(
             )
         return x, c
 
-    S0, J0 = base.valve.params["S"], base.valve.params["J"]
+    S0, J0 = valve.params["S"], valve.params["J"]
     win = []
     if init is not None:
         t1, t2 = (
@@ -174,7 +176,7 @@ def fit_time_varying_stiction(
         if len(pts) >= 3:
             centers = np.array([p[0] for p in pts])
             vals = np.array([[p[1], p[2]] for p in pts])
-            best_shape = None
+            best_shape: tuple[float, float, float] | None = None
             for t1 in np.linspace(0.1, 0.9, 17) * n:
                 for width in (0.0, 0.15 * n, 0.3 * n):
                     if width > 0:
@@ -186,6 +188,7 @@ def fit_time_varying_stiction(
                     c = float(np.sum((A @ coef - vals) ** 2))
                     if best_shape is None or c < best_shape[0]:
                         best_shape = (c, t1, t1 + width)
+            assert best_shape is not None  # the loops above scored 17 x 3 shapes
             shapes.append((best_shape[1], best_shape[2]))
         results = []
         for t1, t2 in shapes:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -33,10 +34,11 @@ from stictiondiag.gap.effects.signatures import (
 from stictiondiag.gap.effects.valve import (
     affine_map,
     base_problem,
+    recorded_mv,
     valve_rows,
 )
 from stictiondiag.identification.numerics import golden_section
-from stictiondiag.identification.predictor import process_regressors
+from stictiondiag.identification.predictor import PredictorFit, process_regressors
 
 
 def characteristic_curve(x: np.ndarray, curvature: float, family: str) -> np.ndarray:
@@ -138,12 +140,25 @@ def fit_valve_characteristic(
     forms = ["process_exponential", "process_power"]
     if sig.mv is not None:
         forms += ["valve_exponential", "valve_power"]
-        prob = base_problem(ctx, w, base.valve)
-        row = valve_rows(base.valve.params["S"], base.valve.params["J"])
+        valve = base.recorded_valve()
+        prob = base_problem(ctx, w, valve)
+        row = valve_rows(valve.params["S"], valve.params["J"])
         base_mv_cost = float(prob.costs(row)[0])
     if init is not None:
         forms = [init.variant]
-    results = []
+    # (cost, form, n_params, params, predictions, process fit, process input); the last
+    # two are None on the valve side.
+    results: list[
+        tuple[
+            float,
+            str,
+            int,
+            dict[str, Any],
+            dict[str, np.ndarray],
+            PredictorFit | None,
+            np.ndarray | None,
+        ]
+    ] = []
     for form in forms:
         side, family = form.split("_")
         if side == "process":
@@ -176,8 +191,8 @@ def fit_valve_characteristic(
                 cc = cost_mv(c)
             else:
                 c, cc = _search_curvature(cost_mv, family)
-            g = characteristic_curve(base.valve.mv, c, family)
-            k, b = affine_map(g, sig.mv, w)
+            g = characteristic_curve(base.recorded_valve().mv, c, family)
+            k, b = affine_map(g, recorded_mv(ctx), w)
             # On the same footing as the process side: error on mv and pv together.
             results.append(
                 (
@@ -190,7 +205,7 @@ def fit_valve_characteristic(
                     None,
                 )
             )
-    _, variant, n_params, params, preds, proc, ue = min(results, key=lambda r: r[0])
+    _, variant, n_params, params, preds, proc, proc_u = min(results, key=lambda r: r[0])
     supported = True
     if init is None:
         gain_change, p_gain = gain_change_test(ctx, w, base, params["side"])
@@ -211,7 +226,10 @@ def fit_valve_characteristic(
         predictions=preds,
         x=(params["curvature"],),
         process=proc,
-        pv_floor=None if proc is None or init is not None else pv_noise_floor(ue, ctx, proc),
+        # proc_u is None exactly when proc is (the valve side).
+        pv_floor=None
+        if proc is None or proc_u is None or init is not None
+        else pv_noise_floor(proc_u, ctx, proc),
     )
 
 
