@@ -381,11 +381,11 @@ def build_report(
     from stictiondiag.core.atomic import write_atomic
 
     out = Path(out)
-    files = [str(f) for f in files]
-    workers = default_workers(len(files)) if workers is None else int(workers)
+    paths = [str(f) for f in files]
+    workers = default_workers(len(paths)) if workers is None else int(workers)
     if workers < 1:
         raise UsageError(f"workers must be at least 1, got {workers}")
-    entries = _expand(files)
+    entries = _expand(paths)
     names = unique_names([loop for _, loop, _ in entries], [f for f, _, _ in entries])
     renamed = {
         f: n
@@ -403,10 +403,10 @@ def build_report(
         for (f, loop, plant), n in zip(entries, names, strict=True)
     ]
     order = [f"{f}#{plant.loop}" if plant is not None else f for f, _, plant in entries]
-    _check_outputs(out, files)
-    _prepare_folder(out, clean, files)
-    manifest = _Manifest(out)
-    manifest.add(ROWS_FILE, "index.html", "summary.md")
+    _check_outputs(out, paths)
+    _prepare_folder(out, clean, paths)
+    written = _Manifest(out)
+    written.add(ROWS_FILE, "index.html", "summary.md")
     rows = _read_rows(out)
     failed: list[tuple[str, str]] = []
     outcomes = run_local(
@@ -431,7 +431,7 @@ def build_report(
             # manifest names the files before they exist, so a report killed in
             # between can still be cleaned.
             base = f"{LOOPS_DIR}/{res['name']}"
-            manifest.add(f"{base}.json", f"{base}.html")
+            written.add(f"{base}.json", f"{base}.html")
             write_atomic(out / f"{base}.json", res["json"])
             write_atomic(out / f"{base}.html", res["page"])
             rows[res["loop"]] = res["row"]

@@ -337,7 +337,7 @@ def load_source(source: LoopSource, **read_options):
         return read_frame(frame.drop(columns=[col], errors="ignore"), source=label, **read_options)
     dataset = _open_dataset(Path(source.path))
     field_type = dataset.schema.field(col).type
-    value = source.loop
+    value: str | int | float = source.loop
     if pa.types.is_integer(field_type):
         value = int(value)
     elif pa.types.is_floating(field_type):

@@ -19,6 +19,7 @@ import os
 import signal
 import threading
 from collections.abc import Callable, Iterator
+from typing import Any
 
 from stictiondiag.core.blas import one_blas_thread
 from stictiondiag.core.errors import UsageError
@@ -104,7 +105,7 @@ def run_local(
     fn,
     args: tuple,
     workers: int,
-    on_error: Callable[[object, BaseException], object] | None = None,
+    on_error: Callable[[Any, BaseException], object] | None = None,
 ) -> Iterator:
     """Yield ``fn(src, *args)`` for each source, on a process pool of ``workers``.
 
@@ -183,10 +184,11 @@ def run_local(
                 if broken:
                     # A dead worker breaks the whole pool: the loops still in flight fail
                     # with it, and a fresh pool takes the rest.
+                    assert on_error is not None  # broken is only set after on_error ran
                     for fut in cf.as_completed(list(pending)):
                         src = pending.pop(fut)
-                        exc = fut.exception()
-                        yield fut.result() if exc is None else on_error(src, exc)
+                        error = fut.exception()
+                        yield fut.result() if error is None else on_error(src, error)
                     _stop_pool(pool, interrupted=False)
                     pool = None
         finally:
@@ -346,7 +348,7 @@ def run_dask(
     args: tuple,
     workers: int,
     scheduler: str | None,
-    on_error: Callable[[object, BaseException], object] | None = None,
+    on_error: Callable[[Any, BaseException], object] | None = None,
 ) -> Iterator:
     """Like :func:`run_local` on ``dask.distributed`` (a LocalCluster or ``scheduler``).
 
