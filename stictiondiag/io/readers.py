@@ -21,7 +21,7 @@ import io
 import lzma
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from stictiondiag.core.errors import DataError, StictionError
 
@@ -113,7 +113,13 @@ def _read_parquet(file: Path, select: Select | None) -> pd.DataFrame:
 
 
 def _head(file: Path, compression: str | None) -> bytes:
-    opener = {None: open, "gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}[compression]
+    openers: dict[str | None, Callable[..., Any]] = {
+        None: open,
+        "gzip": gzip.open,
+        "bz2": bz2.open,
+        "xz": lzma.open,
+    }
+    opener = openers[compression]
     try:
         with opener(file, "rb") as handle:
             return handle.read(65536)
@@ -138,7 +144,7 @@ def _read_csv(file: Path, compression: str | None, select: Select | None) -> pd.
     encoding = _encoding(head)
     first_line = head.decode(encoding, errors="replace").lstrip().splitlines()[0]
     separator = max(_DELIMITERS, key=first_line.count)
-    options = {
+    options: dict[str, Any] = {
         "sep": separator,
         "encoding": encoding,
         "compression": compression,

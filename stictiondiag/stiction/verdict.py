@@ -500,7 +500,7 @@ def stiction_verdict(
             "inconclusive) or 1 - P (no stiction)"
         ),
     }
-    notes = ()
+    notes: tuple[str, ...] = ()
     if status == "no_stiction" and fit.S_interval is not None and fit.S_interval[1] >= RULE_OUT_S:
         notes = (
             f"the record does not bound S: stiction up to {fit.S_interval[1]:.3g} % of span "
