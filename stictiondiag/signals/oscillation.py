@@ -189,8 +189,8 @@ def _zero_crossings(acf: np.ndarray, max_lag: int) -> np.ndarray:
     a = acf[: max_lag + 1]
     s = np.sign(a)
     # Exact zeros take the sign of the previous sample so they count once.
-    for k in np.flatnonzero(s == 0):
-        s[k] = s[k - 1] if k > 0 else 1.0
+    for z in np.flatnonzero(s == 0):
+        s[z] = s[z - 1] if z > 0 else 1.0
     k = np.flatnonzero(s[1:] != s[:-1])
     return k + a[k] / (a[k] - a[k + 1])
 

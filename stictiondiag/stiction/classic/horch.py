@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -97,8 +97,8 @@ def _first_crossing(r: np.ndarray) -> float | None:
         return 0.0
     s = np.sign(r)
     # An exact zero later on takes the sign of the sample before it (counted once).
-    for k in np.flatnonzero(s == 0):
-        s[k] = s[k - 1]
+    for z in np.flatnonzero(s == 0):
+        s[z] = s[z - 1]
     k = np.flatnonzero(s[1:] != s[0])
     if k.size == 0:
         return None
@@ -359,7 +359,7 @@ def horch_cross_correlation(
 def _horch_integrating(
     pv: np.ndarray, dt: float, oscillating: bool, period_s: float | None
 ) -> HorchResult:
-    common = dict(
+    common: dict[str, Any] = dict(
         method="second_derivative",
         oscillating=oscillating,
         period_s=period_s,
