@@ -487,6 +487,7 @@ def fit_controller_replay(
         sse = float(np.dot(w, (pred - op) ** 2))
         if best is None or sse < best[0]:
             best = (sse, pred, coef, tf)
+    assert best is not None  # the loop over the filter times ran at least once
     _, pred, coef, tf = best
     kc, ki = float(coef[1]), float(coef[2])
     ti = kc / ki if abs(ki) > 1e-12 and kc / ki > 0 else None

@@ -87,7 +87,7 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
     from stictiondiag.signals.oscillation import detect_oscillation
 
     has_mv = tags.mv is not None
-    u = tags.mv if has_mv else tags.op
+    u = tags.op if tags.mv is None else tags.mv
     what = "mv" if has_mv else "op"
     dt = float(tags.ts)
     error = tags.pv if tags.sp is None else tags.sp - tags.pv  # a set-point step hides the cycle

@@ -142,13 +142,12 @@ def fractional_delay_wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndar
     coef = wls(X, y, w)
     if X.shape[1] < 2 or coef[0] * coef[1] >= 0.0:
         return coef
-    best = None
+    fits = []
     for drop in (1, 0):
         keep = [j for j in range(X.shape[1]) if j != drop]
         c = np.zeros(X.shape[1])
         c[keep] = wls(X[:, keep], y, w)
         r = y - X @ c
-        sse = float(np.dot(w, r * r))
-        if best is None or sse < best[0]:
-            best = (sse, c)
-    return best[1]
+        fits.append((float(np.dot(w, r * r)), c))
+    # min keeps the first of equal (or unordered) sse, as the comparison sse < best did.
+    return min(fits, key=lambda fit: fit[0])[1]

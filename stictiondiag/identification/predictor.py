@@ -455,6 +455,7 @@ class _Replay:
             _put_delayed(X[:, j], base, shift)
         if n_extra:
             # pv = y + d + e: the disturbance enters like a measurement offset.
+            assert E is not None  # n_extra > 0 ran the compiled call above
             X[:, 2:] = -E.T
         return e0, X
 

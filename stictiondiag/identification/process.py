@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -168,7 +169,8 @@ class ProcessFit:
             return _integrating_regressors(u, d, dt) @ np.array(
                 [self.pv_bias, self.process.gain, -self.process.gain * self.u_bias]
             )
-        a = math.exp(-dt / self.process.time_constant)
+        # Not integrating: the process is a FOPTD (see identify_process, process_fit).
+        a = math.exp(-dt / cast(FOPTD, self.process).time_constant)
         z = _lag_response(u, d, a)
         free = self.initial_deviation * _powers(a, 0, u.size)
         return self.pv_bias + self.process.gain * (z - self.u_bias) + free
@@ -253,7 +255,7 @@ def _highpass(x: np.ndarray, b: float) -> np.ndarray:
     return lfilter1((b, -b), -b, x)
 
 
-def _solve_normal(A: np.ndarray, g: np.ndarray, yy: np.ndarray, rows: np.ndarray):
+def _solve_normal(A: np.ndarray, g: np.ndarray, yy: np.ndarray | float, rows: np.ndarray | int):
     """Batched least squares from normal equations; mean squared error per batch."""
     beta = np.linalg.solve(A, g[..., None])[..., 0]
     return (yy - np.einsum("...i,...i->...", beta, g)) / rows, beta
@@ -584,6 +586,7 @@ def _chosen_process(chosen: str, p: dict, u, pv, dt):
     if p["gain"] == 0.0 or not math.isfinite(p["gain"]):
         raise DataError(f"pv does not respond to the process input: no {chosen} model")
     d = p["d"]
+    process: FOPTD | Integrating
     if chosen == "integrating":
         process = Integrating(gain=p["gain"], dead_time=d * dt)
     else:
