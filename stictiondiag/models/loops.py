@@ -289,7 +289,7 @@ def _check_loop(process, controller) -> None:
 
 def _valve_integration(
     valve: str, physical: PhysicalValve | None, dt: float, n: int
-) -> tuple[PhysicalValve | None, int, float, np.ndarray, float]:
+) -> tuple[PhysicalValve | None, int, float, tuple[float, ...], float]:
     """Integration set-up of the valve: ``(physical, n_sub, h, kernel parameters, stem)``.
 
     The physical valve of Section 4 is integrated in ``n_sub`` sub-steps ``h`` per
@@ -464,6 +464,8 @@ def simulate_loop(
         raise UsageError(f"seed must be an integer or None, got {seed!r}")
 
     physical, n_sub, h, p, stem = _valve_integration(valve, physical, dt, n)
+    # The physical valve's parameters (the nominal valve by default); None for the others.
+    physical_used = physical if valve == "physical" else None
     sp_arr = _series("sp", sp, n, 0.0)
     load_arr = _series("load", load, n, 0.0)
     if noise_std > 0:
@@ -527,9 +529,9 @@ def simulate_loop(
         "valve": valve,
         "S": S if valve in ("choudhury", "kano") else None,
         "J": J if valve in ("choudhury", "kano") else None,
-        "physical": physical.to_dict() if valve == "physical" else None,
+        "physical": None if physical_used is None else physical_used.to_dict(),
         "data_driven_equivalent": (
-            physical.data_driven_equivalent() if valve == "physical" else None
+            None if physical_used is None else physical_used.data_driven_equivalent()
         ),
         "duration_s": n * dt,
         "dt_s": dt,
@@ -555,7 +557,7 @@ def simulate_loop(
         settings=settings,
         process=process,
         controller=controller,
-        physical=physical if valve == "physical" else None,
+        physical=physical_used,
     )
 
 

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -401,7 +401,8 @@ def _open_loop_like_simulator(
     dev = x - op_bias
     if pf.integrating:
         return pv_bias + pf.process.gain * dt * np.cumsum(dev)
-    a = math.exp(-dt / pf.process.time_constant)
+    # Not integrating: the process is a FOPTD (see identify_process, process_fit).
+    a = math.exp(-dt / cast(FOPTD, pf.process).time_constant)
     y = lfilter1((pf.process.gain * (1.0 - a),), -a, dev)
     return pv_bias + y
 
