@@ -360,15 +360,16 @@ def family_loop(seed: int, *, twin: bool = False) -> FamilyLoop:
     sl = slice(WARMUP, n, decim)
     pv, op, mv, spv = sim.pv[sl].copy(), sim.op[sl].copy(), sim.mv[sl].copy(), sim.sp[sl].copy()
     pv, op = _record(rng, pv, op, record)
+    label = sticky and not twin  # a twin's valve is linear
     share = 0.0
-    if sticky and not twin:
+    if label:
         # Its twin with a linear valve: same process, tuning, loads and set point.
         share = stiction_share((clean.pv - run(0.0, linear=True).pv)[sl], pv)
     if has_mv:
         mv = mv + rng.normal(0.0, rng.uniform(0.02, 0.2), mv.size)
     truth = {
         "seed": int(seed),
-        "sticky": sticky and not twin,
+        "sticky": label,
         "twin": twin,
         "valve": valve,
         "S": S,
@@ -397,7 +398,7 @@ def family_loop(seed: int, *, twin: bool = False) -> FamilyLoop:
         ts=float(decim),
         integrating=kind == "integrating",
         loop_type=loop_type,
-        sticky=sticky and not twin,
+        sticky=label,
         truth=truth,
     )
 

@@ -140,7 +140,7 @@ def fit_valve_characteristic(
     forms = ["process_exponential", "process_power"]
     if sig.mv is not None:
         forms += ["valve_exponential", "valve_power"]
-        valve = base.recorded_valve()
+        valve, mv = base.recorded_valve(), recorded_mv(ctx)
         prob = base_problem(ctx, w, valve)
         row = valve_rows(valve.params["S"], valve.params["J"])
         base_mv_cost = float(prob.costs(row)[0])
@@ -191,8 +191,8 @@ def fit_valve_characteristic(
                 cc = cost_mv(c)
             else:
                 c, cc = _search_curvature(cost_mv, family)
-            g = characteristic_curve(base.recorded_valve().mv, c, family)
-            k, b = affine_map(g, recorded_mv(ctx), w)
+            g = characteristic_curve(valve.mv, c, family)
+            k, b = affine_map(g, mv, w)
             # On the same footing as the process side: error on mv and pv together.
             results.append(
                 (
