@@ -60,8 +60,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from train_probability import (  # noqa: E402
+    _fit_predict,
     family_features,
-    fit_logistic,
     reliability,
     roc_auc,
 )
@@ -108,7 +108,7 @@ def share_table(rows: list[dict], share: dict[int, float]) -> list[str]:
 
 
 def relabelled(train, test, share) -> list[str]:
-    from stictiondiag.stiction.probability import PART_FEATURES, apply_part, design_row, part_name
+    from stictiondiag.stiction.probability import PART_FEATURES
 
     def label(r):
         return float(r["sticky"] and share[r["seed"]] >= MATERIAL)
@@ -118,22 +118,7 @@ def relabelled(train, test, share) -> list[str]:
         ("any friction (shipped)", lambda r: float(r["sticky"])),
         ("material", label),
     ):
-        parts = {}
-        for part in ("op_pv", "mv"):
-            rows = [r for r in train if part_name(r["features"], r["has_mv"]) == part]
-            X = np.array([design_row(r["features"], PART_FEATURES[part]) for r in rows])
-            parts[part] = fit_logistic(X, np.array([lab(r) for r in rows]))
-        p = np.array(
-            [
-                float(
-                    apply_part(
-                        parts[pn := part_name(r["features"], r["has_mv"])],
-                        design_row(r["features"], PART_FEATURES[pn]),
-                    )[0]
-                )
-                for r in test
-            ]
-        )
+        p = _fit_predict(train, test, PART_FEATURES, label=lab)
         y = np.array([lab(r) for r in test])
         no_mv = np.array([not r["has_mv"] for r in test])
         undecided = int(np.sum(no_mv & (p > 0.3) & (p < 0.7)))

@@ -551,9 +551,10 @@ def cv_choice(train: list[dict], c: float = C) -> tuple[dict, dict]:
     return choice, losses
 
 
-def _fit_predict(train: list[dict], test: list[dict], sets: dict) -> np.ndarray:
+def _fit_predict(train: list[dict], test: list[dict], sets: dict, label=None) -> np.ndarray:
     """P of the ``test`` loops by a model fitted on ``train`` with the features
-    ``sets[part]`` in each part (C = :data:`C`)."""
+    ``sets[part]`` in each part (C = :data:`C`); ``label(row)`` is the training target
+    (default: the simulated valve's ``sticky``)."""
     from stictiondiag.stiction.probability import apply_part, design_row, part_name
 
     p = np.full(len(test), 0.5)
@@ -564,7 +565,7 @@ def _fit_predict(train: list[dict], test: list[dict], sets: dict) -> np.ndarray:
             continue
         fit = fit_logistic(
             np.array([design_row(r["features"], sets[part]) for r in rows]),
-            np.array([float(r["sticky"]) for r in rows]),
+            np.array([float(r["sticky"] if label is None else label(r)) for r in rows]),
         )
         X = np.array([design_row(test[i]["features"], sets[part]) for i in idx])
         p[idx] = apply_part(fit, X)
