@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from stictiondiag.core.errors import DataError, StictionError
+from stictiondiag.core.memo import memo_scope
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.diagnose import GapDiagnosis, diagnose_gap
 from stictiondiag.identification.looptype import settle_loop_type
@@ -177,9 +178,14 @@ class Analysis:
             "warnings": list(self.warnings),
         }
 
-    def summary_row(self) -> dict[str, Any]:
-        """One flat row for plant-wide tables (``stiction scan``)."""
-        d = self.to_dict()
+    def summary_row(self, d: dict[str, Any] | None = None) -> dict[str, Any]:
+        """One flat row for plant-wide tables (``stiction scan``).
+
+        ``d`` is this analysis's :meth:`to_dict` when the caller has it already (it
+        is not computed again; a scan serialises every loop once).
+        """
+        if d is None:
+            d = self.to_dict()
         st = d["stiction"]
         gap = d["gap"] or {}
         rep = d["replay"] or {}
@@ -410,8 +416,19 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         (:func:`check_record_length`), or a step cannot use the data (its message
         says why).  The replay and the gap diagnosis do not raise: when they cannot
         use the data the reason goes into the warnings and their field is None.
+
+    Notes
+    -----
+    The steps run inside one :func:`stictiondiag.core.memo.memo_scope`: the loop
+    type from the data and the replay identify the controller and the process from
+    the same signals, and the second identification is the first one's result.
     """
-    config = config or AnalysisConfig()
+    with memo_scope():
+        return _procedure(tags, config or AnalysisConfig())
+
+
+def _procedure(tags: Tags, config: AnalysisConfig) -> Analysis:
+    """The steps of :func:`analyze`, in the paper's order."""
     tags = settle_loop_type(tags)  # the data decide the structure when nothing else did
     warnings = list(tags.warnings)
 

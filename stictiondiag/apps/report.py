@@ -242,13 +242,12 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
             result = analyze(read_plant_loop(plant, **options), config=AnalysisConfig(gap=gap))
         else:
             result = analyze_file(path, config=AnalysisConfig(gap=gap), **options)
-        d = result.to_dict()
-        d["loop"] = loop
-        d = with_findings(d)
+        plain = result.to_dict()
+        row = result.summary_row(plain)
+        d = with_findings({**plain, "loop": loop})
         from stictiondiag.plotting import figure_png
 
         images = {k: figure_png(fig) for k, fig in result.figures().items()}
-        row = result.summary_row()
         row["loop"] = loop
         row["source"] = label
         row["page"] = f"{LOOPS_DIR}/{name}.html"

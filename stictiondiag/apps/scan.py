@@ -358,8 +358,8 @@ def analyse_source(source: LoopSource, read_options: dict, gap: bool) -> dict:
         tags = load_source(source, **{**read_options, **(source.read_options or {})})
         result = analyze(tags, config=AnalysisConfig(gap=gap))
         full = result.to_dict()
+        row.update(result.summary_row(full))
         full["loop"] = source.loop
-        row.update(result.summary_row())
         row["loop"] = source.loop
         row["source"] = source.path
         return {"row": row, "analysis": full}

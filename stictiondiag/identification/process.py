@@ -47,6 +47,7 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError, UsageError
 from stictiondiag.core.filters import correlate_lags, lfilter1
+from stictiondiag.core.memo import memo_by_content
 from stictiondiag.core.optimize import minimize_scalar_bounded
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.numerics import (
@@ -599,6 +600,7 @@ def _chosen_process(chosen: str, p: dict, u, pv, dt):
     return process, _biases(process, u, pv, dt, d, u_bias=p.get("u_bias"))
 
 
+@memo_by_content()
 def identify_process(
     u: np.ndarray,
     pv: np.ndarray,
