@@ -222,3 +222,51 @@ def test_kernel_threads_setting(monkeypatch):
     import numba
 
     assert hk.kernel_threads() == min(64, numba.config.NUMBA_NUM_THREADS)
+
+
+def _small_problem(seed: int = 8):
+    rng = np.random.default_rng(seed)
+    n = 1500
+    x = 50.0 + np.cumsum(rng.normal(size=n)) * 0.3
+    yf = np.cumsum(rng.normal(size=n + 20)) * 0.1
+    return hk.Problem(x, yf, [5.0, 20.0], 0.9, 10, 0.0, 20, n - 20, 2, np.array([1, 3, 5]))
+
+
+def test_pairs_seen_before_are_not_computed_again(monkeypatch):
+    """A pair evaluated before in the same state returns the numbers a fresh problem
+    computes (to the bit), without running the kernel for it again; a change of
+    state (time constants, rows kept) computes afresh."""
+    from stictiondiag.stiction.valvefit import ValveVariant
+
+    v = ValveVariant("kano", True)
+    off = np.array([0.0, 0.5])
+    S, J = np.array([0.5, 1.0, 1.5]), np.array([0.2, 0.4, 0.2])
+    prob = _small_problem()
+    computed: list[int] = []
+    kernel = hk.Problem._kernel_cost
+
+    def counting(self, S_, J_, variant, o):
+        if self is prob:
+            computed.append(S_.size)
+        return kernel(self, S_, J_, variant, o)
+
+    monkeypatch.setattr(hk.Problem, "_kernel_cost", counting)
+    first = prob.cost(S, J, v, off)
+    again = prob.cost(np.array([1.0, 2.0, 1.0]), np.array([0.4, 0.1, 0.4]), v, off)
+    assert computed == [3, 1]  # only (2.0, 0.1) is new; a repeat within a call counts once
+    fresh = _small_problem().cost(np.array([1.0, 2.0]), np.array([0.4, 0.1]), v, off)
+    # cost, dead time, start offset, time constant of each pair
+    for a, b, f in zip(first, again, fresh, strict=True):
+        assert b[0] == b[2] == a[1] == f[0]  # (1.0, 0.4), remembered
+        assert b[1] == f[1]  # (2.0, 0.1), computed
+    prob.taus = np.array([7.0])
+    prob.cost(S[:1], J[:1], v, off)
+    keep = np.ones(prob.all_rows.size, dtype=bool)
+    keep[:50] = False
+    prob.set_keep(keep)
+    after = prob.cost(S[:1], J[:1], v, off)
+    assert computed == [3, 1, 1, 1]
+    ref = _small_problem()
+    ref.taus = np.array([7.0])
+    ref.set_keep(keep)
+    assert [a.tolist() for a in after] == [r.tolist() for r in ref.cost(S[:1], J[:1], v, off)]

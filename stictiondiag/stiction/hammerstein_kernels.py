@@ -678,6 +678,10 @@ class Problem:
         self.pre_lag = float(pre_lag)
         self.n_drift = 0
         self.D = np.zeros((self.rows.size, 0))
+        # Costs already computed, per state of the problem (see _cost); the rows
+        # and drift states are counted by ``_rows_version``.
+        self._rows_version = 0
+        self._costs: dict[tuple, dict[tuple[float, float], tuple]] = {}
         self.set_delays(delays)
 
     def coarser(self, taus, stride) -> Problem:
@@ -700,6 +704,7 @@ class Problem:
         """Estimate ``n_drift`` drift states alongside (see :meth:`drift_basis`); returns self."""
         self.n_drift = int(n_drift)
         self.D = self.drift_basis()
+        self._rows_version += 1
         self.set_delays(self.delays)
         return self
 
@@ -737,6 +742,7 @@ class Problem:
         self.keep = np.asarray(keep, dtype=np.bool_)
         self.rows = self.all_rows[self.keep]
         self.D = self.drift_basis()
+        self._rows_version += 1
         self.set_delays(self.delays)
 
     def cost(self, S, J, variant: ValveVariant, offsets):
@@ -766,13 +772,40 @@ class Problem:
         return x
 
     def _cost(self, S, J, variant: ValveVariant, off):
+        """:meth:`cost` for one variant.  A pair evaluated before in the same state
+        (variant, time constants, dead times, start offsets, rows) is not computed
+        again: the searches' zooms come back to their centres and overlap (about a
+        sixth of a fit's pairs), and the kernel is deterministic, so the
+        remembered numbers are the ones it would return."""
+        state = (
+            variant,
+            self.taus.tobytes(),
+            self.delays.tobytes(),
+            off.tobytes(),
+            self._rows_version,
+        )
+        known = self._costs.setdefault(state, {})
+        pairs = list(zip(S.tolist(), J.tolist(), strict=True))
+        new = list(dict.fromkeys(p for p in pairs if p not in known))
+        if new:
+            S_new = np.array([p[0] for p in new])
+            J_new = np.array([p[1] for p in new])
+            c, bd, bo, bt = self._kernel_cost(S_new, J_new, variant, off)
+            for i, p in enumerate(new):
+                known[p] = (c[i], self.delays[bd[i]], off[bo[i]], self.taus[bt[i]])
+        rows = [known[p] for p in pairs]
+        return tuple(np.array([r[i] for r in rows]) for i in range(4))
+
+    def _kernel_cost(self, S, J, variant: ValveVariant, off):
+        """The compiled batch cost of every pair: costs and the indices of the best
+        dead time, start offset and time constant."""
         x = self._input(variant)
         threads = kernel_threads() if S.size > 1 else 1
         kernel = batch_cost
         if threads > 1:
             numba.set_num_threads(threads)
             kernel = batch_cost_threaded
-        c, bd, bo, bt = kernel(
+        return kernel(
             x,
             variant.model_S(S),
             J,
@@ -791,7 +824,6 @@ class Problem:
             self.pre_lag,
             self.D,
         )
-        return c, self.delays[bd], off[bo], self.taus[bt]
 
     def residual(self, S, J, variant: ValveVariant, delay, offset, tau):
         """Residual on the regression rows, fitted parameters and valve output."""
