@@ -416,17 +416,25 @@ def _solve_factored(L, b, idx, k, theta, z):
 def same_sign_fit_many(A, B, yy, nb, out):
     """:func:`same_sign_fit` for every column of ``B`` (one right-hand side per dead
     time) with the same ``A``: each active set is factored once, not once per column.
-    Writes the sums of squared residuals to ``out``; the same numbers as column by
-    column."""
+    Writes the sums of squared residuals to ``out``.
+
+    The active sets are tried from the full one down; a column whose unconstrained
+    fit already has its basis gains of one sign is done, as no smaller set can fit
+    it better (the others are tried for the remaining columns only).  The same
+    numbers as column by column, but for a smaller set that ties with the full one
+    to the last bit (a basis gain of exactly zero), where the two differ by rounding.
+    """
     m = A.shape[0]
     nd = B.shape[1]
     idx = np.empty(8, dtype=np.int64)
     theta = np.empty(8)
     z = np.empty(8)
     L = np.zeros((8, 8))
+    done = np.zeros(nd, dtype=np.bool_)
+    full = (1 << nb) - 1
     for c in range(nd):
         out[c] = yy[c]
-    for mask in range(0, 1 << nb):
+    for mask in range(full, -1, -1):
         k = 0
         for i in range(nb):
             if mask & (1 << i):
@@ -439,6 +447,8 @@ def same_sign_fit_many(A, B, yy, nb, out):
         if not _cholesky_subset(A, idx, k, L):
             continue
         for c in range(nd):
+            if done[c]:
+                continue
             e = _solve_factored(L, B[:, c], idx, k, theta, z)
             pos = True
             neg = True
@@ -447,8 +457,11 @@ def same_sign_fit_many(A, B, yy, nb, out):
                     pos = False
                 if theta[i] > 0.0:
                     neg = False
-            if (pos or neg) and yy[c] - e < out[c]:
-                out[c] = yy[c] - e
+            if pos or neg:
+                if yy[c] - e < out[c]:
+                    out[c] = yy[c] - e
+                if mask == full:
+                    done[c] = True
     for c in range(nd):
         out[c] = max(out[c], 0.0)
 
