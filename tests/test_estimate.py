@@ -279,6 +279,33 @@ def test_valve_sse_many_is_valve_sse_batch():
             assert np.array_equal(valve_sse_many(op, mv, S, J, kano, 11, 10, 1.0, -1.0), expected)
 
 
+def test_valve_sse_many_keeps_one_thread_in_a_worker(monkeypatch):
+    """A scan's worker process (it has a parent) computes every pair on its own
+    thread, with the numbers of the threaded call of a main process."""
+    import multiprocessing
+    import threading
+
+    from stictiondiag.stiction.valvefit import valve_sse_many
+
+    rng = np.random.default_rng(6)
+    op = np.ascontiguousarray(50 + 5 * np.sin(np.arange(3000) / 40) + rng.normal(0, 0.05, 3000))
+    mv = np.ascontiguousarray(op + rng.normal(0, 0.1, 3000))
+    S, J = rng.uniform(0, 8, 400), rng.uniform(0, 4, 400)
+    main = valve_sse_many(op, mv, S, J, True, 11, 10, 1.0, -1.0)
+    started: list[int] = []
+    real_start = threading.Thread.start
+
+    def counted(self):
+        started.append(1)
+        return real_start(self)
+
+    monkeypatch.setattr(threading.Thread, "start", counted)
+    monkeypatch.setattr(multiprocessing, "parent_process", lambda: object())
+    worker = valve_sse_many(op, mv, S, J, True, 11, 10, 1.0, -1.0)
+    assert started == []
+    assert np.array_equal(worker, main)
+
+
 def test_determinacy_reads_interval_width_against_the_estimate_and_resolution():
     from stictiondiag.stiction.valvefit import RESOLUTION_PCT, determinacy
 

@@ -22,6 +22,7 @@ samples of a residual, and the profile-cost intervals.
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
 from dataclasses import dataclass, field
 
@@ -377,11 +378,15 @@ def valve_sse_many(op, mv, S_arr, J_arr, kano, k0, k_start, d_start, offset):
     its own, so the threads run side by side on a multi-core machine and return the
     very numbers of one call.  Each thread takes at least
     :data:`MIN_PAIRS_PER_THREAD` pairs; the threads have ended when this returns.
+    A worker process (of a scan or a report, local pool or Dask) keeps one thread:
+    there one loop per core already keeps every core busy.
     """
     S_arr = np.ascontiguousarray(S_arr, dtype=float)
     J_arr = np.ascontiguousarray(J_arr, dtype=float)
     m = S_arr.shape[0]
     k = min(MAX_THREADS, _cpus(), m // MIN_PAIRS_PER_THREAD)
+    if multiprocessing.parent_process() is not None:
+        k = 1
     if k <= 1:
         return valve_sse_batch(op, mv, S_arr, J_arr, kano, k0, k_start, d_start, offset)
     import threading
