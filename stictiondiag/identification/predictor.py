@@ -24,30 +24,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stictiondiag.core.jit import jit
-from stictiondiag.identification.numerics import delayed, fractional_delay_wls, golden_section
-
-
-@jit
-def _riccati_gains(pole, load_ratio):  # pragma: no cover - compiled
-    p11, p12, p22 = 1.0 + load_ratio, 0.0, 1.0 + load_ratio
-    k1 = k2 = 0.0
-    for _ in range(2000):
-        s = p11 + 1.0
-        n1, n2 = p11 / s, p12 / s
-        f11 = p11 - n1 * p11
-        f12 = p12 - n1 * p12
-        f22 = p22 - n2 * p12
-        # P = F Pf F' + Q with F = [[a, 1], [0, 1]].
-        q11 = pole * pole * f11 + 2.0 * pole * f12 + f22
-        q12 = pole * f12 + f22
-        q22 = f22 + load_ratio
-        done = abs(n1 - k1) < 1e-13 and abs(n2 - k2) < 1e-13
-        k1, k2 = n1, n2
-        p11, p12, p22 = q11, q12, q22
-        if done:
-            break
-    return k1, k2, p11, p12, p22
+from stictiondiag.identification.numerics import (
+    delayed,
+    fractional_delay_wls,
+    golden_section,
+)
+from stictiondiag.identification.predictor_kernels import (
+    _prediction_errors,
+    _prediction_errors_rows,
+    _riccati_gains,
+    shifted_grams,
+    shifted_pair_wls,
+)
 
 
 def kalman_gains(pole: float, load_ratio: float) -> tuple[float, float]:
@@ -84,98 +72,6 @@ def prediction_variance_ratio(pole: float, load_ratio: float, horizon: int) -> t
         Fj = F @ Fj
     Pm = Fj @ P @ Fj.T + acc
     return float(s1), float(Pm[0, 0] + 1.0)
-
-
-#: Samples between exact restarts of the running sum of :func:`_horizon_errors`.
-_RESTART = 1024
-
-
-@jit
-def _horizon_errors(z, yf, lf, drive, pole, horizon, err):  # pragma: no cover - compiled
-    """Errors of the ``horizon``-step predictions, written to ``err[horizon:]``.
-
-    The prediction of ``z[j + h]`` made at ``j`` runs the model ``h`` steps from the
-    filtered state with the load held: ``pole^h yf[j] + lf[j] (1 + pole + ... +
-    pole^(h-1)) + S[j]``, ``S[j] = sum_i pole^(h-1-i) drive[j+i]``.  ``S`` is a
-    sliding weighted sum, updated in O(1) per sample
-    (``S[j+1] = pole S[j] - pole^h drive[j] + drive[j+h]``) and summed afresh every
-    ``_RESTART`` samples so that rounding cannot build up: O(n) for any horizon
-    (stepping every prediction ``h`` times costs O(n h)).
-    """
-    n = z.shape[0]
-    q = n - horizon
-    ph = 1.0
-    geo = 0.0
-    for _ in range(horizon):
-        geo = geo * pole + 1.0
-        ph *= pole
-    moving = False
-    for j in range(n):
-        if drive[j] != 0.0:
-            moving = True
-            break
-    acc = 0.0
-    for j in range(q):
-        if moving:
-            if j % _RESTART == 0:
-                acc = 0.0
-                for i in range(horizon):
-                    acc = pole * acc + drive[j + i]
-            else:
-                acc = pole * acc - ph * drive[j - 1] + drive[j - 1 + horizon]
-        err[j + horizon] = z[j + horizon] - (ph * yf[j] + geo * lf[j] + acc)
-
-
-@jit
-def _prediction_errors(z, drive, pole, k1, k2, y0, horizon):  # pragma: no cover - compiled
-    """Errors of the ``horizon``-step-ahead predictions of the steady-state filter.
-
-    ``z`` are the measurements, ``drive`` the known input term added to the next
-    process output.  The filter runs on every sample; the prediction of ``z[k]`` is
-    made at ``k - horizon`` from the filtered state then, with the known inputs in
-    between and the load held (samples before the horizon get the one-step error).
-    """
-    n = z.shape[0]
-    yf = np.empty(n)
-    lf = np.empty(n)
-    err = np.empty(n)
-    yh = y0
-    lh = 0.0
-    for k in range(n):
-        e = z[k] - yh
-        err[k] = e
-        yf[k] = yh + k1 * e
-        lf[k] = lh + k2 * e
-        yh = pole * yf[k] + lf[k] + drive[k]
-        lh = lf[k]
-    if horizon > 1 and n > horizon:
-        _horizon_errors(z, yf, lf, drive, pole, horizon, err)
-    return err
-
-
-@jit
-def _prediction_errors_many(Z, D, y0, pole, k1, k2, horizon):  # pragma: no cover - compiled
-    """:func:`_prediction_errors` of every row of ``Z`` (driven by the row of ``D``,
-    started at ``y0``) with one filter: the same operations per row, but the rows'
-    filters run side by side, so one's latency hides behind the others'."""
-    m, n = Z.shape
-    yf = np.empty((m, n))
-    lf = np.empty((m, n))
-    err = np.empty((m, n))
-    yh = y0.copy()
-    lh = np.zeros(m)
-    for k in range(n):
-        for c in range(m):
-            e = Z[c, k] - yh[c]
-            err[c, k] = e
-            yf[c, k] = yh[c] + k1 * e
-            lf[c, k] = lh[c] + k2 * e
-            yh[c] = pole * yf[c, k] + lf[c, k] + D[c, k]
-            lh[c] = lf[c, k]
-    if horizon > 1 and n > horizon:
-        for c in range(m):
-            _horizon_errors(Z[c], yf[c], lf[c], D[c], pole, horizon, err[c])
-    return err
 
 
 @dataclass(frozen=True)
@@ -328,7 +224,6 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     (see :func:`fit_predictor`).
     """
     n = u.size
-    zeros = np.zeros(n)
     taus = np.geomspace(0.5, max(n / 8.0, 2.0), 14)
     pole_grid = np.concatenate([np.exp(-1.0 / taus), [1.0]])
     ratios = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1)
@@ -344,27 +239,27 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     where = {int(d): i for i, d in enumerate(shifts)}
     ii = np.array([where[int(d)] for d in d_grid])
     jj = np.array([where[int(d) + 1] for d in d_grid])
-    s_max = int(shifts.max())
-    padded = np.empty(s_max + n)
-    # Row i of ``windows[starts]`` is ``padded[starts[i] : starts[i] + n]``: a view of
-    # every window, whose rows are copied whole (no index per sample).
-    windows = np.lib.stride_tricks.sliding_window_view(padded, n)
-    starts = s_max - shifts
     u0 = np.ascontiguousarray(u - u[0])
+    nr = len(ratios)
+    # The filters of one pole's load ratios side by side: pv's innovations (rows
+    # 0..nr-1, undriven, from pv[0]) and the input's response (rows nr.., driven by
+    # u - u[0], from 0), each row with the numbers of its own filter alone.
+    Zs, Ds = np.stack([pv, np.zeros(n)]), np.stack([np.zeros(n), u0])
+    rows = np.repeat(np.arange(2), nr)
+    y0 = np.zeros(2 * nr)
+    y0[:nr] = float(pv[0])
+    unused = np.empty((1, 1))  # no horizon: no filtered states kept
     for pole in pole_grid:
-        for lr in ratios:
-            k1, k2 = kalman_gains(pole, lr)
-            e0 = _prediction_errors(pv, zeros, pole, k1, k2, float(pv[0]), 1)
-            base_reg = _prediction_errors(zeros, u0, pole, k1, k2, 0.0, 1)
-            # All dead times at once: Gram matrix of the shifted regressors (row i:
-            # ``delayed(base_reg, shifts[i])``, gathered in one call).
-            padded[:s_max] = base_reg[0]
-            padded[s_max:] = base_reg
-            Xs = windows[starts]
-            Xw = Xs * w
-            G = Xw @ Xs.T
-            g = Xw @ e0
-            ee = float(np.dot(w * e0, e0))
+        gains = [kalman_gains(pole, lr) for lr in ratios]
+        k1 = np.array([g[0] for g in gains] * 2)
+        k2 = np.array([g[1] for g in gains] * 2)
+        R = _prediction_errors_rows(
+            Zs, rows, Ds, rows, y0, np.full(2 * nr, pole), k1, k2, 1, unused, unused
+        )
+        for r, lr in enumerate(ratios):
+            # All dead times at once: the entries of the Gram matrix of the shifted
+            # regressors (row i: ``delayed(base_reg, shifts[i])``) that the pairs use.
+            G, g, ee = shifted_grams(R[nr + r], R[r], w, shifts, ii, jj)
             sse = _pair_sse(G, g, ee, ii, jj)
             k = int(np.argmin(sse))
             if not math.isfinite(sse[k]):
@@ -401,62 +296,108 @@ class _Replay:
         self.u = u = np.ascontiguousarray(u, dtype=float)
         self.pv = pv = np.ascontiguousarray(pv, dtype=float)
         self.w = w
-        self.cache = cache
+        # Without a shared cache, one of this fit's own.
+        self.cache = {} if cache is None else cache
         self.zeros = np.zeros(n)
         extra_cols = None if extra is None else np.atleast_2d(extra.T).T
         self.u_key = (id(u), id(pv))
         self.memo: dict = {}
         self.extra_rows = None if extra_cols is None else np.ascontiguousarray(extra_cols.T)
+        self.n_extra = 0 if self.extra_rows is None else self.extra_rows.shape[0]
         self.u0 = np.ascontiguousarray(u - u[0])
+        self.gain_memo: dict = {}
+        # Extra columns' responses (:meth:`prefetch`), by filter; none: zero rows.
+        self.extra_memo: dict = {}
+        self.no_extra = np.empty((0, n))
+        # Signals the filter rows read (pv, zeros, the extra columns) and their drives
+        # (zeros, u - u[0]); work arrays of the filtered states (grown as needed).
+        src = [pv, self.zeros] + ([] if self.extra_rows is None else list(self.extra_rows))
+        self.src_z = np.stack(src)
+        self.src_d = np.stack([self.zeros, self.u0])
+        self.work = (np.empty((0, n)), np.empty((0, n)))
+
+    def gains(self, pole: float, load_ratio: float) -> tuple[float, float]:
+        """:func:`kalman_gains`, remembered for this fit (the searches revisit filters)."""
+        key = (pole, load_ratio)
+        hit = self.gain_memo.get(key)
+        if hit is None:
+            hit = self.gain_memo[key] = kalman_gains(pole, load_ratio)
+        return hit
+
+    def _keys(self, m: ProcessModel):
+        fkey = (m.pole, m.load_ratio, m.horizon)
+        return fkey, (id(self.pv), *fkey), (*self.u_key, *fkey)
+
+    def prefetch(self, models) -> None:
+        """Filter whatever the structures ``models`` (one horizon) still lack, in one
+        compiled call: their rows run side by side (a grid's filters cost little more
+        than one), each with its own filter's numbers (:func:`_prediction_errors_rows`)."""
+        rows: list = []
+        for m in models:
+            fkey, e_key, b_key = self._keys(m)
+            k1, k2 = self.gains(m.pole, m.load_ratio)
+            # (model, what, row of src_z, row of src_d, start, gains)
+            if _cache_get(self.cache, "innovations", e_key) is None:
+                rows.append((m, "e", 0, 0, float(self.pv[0]), k1, k2))
+            if _cache_get(self.cache, "input_response", b_key) is None:
+                rows.append((m, "b", 1, 1, 0.0, k1, k2))
+            if self.n_extra and fkey not in self.extra_memo:
+                for i in range(self.n_extra):
+                    rows.append((m, i, 2 + i, 0, 0.0, k1, k2))
+        if not rows:
+            return
+        horizon = models[0].horizon
+        if horizon > 1 and self.work[0].shape[0] < len(rows):
+            self.work = (np.empty((len(rows), self.n)), np.empty((len(rows), self.n)))
+        R = _prediction_errors_rows(
+            self.src_z,
+            np.array([r[2] for r in rows]),
+            self.src_d,
+            np.array([r[3] for r in rows]),
+            np.array([r[4] for r in rows]),
+            np.array([r[0].pole for r in rows]),
+            np.array([r[5] for r in rows]),
+            np.array([r[6] for r in rows]),
+            horizon,
+            *self.work,
+        )
+        extras: dict = {}
+        for (m, what, *_), err in zip(rows, R, strict=True):
+            fkey, e_key, b_key = self._keys(m)
+            if what == "e":
+                _cache_put(self.cache, "innovations", e_key, (self.pv, err))
+            elif what == "b":
+                _cache_put(self.cache, "input_response", b_key, (self.u, self.pv, err))
+            else:
+                extras.setdefault(fkey, []).append(err)
+        for fkey, errs in extras.items():
+            if len(self.extra_memo) >= _CACHE_ENTRIES:
+                del self.extra_memo[next(iter(self.extra_memo))]
+            self.extra_memo[fkey] = np.stack(errs)
+
+    def filtered(self, m: ProcessModel):
+        """Innovations of pv, the input's response (both shared through the cache) and
+        the extra columns' responses (rows) for the filter of ``m``."""
+        fkey, e_key, b_key = self._keys(m)
+        e0 = _cache_get(self.cache, "innovations", e_key)
+        base = _cache_get(self.cache, "input_response", b_key)
+        E = self.extra_memo.get(fkey) if self.n_extra else self.no_extra
+        if e0 is None or base is None or E is None:
+            self.prefetch([m])
+            e0 = _cache_get(self.cache, "innovations", e_key)
+            base = _cache_get(self.cache, "input_response", b_key)
+            E = self.extra_memo[fkey] if self.n_extra else self.no_extra
+        return e0, base, E
 
     def terms(self, m: ProcessModel):
-        """Innovations of pv, the input's response and the extra columns' responses
-        for the filter of ``m``: whatever is not shared yet, in one compiled call."""
-        cache, pv, zeros, n = self.cache, self.pv, self.zeros, self.n
-        k1, k2 = kalman_gains(m.pole, m.load_ratio)
-        fkey = (m.pole, m.load_ratio, m.horizon)
-        e_key, b_key = (id(pv), *fkey), (*self.u_key, *fkey)
-        e0 = _cache_get(cache, "innovations", e_key)
-        base = _cache_get(cache, "input_response", b_key)
-        rows, drives, starts = [], [], []
-        if e0 is None:
-            rows.append(pv)
-            drives.append(zeros)
-            starts.append(float(pv[0]))
-        if base is None:
-            rows.append(zeros)
-            drives.append(self.u0)
-            starts.append(0.0)
-        n_extra = 0 if self.extra_rows is None else self.extra_rows.shape[0]
-        E = None
-        if rows or n_extra:
-            Z = np.empty((len(rows) + n_extra, n))
-            D = np.zeros((len(rows) + n_extra, n))
-            for i, (z_, d_) in enumerate(zip(rows, drives, strict=True)):
-                Z[i] = z_
-                D[i] = d_
-            if n_extra:
-                Z[len(rows) :] = self.extra_rows
-            y0 = np.zeros(Z.shape[0])
-            y0[: len(starts)] = starts
-            R = _prediction_errors_many(Z, D, y0, m.pole, k1, k2, m.horizon)
-            i = 0
-            if e0 is None:
-                e0 = R[i].copy()
-                _cache_put(cache, "innovations", e_key, (pv, e0))
-                i += 1
-            if base is None:
-                base = R[i].copy()
-                _cache_put(cache, "input_response", b_key, (self.u, pv, base))
-                i += 1
-            E = R[i:]
-        X = np.empty((n, 2 + n_extra))
+        """Innovations of pv and the regressors ``X`` of the structure ``m``: the input's
+        response at the dead times d and d + 1, then the extra columns' responses."""
+        e0, base, E = self.filtered(m)
+        X = np.empty((self.n, 2 + E.shape[0]))
         for j, shift in enumerate((m.delay, m.delay + 1)):
             _put_delayed(X[:, j], base, shift)
-        if n_extra:
-            # pv = y + d + e: the disturbance enters like a measurement offset.
-            assert E is not None  # n_extra > 0 ran the compiled call above
-            X[:, 2:] = -E.T
+        # pv = y + d + e: the disturbance enters like a measurement offset.
+        X[:, 2:] = -E.T
         return e0, X
 
     def solve(self, m: ProcessModel):
@@ -471,10 +412,19 @@ class _Replay:
         return hit
 
     def _solve(self, m: ProcessModel):
-        e0, X = self.terms(m)
-        coef = fractional_delay_wls(X, -e0, self.w)
-        r = e0 + X @ coef
-        return float(np.dot(self.w, r * r)), coef, r
+        e0, base, E = self.filtered(m)
+        try:
+            sse, coef, r = shifted_pair_wls(e0, base, m.delay, E, self.w)
+        except np.linalg.LinAlgError:
+            # A singular or non-finite system: numpy's path, with its lstsq fallback.
+            X = np.empty((self.n, 2 + E.shape[0]))
+            for j, shift in enumerate((m.delay, m.delay + 1)):
+                _put_delayed(X[:, j], base, shift)
+            X[:, 2:] = -E.T
+            coef = fractional_delay_wls(X, -e0, self.w)
+            r = e0 + X @ coef
+            sse = np.dot(self.w, r * r)
+        return float(sse), coef, r
 
     def sse(self, m: ProcessModel) -> float:
         """Weighted sum of squared errors of the structure ``m`` [pv^2]."""
@@ -520,6 +470,7 @@ def _prediction_horizon(m: ProcessModel, n: int) -> int:
 def _tune_at_horizon(rep: _Replay, cm: ProcessModel, horizon: int) -> tuple[float, ProcessModel]:
     """Load ratio (coarse grid, then golden) and dead time (+-2) at the horizon."""
     grid = [ProcessModel(cm.pole, cm.delay, 10.0**e, horizon) for e in range(-9, 1)]
+    rep.prefetch(grid)
     sse, cm = min(((rep.sse(g), g) for g in grid), key=lambda v: v[0])
     c0 = math.log10(cm.load_ratio)
     ll = golden_section(
