@@ -25,7 +25,9 @@ def test_rows_are_each_filter_alone_to_the_last_bit(m, horizon):
     short of four repeats its last row)."""
     rng = np.random.default_rng(11)
     n = 2500  # beyond two restarts of the horizon's running sum (every 1024 samples)
-    Zs = np.stack([np.cumsum(rng.normal(size=n)), np.zeros(n), rng.normal(size=n)])
+    Zs = np.stack([np.cumsum(rng.normal(size=n)), np.zeros(n)])
+    Es = rng.normal(size=(1, n))
+    sources = np.concatenate([Zs, Es])
     Ds = np.stack([np.zeros(n), np.cumsum(rng.normal(size=n)) * 0.1])
     zi = np.arange(m) % 3
     di = (np.arange(m) // 2) % 2
@@ -36,9 +38,9 @@ def test_rows_are_each_filter_alone_to_the_last_bit(m, horizon):
     k2 = np.array([g[1] for g in gains])
     y0 = rng.normal(size=m)
     work = (np.empty((m, n)), np.empty((m, n)))
-    got = _prediction_errors_rows(Zs, zi, Ds, di, y0, pole, k1, k2, horizon, *work)
+    got = _prediction_errors_rows(Zs, Es, zi, Ds, di, y0, pole, k1, k2, horizon, *work)
     for c in range(m):
-        ref = _prediction_errors(Zs[zi[c]], Ds[di[c]], pole[c], k1[c], k2[c], y0[c], horizon)
+        ref = _prediction_errors(sources[zi[c]], Ds[di[c]], pole[c], k1[c], k2[c], y0[c], horizon)
         assert got[c].tolist() == ref.tolist()
 
 

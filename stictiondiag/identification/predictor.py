@@ -254,7 +254,7 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
         k1 = np.array([g[0] for g in gains] * 2)
         k2 = np.array([g[1] for g in gains] * 2)
         R = _prediction_errors_rows(
-            Zs, rows, Ds, rows, y0, np.full(2 * nr, pole), k1, k2, 1, unused, unused
+            Zs, unused, rows, Ds, rows, y0, np.full(2 * nr, pole), k1, k2, 1, unused, unused
         )
         for r, lr in enumerate(ratios):
             # All dead times at once: the entries of the Gram matrix of the shifted
@@ -304,17 +304,23 @@ class _Replay:
         self.memo: dict = {}
         self.extra_rows = None if extra_cols is None else np.ascontiguousarray(extra_cols.T)
         self.n_extra = 0 if self.extra_rows is None else self.extra_rows.shape[0]
-        self.u0 = np.ascontiguousarray(u - u[0])
         self.gain_memo: dict = {}
         # Extra columns' responses (:meth:`prefetch`), by filter; none: zero rows.
         self.extra_memo: dict = {}
         self.no_extra = np.empty((0, n))
-        # Signals the filter rows read (pv, zeros, the extra columns) and their drives
-        # (zeros, u - u[0]); work arrays of the filtered states (grown as needed).
-        src = [pv, self.zeros] + ([] if self.extra_rows is None else list(self.extra_rows))
-        self.src_z = np.stack(src)
-        self.src_d = np.stack([self.zeros, self.u0])
-        self.work = (np.empty((0, n)), np.empty((0, n)))
+        # Signals the filter rows read: pv and zeros (rows 0, 1), the extra columns
+        # (rows 2..), and their drives: zeros and u - u[0] (shared by the fits of the
+        # context), and work arrays of the filtered states (grown as needed).
+        self.src_z = _cached(
+            self.cache, "signals", id(pv), lambda: (pv, np.stack([pv, self.zeros]))
+        )
+        self.src_d = _cached(
+            self.cache,
+            "drives",
+            self.u_key,
+            lambda: (u, pv, np.stack([self.zeros, u - u[0]])),
+        )
+        self.u0 = self.src_d[1]
 
     def gains(self, pole: float, load_ratio: float) -> tuple[float, float]:
         """:func:`kalman_gains`, remembered for this fit (the searches revisit filters)."""
@@ -347,10 +353,13 @@ class _Replay:
         if not rows:
             return
         horizon = models[0].horizon
-        if horizon > 1 and self.work[0].shape[0] < len(rows):
-            self.work = (np.empty((len(rows), self.n)), np.empty((len(rows), self.n)))
+        work = self.cache.get("work")
+        if work is None or work[0].shape != (max(len(rows), work[0].shape[0]), self.n):
+            size = max(len(rows), 0 if work is None else work[0].shape[0])
+            work = self.cache["work"] = (np.empty((size, self.n)), np.empty((size, self.n)))
         R = _prediction_errors_rows(
             self.src_z,
+            self.extra_rows if self.n_extra else self.no_extra,
             np.array([r[2] for r in rows]),
             self.src_d,
             np.array([r[3] for r in rows]),
@@ -359,21 +368,19 @@ class _Replay:
             np.array([r[5] for r in rows]),
             np.array([r[6] for r in rows]),
             horizon,
-            *self.work,
+            *work,
         )
-        extras: dict = {}
-        for (m, what, *_), err in zip(rows, R, strict=True):
+        for i, (m, what, *_) in enumerate(rows):
             fkey, e_key, b_key = self._keys(m)
             if what == "e":
-                _cache_put(self.cache, "innovations", e_key, (self.pv, err))
+                _cache_put(self.cache, "innovations", e_key, (self.pv, R[i]))
             elif what == "b":
-                _cache_put(self.cache, "input_response", b_key, (self.u, self.pv, err))
-            else:
-                extras.setdefault(fkey, []).append(err)
-        for fkey, errs in extras.items():
-            if len(self.extra_memo) >= _CACHE_ENTRIES:
-                del self.extra_memo[next(iter(self.extra_memo))]
-            self.extra_memo[fkey] = np.stack(errs)
+                _cache_put(self.cache, "input_response", b_key, (self.u, self.pv, R[i]))
+            elif what == 0:
+                # A structure's extra rows are consecutive: a view of them.
+                if len(self.extra_memo) >= _CACHE_ENTRIES:
+                    del self.extra_memo[next(iter(self.extra_memo))]
+                self.extra_memo[fkey] = R[i : i + self.n_extra]
 
     def filtered(self, m: ProcessModel):
         """Innovations of pv, the input's response (both shared through the cache) and

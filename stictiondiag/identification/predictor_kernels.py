@@ -132,13 +132,20 @@ def _prediction_errors_many(Z, D, y0, pole, k1, k2, horizon):  # pragma: no cove
 
 
 @jit
+def _source_row(Zs, Es, i):  # pragma: no cover - compiled
+    """Row ``i`` of ``Zs`` stacked on ``Es``."""
+    nz = Zs.shape[0]
+    return Zs[i] if i < nz else Es[i - nz]
+
+
+@jit
 def _prediction_errors_rows(
-    Zs, zi, Ds, di, y0, pole, k1, k2, horizon, yf, lf
+    Zs, Es, zi, Ds, di, y0, pole, k1, k2, horizon, yf, lf
 ):  # pragma: no cover - compiled
-    """:func:`_prediction_errors_many` of the rows ``Zs[zi[c]]`` (driven by
-    ``Ds[di[c]]``, started at ``y0[c]``) with a filter per row (``pole[c]``,
-    ``k1[c]``, ``k2[c]``): the rows of several filters (a grid of load ratios or
-    poles) at once.
+    """:func:`_prediction_errors_many` of the rows ``zi[c]`` of ``Zs`` then ``Es``
+    (driven by ``Ds[di[c]]``, started at ``y0[c]``) with a filter per row
+    (``pole[c]``, ``k1[c]``, ``k2[c]``): the rows of several filters (a grid of load
+    ratios or poles) at once.
 
     Row ``c`` goes through the operations of :func:`_prediction_errors` with its own
     filter, so it gets that function's numbers.  The rows run four at a time with
@@ -155,7 +162,8 @@ def _prediction_errors_rows(
     err = np.empty((m, n))
     for g in range(0, m, 4):
         a, b, c, d = g, min(g + 1, m - 1), min(g + 2, m - 1), min(g + 3, m - 1)
-        za, zb, zc, zd = Zs[zi[a]], Zs[zi[b]], Zs[zi[c]], Zs[zi[d]]
+        za, zb = _source_row(Zs, Es, zi[a]), _source_row(Zs, Es, zi[b])
+        zc, zd = _source_row(Zs, Es, zi[c]), _source_row(Zs, Es, zi[d])
         xa, xb, xc, xd = Ds[di[a]], Ds[di[b]], Ds[di[c]], Ds[di[d]]
         pa, pb, pc, pd = pole[a], pole[b], pole[c], pole[d]
         ka, kb, kc, kd = k1[a], k1[b], k1[c], k1[d]
@@ -188,7 +196,8 @@ def _prediction_errors_rows(
             yd = pd * fd + ld + xd[k]
     if keep:
         for c in range(m):
-            _horizon_errors(Zs[zi[c]], yf[c], lf[c], Ds[di[c]], pole[c], horizon, err[c])
+            z = _source_row(Zs, Es, zi[c])
+            _horizon_errors(z, yf[c], lf[c], Ds[di[c]], pole[c], horizon, err[c])
     return err
 
 

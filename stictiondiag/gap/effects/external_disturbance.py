@@ -27,11 +27,15 @@ from stictiondiag.identification.predictor import PredictorFit
 
 
 def _sinusoids(n: int, omega: float, harmonics: int) -> np.ndarray:
+    """The columns ``cos(h omega k)``, ``sin(h omega k)`` for ``h = 1..harmonics`` (n x
+    2 harmonics), stored column by column: the process fit reads them as rows."""
     k = np.arange(n, dtype=float)
-    cols = []
+    rows = np.empty((2 * harmonics, n))
     for h in range(1, harmonics + 1):
-        cols += [np.cos(h * omega * k), np.sin(h * omega * k)]
-    return np.column_stack(cols)
+        arg = h * omega * k
+        np.cos(arg, out=rows[2 * h - 2])
+        np.sin(arg, out=rows[2 * h - 1])
+    return rows.T
 
 
 #: Spectral peaks refined by golden-section search (the rest are screened out).
