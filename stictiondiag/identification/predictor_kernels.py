@@ -11,10 +11,16 @@ as alone, so it gets the same numbers.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from stictiondiag.core.jit import jit
 from stictiondiag.identification.numerics import _scaled_solve
+
+#: A sum over the samples that may be reassociated (numba's ``fastmath`` flag
+#: ``reassoc`` alone: no other assumption about the numbers), so that it is computed
+#: in vector registers, several partial sums at once, as BLAS computes its dots.
+_reduction = numba.njit(cache=True, nogil=True, fastmath={"reassoc"})
 
 
 @jit
@@ -201,28 +207,22 @@ def _prediction_errors_rows(
     return err
 
 
-@jit
+@_reduction
 def _wdot(x, w, y):  # pragma: no cover - compiled
-    """``sum_k (x[k] w[k]) y[k]`` in four interleaved partial sums (independent chains
-    of additions run side by side; the rounding is that of an order of summation)."""
-    n = w.shape[0]
-    s0 = s1 = s2 = s3 = 0.0
-    q = n - n % 4
-    for k in range(0, q, 4):
-        s0 += (x[k] * w[k]) * y[k]
-        s1 += (x[k + 1] * w[k + 1]) * y[k + 1]
-        s2 += (x[k + 2] * w[k + 2]) * y[k + 2]
-        s3 += (x[k + 3] * w[k + 3]) * y[k + 3]
-    for k in range(q, n):
-        s0 += (x[k] * w[k]) * y[k]
-    return (s0 + s1) + (s2 + s3)
+    """``sum_k (x[k] w[k]) y[k]``, the sum reassociated so that it runs in vector
+    registers (the products are rounded as written; the rounding of the sum is that
+    of an order of summation, as BLAS's blocks are).  O(n)."""
+    s = 0.0
+    for k in range(w.shape[0]):
+        s += (x[k] * w[k]) * y[k]
+    return s
 
 
 @jit
 def _shifted_wdot(x, si, y, sj, w):  # pragma: no cover - compiled
     """``sum_k (x[k - si] w[k]) y[k - sj]`` with ``x`` and ``y`` held at their first
     value before the record starts (:func:`~stictiondiag.identification.numerics.delayed`),
-    in interleaved partial sums (:func:`_wdot`).  O(n)."""
+    summed as :func:`_wdot` sums.  O(n)."""
     n = w.shape[0]
     k0 = min(max(si, sj), n)
     head = 0.0
@@ -289,7 +289,7 @@ def shifted_pair_wls(e0, base, delay, E, w):  # pragma: no cover - compiled
 
     The weighted normal equations hold the products ``(x_i w) x_j`` of
     :func:`~stictiondiag.identification.numerics.wls` (a negated column flips the
-    sign of its sums exactly), summed in interleaved partial sums instead of BLAS
+    sign of its sums exactly), summed in vector registers (:func:`_wdot`) instead of BLAS
     blocks (the same numbers to rounding); the system is solved as ``wls`` solves it
     (``_scaled_solve``), and when the two input gains have opposite signs the
     better single column (sub-systems of the same normal equations) replaces the
