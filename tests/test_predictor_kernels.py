@@ -37,8 +37,7 @@ def test_rows_are_each_filter_alone_to_the_last_bit(m, horizon):
     k1 = np.array([g[0] for g in gains])
     k2 = np.array([g[1] for g in gains])
     y0 = rng.normal(size=m)
-    work = (np.empty((m, n)), np.empty((m, n)))
-    got = _prediction_errors_rows(Zs, Es, zi, Ds, di, y0, pole, k1, k2, horizon, *work)
+    got = _prediction_errors_rows(Zs, Es, zi, Ds, di, y0, pole, k1, k2, horizon)
     for c in range(m):
         ref = _prediction_errors(sources[zi[c]], Ds[di[c]], pole[c], k1[c], k2[c], y0[c], horizon)
         assert got[c].tolist() == ref.tolist()

@@ -248,13 +248,13 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     rows = np.repeat(np.arange(2), nr)
     y0 = np.zeros(2 * nr)
     y0[:nr] = float(pv[0])
-    unused = np.empty((1, 1))  # no horizon: no filtered states kept
+    unused = np.empty((0, n))  # no extra rows
     for pole in pole_grid:
         gains = [kalman_gains(pole, lr) for lr in ratios]
         k1 = np.array([g[0] for g in gains] * 2)
         k2 = np.array([g[1] for g in gains] * 2)
         R = _prediction_errors_rows(
-            Zs, unused, rows, Ds, rows, y0, np.full(2 * nr, pole), k1, k2, 1, unused, unused
+            Zs, unused, rows, Ds, rows, y0, np.full(2 * nr, pole), k1, k2, 1
         )
         for r, lr in enumerate(ratios):
             # All dead times at once: the entries of the Gram matrix of the shifted
@@ -310,7 +310,7 @@ class _Replay:
         self.no_extra = np.empty((0, n))
         # Signals the filter rows read: pv and zeros (rows 0, 1), the extra columns
         # (rows 2..), and their drives: zeros and u - u[0] (shared by the fits of the
-        # context), and work arrays of the filtered states (grown as needed).
+        # context).
         self.src_z = _cached(
             self.cache, "signals", id(pv), lambda: (pv, np.stack([pv, self.zeros]))
         )
@@ -353,10 +353,6 @@ class _Replay:
         if not rows:
             return
         horizon = models[0].horizon
-        work = self.cache.get("work")
-        if work is None or work[0].shape != (max(len(rows), work[0].shape[0]), self.n):
-            size = max(len(rows), 0 if work is None else work[0].shape[0])
-            work = self.cache["work"] = (np.empty((size, self.n)), np.empty((size, self.n)))
         R = _prediction_errors_rows(
             self.src_z,
             self.extra_rows if self.n_extra else self.no_extra,
@@ -368,7 +364,6 @@ class _Replay:
             np.array([r[5] for r in rows]),
             np.array([r[6] for r in rows]),
             horizon,
-            *work,
         )
         for i, (m, what, *_) in enumerate(rows):
             fkey, e_key, b_key = self._keys(m)

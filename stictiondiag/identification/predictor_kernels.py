@@ -145,26 +145,61 @@ def _source_row(Zs, Es, i):  # pragma: no cover - compiled
 
 
 @jit
+def _slide(acc, pole, ph, x, k, horizon):  # pragma: no cover - compiled
+    """The running sum of :func:`_horizon_errors` at step ``k``: summed afresh every
+    ``_RESTART`` samples, else updated in O(1), with its operations."""
+    if k % _RESTART == 0:
+        acc = 0.0
+        for i in range(horizon):
+            acc = pole * acc + x[k + i]
+        return acc
+    return pole * acc - ph * x[k - 1] + x[k - 1 + horizon]
+
+
+@jit
+def _row_constants(Ds, di, pole, horizon):  # pragma: no cover - compiled
+    """Per row: ``pole^h``, ``1 + pole + ... + pole^(h-1)`` and whether its drive
+    moves, as :func:`_horizon_errors` computes them."""
+    m = di.shape[0]
+    ph = np.ones(m)
+    geo = np.zeros(m)
+    moving = np.zeros(m, dtype=np.bool_)
+    for c in range(m):
+        for _ in range(horizon):
+            geo[c] = geo[c] * pole[c] + 1.0
+            ph[c] *= pole[c]
+        x = Ds[di[c]]
+        for j in range(x.shape[0]):
+            if x[j] != 0.0:
+                moving[c] = True
+                break
+    return ph, geo, moving
+
+
+@jit
 def _prediction_errors_rows(
-    Zs, Es, zi, Ds, di, y0, pole, k1, k2, horizon, yf, lf
+    Zs, Es, zi, Ds, di, y0, pole, k1, k2, horizon
 ):  # pragma: no cover - compiled
     """:func:`_prediction_errors_many` of the rows ``zi[c]`` of ``Zs`` then ``Es``
     (driven by ``Ds[di[c]]``, started at ``y0[c]``) with a filter per row
     (``pole[c]``, ``k1[c]``, ``k2[c]``): the rows of several filters (a grid of load
     ratios or poles) at once.
 
-    Row ``c`` goes through the operations of :func:`_prediction_errors` with its own
-    filter, so it gets that function's numbers.  The rows run four at a time with
-    their states in registers: one filter's step waits on its previous step, so
-    four independent ones cost little more than one (a group short of four repeats
-    its last row, which writes the same numbers twice).  The filtered states of a
-    horizon beyond one sample go to the caller's work arrays ``yf`` and ``lf`` (at
-    least ``len(zi)`` x n; reused, so no fresh pages per call).  O(n m) for ``m``
-    rows, for any horizon (:func:`_horizon_errors`).
+    Row ``c`` goes through the operations of :func:`_prediction_errors` and
+    :func:`_horizon_errors` with its own filter, so it gets their numbers; the
+    prediction of sample ``k + horizon`` is made at step ``k``, as the filter
+    passes, so the filtered states are never stored.  The rows run four at a time
+    with their states in registers: one filter's step waits on its previous step,
+    so four independent ones cost little more than one (a group short of four
+    repeats its last row, which writes the same numbers twice).  O(n m) for ``m``
+    rows, for any horizon.
     """
     m = zi.shape[0]
     n = Zs.shape[1]
-    keep = horizon > 1 and n > horizon
+    h = horizon
+    q = n - h if h > 1 and n > h else 0
+    one = h if q > 0 else n  # samples that keep their one-step error
+    ph, geo, mv = _row_constants(Ds, di, pole, h)
     err = np.empty((m, n))
     for g in range(0, m, 4):
         a, b, c, d = g, min(g + 1, m - 1), min(g + 2, m - 1), min(g + 3, m - 1)
@@ -176,15 +211,14 @@ def _prediction_errors_rows(
         qa, qb, qc, qd = k2[a], k2[b], k2[c], k2[d]
         ya, yb, yc, yd = y0[a], y0[b], y0[c], y0[d]
         la = lb = lc = ld = 0.0
+        sa = sb = sc = sd = 0.0
         for k in range(n):
             ea = za[k] - ya
             eb = zb[k] - yb
             ec = zc[k] - yc
             ed = zd[k] - yd
-            err[a, k] = ea
-            err[b, k] = eb
-            err[c, k] = ec
-            err[d, k] = ed
+            if k < one:
+                err[a, k], err[b, k], err[c, k], err[d, k] = ea, eb, ec, ed
             fa = ya + ka * ea
             fb = yb + kb * eb
             fc = yc + kc * ec
@@ -193,17 +227,23 @@ def _prediction_errors_rows(
             lb = lb + qb * eb
             lc = lc + qc * ec
             ld = ld + qd * ed
-            if keep:
-                yf[a, k], yf[b, k], yf[c, k], yf[d, k] = fa, fb, fc, fd
-                lf[a, k], lf[b, k], lf[c, k], lf[d, k] = la, lb, lc, ld
+            if k < q:
+                if mv[a]:
+                    sa = _slide(sa, pa, ph[a], xa, k, h)
+                if mv[b]:
+                    sb = _slide(sb, pb, ph[b], xb, k, h)
+                if mv[c]:
+                    sc = _slide(sc, pc, ph[c], xc, k, h)
+                if mv[d]:
+                    sd = _slide(sd, pd, ph[d], xd, k, h)
+                err[a, k + h] = za[k + h] - (ph[a] * fa + geo[a] * la + sa)
+                err[b, k + h] = zb[k + h] - (ph[b] * fb + geo[b] * lb + sb)
+                err[c, k + h] = zc[k + h] - (ph[c] * fc + geo[c] * lc + sc)
+                err[d, k + h] = zd[k + h] - (ph[d] * fd + geo[d] * ld + sd)
             ya = pa * fa + la + xa[k]
             yb = pb * fb + lb + xb[k]
             yc = pc * fc + lc + xc[k]
             yd = pd * fd + ld + xd[k]
-    if keep:
-        for c in range(m):
-            z = _source_row(Zs, Es, zi[c])
-            _horizon_errors(z, yf[c], lf[c], Ds[di[c]], pole[c], horizon, err[c])
     return err
 
 
