@@ -149,14 +149,6 @@ def process_regressors(u: np.ndarray, model: ProcessModel, k1: float, k2: float)
 _CACHE_ENTRIES = 24
 
 
-def _cache_get(cache: dict | None, kind: str, key):
-    """The value remembered under ``key`` (see :func:`_cached`), or None."""
-    if cache is None:
-        return None
-    hit = cache.get(kind, {}).get(key)
-    return None if hit is None else hit[-1]
-
-
 def _cache_put(cache: dict | None, kind: str, key, value: tuple) -> None:
     """Remember ``value`` (the arrays the key names, then the value) under ``key``."""
     if cache is None:
@@ -305,8 +297,8 @@ class _Replay:
         self.extra_rows = None if extra_cols is None else np.ascontiguousarray(extra_cols.T)
         self.n_extra = 0 if self.extra_rows is None else self.extra_rows.shape[0]
         self.gain_memo: dict = {}
-        # Extra columns' responses (:meth:`prefetch`), by filter; none: zero rows.
-        self.extra_memo: dict = {}
+        # The terms of the filters used, by filter (:meth:`filtered`; bounded).
+        self.filter_memo: dict = {}
         self.no_extra = np.empty((0, n))
         # Signals the filter rows read: pv and zeros (rows 0, 1), the extra columns
         # (rows 2..), and their drives: zeros and u - u[0] (shared by the fits of the
@@ -330,66 +322,87 @@ class _Replay:
             hit = self.gain_memo[key] = kalman_gains(pole, load_ratio)
         return hit
 
-    def _keys(self, m: ProcessModel):
-        fkey = (m.pole, m.load_ratio, m.horizon)
-        return fkey, (id(self.pv), *fkey), (*self.u_key, *fkey)
-
     def prefetch(self, models) -> None:
         """Filter whatever the structures ``models`` (one horizon) still lack, in one
         compiled call: their rows run side by side (a grid's filters cost little more
-        than one), each with its own filter's numbers (:func:`_prediction_errors_rows`)."""
-        rows: list = []
+        than one), each with its own filter's numbers (:func:`_prediction_errors_rows`).
+        The innovations and the input's response go to the shared cache, and the
+        three terms of each filter to this fit's memo (:meth:`filtered`)."""
+        cache, pv, memo = self.cache, self.pv, self.filter_memo
+        innovations = cache.setdefault("innovations", {})
+        responses = cache.setdefault("input_response", {})
+        todo = []
+        zi: list = []  # per row: row of src_z then extra_rows, row of src_d
+        di: list = []
+        par: list = []  # per row: start, pole, k1, k2
         for m in models:
-            fkey, e_key, b_key = self._keys(m)
+            fkey = (m.pole, m.load_ratio, m.horizon)
+            if fkey in memo:
+                continue
+            e_key, b_key = (id(pv), *fkey), (*self.u_key, *fkey)
+            e0, base = innovations.get(e_key), responses.get(b_key)
             k1, k2 = self.gains(m.pole, m.load_ratio)
-            # (model, what, row of src_z, row of src_d, start, gains)
-            if _cache_get(self.cache, "innovations", e_key) is None:
-                rows.append((m, "e", 0, 0, float(self.pv[0]), k1, k2))
-            if _cache_get(self.cache, "input_response", b_key) is None:
-                rows.append((m, "b", 1, 1, 0.0, k1, k2))
-            if self.n_extra and fkey not in self.extra_memo:
-                for i in range(self.n_extra):
-                    rows.append((m, i, 2 + i, 0, 0.0, k1, k2))
-        if not rows:
+            first = len(zi)
+            if e0 is None:
+                zi.append(0)
+                di.append(0)
+                par.append((float(pv[0]), m.pole, k1, k2))
+            if base is None:
+                zi.append(1)
+                di.append(1)
+                par.append((0.0, m.pole, k1, k2))
+            for i in range(self.n_extra):
+                zi.append(2 + i)
+                di.append(0)
+                par.append((0.0, m.pole, k1, k2))
+            todo.append((fkey, e_key, b_key, e0, base, first))
+        if not todo:
             return
-        horizon = models[0].horizon
-        R = _prediction_errors_rows(
-            self.src_z,
-            self.extra_rows if self.n_extra else self.no_extra,
-            np.array([r[2] for r in rows]),
-            self.src_d,
-            np.array([r[3] for r in rows]),
-            np.array([r[4] for r in rows]),
-            np.array([r[0].pole for r in rows]),
-            np.array([r[5] for r in rows]),
-            np.array([r[6] for r in rows]),
-            horizon,
-        )
-        for i, (m, what, *_) in enumerate(rows):
-            fkey, e_key, b_key = self._keys(m)
-            if what == "e":
-                _cache_put(self.cache, "innovations", e_key, (self.pv, R[i]))
-            elif what == "b":
-                _cache_put(self.cache, "input_response", b_key, (self.u, self.pv, R[i]))
-            elif what == 0:
-                # A structure's extra rows are consecutive: a view of them.
-                if len(self.extra_memo) >= _CACHE_ENTRIES:
-                    del self.extra_memo[next(iter(self.extra_memo))]
-                self.extra_memo[fkey] = R[i : i + self.n_extra]
+        R = None
+        if zi:
+            P = np.array(par)
+            R = _prediction_errors_rows(
+                self.src_z,
+                self.extra_rows if self.n_extra else self.no_extra,
+                np.array(zi),
+                self.src_d,
+                np.array(di),
+                P[:, 0],
+                P[:, 1],
+                P[:, 2],
+                P[:, 3],
+                models[0].horizon,
+            )
+        for fkey, e_key, b_key, e0, base, i in todo:
+            if e0 is None:
+                assert R is not None
+                e0 = R[i]
+                _cache_put(cache, "innovations", e_key, (pv, e0))
+                i += 1
+            else:
+                e0 = e0[-1]
+            if base is None:
+                assert R is not None
+                base = R[i]
+                _cache_put(cache, "input_response", b_key, (self.u, pv, base))
+                i += 1
+            else:
+                base = base[-1]
+            # A structure's extra rows are consecutive: a view of them.
+            E = R[i : i + self.n_extra] if self.n_extra and R is not None else self.no_extra
+            if len(memo) >= _CACHE_ENTRIES:
+                del memo[next(iter(memo))]
+            memo[fkey] = (e0, base, E)
 
     def filtered(self, m: ProcessModel):
         """Innovations of pv, the input's response (both shared through the cache) and
         the extra columns' responses (rows) for the filter of ``m``."""
-        fkey, e_key, b_key = self._keys(m)
-        e0 = _cache_get(self.cache, "innovations", e_key)
-        base = _cache_get(self.cache, "input_response", b_key)
-        E = self.extra_memo.get(fkey) if self.n_extra else self.no_extra
-        if e0 is None or base is None or E is None:
+        fkey = (m.pole, m.load_ratio, m.horizon)
+        hit = self.filter_memo.get(fkey)
+        if hit is None:
             self.prefetch([m])
-            e0 = _cache_get(self.cache, "innovations", e_key)
-            base = _cache_get(self.cache, "input_response", b_key)
-            E = self.extra_memo[fkey] if self.n_extra else self.no_extra
-        return e0, base, E
+            hit = self.filter_memo[fkey]
+        return hit
 
     def terms(self, m: ProcessModel):
         """Innovations of pv and the regressors ``X`` of the structure ``m``: the input's
