@@ -10,6 +10,9 @@ and predicts pv ``h`` samples ahead (``h`` = dead time + time constant); the
 innovations are linear in the gain (and in a fractional dead time), solved by least
 squares on a grid of poles, dead times and load-to-noise ratios.
 
+The compiled parts (the filter's gains and prediction errors, the grid's sums, the
+linear solve) are in :mod:`stictiondiag.identification.predictor_kernels`.
+
 This is the process fit of the gap diagnosis (:mod:`stictiondiag.gap`), which fits on
 some blocks of the record and judges on others (per-sample weights).  The closed-loop
 replay uses the output-error fit of the same structures
@@ -213,7 +216,10 @@ def _structure_grid(u: np.ndarray, pv: np.ndarray, w: np.ndarray):
     """The one-step prediction-error fit on a grid of poles, dead times and load ratios.
 
     Returns the best ``(sse, ProcessModel)``, the best per pole and the dead-time grid
-    (see :func:`fit_predictor`).
+    (see :func:`fit_predictor`).  Per pole, the filters of its load ratios run side by
+    side in one compiled call; per filter, the about three Gram entries per dead time
+    that :func:`_pair_sse` uses (:func:`shifted_grams`).  O(n) per pole, load ratio
+    and dead time.
     """
     n = u.size
     taus = np.geomspace(0.5, max(n / 8.0, 2.0), 14)
@@ -280,7 +286,11 @@ class _Replay:
     response) are shared with the other fits of this context through ``cache``: the
     searches over an effect's parameter refit the linear coefficients many times with
     one structure.  Keys hold the arrays they name (an identity stays unique while it
-    is held).  Solved structures are remembered for this fit (:meth:`solve`).
+    is held).  The three terms of each filter are remembered for this fit
+    (:meth:`filtered`), and so are the solved structures (:meth:`solve`); a grid's
+    filters are computed in one compiled call (:meth:`prefetch`).  A structure costs
+    O(n p^2) for ``p`` columns once its filter's terms are there, and O(n) per
+    filtered row before.
     """
 
     def __init__(self, u, pv, w, extra, cache):

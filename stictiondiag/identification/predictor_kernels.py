@@ -2,11 +2,15 @@
 (:mod:`stictiondiag.identification.predictor`; Section 4.2.2, Eq. 3 of Choudhury,
 Thornhill & Shah 2005).
 
-The steady-state Kalman gains of the process-with-load model, the filter's
-``horizon``-step prediction errors of one signal or of many at once, and the sums of
-squares of the one-step structure grid.  Rows filtered together run side by side
+The steady-state Kalman gains of the process-with-load model; the filter's
+``horizon``-step prediction errors of one signal, of many with one filter, or of
+many with a filter each (a grid's filters at once); the entries of the one-step
+structure grid's normal equations; and the weighted least-squares fit of one
+structure (:func:`shifted_pair_wls`).  Rows filtered together run side by side
 (one's latency hides behind the others'); each row goes through the same operations
-as alone, so it gets the same numbers.
+as alone, so it gets the same numbers.  The weighted sums are reassociated into
+vector registers: the same products, summed in another order than BLAS sums them
+(the same numbers to rounding).
 """
 
 from __future__ import annotations
