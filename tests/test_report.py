@@ -295,7 +295,13 @@ def test_index_names_each_loop_type_and_what_decided_it():
     base = {"verdict": "stiction", "probability": 0.9, "S": 3.0, "J": 1.0}
     rows = [
         {**base, "loop": "LIC101", "loop_type": "level", "loop_type_source": "tag"},
-        {**base, "loop": "A", "loop_type": "other", "integrating": True, "loop_type_source": "data"},
+        {
+            **base,
+            "loop": "A",
+            "loop_type": "other",
+            "integrating": True,
+            "loop_type_source": "data",
+        },
         {**base, "loop": "B", "loop_type": "other", "integrating": False},
         {**base, "loop": "C"},  # a row of an older report: no loop type recorded
     ]

@@ -15,7 +15,7 @@ from stictiondiag.identification.numerics import fractional_delay_wls, wls
 from stictiondiag.identification.predictor import _pair_sse, kalman_gains
 from stictiondiag.identification.predictor_kernels import (
     _prediction_errors,
-    _prediction_errors_many,
+    _prediction_errors_rows,
 )
 from stictiondiag.stiction import hammerstein_kernels as hk
 
@@ -50,13 +50,16 @@ def test_horizon_errors_match_stepped_predictions(pole, horizon):
     k1, k2 = kalman_gains(pole, 1e-3)
     ref = _stepped_errors(z, drive, pole, k1, k2, z[0], horizon)
     got = _prediction_errors(z, drive, pole, k1, k2, z[0], horizon)
-    many = _prediction_errors_many(
-        np.stack([z, z]),
+    many = _prediction_errors_rows(
+        np.stack([z]),
+        np.zeros((0, n)),
+        np.array([0, 0]),
         np.stack([drive, np.zeros(n)]),
+        np.array([0, 1]),
         np.array([z[0], z[0]]),
-        pole,
-        k1,
-        k2,
+        np.full(2, pole),
+        np.full(2, k1),
+        np.full(2, k2),
         horizon,
     )
     # Rounding only: the running sum adds and removes terms instead of summing

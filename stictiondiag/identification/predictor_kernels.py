@@ -3,8 +3,8 @@
 Thornhill & Shah 2005).
 
 The steady-state Kalman gains of the process-with-load model; the filter's
-``horizon``-step prediction errors of one signal, of many with one filter, or of
-many with a filter each (a grid's filters at once); the entries of the one-step
+``horizon``-step prediction errors of one signal or of many with a filter each
+(a grid's filters at once); the entries of the one-step
 structure grid's normal equations; and the weighted least-squares fit of one
 structure (:func:`shifted_pair_wls`).  Rows filtered together run side by side
 (one's latency hides behind the others'); each row goes through the same operations
@@ -117,31 +117,6 @@ def _prediction_errors(z, drive, pole, k1, k2, y0, horizon):  # pragma: no cover
 
 
 @jit
-def _prediction_errors_many(Z, D, y0, pole, k1, k2, horizon):  # pragma: no cover - compiled
-    """:func:`_prediction_errors` of every row of ``Z`` (driven by the row of ``D``,
-    started at ``y0``) with one filter: the same operations per row, but the rows'
-    filters run side by side, so one's latency hides behind the others'."""
-    m, n = Z.shape
-    yf = np.empty((m, n))
-    lf = np.empty((m, n))
-    err = np.empty((m, n))
-    yh = y0.copy()
-    lh = np.zeros(m)
-    for k in range(n):
-        for c in range(m):
-            e = Z[c, k] - yh[c]
-            err[c, k] = e
-            yf[c, k] = yh[c] + k1 * e
-            lf[c, k] = lh[c] + k2 * e
-            yh[c] = pole * yf[c, k] + lf[c, k] + D[c, k]
-            lh[c] = lf[c, k]
-    if horizon > 1 and n > horizon:
-        for c in range(m):
-            _horizon_errors(Z[c], yf[c], lf[c], D[c], pole, horizon, err[c])
-    return err
-
-
-@jit
 def _source_row(Zs, Es, i):  # pragma: no cover - compiled
     """Row ``i`` of ``Zs`` stacked on ``Es``."""
     nz = Zs.shape[0]
@@ -184,8 +159,8 @@ def _row_constants(Ds, di, pole, horizon):  # pragma: no cover - compiled
 def _prediction_errors_rows(
     Zs, Es, zi, Ds, di, y0, pole, k1, k2, horizon
 ):  # pragma: no cover - compiled
-    """:func:`_prediction_errors_many` of the rows ``zi[c]`` of ``Zs`` then ``Es``
-    (driven by ``Ds[di[c]]``, started at ``y0[c]``) with a filter per row
+    """:func:`_prediction_errors` of the rows ``zi[c]`` of ``Zs`` then ``Es``
+    (driven by ``Ds[di[c]]``, started at ``y0[c]``), each with its own filter
     (``pole[c]``, ``k1[c]``, ``k2[c]``): the rows of several filters (a grid of load
     ratios or poles) at once.
 
