@@ -278,3 +278,24 @@ def test_pairs_seen_before_are_not_computed_again(monkeypatch):
     ref.taus = np.array([7.0])
     ref.set_keep(keep)
     assert [a.tolist() for a in after] == [r.tolist() for r in ref.cost(S[:1], J[:1], v, off)]
+
+
+def test_process_fit_shares_its_filter_sums_to_the_last_bit():
+    """The FOPTD fit computes the filter's free response and its prefix sums once
+    for all its scans and fits: the same numbers as computed afresh in each."""
+    from stictiondiag.identification import process as ip
+
+    rng = np.random.default_rng(12)
+    n = 4000
+    u = np.cumsum(rng.normal(size=n))
+    y_f = ip._highpass(np.cumsum(rng.normal(size=n)), 0.995)
+    b = 0.995
+    sums = ip._FilterSums.of(y_f, b)
+    for a in (0.5, 0.9, 0.999):
+        alone = ip._oe_delay_scan(u, y_f, a, b, 300)
+        shared = ip._oe_delay_scan(u, y_f, a, b, 300, sums)
+        assert alone.tolist() == shared.tolist()
+        for d in (0, 7, 300):
+            m0, c0 = ip._foptd_oe(u, y_f, d, a, b)
+            m1, c1 = ip._foptd_oe(u, y_f, d, a, b, sums.q)
+            assert m0 == m1 and c0.tolist() == c1.tolist()

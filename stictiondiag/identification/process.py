@@ -262,15 +262,18 @@ def _solve_normal(A: np.ndarray, g: np.ndarray, yy: np.ndarray | float, rows: np
     return (yy - np.einsum("...i,...i->...", beta, g)) / rows, beta
 
 
-def _foptd_oe(u: np.ndarray, y_f: np.ndarray, d: int, a: float, b: float):
+def _foptd_oe(
+    u: np.ndarray, y_f: np.ndarray, d: int, a: float, b: float, qb: np.ndarray | None = None
+):
     """Filtered output-error fit of the FOPTD for fixed dead time and pole.
 
     Regressors, high-passed like ``y_f``: the lag response ``z`` (coefficient: the
     gain) and the free response ``a^k`` (the initial state); plus ``b^k``, the
     filter's own free response, which carries whatever the rows ``k <= d`` (where pv
     answers to inputs from before the record) leave in the filter.  Rows ``k > d``.
-    Returns the mean squared error and the coefficients.  O(n): a few passes over
-    the record.
+    ``qb``: ``_powers(b, 0, n)`` when the caller has it (a fit evaluates many dead
+    times and poles with one filter).  Returns the mean squared error and the
+    coefficients.  O(n): a few passes over the record.
     """
     n = u.size
     rows = slice(d + 1, n)
@@ -278,7 +281,7 @@ def _foptd_oe(u: np.ndarray, y_f: np.ndarray, d: int, a: float, b: float):
         [
             _highpass(_lag_response(u, d, a), b)[rows],
             _highpass(_powers(a, 0, n), b)[rows],
-            _powers(b, d + 1, n),
+            _powers(b, d + 1, n) if qb is None else qb[rows],
         ]
     )
     A = X.T @ X
@@ -295,25 +298,52 @@ def _prefix(x: np.ndarray) -> np.ndarray:
     return np.concatenate(([0.0], np.cumsum(x)))
 
 
-def _delay_scan(w: np.ndarray, r: np.ndarray, y_f: np.ndarray, b: float, d_max: int):
+@dataclass(frozen=True)
+class _FilterSums:
+    """What the delay scans of one fit share: the filter's free response ``b^k`` and
+    the prefix sums of its square, of its product with ``y_f`` and of ``y_f``'s
+    square (they do not depend on the input's pole or dead time)."""
+
+    q: np.ndarray
+    cqq: np.ndarray
+    cqy: np.ndarray
+    cyy: np.ndarray
+
+    @classmethod
+    def of(cls, y_f: np.ndarray, b: float) -> _FilterSums:
+        q = _powers(b, 0, y_f.size)
+        return cls(q, _prefix(q * q), _prefix(q * y_f), _prefix(y_f * y_f))
+
+
+def _delay_scan(
+    w: np.ndarray,
+    r: np.ndarray,
+    y_f: np.ndarray,
+    b: float,
+    d_max: int,
+    sums: _FilterSums | None = None,
+):
     """Mean squared error of a filtered output-error fit for every dead time 0..d_max.
 
     Regressors for dead time ``d``, rows ``k > d``: ``w[k - d]`` (the high-passed
     response to the input without dead time, ``w[0] = 0``: delaying the input delays
     the response, and the high-pass started at rest keeps the shift), ``r[k]`` (a
     delay-free column) and ``b^k`` (the filter's free response).  The normal
-    equations come from prefix sums and two correlations for all delays at once.
-    O(n log d_max) (the correlations, :func:`correlate_lags`) plus O(d_max) 3 x 3
-    solves; O(n) memory.
+    equations come from prefix sums and two correlations for all delays at once;
+    ``sums`` are the ones that depend on ``y_f`` and ``b`` only, when the caller
+    scans more than once (:class:`_FilterSums`).  O(n log d_max) (the correlations,
+    :func:`correlate_lags`) plus O(d_max) 3 x 3 solves; O(n) memory.
     """
     n = w.size
     dd = np.arange(d_max + 1)
-    q = _powers(b, 0, n)
+    if sums is None:
+        sums = _FilterSums.of(y_f, b)
+    q, cqq, cqy, cyy = sums.q, sums.cqq, sums.cqy, sums.cyy
     first = dd + 1  # rows k = d+1 .. n-1
     top = n - dd  # w[1 .. n-1-d] appear
     cww, cwq = _prefix(w * w), _prefix(w * q)
-    crr, crq, cqq = _prefix(r * r), _prefix(r * q), _prefix(q * q)
-    cry, cqy, cyy = _prefix(r * y_f), _prefix(q * y_f), _prefix(y_f * y_f)
+    crr, crq = _prefix(r * r), _prefix(r * q)
+    cry = _prefix(r * y_f)
     # sum_{k>=d} v[k] w[k-d]: correlation of v with w at lag d (w[0] = 0 drops k = d).
     wr = correlate_lags(r, w, d_max)
     wy = correlate_lags(y_f, w, d_max)
@@ -329,10 +359,17 @@ def _delay_scan(w: np.ndarray, r: np.ndarray, y_f: np.ndarray, b: float, d_max: 
     return mse
 
 
-def _oe_delay_scan(u: np.ndarray, y_f: np.ndarray, a: float, b: float, d_max: int):
+def _oe_delay_scan(
+    u: np.ndarray,
+    y_f: np.ndarray,
+    a: float,
+    b: float,
+    d_max: int,
+    sums: _FilterSums | None = None,
+):
     """:func:`_foptd_oe` for every dead time 0..d_max at a fixed pole (vectorised)."""
     w = _highpass(_lag_response(u, 0, a), b)
-    return _delay_scan(w, _highpass(_powers(a, 0, u.size), b), y_f, b, d_max)
+    return _delay_scan(w, _highpass(_powers(a, 0, u.size), b), y_f, b, d_max, sums)
 
 
 def _fit_foptd(u, y_f, dt, b, d_max, tau_max):
@@ -347,9 +384,10 @@ def _fit_foptd(u, y_f, dt, b, d_max, tau_max):
     not grow with the record: O(n log d_max) in all.
     """
     log_lo, log_hi = math.log(0.2 * dt), math.log(tau_max)
+    sums = _FilterSums.of(y_f, b)  # shared by every scan and fit below: one filter
 
     def mse(d: int, log_tau: float) -> float:
-        return _foptd_oe(u, y_f, d, math.exp(-dt / math.exp(log_tau)), b)[0]
+        return _foptd_oe(u, y_f, d, math.exp(-dt / math.exp(log_tau)), b, sums.q)[0]
 
     grid = np.linspace(log_lo, log_hi, 25)
     spacing = float(grid[1] - grid[0])
@@ -375,7 +413,7 @@ def _fit_foptd(u, y_f, dt, b, d_max, tau_max):
     profile = np.full(d_max + 1, np.inf)
     tau_at = np.zeros(d_max + 1)
     for g in grid:
-        costs = _oe_delay_scan(u, y_f, math.exp(-dt / math.exp(g)), b, d_max)
+        costs = _oe_delay_scan(u, y_f, math.exp(-dt / math.exp(g)), b, d_max, sums)
         better = costs < profile
         profile[better] = costs[better]
         tau_at[better] = g
@@ -392,7 +430,7 @@ def _fit_foptd(u, y_f, dt, b, d_max, tau_max):
         while 0 <= d + step <= d_max and cost(d + step, cache[d][0]) < cache[d][1]:
             d += step
     tau = math.exp(cache[d][0])
-    mse_, coef = _foptd_oe(u, y_f, d, math.exp(-dt / tau), b)
+    mse_, coef = _foptd_oe(u, y_f, d, math.exp(-dt / tau), b, sums.q)
     return d, tau, float(coef[0]), mse_
 
 
