@@ -25,7 +25,6 @@ Results are in docs/performance.md, section "Dask".
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import platform
 import resource
@@ -35,7 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from _plants import make_plant as _make_plant  # benchmarks/ is on a script's path
 
 _SCAN = """
 import sys
@@ -47,13 +46,6 @@ import resource
 own = resource.getrusage(resource.RUSAGE_SELF)
 print("caller CPU s:", own.ru_utime + own.ru_stime, file=sys.stderr)
 """
-
-
-def _make_plant(*args, **kwargs):
-    spec = importlib.util.spec_from_file_location("make_plant", ROOT / "scripts" / "make_plant.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_plant(*args, **kwargs)
 
 
 def run_scan(plant: Path, out: Path, engine: str, workers: int, gap: bool, env: dict) -> dict:

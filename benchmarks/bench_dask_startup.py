@@ -19,7 +19,6 @@ Results are in docs/performance.md, section "Dask".
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import resource
 import subprocess
@@ -28,7 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from _plants import make_plant as _make_plant  # benchmarks/ is on a script's path
 
 _SCAN = """
 import sys
@@ -40,13 +39,6 @@ r = scan(sys.argv[1], out=sys.argv[2], engine=sys.argv[3], workers=int(sys.argv[
          gap=sys.argv[5] == "gap")
 assert r.n_failed == 0, r.n_failed
 """
-
-
-def _make_plant(*args, **kwargs):
-    spec = importlib.util.spec_from_file_location("make_plant", ROOT / "scripts" / "make_plant.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_plant(*args, **kwargs)
 
 
 def main() -> None:

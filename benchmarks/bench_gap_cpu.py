@@ -22,13 +22,14 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from _plants import make_plant as _make_plant  # benchmarks/ is on a script's path
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -59,13 +60,6 @@ for f in files:
                  "after": None if gap is None else gap.after})
 print(json.dumps({"cpu": cpu, "rows": rows, "package": stictiondiag.__file__}))
 """
-
-
-def _make_plant(*args, **kwargs):
-    spec = importlib.util.spec_from_file_location("make_plant", ROOT / "scripts" / "make_plant.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_plant(*args, **kwargs)
 
 
 def run(code: Path, plant: Path) -> dict:

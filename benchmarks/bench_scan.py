@@ -22,7 +22,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import resource
 import tempfile
@@ -32,17 +31,9 @@ from pathlib import Path
 
 import pandas as pd
 import psutil
+from _plants import make_plant as _make_plant  # benchmarks/ is on a script's path
 
 from stictiondiag.apps.scan import scan
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _make_plant(*args, **kwargs):
-    spec = importlib.util.spec_from_file_location("make_plant", ROOT / "scripts" / "make_plant.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_plant(*args, **kwargs)
 
 
 class PeakMemory:

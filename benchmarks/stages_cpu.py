@@ -17,14 +17,13 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import shutil
 import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from _plants import make_plant as _make_plant  # benchmarks/ is on a script's path
 
 #: (module, function) pairs timed, by the name the analysis calls them under.
 STEPS = {
@@ -39,13 +38,6 @@ STEPS = {
     "stictiondiag.stiction.verdict": ("split_half_estimates", "classic_votes"),
     "stictiondiag.gap.diagnose": ("fit_base", "heldout_errors", "breakdown"),
 }
-
-
-def _make_plant(*args, **kwargs):
-    spec = importlib.util.spec_from_file_location("make_plant", ROOT / "scripts" / "make_plant.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_plant(*args, **kwargs)
 
 
 def _timed(acc: dict, func, label: str):
