@@ -165,7 +165,8 @@ def _fitted(tags):
 
 def _rich_cost(prob, u, taus, delays) -> float:
     """Least cost of the linear part with four time constants (gains of one sign)."""
-    from stictiondiag.stiction.hammerstein_kernels import lag, regressors, same_sign_lstsq
+    from stictiondiag.stiction.hammerstein_columns import lag, regressors
+    from stictiondiag.stiction.hammerstein_kernels import same_sign_lstsq
 
     uf = lag(u, prob.pre_lag, prob.k_start) if prob.pre_lag > 0 else u
     phis = [regressors(uf, float(t), prob.a_hp, prob.k_start) for t in taus]

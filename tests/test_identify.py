@@ -473,6 +473,7 @@ def test_process_search_ranges_follow_the_cycle_not_the_record(monkeypatch):
     the dead time may take one more step (at most 10 more evaluations; the record's
     range took twice as many at 500 000 samples as at 50 000).
     """
+    import stictiondiag.identification.output_error as oe
     import stictiondiag.identification.process as proc
 
     sim = simulate_loop(
@@ -487,7 +488,7 @@ def test_process_search_ranges_follow_the_cycle_not_the_record(monkeypatch):
     )
     ranges: list[tuple[int, float]] = []
     calls = [0]
-    fit_foptd, foptd_oe = proc._fit_foptd, proc._foptd_oe
+    fit_foptd, foptd_oe = proc.fit_foptd, oe.foptd_oe
 
     def spy_fit(u, y_f, dt, b, d_max, tau_max):
         ranges.append((d_max, tau_max))
@@ -497,8 +498,8 @@ def test_process_search_ranges_follow_the_cycle_not_the_record(monkeypatch):
         calls[0] += 1
         return foptd_oe(*args)
 
-    monkeypatch.setattr(proc, "_fit_foptd", spy_fit)
-    monkeypatch.setattr(proc, "_foptd_oe", spy_oe)
+    monkeypatch.setattr(proc, "fit_foptd", spy_fit)
+    monkeypatch.setattr(oe, "foptd_oe", spy_oe)
     fits, counts = [], []
     for n in (20_000, 80_000):
         calls[0] = 0

@@ -17,6 +17,7 @@ from stictiondiag.identification.predictor_kernels import (
     _prediction_errors,
     _prediction_errors_rows,
 )
+from stictiondiag.stiction import hammerstein_columns as hc
 from stictiondiag.stiction import hammerstein_kernels as hk
 
 
@@ -178,11 +179,11 @@ def test_normal_equations_match_the_columns_one_at_a_time(taus):
     rows = rows_all[keep]
     Y = np.ascontiguousarray(rng.normal(size=(rows.size, 4)))
     D = np.zeros((rows.size, 0))
-    A, B = hk.normal_equations(u, taus, 0.97, k0, j0, j1, stride, keep, Y, D)
+    A, B = hc.normal_equations(u, taus, 0.97, k0, j0, j1, stride, keep, Y, D)
     for t, tau in enumerate(taus):
-        P = hk.regressors(u, tau, 0.97, k0)[rows]
+        P = hc.regressors(u, tau, 0.97, k0)[rows]
         At = P.T @ P
-        At[np.diag_indices(hk.NCOL)] += 1e-10 * np.trace(At) / hk.NCOL + 1e-300
+        At[np.diag_indices(hc.NCOL)] += 1e-10 * np.trace(At) / hc.NCOL + 1e-300
         scale = np.abs(At).max()
         np.testing.assert_allclose(A[t], At, rtol=0, atol=1e-11 * scale)
         np.testing.assert_allclose(B[t], P.T @ Y, rtol=0, atol=1e-11 * np.abs(P.T @ Y).max())
@@ -283,19 +284,19 @@ def test_pairs_seen_before_are_not_computed_again(monkeypatch):
 def test_process_fit_shares_its_filter_sums_to_the_last_bit():
     """The FOPTD fit computes the filter's free response and its prefix sums once
     for all its scans and fits: the same numbers as computed afresh in each."""
-    from stictiondiag.identification import process as ip
+    from stictiondiag.identification import output_error as ip
 
     rng = np.random.default_rng(12)
     n = 4000
     u = np.cumsum(rng.normal(size=n))
-    y_f = ip._highpass(np.cumsum(rng.normal(size=n)), 0.995)
+    y_f = ip.highpass(np.cumsum(rng.normal(size=n)), 0.995)
     b = 0.995
-    sums = ip._FilterSums.of(y_f, b)
+    sums = ip.FilterSums.of(y_f, b)
     for a in (0.5, 0.9, 0.999):
-        alone = ip._oe_delay_scan(u, y_f, a, b, 300)
-        shared = ip._oe_delay_scan(u, y_f, a, b, 300, sums)
+        alone = ip.oe_delay_scan(u, y_f, a, b, 300)
+        shared = ip.oe_delay_scan(u, y_f, a, b, 300, sums)
         assert alone.tolist() == shared.tolist()
         for d in (0, 7, 300):
-            m0, c0 = ip._foptd_oe(u, y_f, d, a, b)
-            m1, c1 = ip._foptd_oe(u, y_f, d, a, b, sums.q)
+            m0, c0 = ip.foptd_oe(u, y_f, d, a, b)
+            m1, c1 = ip.foptd_oe(u, y_f, d, a, b, sums.q)
             assert m0 == m1 and c0.tolist() == c1.tolist()

@@ -46,9 +46,7 @@ def kernel_name(dispatcher: Dispatcher) -> str:
 
 
 def _ours(dispatcher: object) -> bool:
-    return isinstance(dispatcher, Dispatcher) and kernel_name(dispatcher).startswith(
-        _PACKAGE + "."
-    )
+    return isinstance(dispatcher, Dispatcher) and kernel_name(dispatcher).startswith(_PACKAGE + ".")
 
 
 def kernels() -> list[Dispatcher]:

@@ -30,7 +30,9 @@ simpler model wins ties.
 
 A limit cycle is (nearly) periodic, so a dead time ``d`` and ``d + P`` (``P`` the
 period in samples) explain the data about equally well; the scan takes the shortest
-dead time whose fit is close to the best (:data:`DEAD_TIME_TOLERANCE`).
+dead time whose fit is close to the best
+(:data:`stictiondiag.identification.output_error.DEAD_TIME_TOLERANCE`); the fits are
+in :mod:`stictiondiag.identification.output_error`.
 
 The prediction-error fit of the same process structures, with the unmeasured load
 tracked by a Kalman filter and pv predicted ``h`` samples ahead, is
@@ -46,9 +48,7 @@ from typing import cast
 import numpy as np
 
 from stictiondiag.core.errors import DataError, UsageError
-from stictiondiag.core.filters import correlate_lags, lfilter1
 from stictiondiag.core.memo import memo_by_content
-from stictiondiag.core.optimize import minimize_scalar_bounded
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.numerics import (
     MIN_SAMPLES,
@@ -57,15 +57,19 @@ from stictiondiag.identification.numerics import (
     delayed,
     r_squared,
 )
+from stictiondiag.identification.output_error import (
+    fit_foptd,
+    fit_integrating,
+    fit_integrating_differenced,
+    highpass,
+    integrating_regressors,
+    lag_response,
+    powers,
+)
 from stictiondiag.models.processes import FOPTD, Integrating
 
 #: Integrating model chosen when its simulation R^2 is at most this much below the FOPTD's.
 INTEGRATING_R2_MARGIN = 0.01
-
-
-#: Dead-time scan: shortest delay whose cost is within this fraction of the range
-#: between the best and the median cost (periodic data make d and d + P ambiguous).
-DEAD_TIME_TOLERANCE = 0.02
 
 
 #: Drift high-pass of the process fit: time constant in periods of pv's dominant
@@ -167,13 +171,13 @@ class ProcessFit:
         u = np.asarray(u, dtype=float)
         d = self.dead_time_samples
         if self.integrating:
-            return _integrating_regressors(u, d, dt) @ np.array(
+            return integrating_regressors(u, d, dt) @ np.array(
                 [self.pv_bias, self.process.gain, -self.process.gain * self.u_bias]
             )
         # Not integrating: the process is a FOPTD (see identify_process, process_fit).
         a = math.exp(-dt / cast(FOPTD, self.process).time_constant)
-        z = _lag_response(u, d, a)
-        free = self.initial_deviation * _powers(a, 0, u.size)
+        z = lag_response(u, d, a)
+        free = self.initial_deviation * powers(a, 0, u.size)
         return self.pv_bias + self.process.gain * (z - self.u_bias) + free
 
     def to_dict(self) -> dict:
@@ -194,305 +198,6 @@ class ProcessFit:
             }
         )
         return out
-
-
-#: ``a^k`` with ``k ln a < UNDERFLOW_LOG`` is below 2^-1080, a 64th of the smallest
-#: subnormal double: it rounds to 0 [-].
-UNDERFLOW_LOG = -1080.0 * math.log(2.0)
-
-
-def _powers(a: float, start: int, stop: int) -> np.ndarray:
-    """``a ** np.arange(start, stop)``, the same numbers, for a pole ``0 <= a <= 1``.
-
-    Powers far below the smallest subnormal are zero whatever the rounding and are
-    not computed: pow's underflow path costs ten times its normal one, and the
-    free responses of a fast pole (``a^k`` for a time constant of a few samples)
-    underflow after a few thousand samples, so on a long record almost every
-    power took that path.  O(n), about 5 ns per computed power.
-    """
-    k = np.arange(start, stop)
-    if not 0.0 < a < 1.0:
-        return a**k
-    last = math.ceil(UNDERFLOW_LOG / math.log(a))  # a^k == 0 from k = last on
-    m = min(max(last - start, 0), k.size)
-    out = np.zeros(k.size)
-    out[:m] = a ** k[:m]
-    return out
-
-
-def _lag_response(u: np.ndarray, d: int, a: float) -> np.ndarray:
-    """``z[k+1] = a z[k] + (1 - a) u[k - d]``, ``z[0] = u[0]``: first-order lag with
-    dead time ``d`` samples (exact zero-order-hold discretisation of the FOPTD)."""
-    x = delayed(u, d + 1)
-    return lfilter1((1.0 - a,), -a, x, zi=a * u[0])
-
-
-def _integrating_regressors(u: np.ndarray, d: int, dt: float) -> np.ndarray:
-    """Columns [1, dt sum_{j<k} u[j-d], dt k] of the simulated integrator response."""
-    x = delayed(u, d + 1)
-    x[0] = 0.0
-    k = np.arange(u.size)
-    return np.column_stack([np.ones(u.size), dt * np.cumsum(x), dt * k])
-
-
-def _pick_dead_time(cost: np.ndarray) -> int:
-    """Shortest delay whose cost is close to the best (see module docstring)."""
-    best = float(cost.min())
-    spread = float(np.median(cost)) - best
-    ok = np.flatnonzero(cost <= best + DEAD_TIME_TOLERANCE * max(spread, 0.0))
-    d = int(ok[0])
-    # Walk down into the local minimum of the run that starts at d.
-    while d + 1 < cost.size and cost[d + 1] < cost[d]:
-        d += 1
-    return d
-
-
-def _highpass(x: np.ndarray, b: float) -> np.ndarray:
-    """First-order high-pass ``y[k] = b (y[k-1] + x[k] - x[k-1])`` with pole ``b``,
-    started at rest at ``x[0]`` (``y[0] = 0``); ``b = 1`` only removes ``x[0]``."""
-    x = np.asarray(x, dtype=float) - x[0]
-    if b >= 1.0:
-        return x
-    return lfilter1((b, -b), -b, x)
-
-
-def _solve_normal(A: np.ndarray, g: np.ndarray, yy: np.ndarray | float, rows: np.ndarray | int):
-    """Batched least squares from normal equations; mean squared error per batch."""
-    beta = np.linalg.solve(A, g[..., None])[..., 0]
-    return (yy - np.einsum("...i,...i->...", beta, g)) / rows, beta
-
-
-def _foptd_oe(
-    u: np.ndarray, y_f: np.ndarray, d: int, a: float, b: float, qb: np.ndarray | None = None
-):
-    """Filtered output-error fit of the FOPTD for fixed dead time and pole.
-
-    Regressors, high-passed like ``y_f``: the lag response ``z`` (coefficient: the
-    gain) and the free response ``a^k`` (the initial state); plus ``b^k``, the
-    filter's own free response, which carries whatever the rows ``k <= d`` (where pv
-    answers to inputs from before the record) leave in the filter.  Rows ``k > d``.
-    ``qb``: ``_powers(b, 0, n)`` when the caller has it (a fit evaluates many dead
-    times and poles with one filter).  Returns the mean squared error and the
-    coefficients.  O(n): a few passes over the record.
-    """
-    n = u.size
-    rows = slice(d + 1, n)
-    X = np.column_stack(
-        [
-            _highpass(_lag_response(u, d, a), b)[rows],
-            _highpass(_powers(a, 0, n), b)[rows],
-            _powers(b, d + 1, n) if qb is None else qb[rows],
-        ]
-    )
-    A = X.T @ X
-    m = n - d - 1
-    # Free responses vanish for fast poles: a tiny ridge keeps the solve regular.
-    A[1, 1] += 1e-12 * m
-    A[2, 2] += 1e-12 * m
-    y = y_f[rows]
-    mse, coef = _solve_normal(A, X.T @ y, float(y @ y), m)
-    return float(mse), coef
-
-
-def _prefix(x: np.ndarray) -> np.ndarray:
-    return np.concatenate(([0.0], np.cumsum(x)))
-
-
-@dataclass(frozen=True)
-class _FilterSums:
-    """What the delay scans of one fit share: the filter's free response ``b^k`` and
-    the prefix sums of its square, of its product with ``y_f`` and of ``y_f``'s
-    square (they do not depend on the input's pole or dead time)."""
-
-    q: np.ndarray
-    cqq: np.ndarray
-    cqy: np.ndarray
-    cyy: np.ndarray
-
-    @classmethod
-    def of(cls, y_f: np.ndarray, b: float) -> _FilterSums:
-        q = _powers(b, 0, y_f.size)
-        return cls(q, _prefix(q * q), _prefix(q * y_f), _prefix(y_f * y_f))
-
-
-def _delay_scan(
-    w: np.ndarray,
-    r: np.ndarray,
-    y_f: np.ndarray,
-    b: float,
-    d_max: int,
-    sums: _FilterSums | None = None,
-):
-    """Mean squared error of a filtered output-error fit for every dead time 0..d_max.
-
-    Regressors for dead time ``d``, rows ``k > d``: ``w[k - d]`` (the high-passed
-    response to the input without dead time, ``w[0] = 0``: delaying the input delays
-    the response, and the high-pass started at rest keeps the shift), ``r[k]`` (a
-    delay-free column) and ``b^k`` (the filter's free response).  The normal
-    equations come from prefix sums and two correlations for all delays at once;
-    ``sums`` are the ones that depend on ``y_f`` and ``b`` only, when the caller
-    scans more than once (:class:`_FilterSums`).  O(n log d_max) (the correlations,
-    :func:`correlate_lags`) plus O(d_max) 3 x 3 solves; O(n) memory.
-    """
-    n = w.size
-    dd = np.arange(d_max + 1)
-    if sums is None:
-        sums = _FilterSums.of(y_f, b)
-    q, cqq, cqy, cyy = sums.q, sums.cqq, sums.cqy, sums.cyy
-    first = dd + 1  # rows k = d+1 .. n-1
-    top = n - dd  # w[1 .. n-1-d] appear
-    cww, cwq = _prefix(w * w), _prefix(w * q)
-    crr, crq = _prefix(r * r), _prefix(r * q)
-    cry = _prefix(r * y_f)
-    # sum_{k>=d} v[k] w[k-d]: correlation of v with w at lag d (w[0] = 0 drops k = d).
-    wr = correlate_lags(r, w, d_max)
-    wy = correlate_lags(y_f, w, d_max)
-    A = np.empty((d_max + 1, 3, 3))
-    A[:, 0, 0] = cww[top] - cww[1]
-    A[:, 0, 1] = A[:, 1, 0] = wr
-    A[:, 0, 2] = A[:, 2, 0] = (b**dd) * (cwq[top] - cwq[1])
-    A[:, 1, 1] = crr[n] - crr[first] + 1e-12 * n * max(float(np.max(np.abs(r))), 1.0) ** 2
-    A[:, 1, 2] = A[:, 2, 1] = crq[n] - crq[first]
-    A[:, 2, 2] = cqq[n] - cqq[first] + 1e-12 * n
-    g = np.stack([wy, cry[n] - cry[first], cqy[n] - cqy[first]], axis=1)
-    mse, _ = _solve_normal(A, g, cyy[n] - cyy[first], n - first)
-    return mse
-
-
-def _oe_delay_scan(
-    u: np.ndarray,
-    y_f: np.ndarray,
-    a: float,
-    b: float,
-    d_max: int,
-    sums: _FilterSums | None = None,
-):
-    """:func:`_foptd_oe` for every dead time 0..d_max at a fixed pole (vectorised)."""
-    w = _highpass(_lag_response(u, 0, a), b)
-    return _delay_scan(w, _highpass(_powers(a, 0, u.size), b), y_f, b, d_max, sums)
-
-
-def _fit_foptd(u, y_f, dt, b, d_max, tau_max):
-    """Filtered output-error FOPTD fit: a coarse grid over the time constant with every
-    dead time (vectorised), then a walk along the dead time with the time constant
-    refined at each step.  Returns (dead time [samples], tau [s], gain, mse).
-
-    Cost: 25 delay scans (:func:`_delay_scan`, O(n log d_max) each) and about ten
-    O(n) output-error fits per bounded search of the time constant, one search per
-    step of the walk.  With ``d_max`` and ``tau_max`` from :func:`search_span` (the
-    loop's period, not the record) the grid's spacing and so the walk's length do
-    not grow with the record: O(n log d_max) in all.
-    """
-    log_lo, log_hi = math.log(0.2 * dt), math.log(tau_max)
-    sums = _FilterSums.of(y_f, b)  # shared by every scan and fit below: one filter
-
-    def mse(d: int, log_tau: float) -> float:
-        return _foptd_oe(u, y_f, d, math.exp(-dt / math.exp(log_tau)), b, sums.q)[0]
-
-    grid = np.linspace(log_lo, log_hi, 25)
-    spacing = float(grid[1] - grid[0])
-
-    def best_tau(d: int, centre: float) -> tuple[float, float]:
-        """Bounded search of log(tau) within a grid spacing of ``centre``; the
-        bracket moves while the optimum sits on its edge."""
-        lo, hi = max(centre - spacing, log_lo), min(centre + spacing, log_hi)
-        for _ in range(8):
-            res_x, res_fun = minimize_scalar_bounded(lambda g: mse(d, g), (lo, hi), xatol=1e-4)
-            x = float(res_x)
-            if x - lo < 0.05 * spacing and lo > log_lo:
-                lo, hi = max(lo - spacing, log_lo), lo + 0.1 * spacing
-            elif hi - x < 0.05 * spacing and hi < log_hi:
-                lo, hi = hi - 0.1 * spacing, min(hi + spacing, log_hi)
-            else:
-                break
-        return x, float(res_fun)
-
-    # Coarse joint grid: every dead time for each time constant of the grid.  The
-    # time constant and the dead time trade off along a ridge, so the two are
-    # searched together rather than one after the other.
-    profile = np.full(d_max + 1, np.inf)
-    tau_at = np.zeros(d_max + 1)
-    for g in grid:
-        costs = _oe_delay_scan(u, y_f, math.exp(-dt / math.exp(g)), b, d_max, sums)
-        better = costs < profile
-        profile[better] = costs[better]
-        tau_at[better] = g
-    d = _pick_dead_time(profile)
-    cache: dict[int, tuple[float, float]] = {d: best_tau(d, float(tau_at[d]))}
-
-    def cost(dd: int, centre: float) -> float:
-        if dd not in cache:
-            cache[dd] = best_tau(dd, centre)
-        return cache[dd][1]
-
-    # Local refinement along the ridge with the time constant optimised at each step.
-    for step in (1, -1):
-        while 0 <= d + step <= d_max and cost(d + step, cache[d][0]) < cache[d][1]:
-            d += step
-    tau = math.exp(cache[d][0])
-    mse_, coef = _foptd_oe(u, y_f, d, math.exp(-dt / tau), b, sums.q)
-    return d, tau, float(coef[0]), mse_
-
-
-def _integrating_oe(u, y_f, dt, d, b):
-    """Filtered output-error fit of the integrator for a fixed dead time: regressors
-    (high-passed) ``dt sum u`` (gain) and ``dt k`` (minus gain x balance input), and
-    the filter's free response ``b^k``; rows ``k > d``."""
-    n = u.size
-    rows = slice(d + 1, n)
-    cols = _integrating_regressors(u, d, dt)
-    X = np.column_stack(
-        [_highpass(cols[:, 1], b)[rows], _highpass(cols[:, 2], b)[rows], _powers(b, d + 1, n)]
-    )
-    A = X.T @ X
-    m = n - d - 1
-    A[2, 2] += 1e-12 * m
-    y = y_f[rows]
-    mse, coef = _solve_normal(A, X.T @ y, float(y @ y), m)
-    return float(mse), coef
-
-
-def _fit_integrating(u, y_f, dt, b, d_max):
-    """Filtered output-error integrator fit; every dead time at once (the model is
-    linear in its parameters, so the scan is exact).  Returns (dead time, gain,
-    balance input, mse).  O(n log d_max): one delay scan and one fit."""
-    # With the input shifted to start at zero the integrated input for dead time d is
-    # the one for no dead time shifted by d; the shift moves into the balance input.
-    cols = _integrating_regressors(u - u[0], 0, dt)
-    costs = _delay_scan(_highpass(cols[:, 1], b), _highpass(cols[:, 2], b), y_f, b, d_max)
-    d = _pick_dead_time(costs)
-    mse, coef = _integrating_oe(u, y_f, dt, d, b)
-    gain = float(coef[0])
-    u_bias = -float(coef[1]) / gain if gain != 0.0 else float(u.mean())
-    return d, gain, u_bias, mse
-
-
-def _fit_integrating_differenced(u, pv, dt, b, d_max, smooth):
-    """Integrator fit on pv's differences: ``pv[k+1] - pv[k] = K dt (u[k - d] - u_b)``.
-
-    The balance input ``u_b`` of a real level loop wanders with the unmeasured
-    outflow; integrated, that wander swamps pv's level, so a fit of pv itself is
-    pulled far off.  In the differences it is a slow offset that the drift
-    high-pass removes.  Both sides pass the same high-pass and the same first-order
-    lag ``smooth`` (against the noise that differencing amplifies): the relation is
-    linear, so the filters leave the gain unchanged.  Every dead time is scanned at
-    once.  Returns (dead time, gain, R^2 of the filtered differences).
-    O(n log d_max).
-    """
-    dy = np.diff(pv)
-    x = u[:-1] - u[0]
-    y_f = _highpass(lfilter1((1.0 - smooth,), -smooth, dy - dy[0]), b)
-    w = _highpass(lfilter1((1.0 - smooth,), -smooth, x), b)
-    zero = np.zeros_like(w)
-    d_max = min(d_max, w.size - MIN_SAMPLES)
-    costs = _delay_scan(w, zero, y_f, b, max(d_max, 0))
-    d = _pick_dead_time(costs)
-    k = np.arange(d + 1, w.size)
-    wd = w[k - d]
-    gain = float(wd @ y_f[k]) / (float(wd @ wd) or 1e-300) / dt
-    resid = y_f[k] - gain * dt * wd
-    r2 = 1.0 - float(resid @ resid) / (float(y_f[k] @ y_f[k]) or 1e-300)
-    return d, gain, r2
 
 
 def _period_s(pv: np.ndarray, dt: float) -> float | None:
@@ -605,7 +310,7 @@ def _chosen_structure(results: dict, integrating: bool | None) -> str:
 
 def _refit_integrating_differenced(result, uc, pc, period, dt, b, d_max, drift_time_constant):
     """Replace the integrator's fit in ``result`` by the fit to pv's differences
-    (:func:`_fit_integrating_differenced`) where that fit finds a response; the
+    (:func:`fit_integrating_differenced`) where that fit finds a response; the
     replay then starts from the operating point of the record's first cycles
     (``window`` [samples]).  ``period``: pv's dominant period [samples] or None."""
     n = pc.size
@@ -613,7 +318,7 @@ def _refit_integrating_differenced(result, uc, pc, period, dt, b, d_max, drift_t
     b_diff = b
     if drift_time_constant is None and period is not None:
         b_diff = math.exp(-1.0 / max(2.0, DIFFERENCED_DRIFT_PERIODS * period))
-    d, gain, r2_diff = _fit_integrating_differenced(uc, pc, dt, b_diff, d_max, smooth)
+    d, gain, r2_diff = fit_integrating_differenced(uc, pc, dt, b_diff, d_max, smooth)
     if math.isfinite(gain) and gain != 0.0:
         window = int(START_WINDOW_PERIODS * (period or n / START_WINDOW_PERIODS))
         result.update(d=d, gain=gain, u_bias=None, r2=r2_diff, window=max(window, MIN_SAMPLES))
@@ -683,7 +388,7 @@ def identify_process(
     -----
     Cost O(n log n) for pv's period, then O(n) per cost evaluation: 25 delay scans
     (each O(n log d_max), :func:`stictiondiag.core.filters.correlate_lags` in
-    blocks) and a few tens of output-error fits (:func:`_foptd_oe`, O(n) each).  The
+    blocks) and a few tens of output-error fits (:func:`foptd_oe`, O(n) each).  The
     number of evaluations depends on the search ranges, which :func:`search_span`
     bounds by the loop's period: for a cycling loop it does not grow with the record,
     so the fit is O(n log n) (the FFTs), in practice linear.  Memory O(n).
@@ -700,7 +405,7 @@ def identify_process(
     # Centre the signals: the normal equations are then well conditioned.
     uc = u - u.mean()
     pc = pv - pv.mean()
-    y_f = _highpass(pc, b)
+    y_f = highpass(pc, b)
     sst_dy = float(np.sum((np.diff(pc) - np.diff(pc).mean()) ** 2)) or 1e-300
 
     def r2_of(mse: float, d: int) -> float:
@@ -709,10 +414,10 @@ def identify_process(
     results: dict[str, dict] = {}
     if integrating in (None, False):
         tau_max = MAX_TIME_CONSTANT_SPANS * span * dt
-        d, tau, gain, mse = _fit_foptd(uc, y_f, dt, b, d_max, tau_max)
+        d, tau, gain, mse = fit_foptd(uc, y_f, dt, b, d_max, tau_max)
         results["foptd"] = dict(d=d, tau=tau, gain=gain, r2=r2_of(mse, d))
     if integrating in (None, True):
-        d, gain, ub_c, mse = _fit_integrating(uc, y_f, dt, b, d_max)
+        d, gain, ub_c, mse = fit_integrating(uc, y_f, dt, b, d_max)
         results["integrating"] = dict(d=d, gain=gain, u_bias=ub_c + u.mean(), r2=r2_of(mse, d))
     chosen = _chosen_structure(results, integrating)
     if chosen == "integrating" and results["integrating"]["r2"] < LEVEL_FIT_R2_MIN:
@@ -751,7 +456,7 @@ def _biases(process, u, pv, dt, d, *, u_bias=None) -> ProcessFit:
     gain = float(process.gain)
     k = np.arange(d + 1, u.size)
     if isinstance(process, Integrating):
-        X = _integrating_regressors(u, d, dt)[k]
+        X = integrating_regressors(u, d, dt)[k]
         target = pv[k] - gain * X[:, 1]
         if u_bias is None:
             coef, *_ = np.linalg.lstsq(X[:, [0, 2]], target, rcond=None)
@@ -761,8 +466,8 @@ def _biases(process, u, pv, dt, d, *, u_bias=None) -> ProcessFit:
         return ProcessFit(process, float(u_bias), pv0, 0.0, math.nan, math.nan, True, d)
     a = math.exp(-dt / float(process.time_constant))
     u_bias = float(u.mean())
-    target = pv[k] - gain * (_lag_response(u, d, a)[k] - u_bias)
-    free = _powers(a, d + 1, u.size)
+    target = pv[k] - gain * (lag_response(u, d, a)[k] - u_bias)
+    free = powers(a, d + 1, u.size)
     coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(k.size), free]), target, rcond=None)
     return ProcessFit(process, u_bias, float(coef[0]), float(coef[1]), math.nan, math.nan, False, d)
 

@@ -302,9 +302,7 @@ def _check_sj(S: float, J: float) -> tuple[float, float]:
     return S_, J_
 
 
-def _model(
-    op, S, J, *, kano, op_units, characteristic, ewma_lambda, start_stuck, initial_position
-):
+def _model(op, S, J, *, kano, op_units, characteristic, ewma_lambda, start_stuck, initial_position):
     S, J = _check_sj(S, J)
     x = np.ascontiguousarray(op, dtype=float)
     if x.ndim != 1:

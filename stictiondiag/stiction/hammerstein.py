@@ -156,7 +156,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from stictiondiag.core.errors import DataError
-from stictiondiag.stiction.hammerstein_kernels import NCOL, Problem, highpass, lag
+from stictiondiag.stiction.hammerstein_columns import NCOL, highpass, lag
+from stictiondiag.stiction.hammerstein_kernels import Problem
 from stictiondiag.stiction.hammerstein_search import (
     START_OFFSETS,
     FitSetup,
