@@ -22,14 +22,11 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
-from _plants import make_plant as _make_plant  # benchmarks/ is on a script's path
+from _plants import make_plant as _make_plant
+from _plants import run_in_checkout  # benchmarks/ is on a script's path
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -64,18 +61,7 @@ print(json.dumps({"cpu": cpu, "rows": rows, "package": stictiondiag.__file__}))
 
 def run(code: Path, plant: Path) -> dict:
     """Analyse ``plant`` with the package of checkout ``code`` in a fresh process."""
-    env = dict(os.environ, PYTHONPATH=str(code), OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    env.pop("STICTION_KERNEL_THREADS", None)
-    done = subprocess.run(
-        [sys.executable, "-c", CHILD, str(plant)],
-        env=env,
-        cwd=code,
-        capture_output=True,
-        text=True,
-    )
-    if done.returncode != 0:
-        raise SystemExit(f"{code}: {done.stderr.strip().splitlines()[-1:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return run_in_checkout(code, CHILD, str(plant))
 
 
 def _largest_change(a: list, b: list) -> float:

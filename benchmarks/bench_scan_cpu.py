@@ -28,14 +28,12 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
-from _plants import make_plant as _make_plant  # benchmarks/ is on a script's path
+from _plants import make_plant as _make_plant
+from _plants import run_in_checkout  # benchmarks/ is on a script's path
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,28 +61,7 @@ print(json.dumps({"cpu": cpu, "loops": result.n_loops, "failed": result.n_failed
 
 def run(code: Path, plant: Path, out: Path) -> dict:
     """Scan ``plant`` with the package of checkout ``code`` in a fresh process."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(code)
-    # One BLAS thread and one kernel thread, as in a scan's worker.
-    env.setdefault("OPENBLAS_NUM_THREADS", "1")
-    env.setdefault("MKL_NUM_THREADS", "1")
-    env.pop("STICTION_KERNEL_THREADS", None)
-    # Run in the checkout: ``python -c`` puts the working directory first on the
-    # path, before PYTHONPATH, so from another checkout it would import that one.
-    done = subprocess.run(
-        [sys.executable, "-c", CHILD, str(plant), str(out)],
-        cwd=str(code),
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    if done.returncode != 0:
-        raise SystemExit(f"scan with {code} failed:\n{done.stderr[-2000:]}")
-    result = json.loads(done.stdout.strip().splitlines()[-1])
-    if not Path(result["package"]).resolve().is_relative_to(code.resolve()):
-        raise SystemExit(f"the scan of {code} imported {result['package']}")
-    return result
+    return run_in_checkout(code, CHILD, str(plant), str(out))
 
 
 def compare(a: list[dict], b: list[dict]) -> str:
