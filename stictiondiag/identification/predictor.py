@@ -22,6 +22,7 @@ loop freely, without a filter to track the load.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -41,8 +42,10 @@ from stictiondiag.identification.predictor_kernels import (
 )
 
 
+@functools.lru_cache(maxsize=1024)
 def kalman_gains(pole: float, load_ratio: float) -> tuple[float, float]:
-    """Steady-state Kalman gains of the process-with-load model.
+    """Steady-state Kalman gains of the process-with-load model (remembered: the
+    searches of a fit, and the fits of a loop, come back to the same filters).
 
     States: the process output ``y`` and an unmeasured load ``l`` (a random walk)
     entering with the valve: ``y[k+1] = a y[k] + b u[k-d] + l[k]``, ``l[k+1] = l[k] +
@@ -306,7 +309,6 @@ class _Replay:
         self.memo: dict = {}
         self.extra_rows = None if extra_cols is None else np.ascontiguousarray(extra_cols.T)
         self.n_extra = 0 if self.extra_rows is None else self.extra_rows.shape[0]
-        self.gain_memo: dict = {}
         # The terms of the filters used, by filter (:meth:`filtered`; bounded).
         self.filter_memo: dict = {}
         self.no_extra = np.empty((0, n))
@@ -323,14 +325,6 @@ class _Replay:
             lambda: (u, pv, np.stack([self.zeros, u - u[0]])),
         )
         self.u0 = self.src_d[1]
-
-    def gains(self, pole: float, load_ratio: float) -> tuple[float, float]:
-        """:func:`kalman_gains`, remembered for this fit (the searches revisit filters)."""
-        key = (pole, load_ratio)
-        hit = self.gain_memo.get(key)
-        if hit is None:
-            hit = self.gain_memo[key] = kalman_gains(pole, load_ratio)
-        return hit
 
     def prefetch(self, models) -> None:
         """Filter whatever the structures ``models`` (one horizon) still lack, in one
@@ -351,7 +345,7 @@ class _Replay:
                 continue
             e_key, b_key = (id(pv), *fkey), (*self.u_key, *fkey)
             e0, base = innovations.get(e_key), responses.get(b_key)
-            k1, k2 = self.gains(m.pole, m.load_ratio)
+            k1, k2 = kalman_gains(m.pole, m.load_ratio)
             first = len(zi)
             if e0 is None:
                 zi.append(0)
