@@ -34,7 +34,6 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError, UsageError
 from stictiondiag.core.filters import lfilter1
-from stictiondiag.core.memo import memo_by_content
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.numerics import MIN_SAMPLES, as_signal, check_dt, r_squared, wls
 from stictiondiag.models.processes import PI
@@ -174,7 +173,6 @@ def filtered_pv(pv: np.ndarray, time_constant: float, dt: float) -> np.ndarray:
     return lfilter1((1.0 - a,), -a, pv, zi=a * pv[0])
 
 
-@memo_by_content()
 def identify_controller(
     sp: np.ndarray | None,
     pv: np.ndarray,

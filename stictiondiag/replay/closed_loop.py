@@ -76,6 +76,7 @@ from stictiondiag.identification.controller import (
     controller_fit,
     identify_controller,
 )
+from stictiondiag.identification.looptype import StructureEvidence
 from stictiondiag.identification.process import (
     ProcessFit,
     drift_pole,
@@ -497,18 +498,29 @@ def _replay_record(tags, fit) -> _Record:
 
 
 def _replay_models(
-    rec: _Record, controller, process, integrating: bool | None
+    rec: _Record,
+    controller,
+    process,
+    integrating: bool | None,
+    known: StructureEvidence | None = None,
 ) -> tuple[ControllerFit, ProcessFit, list[str]]:
     """Steps 1 and 2: the PI controller from sp, pv, op and the process from the
     valve position to pv (given, completed from the data, or identified), with
-    notes on a poor identification or inconsistent signs.  O(n log n): the
+    notes on a poor identification or inconsistent signs.  ``known``: the fits of
+    the loop-type step, used where they are the very identification this step
+    would make (the same samples and settings: the replay starts at sample 0, and
+    for the process mv is recorded and no drift high-pass is imposed).  O(n log n): the
     controller is O(n), the process fit O(n log n) with a number of O(n) cost
     evaluations that does not grow with the record (its search ranges follow the
     loop's period, :func:`stictiondiag.identification.process.search_span`)."""
     warnings: list[str] = []
     pv, op, dt = rec.pv, rec.op, rec.dt
+    same_samples = known is not None and rec.start == 0
     if controller is None:
-        cf = identify_controller(rec.sp, pv, op, dt)
+        if same_samples and known is not None and known.controller is not None:
+            cf = known.controller
+        else:
+            cf = identify_controller(rec.sp, pv, op, dt)
     elif isinstance(controller, ControllerFit):
         cf = controller
     else:
@@ -525,7 +537,13 @@ def _replay_models(
             _, default_T = drift_pole(pv, dt, None)
             if default_T is not None and DRIFT_INTEGRAL_TIMES * ti_c < default_T:
                 drift = max(DRIFT_INTEGRAL_TIMES * ti_c, MIN_DRIFT_SAMPLES * dt)
-        pf = identify_process(rec.u, pv, dt, integrating=integrating, drift_time_constant=drift)
+        reuse = None
+        if same_samples and known is not None and known.u_signal == "mv" and rec.mv is not None:
+            if drift is None and integrating is not None:
+                reuse = known.processes.get(bool(integrating))
+        pf = reuse or identify_process(
+            rec.u, pv, dt, integrating=integrating, drift_time_constant=drift
+        )
     elif isinstance(process, ProcessFit):
         pf = process
     else:
@@ -679,6 +697,7 @@ def replay(
     valve: str = "choudhury",
     noise_std: float = 0.0,
     seed: int | None = 0,
+    known: StructureEvidence | None = None,
 ) -> Replay:
     """Replay a recorded loop with the fitted valve and compare with the data.
 
@@ -710,6 +729,10 @@ def replay(
         asks for an EWMA filter on noisy op), so use ``valve="kano"`` with noise.
     seed : int, optional
         Seed of the replay noise.
+    known : StructureEvidence, optional
+        The controller and process fits of the loop-type step
+        (:func:`stictiondiag.identification.looptype.identify_structure`), reused
+        where they are the identification this replay would make.
 
     Returns
     -------
@@ -728,7 +751,7 @@ def replay(
         raise UsageError(f"replay valve must be choudhury or kano, got {valve!r}")
     rec = _replay_record(tags, fit)
     S, J = float(fit.S), float(fit.J)
-    cf, pf, model_warnings = _replay_models(rec, controller, process, integrating)
+    cf, pf, model_warnings = _replay_models(rec, controller, process, integrating, known)
     sim = _replay_simulate(rec, cf, pf, S, J, valve, noise_std, seed)
     measures = _replay_compare(rec, sim)
     data = {"pv": rec.pv, "op": rec.op, "sp": sim.sp, "mv": rec.mv, "mv_model": rec.mv_model}
