@@ -198,6 +198,7 @@ class Analysis:
             "fit": self.fit,
             "title": self.loop,
             "period_s": self.oscillation.period_s or self.oscillation_op.period_s,
+            "poorly": [sym for sym in ("S", "J") if self.fit.poorly_determined(sym)],
         }
         return plot_phase(self.tags, **{**options, **kwargs})
 
@@ -227,7 +228,7 @@ class Analysis:
     def _valve_zoom_builder(self) -> Callable[[], Figure] | None:
         """The ``valve_zoom`` figure's builder, None without a valve signal or a
         finite S and J."""
-        from stictiondiag.plotting.valve import plot_valve_zoom, poorly_determined
+        from stictiondiag.plotting.valve import plot_valve_zoom
 
         tags, fit = self.tags, self.fit
         model = tags.mv is None
@@ -243,7 +244,7 @@ class Analysis:
             J=float(fit.J),
             period_s=period,
             model=model,
-            poorly=[sym for sym in ("S", "J") if poorly_determined(fit, sym)],
+            poorly=[sym for sym in ("S", "J") if fit.poorly_determined(sym)],
             title=f"{self.loop}: valve signature (Fig. 10)",
         )
 

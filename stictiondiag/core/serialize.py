@@ -28,3 +28,12 @@ def to_plain(v: Any) -> Any:
         f = float(v)
         return f if math.isfinite(f) else None
     return v
+
+
+def plain_float(v: Any) -> float | None:
+    """One number as a JSON-able float: None and NaN/inf -> None, anything else
+    ``float(v)`` (so an integer comes out as a float, as results print it)."""
+    if v is None:
+        return None
+    f = float(v)
+    return f if math.isfinite(f) else None

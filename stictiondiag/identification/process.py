@@ -47,12 +47,12 @@ from typing import cast
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.errors import DataError, UsageError
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.numerics import (
     MIN_SAMPLES,
     as_signal,
-    check_dt,
     delayed,
     r_squared,
 )

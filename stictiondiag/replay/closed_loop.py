@@ -71,6 +71,7 @@ from stictiondiag.core.errors import (
 )
 from stictiondiag.core.filters import lfilter1
 from stictiondiag.core.jit import jit
+from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.controller import (
     ControllerFit,
     controller_fit,
@@ -203,23 +204,23 @@ class Replay:
     def to_dict(self, include_series: bool = False) -> dict:
         """JSON-able dict: models, measures and, optionally, the time series."""
         out = {
-            "process": _clean(self.process),
-            "controller": _clean(self.controller),
-            "S": _plain(self.S),
-            "J": _plain(self.J),
-            "fit": _clean(self.fit),
-            "nrmse": _clean(self.nrmse),
-            "waveform": _clean(self.waveform),
-            "period_s": _clean(self.period_s),
+            "process": to_plain(self.process),
+            "controller": to_plain(self.controller),
+            "S": to_plain(self.S),
+            "J": to_plain(self.J),
+            "fit": to_plain(self.fit),
+            "nrmse": to_plain(self.nrmse),
+            "waveform": to_plain(self.waveform),
+            "period_s": to_plain(self.period_s),
             "period_signal": self.period_signal,
-            "period_error_pct": _plain(self.period_error_pct),
-            "amplitude": _clean(self.amplitude),
-            "settings": _clean(self.settings),
+            "period_error_pct": to_plain(self.period_error_pct),
+            "amplitude": to_plain(self.amplitude),
+            "settings": to_plain(self.settings),
             "warnings": list(self.warnings),
         }
         if include_series:
             out["series"] = {
-                name: [_plain(v) for v in np.asarray(col).tolist()]
+                name: [to_plain(v) for v in np.asarray(col).tolist()]
                 for name, col in self.to_pandas().items()
             }
         return out
@@ -251,30 +252,6 @@ class Replay:
         from stictiondiag.plotting.replay import plot_replay
 
         return plot_replay(self, **kwargs)
-
-
-def _plain(v) -> float | None:
-    if v is None:
-        return None
-    if isinstance(v, bool | np.bool_):
-        return bool(v)
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
-def _clean(obj: Any):
-    """Nested JSON-able copy: numpy scalars to floats, NaN/inf to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
-    if obj is None or isinstance(obj, str | bool):
-        return obj
-    if isinstance(obj, int | np.integer) and not isinstance(obj, bool):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        return _plain(obj)
-    return obj
 
 
 # --------------------------------------------------------------------------- measures
