@@ -70,3 +70,16 @@ def test_the_rule_finds_a_copy(tmp_path):
     consts = [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)]
     assert "check_dt" in HOMES and names == ["check_dt"]
     assert any(isinstance(c, float) and abs(c - MAD_FACTOR) < 1e-12 for c in consts)
+
+
+def test_the_benchmark_oracle_imports_nothing_of_the_models():
+    """The withheld-effect benchmark's simulator is an independent oracle
+    (:mod:`stictiondiag.models.synthetic_loop`): it imports no valve, loop or
+    physical model, so a benchmark result cannot come from both sides sharing one
+    mistake."""
+    tree = ast.parse((PACKAGE / "models" / "synthetic_loop.py").read_text(encoding="utf-8"))
+    imported = [
+        node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module
+    ] + [a.name for node in ast.walk(tree) if isinstance(node, ast.Import) for a in node.names]
+    ours = [m for m in imported if m.startswith("stictiondiag")]
+    assert ours == ["stictiondiag.core.jit"]
