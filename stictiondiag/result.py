@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from stictiondiag.core.errors import DataError
+from stictiondiag.core.schema import SCHEMA_VERSION, dumps, loads
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.diagnose import GapDiagnosis
 from stictiondiag.io.tags import Tags
@@ -32,6 +34,9 @@ if TYPE_CHECKING:
 
 #: Resolution of the PNG files of :meth:`Analysis.save_figures` [dots per inch].
 FIGURE_DPI = 110
+
+#: Name of the schema of :meth:`Analysis.to_json` (the whole result, arrays included).
+ANALYSIS_SCHEMA = "stictiondiag.analysis"
 
 
 @dataclass(frozen=True)
@@ -83,8 +88,29 @@ class Analysis:
         """Loop name: the source file's stem."""
         return Path(str(self.tags.source)).stem or "loop"
 
+    def to_json(self) -> str:
+        """The whole result, time series included, as one JSON document
+        (:mod:`stictiondiag.core.schema`, with its version); :meth:`from_json` reads
+        it back as the same typed object."""
+        return dumps(self, schema=ANALYSIS_SCHEMA)
+
+    @classmethod
+    def from_json(cls, text: str) -> Analysis:
+        """The :class:`Analysis` of a :meth:`to_json` document.
+
+        Raises
+        ------
+        DataError
+            Not such a document, or one of a newer schema version.
+        """
+        result = loads(text, schema=ANALYSIS_SCHEMA)
+        if not isinstance(result, cls):
+            raise DataError("the result file does not hold an analysis")
+        return result
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able summary (the ``--json`` output of ``stiction analyze``)."""
+        """JSON-able summary (the ``--json`` output of ``stiction analyze``), with
+        the schema version of :mod:`stictiondiag.core.schema`."""
         tags = self.tags
         stiction = to_plain(self.fit.to_dict())
         stiction["units"] = "% of op span"
@@ -94,6 +120,7 @@ class Analysis:
             rep = to_plain(self.replay.to_dict())
             rep["metrics"] = to_plain(replay_metrics(self.replay).to_dict())
         return {
+            "schema_version": SCHEMA_VERSION,
             "source": str(tags.source),
             "loop": self.loop,
             "analysed_at": self.analysed_at or None,

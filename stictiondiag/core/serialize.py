@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -11,9 +12,11 @@ import numpy as np
 def to_plain(v: Any) -> Any:
     """JSON-able copy: numpy scalars -> float/int, NaN/inf -> None, arrays -> lists.
 
-    Dicts keep their order with string keys; tuples become lists.  Anything else is
-    returned as it is.
+    Dicts keep their order with string keys; tuples become lists; an enum member
+    becomes its value.  Anything else is returned as it is.
     """
+    if isinstance(v, Enum):
+        return to_plain(v.value)
     if isinstance(v, dict):
         return {str(k): to_plain(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):

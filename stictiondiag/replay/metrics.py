@@ -244,12 +244,12 @@ class CycleReproduction:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict."""
         return {
-            "period_data_s": _plain(self.period_data_s),
-            "period_replay_s": _plain(self.period_replay_s),
-            "amplitude_data": _plain(self.amplitude_data),
-            "amplitude_replay": _plain(self.amplitude_replay),
-            "period_error_pct": _plain(self.period_error_pct),
-            "amplitude_error_pct": _plain(self.amplitude_error_pct),
+            "period_data_s": plain_float(self.period_data_s),
+            "period_replay_s": plain_float(self.period_replay_s),
+            "amplitude_data": plain_float(self.amplitude_data),
+            "amplitude_replay": plain_float(self.amplitude_replay),
+            "period_error_pct": plain_float(self.period_error_pct),
+            "amplitude_error_pct": plain_float(self.amplitude_error_pct),
             "reproduced": bool(self.reproduced),
             "reason": self.reason,
         }
