@@ -52,7 +52,7 @@ LOOP_ID_COLUMNS = ("loop_id", "loop", "loop_name", "tag", "loopid")
 LOOP_FILE_SUFFIXES = (".csv", ".parquet", ".pq")
 
 #: Order of verdicts in the ranked table: what maintenance should look at first.
-VERDICT_RANK = {"stiction": 0, "inconclusive": 1, "no_stiction": 2, "error": 3}
+VERDICT_RANK = {"stiction": 0, "inconclusive": 1, "propagated": 2, "no_stiction": 3, "error": 4}
 
 
 @dataclass(frozen=True)
@@ -96,6 +96,9 @@ class ScanResult:
     renamed : dict
         File -> loop name, for files named otherwise than their stem (two files
         with one stem, e.g. ``loop.csv`` and ``loop.parquet``, get distinct names).
+    plantwide : dict
+        The plant-wide step (:func:`stictiondiag.apps.plantwide.plantwide_step`):
+        ``status`` ``"on"`` with the groups, or ``"off"`` with the ``reason``.
     """
 
     table: pd.DataFrame
@@ -104,6 +107,7 @@ class ScanResult:
     n_skipped: int
     outputs: dict = field(default_factory=dict)
     renamed: dict = field(default_factory=dict)
+    plantwide: dict = field(default_factory=dict)
 
 
 _safe_name = safe_name
@@ -607,10 +611,14 @@ def scan(
         if progress:
             progress(n_done, total, row["loop"])
 
+    from stictiondiag.apps.plantwide import plantwide_step, write_plantwide
+
+    plant = plantwide_step(sources, rows, read_options)
     table = rank(rows)
-    outputs = write_table(table, out, file_names)
+    outputs = write_table(table, out, file_names, plant)
+    outputs["plantwide"] = write_plantwide(plant, out)
     n_failed = int((table["verdict"] == "error").sum()) if not table.empty else 0
-    return ScanResult(table, total, n_failed, n_skipped, outputs, renamed)
+    return ScanResult(table, total, n_failed, n_skipped, outputs, renamed, plant)
 
 
 def _make_loops_dir(out: Path) -> Path:
@@ -726,13 +734,17 @@ def _json_default(o):
     return v if math.isfinite(v) else None
 
 
-def write_table(table: pd.DataFrame, out: Path, file_names: dict | None = None) -> dict:
+def write_table(
+    table: pd.DataFrame, out: Path, file_names: dict | None = None, plant: dict | None = None
+) -> dict:
     """Write the ranked table as an HTML page, Parquet and CSV (each atomically).
 
     The page comes first: beside ``loops/`` it marks the tables as the scan's own
     (:func:`is_scan_output`), also when the run stops between them.
-    ``file_names`` maps a loop to its file name in ``loops/`` (default its safe name).
+    ``file_names`` maps a loop to its file name in ``loops/`` (default its safe name);
+    ``plant``, the plant-wide step's result, adds its section to the page.
     """
+    from stictiondiag.apps.plantwide import plant_html
     from stictiondiag.core.atomic import (
         atomic_path,
         write_atomic,
@@ -751,7 +763,11 @@ def write_table(table: pd.DataFrame, out: Path, file_names: dict | None = None) 
                     else v
                 )
             )
-    write_atomic(paths["html"], scan_html(clean, file_names))
+    page = scan_html(clean, file_names)
+    section = plant_html(plant)
+    if section:
+        page = page.replace("</body>", section + "</body>", 1)
+    write_atomic(paths["html"], page)
     with atomic_path(paths["parquet"]) as tmp:
         clean.to_parquet(tmp, index=False)
     write_atomic(paths["csv"], clean.to_csv(index=False))
