@@ -66,7 +66,7 @@ LOOP_ID_COLUMNS = ("loop_id", "loop", "loop_name", "tag", "loopid")
 LOOP_FILE_SUFFIXES = (".csv", ".parquet", ".pq")
 
 #: Order of verdicts in the ranked table: what maintenance should look at first.
-VERDICT_RANK = {"stiction": 0, "inconclusive": 1, "no_stiction": 2, "error": 3}
+VERDICT_RANK = {"stiction": 0, "inconclusive": 1, "propagated": 2, "no_stiction": 3, "error": 4}
 
 
 @dataclass(frozen=True)
@@ -110,6 +110,9 @@ class ScanResult:
     renamed : dict
         File -> loop name, for files named otherwise than their stem (two files
         with one stem, e.g. ``loop.csv`` and ``loop.parquet``, get distinct names).
+    plantwide : dict
+        The plant-wide step (:func:`stictiondiag.apps.plantwide.plantwide_step`):
+        ``status`` ``"on"`` with the groups, or ``"off"`` with the ``reason``.
     """
 
     table: pd.DataFrame
@@ -118,6 +121,7 @@ class ScanResult:
     n_skipped: int
     outputs: dict = field(default_factory=dict)
     renamed: dict = field(default_factory=dict)
+    plantwide: dict = field(default_factory=dict)
     notes: tuple = ()
 
 
@@ -588,7 +592,7 @@ def scan(
             on_note(f"warning: {note}")
     with folder.locked(on_note):
         folder.sweep(started, ("", "loops"))
-        folder.refuse_foreign(("index.html", *OUTPUT_TABLES))
+        folder.refuse_foreign(("index.html", "plantwide.json", *OUTPUT_TABLES))
         loops_dir = _make_loops_dir(out)
         rows, todo = _resumed(sources, names, loops_dir, settings, force)
         n_skipped = len(rows)
@@ -607,11 +611,19 @@ def scan(
             rows.append(row)
             if progress:
                 progress(len(rows), len(sources), row["loop"])
+        from stictiondiag.apps.plantwide import plantwide_step, write_plantwide
+
+        plant = plantwide_step(sources, rows, read_options)
         table = rank(rows)
-        outputs = write_table(table, out, file_names, folder)
+        outputs = write_table(table, out, file_names, folder, plant)
+        folder.claim("plantwide.json")
+        outputs["plantwide"] = write_plantwide(plant, out)
+        folder.record("plantwide.json")
         folder.flush()
     n_failed = int((table["verdict"] == "error").sum()) if not table.empty else 0
-    return ScanResult(table, len(sources), n_failed, n_skipped, outputs, renamed, tuple(notes))
+    return ScanResult(
+        table, len(sources), n_failed, n_skipped, outputs, renamed, plant, notes=tuple(notes)
+    )
 
 
 #: Dask workers of a LocalCluster per core at most: each is a process of about

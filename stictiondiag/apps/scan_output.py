@@ -71,7 +71,7 @@ def _legacy_outputs(out: Path) -> list[str]:
     """
     if not any(is_scan_output(out / name) for name in OUTPUT_TABLES):
         return []
-    names = [n for n in ("index.html", *OUTPUT_TABLES) if (out / n).is_file()]
+    names = [n for n in ("index.html", "plantwide.json", *OUTPUT_TABLES) if (out / n).is_file()]
     loops = out / "loops"
     if loops.is_dir() and not loops.is_symlink():
         names += sorted(
@@ -179,12 +179,14 @@ def write_table(
     out: Path,
     file_names: dict | None = None,
     folder: OutputFolder | None = None,
+    plant: dict | None = None,
 ) -> dict:
     """Write the ranked table as an HTML page, Parquet and CSV (each atomically).
 
     The page comes first: beside ``loops/`` it marks the tables as the scan's own
     (:func:`is_scan_output`), also when the run stops between them.
-    ``file_names`` maps a loop to its file name in ``loops/`` (default its safe name).
+    ``file_names`` maps a loop to its file name in ``loops/`` (default its safe name);
+    ``plant``, the plant-wide step's result, adds its section to the page.
     The files are written through ``folder`` (default :func:`scan_folder` of
     ``out``), so none replaces a file the scan did not write.  Text cells of the CSV
     that a spreadsheet would run as a formula are escaped
@@ -207,7 +209,13 @@ def write_table(
                     else v
                 )
             )
-    folder.write({"index.html": scan_html(clean, file_names)})
+    from stictiondiag.apps.plantwide import plant_html
+
+    page = scan_html(clean, file_names)
+    section = plant_html(plant)
+    if section:
+        page = page.replace("</body>", section + "</body>", 1)
+    folder.write({"index.html": page})
     folder.claim("scan.parquet")
     with atomic_path(paths["parquet"]) as tmp:
         clean.to_parquet(tmp, index=False)

@@ -49,8 +49,13 @@ def check_op_units(
     label: str,
     where: str,
     notes: list[str],
-) -> None:
+) -> str:
     """Check raw ``op`` (in the file's units) against ``op_units`` and ``op_range``.
+
+    Returns ``"percent"`` when op is in % of span (units or range given, or a range
+    consistent with it) and ``"unknown"`` when its range says otherwise: beyond
+    -5 to 105, within 0-1, or filling most of 4-20 (at least 8 of its 16 units);
+    S and J are then in op's own units, not % of span.
 
     Raises
     ------
@@ -62,6 +67,7 @@ def check_op_units(
     values = np.asarray(op, dtype=float)
     values = values[np.isfinite(values)]
     if values.size == 0 or op_range is not None:
+        scale = "percent"
         if values.size and op_range is not None:
             low, high = (float(v) for v in op_range)
             span = high - low
@@ -70,7 +76,8 @@ def check_op_units(
                     f"op {label!r}{where} spans {values.min():.4g} to {values.max():.4g}, beyond "
                     f"its op_range {low:g} to {high:g}: check op_units/op_range (CLI --op-range)"
                 )
-        return
+                scale = "unknown"
+        return scale
     lo, hi = float(values.min()), float(values.max())
     if op_units == "mA":
         if _share_outside(values, *MA_LIMITS) > OUTSIDE_SHARE:
@@ -78,7 +85,7 @@ def check_op_units(
                 f"op {label!r}{where} spans {lo:.4g} to {hi:.4g}: not a 4-20 mA signal; "
                 "drop --op-units mA if op is in percent, or give --op-range LO HI"
             )
-        return
+        return "percent"
     if _share_outside(values, -5.0, 105.0) > OUTSIDE_SHARE:
         if lo >= -5.0 and hi > 105.0:
             full = next((f for f in FULL_SCALES if f >= hi), None)
@@ -93,15 +100,20 @@ def check_op_units(
                 f"op {label!r}{where} spans {lo:.4g} to {hi:.4g}, beyond 0-100 % of span: "
                 "check op_units/op_range (S and J are reported in these units)"
             )
-    elif lo >= 0.0 and hi <= 1.0:
+        return "unknown"
+    if lo >= 0.0 and hi <= 1.0:
         notes.append(
             f"op {label!r}{where} stays within 0-1: if it is a fraction of span, give "
             "op_range=(0, 1) (CLI --op-range 0 1); read as percent, S and J are 100 times "
             "too small"
         )
-    elif lo >= MA_LIMITS[0] and hi <= MA_LIMITS[1]:
+        return "unknown"
+    if lo >= MA_LIMITS[0] and hi <= MA_LIMITS[1]:
         notes.append(
             f"op {label!r}{where} stays within 4-20: if it is a 4-20 mA signal, pass "
             "op_units='mA' (CLI --op-units mA); read as percent, S and J are 0.16 times "
             "their size"
         )
+        # A percent op that fills most of 4-20 and never leaves it is unlikely.
+        return "unknown" if hi - lo >= 8.0 else "percent"
+    return "percent"

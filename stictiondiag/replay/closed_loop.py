@@ -679,6 +679,7 @@ def replay(
     valve: str = "choudhury",
     noise_std: float = 0.0,
     seed: int | None = 0,
+    refit: bool = True,
 ) -> Replay:
     """Replay a recorded loop with the fitted valve and compare with the data.
 
@@ -710,6 +711,11 @@ def replay(
         asks for an EWMA filter on noisy op), so use ``valve="kano"`` with noise.
     seed : int, optional
         Seed of the replay noise.
+    refit : bool
+        Refine S, J and the process by closed-loop simulation when the open-loop
+        fit's replay does not reproduce the recorded cycle
+        (:mod:`stictiondiag.replay.refit`; at most 60 more O(n) simulations).  The
+        replay then uses the refitted loop; ``settings["refit"]`` holds both.
 
     Returns
     -------
@@ -729,7 +735,17 @@ def replay(
     rec = _replay_record(tags, fit)
     S, J = float(fit.S), float(fit.J)
     cf, pf, model_warnings = _replay_models(rec, controller, process, integrating)
+    refit_result = None
+    if refit and valve == "choudhury" and noise_std == 0.0 and process is None:
+        from stictiondiag.replay.refit import refine_loop
+
+        refit_result, pf = refine_loop(
+            rec, pf, S, J, lambda p, s, j: _replay_simulate(rec, cf, p, s, j, valve, 0.0, seed)
+        )
+        S, J = refit_result.S, refit_result.J
     sim = _replay_simulate(rec, cf, pf, S, J, valve, noise_std, seed)
+    if refit_result is not None:
+        sim.settings["refit"] = refit_result.to_dict()
     measures = _replay_compare(rec, sim)
     data = {"pv": rec.pv, "op": rec.op, "sp": sim.sp, "mv": rec.mv, "mv_model": rec.mv_model}
     return Replay(
