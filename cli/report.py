@@ -146,6 +146,7 @@ def report(
             workers=workers,
             manifest=manifest,
             progress=progress,
+            on_note=info,
         )
         md = render_markdown(result.rows)
         if markdown == "-":

@@ -112,6 +112,13 @@ def scan(
         )
         task = bar.add_task("", total=None)
 
+        def note(text: str) -> None:
+            # Above the bar while it runs, on stderr either way.
+            if bar.live.is_started:
+                bar.console.print(text, markup=False, highlight=False)
+            else:
+                info(text)
+
         def progress(done: int, total: int, loop: str) -> None:
             # The bar appears once the loops are found: a bad PATH prints one line only.
             if not bar.live.is_started:
@@ -132,6 +139,7 @@ def scan(
                 manifest=manifest,
                 exclude=(loops,) if loops is not None else (),
                 progress=progress,
+                on_note=note,
             )
         finally:
             if bar.live.is_started:
