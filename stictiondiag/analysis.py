@@ -326,7 +326,13 @@ def run_from_estimate(est: LoopEstimate, *, config: AnalysisConfig | None = None
         rep = _or_warn(
             "replay not possible",
             warnings,
-            lambda: replay(tags, fit, integrating=tags.integrating, known=est.structure),
+            lambda: replay(
+                tags,
+                fit,
+                integrating=tags.integrating,
+                action=tags.action,
+                known=est.structure,
+            ),
         )
         if rep is not None:
             warnings.extend(f"replay: {w}" for w in rep.warnings)

@@ -113,7 +113,8 @@ class Analysis:
         the schema version of :mod:`stictiondiag.core.schema`."""
         tags = self.tags
         stiction = to_plain(self.fit.to_dict())
-        stiction["units"] = "% of op span"
+        op_scale = getattr(tags, "op_scale", "percent")
+        stiction["units"] = "% of op span" if op_scale == "percent" else "op units (scale unknown)"
         stiction.update(to_plain(self.verdict.to_dict()))
         rep = None
         if self.replay is not None:
@@ -135,6 +136,9 @@ class Analysis:
                 "integrating": bool(tags.integrating),
                 "has_mv": tags.mv is not None,
                 "has_sp": tags.sp is not None,
+                "op_scale": op_scale,
+                "action": getattr(tags, "action", None),
+                "start_time_s": getattr(tags, "start_time", None),
             },
             "oscillation": {
                 "pv": to_plain(self.oscillation.to_dict()),
@@ -170,6 +174,9 @@ class Analysis:
             "integrating": d["tags"]["integrating"],
             "n_samples": d["tags"]["n_samples"],
             "has_mv": d["tags"]["has_mv"],
+            "op_scale": d["tags"].get("op_scale", "percent"),
+            "start_time_s": d["tags"].get("start_time_s"),
+            "duration_s": d["tags"].get("duration_s"),
             "oscillating": bool(self.oscillation.present),
             "period_s": d["oscillation"]["pv"].get("period_s"),
             "verdict": st.get("status"),
