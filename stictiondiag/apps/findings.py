@@ -302,18 +302,18 @@ def _compensation(status: str, d: dict) -> str:
 
 
 def _gap(d: dict) -> str:
+    """The gap in words: how much of the departure is the fitted loop's (the
+    closed-loop refit) and how much an unmodelled effect's
+    (:func:`stictiondiag.gap.attribution.attribute_gap`)."""
+    from stictiondiag.gap.attribution import attribute_gap
+
     gap = d.get("gap")
+    why = attribute_gap(d.get("replay"), gap)
     if not gap:
-        return "no gap diagnosis (it needs the closed-loop replay)"
-    effect = gap.get("effect")
-    before, shrink = gap.get("before"), gap.get("shrink_pct")
-    head = f"the replay departs from the data by {_num(before, '.3g')} % ({gap.get('metric')})"
-    if not effect or effect == "none":
-        return head + "; no unmodelled effect explains the difference"
-    return (
-        f"{head}; the effect that explains most of it is {effect} "
-        f"(shrinks the difference by {_num(shrink, '.0f')} %)"
-    )
+        text = "no gap diagnosis (it needs the closed-loop replay)"
+        return f"{text}; {why['text']}" if why["identification"]["refit_accepted"] else text
+    head = f"the replay departs from the data by {_num(gap.get('before'), '.3g')} % ({gap.get('metric')})"
+    return f"{head}; {why['text']}" if why["text"] else head
 
 
 def _limits(d: dict, st: dict, poorly: list[str]) -> list[str]:
