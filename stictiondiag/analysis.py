@@ -42,6 +42,7 @@ from stictiondiag.io.tags import Tags, read_tags
 from stictiondiag.replay import Replay, replay
 from stictiondiag.replay.compensation import Compensation, compensation_from_replay
 from stictiondiag.replay.metrics import replay_metrics
+from stictiondiag.signals.kpis import LoopKpis, loop_kpis
 from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
@@ -121,6 +122,9 @@ class Analysis:
         loop's cycle and the offset it leaves (Section 6.4), None when not run.
     analysed_at : str
         When the analysis ran (ISO 8601, UTC).
+    kpis : LoopKpis or None
+        Loop performance indicators (:mod:`stictiondiag.signals.kpis`), each with
+        its unit, definition and citation.
     """
 
     tags: Tags
@@ -133,6 +137,7 @@ class Analysis:
     warnings: tuple[str, ...] = field(default_factory=tuple)
     compensation: Compensation | None = None
     analysed_at: str = ""
+    kpis: LoopKpis | None = None
 
     @property
     def loop(self) -> str:
@@ -179,6 +184,7 @@ class Analysis:
                 None if self.compensation is None else to_plain(self.compensation.to_dict())
             ),
             "gap": None if self.gap is None else to_plain(self.gap.to_dict()),
+            "kpis": None if self.kpis is None else to_plain(self.kpis.to_dict()),
             "warnings": list(self.warnings),
         }
 
@@ -227,6 +233,10 @@ class Analysis:
             "gap_shrink_pct": gap.get("shrink_pct"),
             "n_warnings": len(self.warnings),
             "flags": "; ".join(self.warnings),
+            **{
+                f"kpi_{name}": (value or {}).get("value")
+                for name, value in (d.get("kpis") or {}).items()
+            },
         }
 
     def to_pandas(self) -> pd.DataFrame:
@@ -503,6 +513,27 @@ def _procedure(tags: Tags, config: AnalysisConfig) -> Analysis:
         warnings=tuple(warnings),
         compensation=comp,
         analysed_at=datetime.now(UTC).isoformat(timespec="seconds"),
+        kpis=kpis_of(tags, osc_pv, rep),
+    )
+
+
+def kpis_of(tags: Tags, osc_pv: Oscillation, rep: Replay | None) -> LoopKpis:
+    """Step 7: the loop's performance indicators; the Harris index takes the replay's
+    identified process dead time plus the controller's one-sample delay."""
+    dead_time_s = None
+    if rep is not None:
+        samples = (rep.process or {}).get("dead_time_samples")
+        if samples is not None:
+            dead_time_s = (int(samples) + 1) * float(tags.ts)
+    return loop_kpis(
+        tags.pv,
+        tags.op,
+        tags.sp,
+        float(tags.ts),
+        op_in_percent=getattr(tags, "op_scale", "percent") == "percent",
+        dead_time_s=dead_time_s,
+        oscillation_period_s=osc_pv.period_s if osc_pv.present else None,
+        oscillation_amplitude=osc_pv.amplitude if osc_pv.present else None,
     )
 
 
