@@ -99,6 +99,14 @@ def render_summary(d: dict) -> str:
         lines.append(f"replay      process {rep.get('process', {}).get('type')}")
         if rep.get("metrics"):
             lines.append(f"            {render_metrics(rep['metrics'])}")
+        refit = (rep.get("settings") or {}).get("refit") or {}
+        if refit.get("accepted"):
+            lines.append(
+                f"            closed-loop refit: S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
+                f"(open-loop fit S {_fmt(refit.get('S_open_loop'))}, "
+                f"J {_fmt(refit.get('J_open_loop'))}); cycle mismatch "
+                f"{_fmt(refit.get('cost_open_loop'), '.3g')} -> {_fmt(refit.get('cost'), '.3g')}"
+            )
     gap = d.get("gap")
     if gap:
         lines.append(

@@ -754,7 +754,12 @@ def replay(
         from stictiondiag.replay.refit import refine_loop
 
         refit_result, pf = refine_loop(
-            rec, pf, S, J, lambda p, s, j: _replay_simulate(rec, cf, p, s, j, valve, 0.0, seed)
+            rec,
+            pf,
+            S,
+            J,
+            lambda p, s, j: _replay_simulate(rec, cf, p, s, j, valve, 0.0, seed),
+            controller=cf.controller,
         )
         S, J = refit_result.S, refit_result.J
     sim = _replay_simulate(rec, cf, pf, S, J, valve, noise_std, seed)
