@@ -10,6 +10,8 @@ import typer
 from .app import app
 from .common import check_output_file, emit, friendly_errors, info, read_loop
 from .options import (
+    ActionOption,
+    CompressionOption,
     IntegratingOption,
     JsonOption,
     LoopType,
@@ -23,6 +25,7 @@ from .options import (
     SpOption,
     TimeOption,
     TsOption,
+    VendorOption,
     read_options,
 )
 
@@ -76,6 +79,9 @@ def gap(
     op_range: OpRangeOption = None,
     loop_type: LoopTypeOption = LoopType.other,
     integrating: IntegratingOption = None,
+    vendor: VendorOption = None,
+    action: ActionOption = None,
+    compression: CompressionOption = None,
     json_path: JsonOption = None,
     plot: Annotated[
         Path | None,
@@ -97,7 +103,21 @@ def gap(
             )
         check_output_file("--json", json_path, [file])
         info(f"diagnosing the gap of {file} ...")
-        options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
+        options = read_options(
+            pv,
+            op,
+            mv,
+            sp,
+            time,
+            ts,
+            op_units,
+            op_range,
+            loop_type,
+            integrating,
+            vendor,
+            action,
+            compression,
+        )
         result = diagnose_tags(read_loop(file, options))
         d = result.to_dict()
         emit(d, render_gap(d), json_path)

@@ -28,6 +28,8 @@ from .common import (
     write_stdout,
 )
 from .options import (
+    ActionOption,
+    CompressionOption,
     IntegratingOption,
     LoopsOption,
     LoopType,
@@ -41,6 +43,7 @@ from .options import (
     SpOption,
     TimeOption,
     TsOption,
+    VendorOption,
     read_options,
 )
 
@@ -88,6 +91,9 @@ def report(
     op_range: OpRangeOption = None,
     loop_type: LoopTypeOption = LoopType.other,
     integrating: IntegratingOption = None,
+    vendor: VendorOption = None,
+    action: ActionOption = None,
+    compression: CompressionOption = None,
     loops: LoopsOption = None,
 ) -> None:
     """Write a self-contained HTML report per loop, an index page, summary.md and JSON.
@@ -112,7 +118,21 @@ def report(
     with friendly_errors():
         check_output_dir("--out", out, files)
         check_output_file("--markdown", markdown, files)
-        options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
+        options = read_options(
+            pv,
+            op,
+            mv,
+            sp,
+            time,
+            ts,
+            op_units,
+            op_range,
+            loop_type,
+            integrating,
+            vendor,
+            action,
+            compression,
+        )
         manifest = None
         if loops is not None:
             from stictiondiag.io.plant import read_manifest

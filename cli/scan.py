@@ -14,12 +14,15 @@ from stictiondiag.core.errors import EXIT_PARTIAL
 from .app import app
 from .common import check_output_dir, friendly_errors, info, write_stdout
 from .options import (
+    ActionOption,
+    CompressionOption,
     LoopsOption,
     LoopType,
     LoopTypeOption,
     OpRangeOption,
     OpUnits,
     OpUnitsOption,
+    VendorOption,
     positive_seconds,
 )
 
@@ -61,6 +64,9 @@ def scan(
     loop_type: LoopTypeOption = LoopType.other,
     op_units: OpUnitsOption = OpUnits.percent,
     op_range: OpRangeOption = None,
+    vendor: VendorOption = None,
+    action: ActionOption = None,
+    compression: CompressionOption = None,
 ) -> None:
     """Scan many loops; write a ranked table (Parquet, CSV, HTML). Exit 4 if some loops failed.
 
@@ -91,6 +97,9 @@ def scan(
             options["op_units"] = op_units.value
         if op_range is not None:
             options["op_range"] = tuple(op_range)
+        for name, choice in (("vendor", vendor), ("action", action), ("compression", compression)):
+            if choice is not None:
+                options[name] = choice.value
         console = Console(file=sys.stderr)
         bar = Progress(
             TextColumn("[bold]scan"),

@@ -143,7 +143,8 @@ class Analysis:
         """JSON-able summary (the ``--json`` output of ``stiction analyze``)."""
         tags = self.tags
         stiction = to_plain(self.fit.to_dict())
-        stiction["units"] = "% of op span"
+        op_scale = getattr(tags, "op_scale", "percent")
+        stiction["units"] = "% of op span" if op_scale == "percent" else "op units (scale unknown)"
         stiction.update(to_plain(self.verdict.to_dict()))
         rep = None
         if self.replay is not None:
@@ -164,6 +165,9 @@ class Analysis:
                 "integrating": bool(tags.integrating),
                 "has_mv": tags.mv is not None,
                 "has_sp": tags.sp is not None,
+                "op_scale": op_scale,
+                "action": getattr(tags, "action", None),
+                "start_time_s": getattr(tags, "start_time", None),
             },
             "oscillation": {
                 "pv": to_plain(self.oscillation.to_dict()),
@@ -199,6 +203,9 @@ class Analysis:
             "integrating": d["tags"]["integrating"],
             "n_samples": d["tags"]["n_samples"],
             "has_mv": d["tags"]["has_mv"],
+            "op_scale": d["tags"].get("op_scale", "percent"),
+            "start_time_s": d["tags"].get("start_time_s"),
+            "duration_s": d["tags"].get("duration_s"),
             "oscillating": bool(self.oscillation.present),
             "period_s": d["oscillation"]["pv"].get("period_s"),
             "verdict": st.get("status"),
@@ -460,7 +467,7 @@ def _procedure(tags: Tags, config: AnalysisConfig) -> Analysis:
         rep = _or_warn(
             "replay not possible",
             warnings,
-            lambda: replay(tags, fit, integrating=tags.integrating),
+            lambda: replay(tags, fit, integrating=tags.integrating, action=tags.action),
         )
         if rep is not None:
             warnings.extend(f"replay: {w}" for w in rep.warnings)

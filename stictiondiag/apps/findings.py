@@ -242,7 +242,24 @@ def _meaning(status: str, st: dict, oscillating: bool) -> str:
     return "no verdict"
 
 
-def _action(status: str, st: dict, oscillating: bool) -> str:
+def _unknown_scale(d: dict) -> bool:
+    """Whether op was not in % of span (:attr:`stictiondiag.io.tags.Tags.op_scale`)."""
+    return (d.get("tags") or {}).get("op_scale") == "unknown"
+
+
+#: Unit of S and J when op's scale is unknown.
+OWN_UNITS = " in op's own units (scale unknown, not % of span)"
+
+
+def _action(status: str, st: dict, oscillating: bool, unknown_scale: bool = False) -> str:
+    if status == "stiction" and unknown_scale:
+        # A size in unknown units cannot schedule work: S of 0.002 may be 0.2 % of span
+        # or nothing at all.
+        return (
+            "size the stiction before any valve work: give op's values at 0 and 100 % of "
+            "span (--op-range LO HI, or op_range in the loops manifest), or test the "
+            "valve directly in manual"
+        )
     if status == "stiction":
         return "schedule a valve inspection (packing, actuator, positioner)"
     if status == "inconclusive":
@@ -285,18 +302,18 @@ def _compensation(status: str, d: dict) -> str:
 
 
 def _gap(d: dict) -> str:
+    """The gap in words: how much of the departure is the fitted loop's (the
+    closed-loop refit) and how much an unmodelled effect's
+    (:func:`stictiondiag.gap.attribution.attribute_gap`)."""
+    from stictiondiag.gap.attribution import attribute_gap
+
     gap = d.get("gap")
+    why = attribute_gap(d.get("replay"), gap)
     if not gap:
-        return "no gap diagnosis (it needs the closed-loop replay)"
-    effect = gap.get("effect")
-    before, shrink = gap.get("before"), gap.get("shrink_pct")
-    head = f"the replay departs from the data by {_num(before, '.3g')} % ({gap.get('metric')})"
-    if not effect or effect == "none":
-        return head + "; no unmodelled effect explains the difference"
-    return (
-        f"{head}; the effect that explains most of it is {effect} "
-        f"(shrinks the difference by {_num(shrink, '.0f')} %)"
-    )
+        text = "no gap diagnosis (it needs the closed-loop replay)"
+        return f"{text}; {why['text']}" if why["identification"]["refit_accepted"] else text
+    head = f"the replay departs from the data by {_num(gap.get('before'), '.3g')} % ({gap.get('metric')})"
+    return f"{head}; {why['text']}" if why["text"] else head
 
 
 def _limits(d: dict, st: dict, poorly: list[str]) -> list[str]:
@@ -342,6 +359,14 @@ def findings_from_dict(d: dict) -> Findings:
         float(ev.get("stiction_level", STICTION_LEVEL)),
     )
     word = status.upper().replace("_", " ")
+    unknown = _unknown_scale(d)
+    unit = OWN_UNITS if unknown else " % of travel"
+    meaning = _meaning(status, st, oscillating)
+    if unknown and status == "stiction":
+        meaning = (
+            f"a sticky valve's pattern, S = {_fmt(st.get('S'))} and J = {_fmt(st.get('J'))}"
+            f"{OWN_UNITS}: op is not in % of span, so its size in travel is not known"
+        )
     return Findings(
         loop=str(d.get("loop")),
         verdict=status,
@@ -349,12 +374,12 @@ def findings_from_dict(d: dict) -> Findings:
         levels=levels,
         S=st.get("S"),
         J=st.get("J"),
-        S_text=param_text(st, "S", unit=" % of travel"),
-        J_text=param_text(st, "J", unit=" % of travel"),
+        S_text=param_text(st, "S", unit=unit),
+        J_text=param_text(st, "J", unit=unit),
         poorly_determined=tuple(poorly),
         headline=f"{word}, {probability_text(st)}",
-        meaning=_meaning(status, st, oscillating),
-        action=_action(status, st, oscillating),
+        meaning=meaning,
+        action=_action(status, st, oscillating, unknown),
         compensation=_compensation(status, d),
         gap=_gap(d),
         limits=tuple(_limits(d, st, poorly)),

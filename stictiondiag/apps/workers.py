@@ -260,7 +260,7 @@ def _quiet_workers() -> Iterator[None]:
 #: * ``MALLOC_TRIM_THRESHOLD_``: the nanny puts ``65536`` in every worker's
 #:   environment by default.  That pins glibc's mmap threshold at 128 KiB, so every
 #:   numpy temporary of that size or more is a fresh mmap whose pages fault in one by
-#:   one: 1.41-1.47x the local pool's CPU per loop (docs/performance.md, "Dask").
+#:   one: 1.41-1.47x the local pool's CPU per loop (docs/history.md, "Dask").
 #:   ``None`` takes the key off the nanny's list; a value the user set in the
 #:   environment is still inherited by the workers.
 #: * The periodic work of an idle cluster, for a dashboard nobody watches: the

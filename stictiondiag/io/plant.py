@@ -493,7 +493,7 @@ def read_manifest(path: str | os.PathLike) -> dict[str, dict]:
             if choice is not None:
                 if choice.lower() not in choices:
                     raise UsageError(
-                        f"{where}: {key} {choice!r} is not one of {', '.join(choices)}"
+                        f"{where}: {setting} {choice!r} is not one of {', '.join(choices)}"
                     )
                 options[setting] = choice.lower()
         integ = _cell(row.get("integrating"))

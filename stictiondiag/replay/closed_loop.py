@@ -497,7 +497,7 @@ def _replay_record(tags, fit) -> _Record:
 
 
 def _replay_models(
-    rec: _Record, controller, process, integrating: bool | None
+    rec: _Record, controller, process, integrating: bool | None, action: str | None = None
 ) -> tuple[ControllerFit, ProcessFit, list[str]]:
     """Steps 1 and 2: the PI controller from sp, pv, op and the process from the
     valve position to pv (given, completed from the data, or identified), with
@@ -513,6 +513,17 @@ def _replay_models(
         cf = controller
     else:
         cf = controller_fit(controller, rec.sp, pv, op, dt)
+    if action is not None and controller is None:
+        # The declared action fixes the controller's sign (e = sp - pv: reverse Kc > 0,
+        # direct Kc < 0); an identification of the other sign keeps its size only.
+        sign = -1.0 if action == "direct" else 1.0
+        if cf.controller.gain * sign < 0:
+            flipped = PI(gain=-cf.controller.gain, integral_time=cf.controller.integral_time)
+            cf = controller_fit(flipped, rec.sp, pv, op, dt)
+            warnings.append(
+                f"identified controller gain has the sign of the other action; the declared "
+                f"{action} action is used (Kc = {cf.controller.gain:.3g})"
+            )
     if cf.sp_assumed:
         warnings.append("no setpoint recorded: taken as constant at the mean of pv")
     if process is None:
@@ -680,6 +691,7 @@ def replay(
     noise_std: float = 0.0,
     seed: int | None = 0,
     refit: bool = True,
+    action: str | None = None,
 ) -> Replay:
     """Replay a recorded loop with the fitted valve and compare with the data.
 
@@ -716,6 +728,8 @@ def replay(
         fit's replay does not reproduce the recorded cycle
         (:mod:`stictiondiag.replay.refit`; at most 60 more O(n) simulations).  The
         replay then uses the refitted loop; ``settings["refit"]`` holds both.
+    action : {"direct", "reverse"}, optional
+        Declared controller action: fixes the sign of the identified controller gain.
 
     Returns
     -------
@@ -734,13 +748,18 @@ def replay(
         raise UsageError(f"replay valve must be choudhury or kano, got {valve!r}")
     rec = _replay_record(tags, fit)
     S, J = float(fit.S), float(fit.J)
-    cf, pf, model_warnings = _replay_models(rec, controller, process, integrating)
+    cf, pf, model_warnings = _replay_models(rec, controller, process, integrating, action)
     refit_result = None
     if refit and valve == "choudhury" and noise_std == 0.0 and process is None:
         from stictiondiag.replay.refit import refine_loop
 
         refit_result, pf = refine_loop(
-            rec, pf, S, J, lambda p, s, j: _replay_simulate(rec, cf, p, s, j, valve, 0.0, seed)
+            rec,
+            pf,
+            S,
+            J,
+            lambda p, s, j: _replay_simulate(rec, cf, p, s, j, valve, 0.0, seed),
+            controller=cf.controller,
         )
         S, J = refit_result.S, refit_result.J
     sim = _replay_simulate(rec, cf, pf, S, J, valve, noise_std, seed)
