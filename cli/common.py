@@ -211,15 +211,3 @@ def check_output_dir(
                 )
             break
     probe_writable(target, option)
-
-
-def read_loop(file: str | Path, options: dict):
-    """One loop's tags read with ``options``, the structure settled as the analysis does.
-
-    The ISA tag, else the data, decide the loop type when ``--loop-type`` is not
-    given (:func:`stictiondiag.identification.looptype.settle_loop_type`).
-    """
-    from stictiondiag.identification.looptype import settle_loop_type
-    from stictiondiag.io.tags import read_tags
-
-    return settle_loop_type(read_tags(file, **options))

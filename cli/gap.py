@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from .app import app
-from .common import check_output_file, emit, friendly_errors, info, read_loop
+from .common import check_output_file, emit, friendly_errors, info
 from .options import (
     ActionOption,
     CompressionOption,
@@ -92,8 +92,8 @@ def gap(
     ] = None,
 ) -> None:
     """Sim-to-real gap: measure and locate it, and name the unmodelled effect that explains it."""
+    from stictiondiag.analysis import diagnose_gap_file
     from stictiondiag.core.atomic import atomic_path
-    from stictiondiag.gap.diagnose import diagnose_tags
 
     with friendly_errors():
         check_output_file("--plot", plot, [file], figure=True)
@@ -118,7 +118,7 @@ def gap(
             action,
             compression,
         )
-        result = diagnose_tags(read_loop(file, options))
+        result = diagnose_gap_file(file, **options)
         d = result.to_dict()
         emit(d, render_gap(d), json_path)
         if plot is not None:

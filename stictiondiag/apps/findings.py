@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from stictiondiag.stiction.valvefit import Determinacy, poorly_determined
 from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL
 
 if TYPE_CHECKING:
@@ -147,24 +148,23 @@ def _fmt(v: float | None) -> str:
     return format(float(v), ".3g")
 
 
-def determinacy(st: dict, sym: str) -> str:
-    """The estimator's note on how well ``sym`` is determined ('' when none)."""
+def determinacy_of(st: dict, sym: str) -> Determinacy | None:
+    """How well ``sym`` is determined (``details.determinacy`` in the JSON), None
+    when the estimator did not say."""
     details = st.get("details") or {}
-    return str((details.get("determinacy") or {}).get(sym) or "")
+    return Determinacy.of((details.get("determinacy") or {}).get(sym))
 
 
-def _zero_and_pinned(st: dict, sym: str) -> bool:
-    """Estimate and interval all zero: the data pin the parameter at zero (the
-    estimator's width-to-value test cannot be passed by a zero estimate)."""
-    iv = st.get(f"{sym}_interval")
-    values = [st.get(sym), *(iv or [None, None])]
-    return all(isinstance(v, int | float) and v == 0 for v in values)
+def determinacy(st: dict, sym: str) -> str:
+    """The estimator's words on how well ``sym`` is determined ('' when none)."""
+    member = determinacy_of(st, sym)
+    return "" if member is None else member.value
 
 
 def is_poorly_determined(st: dict, sym: str) -> bool:
-    """The data determine ``sym`` poorly: the estimator's determinacy note says so
-    (``details.determinacy`` in the JSON), unless estimate and interval are all zero."""
-    return determinacy(st, sym).startswith("poorly") and not _zero_and_pinned(st, sym)
+    """The data determine ``sym`` poorly (:func:`stictiondiag.stiction.valvefit.
+    poorly_determined`: the figures' rule too)."""
+    return poorly_determined(determinacy_of(st, sym), st.get(sym), st.get(f"{sym}_interval"))
 
 
 def param_note(st: dict, sym: str) -> str:
@@ -174,11 +174,11 @@ def param_note(st: dict, sym: str) -> str:
     iv = list(st.get(f"{sym}_interval") or [])
     have_iv = len(iv) == 2 and None not in iv
     iv_text = f"interval {_fmt(iv[0])}\u2013{_fmt(iv[1])}" if have_iv else "no interval"
-    note = determinacy(st, sym)
+    member = determinacy_of(st, sym)
     if is_poorly_determined(st, sym):
-        edge = " at the search edge" if "search limit" in note else ""
+        edge = " at the search edge" if member is not None and member.open else ""
         return f"poorly determined: {iv_text}{edge}"
-    if note.startswith("moderately"):
+    if member is Determinacy.MODERATE:
         return f"moderately determined: {iv_text}"
     return iv_text if have_iv else ""
 

@@ -311,9 +311,9 @@ def _connect(workers: int, scheduler: str | None):
     """(client, cluster or None): a client of ``scheduler`` or of a new LocalCluster."""
     try:
         from distributed import Client, LocalCluster
-    except ImportError:  # pragma: no cover - dask is a declared dependency
+    except ImportError:
         raise UsageError(
-            "the dask engine needs dask.distributed: pip install 'dask[distributed]'"
+            "the dask engine needs Dask, an optional extra: pip install 'stiction[dask]'"
         ) from None
     cluster = None
     if not scheduler:
