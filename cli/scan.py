@@ -12,7 +12,7 @@ import typer
 from stictiondiag.core.errors import EXIT_PARTIAL
 
 from .app import app
-from .common import check_output_dir, friendly_errors, info
+from .common import check_output_dir, friendly_errors, info, write_stdout
 from .options import (
     ActionOption,
     CompressionOption,
@@ -173,7 +173,7 @@ def scan(
         if "error" in t:
             for _, row in t[t["verdict"] == "error"].iterrows():
                 info(f"not analysed: {row['loop']}: {row['error']}")
-        typer.echo(t[cols].head(20).to_string(index=False))
+        write_stdout(t[cols].head(20).to_string(index=False) + "\n")
         if result.n_failed:
             info(f"{result.n_failed} loop(s) failed; see the 'error' column")
             raise typer.Exit(EXIT_PARTIAL)
