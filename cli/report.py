@@ -8,7 +8,6 @@ progress goes to stderr.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -20,8 +19,17 @@ from stictiondiag.core.errors import (
 )
 
 from .app import app
-from .common import check_output_dir, check_output_file, fail, friendly_errors, info
+from .common import (
+    check_output_dir,
+    check_output_file,
+    fail,
+    friendly_errors,
+    info,
+    write_stdout,
+)
 from .options import (
+    ActionOption,
+    CompressionOption,
     IntegratingOption,
     LoopsOption,
     LoopType,
@@ -35,6 +43,7 @@ from .options import (
     SpOption,
     TimeOption,
     TsOption,
+    VendorOption,
     read_options,
 )
 
@@ -82,6 +91,9 @@ def report(
     op_range: OpRangeOption = None,
     loop_type: LoopTypeOption = LoopType.other,
     integrating: IntegratingOption = None,
+    vendor: VendorOption = None,
+    action: ActionOption = None,
+    compression: CompressionOption = None,
     loops: LoopsOption = None,
 ) -> None:
     """Write a self-contained HTML report per loop, an index page, summary.md and JSON.
@@ -106,7 +118,21 @@ def report(
     with friendly_errors():
         check_output_dir("--out", out, files)
         check_output_file("--markdown", markdown, files)
-        options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
+        options = read_options(
+            pv,
+            op,
+            mv,
+            sp,
+            time,
+            ts,
+            op_units,
+            op_range,
+            loop_type,
+            integrating,
+            vendor,
+            action,
+            compression,
+        )
         manifest = None
         if loops is not None:
             from stictiondiag.io.plant import read_manifest
@@ -126,10 +152,11 @@ def report(
             workers=workers,
             manifest=manifest,
             progress=progress,
+            on_note=info,
         )
         md = render_markdown(result.rows)
         if markdown == "-":
-            sys.stdout.write(md)
+            write_stdout(md)
         elif markdown:
             write_atomic(markdown, md)
         info(f"wrote {result.outputs['index']} and {result.outputs['markdown']}")

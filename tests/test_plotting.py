@@ -190,20 +190,20 @@ def test_valve_zoom_draws_S_and_J_at_a_slip():
 
 
 def test_poorly_determined_parameters_are_marked_on_the_figures():
-    from types import SimpleNamespace
+    from stictiondiag.plotting.valve import plot_valve_zoom
+    from stictiondiag.stiction.valvefit import Determinacy, StictionFit
 
-    from stictiondiag.plotting.valve import plot_valve_zoom, poorly_determined
+    def fit_of(S, S_iv, det_S, J=5.78, J_iv=(2.89, 5.78), det_J=Determinacy.OPEN):
+        return StictionFit(
+            S=S, J=J, S_scaled=S, J_scaled=J, S_interval=S_iv, J_interval=J_iv,
+            method="hammerstein", mv_model=np.zeros(3), n_slips=0, cost=1.0,
+            linear_cost=1.0, details={"determinacy": {"S": det_S.value, "J": det_J.value}},
+        )  # fmt: skip
 
-    fit = SimpleNamespace(
-        S=0.5,
-        J=5.78,
-        S_interval=(0.0, 1.7),
-        J_interval=(2.89, 5.78),
-        details={"determinacy": {"S": "well determined", "J": "poorly determined (search)"}},
-    )
-    assert [s for s in ("S", "J") if poorly_determined(fit, s)] == ["J"]
-    zero = SimpleNamespace(S=0.0, S_interval=(0.0, 0.0), details={"determinacy": {"S": "poorly"}})
-    assert not poorly_determined(zero, "S")  # pinned at zero by the data
+    fit = fit_of(0.5, (0.0, 1.7), Determinacy.WELL)
+    assert [s for s in ("S", "J") if fit.poorly_determined(s)] == ["J"]
+    zero = fit_of(0.0, (0.0, 0.0), Determinacy.POOR)
+    assert not zero.poorly_determined("S")  # pinned at zero by the data
     t = np.arange(0, 300, 0.1)
     op = 50 + 10 * np.sin(2 * np.pi * t / 50)
     fig = plot_valve_zoom(op, op, ts=0.1, S=0.5, J=5.78, period_s=50.0, poorly=["J"])
@@ -233,3 +233,45 @@ def test_gap_breakdown_layout_survives_a_summary_wider_than_the_figure():
     width_in = (params.right - params.left) * fig.get_figwidth()
     assert width_in >= 3 * 1.2  # three columns of at least min_cell
     fig.clf()
+
+
+def _gap_stub(mv_share, pv_share):
+    from types import SimpleNamespace
+
+    phase = {
+        p: {
+            "samples_pct": 25.0,
+            "mv_share_pct_before": mv_share,
+            "mv_share_pct_after": mv_share,
+            "pv_share_pct_before": pv_share,
+            "pv_share_pct_after": pv_share,
+        }
+        for p in ("stuck", "slip", "moving", "reversal")
+    }
+    signal = {s: {"before": 1.0, "after": 1.0, "noise_floor": 0.0} for s in ("op", "pv", "mv")}
+    return SimpleNamespace(
+        breakdown={"signal": signal, "phase": phase},
+        candidates=(),
+        before=3.5,
+        after=3.5,
+        effect="none",
+        shrink_pct=0.0,
+        runner_up=None,
+        margin=0.0,
+        not_assessed=(),
+    )
+
+
+def test_gap_valve_phase_panel_is_never_empty():
+    """Issue 27: on level_undershoot the mv replay is exact (every mv share 0): the
+    panel shows pv's shares, and with no error in either it is left out and the
+    summary says so in words."""
+    from stictiondiag.plotting.gap import plot_gap_breakdown
+
+    fig = plot_gap_breakdown(_gap_stub(0.0, 25.0))
+    titles = [ax.get_title() for ax in fig.axes]
+    assert "By valve phase (share of pv error)" in titles
+    fig = plot_gap_breakdown(_gap_stub(0.0, 0.0))
+    assert not any("valve phase" in ax.get_title() for ax in fig.axes)
+    texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+    assert any("by valve phase: no replay error in mv or pv" in t for t in texts)

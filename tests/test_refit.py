@@ -45,7 +45,8 @@ def test_cycle_stats_of_a_sine_and_of_a_decaying_one():
 
 def test_refit_recovers_the_cycle_of_a_wrong_valve_fit():
     sim = _loop(5.0, 2.0)
-    tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, sp=sim.sp, ts=DT)
+    # No recorded mv: S and J come from a fit of op and pv and are refined.
+    tags = Tags.from_arrays(sim.pv, sim.op, sp=sim.sp, ts=DT)
     # An open-loop fit with S and J 0.3 of the true ones: its replay's cycle is off.
     wrong = SimpleNamespace(S=1.5, J=0.6, mv_model=sim.mv)
     plain = replay(tags, wrong, refit=False)
@@ -69,3 +70,12 @@ def test_no_refit_when_the_open_loop_fit_is_right():
     rep = replay(tags, SimpleNamespace(S=5.0, J=2.0, mv_model=sim.mv))
     assert not rep.settings["refit"]["accepted"]
     assert (rep.S, rep.J) == (5.0, 2.0)
+
+
+def test_with_recorded_mv_the_valve_is_kept_and_the_process_refined():
+    sim = _loop(5.0, 2.0)
+    tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, sp=sim.sp, ts=DT)
+    rep = replay(tags, SimpleNamespace(S=1.5, J=0.6, mv_model=sim.mv))
+    # S and J measured from mv are not the refit's to change.
+    assert (rep.S, rep.J) == (1.5, 0.6)
+    assert rep.settings["refit"]["S"] == 1.5 and rep.settings["refit"]["J"] == 0.6

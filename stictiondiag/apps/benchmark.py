@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from stictiondiag.core.atomic import write_atomic
+from stictiondiag.core.csvsafe import safe_cell
 from stictiondiag.core.errors import (
     StictionError,
     UsageError,
@@ -91,7 +92,7 @@ class BenchmarkResult:
     effects : tuple of str
         Effect names (rows and columns of the confusion matrix).
     path : str
-        How the files were diagnosed (``analyze_file`` or ``diagnose_file``).
+        How the files were diagnosed (``analyze_file``).
     """
 
     seed: int
@@ -188,7 +189,8 @@ class BenchmarkResult:
         w = csv.DictWriter(buf, fieldnames=fields)
         w.writeheader()
         for c in self.cases:
-            w.writerow(c.to_dict())
+            # Spreadsheet-safe text cells (an error message may start with "-").
+            w.writerow({k: safe_cell(v) for k, v in c.to_dict().items()})
         return buf.getvalue()
 
     def table(self) -> str:
@@ -220,18 +222,9 @@ class BenchmarkResult:
 
 def _diagnose_path(path: Path):
     """Diagnose one file the way ``stiction analyze FILE`` does; returns (gap, how)."""
-    try:
-        from stictiondiag.analysis import (
-            AnalysisConfig,
-            analyze_file,
-        )
+    from stictiondiag.analysis import AnalysisConfig, analyze_file
 
-        analysis = analyze_file(path, config=AnalysisConfig())
-    except ImportError:
-        # The orchestrator is not available in this build: the gap command's path.
-        from stictiondiag.gap.diagnose import diagnose_file
-
-        return diagnose_file(path), "diagnose_file"
+    analysis = analyze_file(path, config=AnalysisConfig())
     if analysis.gap is None:
         reasons = "; ".join(analysis.warnings) or "no gap diagnosis"
         raise UsageError(f"analysis gave no gap diagnosis: {reasons}")
@@ -266,16 +259,22 @@ def run_benchmark(
     -------
     BenchmarkResult
     """
-    from stictiondiag.models.synthetic import write_benchmark
+    from stictiondiag.models.synthetic import (
+        check_benchmark,
+        iter_benchmark,
+        write_benchmark_truth,
+    )
 
-    if int(n_cases) < 1:
-        raise UsageError(f"--cases must be at least 1, got {n_cases}")
+    n_cases, seed = check_benchmark(n_cases, seed)
     out = Path(out_dir)
     cases_dir = out / "cases"
-    written = write_benchmark(cases_dir, int(n_cases), int(seed))
     results = []
+    truths: list[dict] = []
     how = "custom" if diagnose is not None else None
-    for i, (path, truth) in enumerate(written):
+    # Each case is generated (and its file written whole) just before it is
+    # diagnosed: memory does not grow with the number of cases.
+    for i, (path, truth) in enumerate(iter_benchmark(cases_dir, n_cases, seed)):
+        truths.append(truth)
         t0 = time.perf_counter()
         try:
             if diagnose is not None:
@@ -306,7 +305,8 @@ def run_benchmark(
             )
         results.append(r)
         if progress is not None:
-            progress(i, len(written), r)
+            progress(i, n_cases, r)
+    write_benchmark_truth(cases_dir, seed, truths)
     res = BenchmarkResult(
         seed=int(seed),
         cases=tuple(results),

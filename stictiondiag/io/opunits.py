@@ -34,6 +34,10 @@ OUTSIDE_SHARE = 0.01
 #: below 3.6 mA and above 21 mA.
 MA_LIMITS = (3.6, 21.0)
 
+#: Share of samples below 0 that says op is not in % of span (a valve demand rests
+#: below its closed end only briefly; a mean-centred export spends half its time there).
+NEGATIVE_SHARE = 0.1
+
 #: Full scales of common converters [counts] (8- to 16-bit).
 FULL_SCALES = (255.0, 1023.0, 4095.0, 16383.0, 32767.0, 65535.0)
 
@@ -54,7 +58,8 @@ def check_op_units(
 
     Returns ``"percent"`` when op is in % of span (units or range given, or a range
     consistent with it) and ``"unknown"`` when its range says otherwise: beyond
-    -5 to 105, within 0-1, or filling most of 4-20 (at least 8 of its 16 units);
+    -5 to 105, below 0 for more than :data:`NEGATIVE_SHARE` of the record, within
+    0-1, or filling most of 4-20 (at least 8 of its 16 units);
     S and J are then in op's own units, not % of span.
 
     Raises
@@ -100,6 +105,15 @@ def check_op_units(
                 f"op {label!r}{where} spans {lo:.4g} to {hi:.4g}, beyond 0-100 % of span: "
                 "check op_units/op_range (S and J are reported in these units)"
             )
+        return "unknown"
+    below = float(np.mean(values < 0.0))
+    if below > NEGATIVE_SHARE:
+        notes.append(
+            f"op {label!r}{where} is below 0 for {100 * below:.0f} % of the record ({lo:.4g} "
+            f"to {hi:.4g}): a normalised or deviation export, not % of span? give the "
+            "values at 0 and 100 % with op_range (CLI --op-range LO HI); S and J are "
+            "stated in op's own units"
+        )
         return "unknown"
     if lo >= 0.0 and hi <= 1.0:
         notes.append(

@@ -56,6 +56,7 @@ __all__ = [
     "plant_loops",
     "read_manifest",
     "read_plant_loop",
+    "unmatched_manifest_rows",
 ]
 
 #: Column names of a long export (first match of each, case-insensitive).
@@ -492,7 +493,7 @@ def read_manifest(path: str | os.PathLike) -> dict[str, dict]:
             if choice is not None:
                 if choice.lower() not in choices:
                     raise UsageError(
-                        f"{where}: {key} {choice!r} is not one of {', '.join(choices)}"
+                        f"{where}: {setting} {choice!r} is not one of {', '.join(choices)}"
                     )
                 options[setting] = choice.lower()
         integ = _cell(row.get("integrating"))
@@ -514,6 +515,35 @@ def manifest_options(manifest: dict[str, dict], loop: str, path: str) -> dict | 
         if key in manifest:
             return manifest[key]
     return None
+
+
+def unmatched_manifest_rows(manifest: dict[str, dict], loops: list[tuple[str, str]]) -> list[str]:
+    """One warning naming the manifest rows that match none of ``loops`` (name, file).
+
+    A row that matches no loop (a typo, a name in the wrong case) would otherwise be
+    dropped without a word, its settings never applied.  Returns an empty list when
+    every row matches.
+    """
+    used: set[str] = set()
+    for loop, path in loops:
+        p = Path(path)
+        for key in (loop, p.name, str(p), p.stem):
+            if key in manifest:
+                used.add(key)
+                break
+    unmatched = [key for key in manifest if key not in used]
+    if not unmatched:
+        return []
+    known = {name.lower(): name for loop, path in loops for name in (loop, Path(path).name)}
+    shown = []
+    for key in unmatched[:10]:
+        near = known.get(key.lower())
+        shown.append(f"{key!r} (did you mean {near!r}?)" if near else repr(key))
+    more = f" and {len(unmatched) - 10} more" if len(unmatched) > 10 else ""
+    return [
+        f"loops manifest: {len(unmatched)} row(s) match no loop, their settings are not "
+        f"used: {', '.join(shown)}{more}; names are matched exactly (case included)"
+    ]
 
 
 def is_long_file(path: str | os.PathLike) -> bool:

@@ -86,6 +86,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.errors import (
     DataError,
     UsageError,
@@ -376,7 +377,7 @@ class Tags:
         UsageError
             Bad ``ts``, ``op_units``, ``op_range`` or ``loop_type``.
         """
-        ts = _check_ts(ts)
+        ts = check_dt(ts, "ts")
         raw = {"pv": pv, "op": op, "mv": mv, "sp": sp}
         arrays: dict[str, np.ndarray] = {}
         for role, values in raw.items():
@@ -490,7 +491,7 @@ def read_tags(
     """
     _check_options(op_units, op_range, loop_type)
     if ts is not None:
-        _check_ts(ts)
+        check_dt(ts, "ts")
     file = Path(path)
     overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time}
 
@@ -559,7 +560,7 @@ def read_frame(
 
     _check_options(op_units, op_range, loop_type)
     if ts is not None:
-        ts = _check_ts(ts)
+        ts = check_dt(ts, "ts")
     if not isinstance(frame.index, pd.RangeIndex):
         frame = frame.reset_index()
     frame = frame.rename(columns=lambda column: str(column).strip())
@@ -609,16 +610,6 @@ def read_frame(
 
 
 # --------------------------------------------------------------------------- options
-
-
-def _check_ts(ts: float) -> float:
-    try:
-        value = float(ts)
-    except (TypeError, ValueError):
-        raise UsageError(f"ts must be a number of seconds, not {ts!r}") from None
-    if not math.isfinite(value) or value <= 0.0:
-        raise UsageError(f"ts must be a positive sample time in seconds, not {ts!r}")
-    return value
 
 
 def _check_options(

@@ -26,11 +26,12 @@ at a time, from a :class:`~stictiondiag.replay.closed_loop.Replay`:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from stictiondiag.core.serialize import plain_float
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -102,16 +103,16 @@ class ReplayMetrics:
         """JSON-able dict."""
         return {
             "period_signal": self.period_signal,
-            "period_data_s": _plain(self.period_data_s),
-            "period_replay_s": _plain(self.period_replay_s),
-            "period_error_pct": _plain(self.period_error_pct),
+            "period_data_s": plain_float(self.period_data_s),
+            "period_replay_s": plain_float(self.period_replay_s),
+            "period_error_pct": plain_float(self.period_error_pct),
             "amplitude": {
-                k: {side: _plain(v.get(side)) for side in ("data", "replay")}
+                k: {side: plain_float(v.get(side)) for side in ("data", "replay")}
                 for k, v in self.amplitude.items()
             },
-            "amplitude_error_pct": {k: _plain(v) for k, v in self.amplitude_error_pct.items()},
-            "waveform": {k: _plain(v) for k, v in self.waveform.items()},
-            "nrmse": {k: _plain(v) for k, v in self.nrmse.items()},
+            "amplitude_error_pct": {k: plain_float(v) for k, v in self.amplitude_error_pct.items()},
+            "waveform": {k: plain_float(v) for k, v in self.waveform.items()},
+            "nrmse": {k: plain_float(v) for k, v in self.nrmse.items()},
             "amplitude_measure": "median over one-period windows of half the range",
         }
 
@@ -135,13 +136,6 @@ class ReplayMetrics:
     def text(self) -> str:
         """One line: period error, amplitude errors and waveform agreement."""
         return render_metrics(self.to_dict())
-
-
-def _plain(v) -> float | None:
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
 
 
 def _signed(v, unit: str = " %") -> str:
@@ -250,12 +244,12 @@ class CycleReproduction:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict."""
         return {
-            "period_data_s": _plain(self.period_data_s),
-            "period_replay_s": _plain(self.period_replay_s),
-            "amplitude_data": _plain(self.amplitude_data),
-            "amplitude_replay": _plain(self.amplitude_replay),
-            "period_error_pct": _plain(self.period_error_pct),
-            "amplitude_error_pct": _plain(self.amplitude_error_pct),
+            "period_data_s": plain_float(self.period_data_s),
+            "period_replay_s": plain_float(self.period_replay_s),
+            "amplitude_data": plain_float(self.amplitude_data),
+            "amplitude_replay": plain_float(self.amplitude_replay),
+            "period_error_pct": plain_float(self.period_error_pct),
+            "amplitude_error_pct": plain_float(self.amplitude_error_pct),
             "reproduced": bool(self.reproduced),
             "reason": self.reason,
         }

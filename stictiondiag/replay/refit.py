@@ -14,22 +14,32 @@ simulating the closed loop (:func:`stictiondiag.models.loops.simulate_loop`, fro
 the data's own state, as the replay does), the valve's S and J and the process's
 gain, time constant and dead time so that the replay's cycle matches the data's:
 
-    cost = 2 log(T_replay / T_data)^2 + log(A_pv replay / A_pv data)^2
-           + log(A_op replay / A_op data)^2 + (1 - waveform_pv)
+    cost = w_T log(T_replay / T_data)^2 + log(A_pv replay / A_pv data)^2
+           + log(A_op replay / A_op data)^2 [+ log(A_mv replay / A_mv data)^2]
+           + (1 - waveform_pv)
 
-with ``T`` the period of pv (median spacing of its upward mean crossings), ``A``
+with ``T`` the period of pv by the autocorrelation (Thornhill et al. 2003, as the
+replay reports it; :func:`recorded_cycle`), ``A``
 half the 5-95 % spread of the signal less its running mean over three recorded
 periods (:func:`cycle_spread`: a drift or a load slow against the cycle is left
 out), data and replay compared over the whole record and over its second half,
 the worse of the two counting (a start-up transient and a decaying
 replay both cost what their amplitude costs, which leads the search towards the
 recorded, sustained cycle), and ``waveform`` the correlation of the average cycle
-shapes (:func:`stictiondiag.replay.closed_loop.waveform_similarity`).  A replay
+shapes (:func:`stictiondiag.replay.closed_loop.waveform_similarity`); the mv term
+only where mv is recorded.  A replay
 that does not cycle costs :data:`NO_CYCLE_COST` on top of its amplitudes.
 
 The controller is not refitted: it is measured directly from the recorded sp, pv
 and op (no block's model output enters it), so the loop's error lies in the valve
-and the process.
+and the process.  With a recorded mv, S and J are measured from the valve's own
+stick and slip segments (Figs. 3 and 6) and are kept too: the process alone is
+refined.
+
+Starts: the open-loop fit, and the describing function's prediction
+(:func:`df_start`, Section 6): the J/S whose predicted cycle has the recorded
+period, scaled to the recorded op amplitude.  Both are simulated; the search
+starts from the better.
 
 Search: a compass search in the logarithms of S, J + j0 (``j0`` a small floor so a
 zero J can grow), the process gain and time constant, and in the dead time [samples],
@@ -38,12 +48,12 @@ stopped after :data:`MAX_SIMULATIONS` simulations or when the steps are below
 :data:`MIN_STEP`.  The refit is kept only when it lowers the cost by
 :data:`MIN_IMPROVEMENT`; otherwise the open-loop fit stands.
 
-Cost: at most :data:`MAX_SIMULATIONS` closed-loop simulations, each O(n) in the
-record length n, and the cycle measures of each, O(n) (crossings and percentiles
-by selection; the waveform's average cycle is O(n)): linear in n overall, but for
-one autocorrelation check of the accepted refit and of the open-loop fit (two more
-simulations; O(n log n), the FFT): a refit must cycle by the autocorrelation
-wherever the open-loop fit did.
+Cost: at most :data:`MAX_SIMULATIONS` + 3 closed-loop simulations (the search, the
+describing function's start, and the check that an accepted refit cycles wherever
+the open-loop fit did), each O(n) in the record length n, and the cycle measures
+of each: the autocorrelation's period, O(n log n) by FFT, everything else O(n).
+Linear in n up to that logarithm; the describing function's start does not depend
+on n.
 """
 
 from __future__ import annotations
@@ -55,11 +65,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stictiondiag.models.processes import FOPTD, Integrating
+from stictiondiag.models.processes import FOPTD, PI, Integrating
 
 if TYPE_CHECKING:
     from stictiondiag.identification.process import ProcessFit
 
+#: Weight ``w_T`` of the period's term against the amplitudes' [-].  The period of a
+#: limit cycle is measured over all its cycles, to a few per cent; an amplitude
+#: carries the noise, the quantisation and the unmodelled effects of the data, ten
+#: per cent and more: weights as the inverse squared uncertainties, (10/3)^2.
+PERIOD_WEIGHT = 10.0
 #: Most closed-loop simulations of one refit [-].
 MAX_SIMULATIONS = 60
 #: Initial step of the compass search in log units (a factor of e^0.5 = 1.65) [-].
@@ -69,7 +84,7 @@ MIN_STEP = 0.06
 #: Relative cost reduction a refit must bring to replace the open-loop fit [-].
 MIN_IMPROVEMENT = 0.1
 #: Cost added when the replay does not cycle [-] (a period off by a factor of 2).
-NO_CYCLE_COST = 2.0 * math.log(2.0) ** 2
+NO_CYCLE_COST = 2.0 * math.log(2.0) ** 2  # a period off by a factor of 2 at w_T = 2
 #: A replay whose cost is below this already reproduces the cycle; no refit [-]
 #: (period within about 3 %, amplitudes within about 4 %).
 GOOD_ENOUGH_COST = 0.002
@@ -116,6 +131,19 @@ def cycle_stats(x: np.ndarray, dt: float) -> CycleStats:
     if early > 0 and late < SUSTAIN_RATIO * early:
         return CycleStats(None, amplitude)
     return CycleStats(float(np.median(np.diff(ups))) * dt, amplitude)
+
+
+def recorded_cycle(x: np.ndarray, dt: float) -> CycleStats:
+    """:func:`cycle_stats` with the period by the autocorrelation (Thornhill et al.
+    2003, as the replay reports it) where the signal has one: a plant's cycles vary
+    in length, and the median spacing of their crossings can differ from the
+    autocorrelation's period by several per cent; data and replay are measured
+    alike.  O(n log n) (the FFT)."""
+    from stictiondiag.replay.metrics import _cycle_period
+
+    st = cycle_stats(x, dt)
+    period, _ = _cycle_period(x, dt)
+    return CycleStats(period if period is not None else st.period_s, st.amplitude)
 
 
 @dataclass(frozen=True)
@@ -206,14 +234,19 @@ def cycle_cost(
     op_r: np.ndarray,
     dt: float,
     data: tuple[CycleStats, CycleStats] | None = None,
+    mv: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[float, dict]:
-    """Cycle mismatch of a replay (module docstring) and its terms; O(n)."""
+    """Cycle mismatch of a replay (module docstring) and its terms; ``mv`` (recorded,
+    replayed) adds the amplitude term of a recorded valve position.  O(n log n)."""
     from stictiondiag.replay.closed_loop import waveform_similarity
 
-    d_pv = data[0] if data is not None else cycle_stats(pv, dt)
-    r_pv = cycle_stats(pv_r, dt)
+    d_pv = data[0] if data is not None else recorded_cycle(pv, dt)
+    r_pv = recorded_cycle(pv_r, dt)
     terms = {}
-    for name, y, yr in (("amplitude_pv", pv, pv_r), ("amplitude_op", op, op_r)):
+    pairs = [("amplitude_pv", pv, pv_r), ("amplitude_op", op, op_r)]
+    if mv is not None:
+        pairs.append(("amplitude_mv", mv[0], mv[1]))
+    for name, y, yr in pairs:
         y, yr = np.asarray(y, dtype=float), np.asarray(yr, dtype=float)
         h = y.size // 2
         worst = 0.0
@@ -227,7 +260,7 @@ def cycle_cost(
         terms["period"] = NO_CYCLE_COST
         terms["waveform"] = 1.0
     else:
-        terms["period"] = 2.0 * math.log(r_pv.period_s / d_pv.period_s) ** 2
+        terms["period"] = PERIOD_WEIGHT * math.log(r_pv.period_s / d_pv.period_s) ** 2
         w = waveform_similarity(pv, pv_r)
         terms["waveform"] = 1.0 if w is None else 1.0 - w
     return float(sum(terms.values())), terms
@@ -260,23 +293,31 @@ def _from_vector(v: np.ndarray, template: LoopParameters, j0: float, dt: float) 
     return LoopParameters(S=math.exp(v[0]), J=max(0.0, math.exp(v[1]) - j0), process=new)
 
 
-def _steps(p: LoopParameters, dt: float) -> np.ndarray:
+def _steps(p: LoopParameters, dt: float, valve_fixed: bool) -> np.ndarray:
     """Initial step per coordinate: log units, and samples for the dead time."""
     d = p.process.dead_time / dt
     tau_step = INITIAL_STEP if isinstance(p.process, FOPTD) else 0.0
-    return np.array([INITIAL_STEP, INITIAL_STEP, INITIAL_STEP, tau_step, max(1.0, 0.5 * d)])
+    sj_step = 0.0 if valve_fixed else INITIAL_STEP
+    return np.array([sj_step, sj_step, INITIAL_STEP, tau_step, max(1.0, 0.5 * d)])
 
 
 def refit_closed_loop(
     start: LoopParameters,
     evaluate: Callable[[LoopParameters], tuple[float, dict]],
     dt: float,
+    *,
+    valve_fixed: bool = False,
+    candidates: tuple[LoopParameters, ...] = (),
 ) -> ClosedLoopRefit:
     """Refine S, J and the process from ``start`` until the replay's cycle matches.
 
     ``evaluate`` simulates the loop with the given parameters from the data's own
     state and returns :func:`cycle_cost` of the replay; it is called at most
-    :data:`MAX_SIMULATIONS` times (each O(n)).  See the module docstring.
+    :data:`MAX_SIMULATIONS` times (each O(n)).  ``valve_fixed`` keeps S and J
+    (measured from a recorded mv) and refines the process alone.  ``candidates``
+    are further starting points (the describing function's, :func:`df_start`): each
+    is simulated once, and the search starts from the best of all.  See the module
+    docstring.
     """
     j0 = J_FLOOR_FRACTION * max(start.S, 0.1)
     cost0, terms0 = evaluate(start)
@@ -287,8 +328,13 @@ def refit_closed_loop(
     if cost0 <= GOOD_ENOUGH_COST:
         return replace(base, reason="the open-loop fit's replay reproduces the cycle already")
     x = _to_vector(start, j0, dt)
-    step = _steps(start, dt)
+    step = _steps(start, dt, valve_fixed)
     best, best_terms = cost0, terms0
+    for cand in candidates:
+        c, t = evaluate(cand)
+        sims += 1
+        if math.isfinite(c) and c < best:
+            x, best, best_terms = _to_vector(cand, j0, dt), c, t
     while sims < MAX_SIMULATIONS:
         improved = False
         for i in range(x.size):
@@ -312,6 +358,8 @@ def refit_closed_loop(
             if np.all(step[:4] < MIN_STEP) and step[4] == 0.0:
                 break
     found = _from_vector(x, start, j0, dt)
+    if valve_fixed:  # exactly the measured S and J, not their round trip through logs
+        found = replace(found, S=start.S, J=start.J)
     accepted = best < (1.0 - MIN_IMPROVEMENT) * cost0
     reason = (
         f"the closed-loop refit lowers the cycle mismatch from {cost0:.3g} to {best:.3g}"
@@ -347,6 +395,49 @@ def _done(start, found, cost0, cost, terms, sims, accepted, reason) -> ClosedLoo
     )
 
 
+#: Ratios J/S the describing-function start tries [-] (Section 6: the period of the
+#: predicted cycle depends on J/S alone, its amplitude scales with S).
+DF_RATIOS = (0.0, 0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0)
+
+
+def df_start(
+    start: LoopParameters, controller: PI, period_s: float, op_amplitude: float
+) -> LoopParameters | None:
+    """The describing function's starting point (Section 6, Eq. 5), no simulation.
+
+    For the open-loop fit's process and the identified controller, the limit cycle
+    predicted from ``G0(i w) = -1/N(X_m)`` has a period that depends on J/S alone
+    and an op amplitude ``X_m`` proportional to S.  The ratio of :data:`DF_RATIOS`
+    whose stable predicted cycle has the period nearest the recorded ``period_s``
+    [s] is taken, and S and J scaled so that ``X_m`` is the recorded op amplitude
+    [% of span].  None when no ratio predicts a stable cycle.  Cost independent of
+    the record length (a few describing-function solutions on coarse grids).
+    """
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.models.describing import predict_limit_cycle
+
+    if not (math.isfinite(controller.integral_time) and op_amplitude > 0 and period_s > 0):
+        return None
+    best: tuple[float, float, float] | None = None
+    for r in DF_RATIOS:
+        try:
+            pred = predict_limit_cycle(
+                start.process, controller, 1.0, r, n_amplitudes=120, n_frequencies=3000
+            )
+        except (StictionError, ArithmeticError, ValueError):
+            continue
+        if not (pred.limit_cycle and pred.stable and pred.period_s and pred.amplitude_op):
+            continue
+        miss = abs(math.log(pred.period_s / period_s))
+        if best is None or miss < best[0]:
+            best = (miss, r, float(pred.amplitude_op))
+    if best is None:
+        return None
+    _, r, xm = best
+    scale = op_amplitude / xm  # X_m is proportional to S at a fixed J/S
+    return LoopParameters(S=scale, J=r * scale, process=start.process)
+
+
 def with_process(pf, process: FOPTD | Integrating, dt: float):
     """``pf`` (a :class:`~stictiondiag.identification.process.ProcessFit`) with its
     dynamics replaced by ``process``, biases and initial state kept."""
@@ -354,7 +445,7 @@ def with_process(pf, process: FOPTD | Integrating, dt: float):
 
 
 def refine_loop(
-    rec, pf: ProcessFit, S: float, J: float, simulate
+    rec, pf: ProcessFit, S: float, J: float, simulate, controller: PI | None = None
 ) -> tuple[ClosedLoopRefit, ProcessFit]:
     """The closed-loop refit of a replay's loop (module docstring).
 
@@ -366,7 +457,7 @@ def refine_loop(
     from stictiondiag.identification.numerics import r_squared
 
     dt = float(rec.dt)
-    data = (cycle_stats(rec.pv, dt), cycle_stats(rec.op, dt))
+    data = (recorded_cycle(rec.pv, dt), recorded_cycle(rec.op, dt))
     start = LoopParameters(S=float(S), J=float(J), process=pf.process)
     if data[0].period_s is None or not S > 0.0:
         cost = math.nan
@@ -397,9 +488,17 @@ def refine_loop(
             return math.inf, {}
         if not (np.all(np.isfinite(sim.pv)) and np.all(np.isfinite(sim.op))):
             return math.inf, {}
-        return cycle_cost(rec.pv, rec.op, sim.pv, sim.op, dt, data)
+        mv = None if rec.mv is None else (rec.mv, sim.mv)
+        return cycle_cost(rec.pv, rec.op, sim.pv, sim.op, dt, data, mv)
 
-    result = refit_closed_loop(start, evaluate, dt)
+    fixed = rec.mv is not None
+    cands: tuple[LoopParameters, ...] = ()
+    if not fixed and controller is not None and data[1].period_s is not None:
+        df = df_start(
+            start, controller, data[0].period_s, cycle_spread(rec.op, data[0].period_s, dt)
+        )
+        cands = () if df is None else (df,)
+    result = refit_closed_loop(start, evaluate, dt, valve_fixed=fixed, candidates=cands)
     if not result.accepted:
         return result, pf
     new = with_process(pf, _refitted_process(result, pf.process), dt)

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.signals.plantwide import (
     OscillationGroup,
     PlantOscillations,
@@ -96,8 +97,8 @@ class SourceEvidence:
         return {
             "loop": self.loop,
             "lead_s": float(self.lead_s),
-            "harmonic_ratio": _plain(self.harmonic_ratio),
-            "probability": _plain(self.probability),
+            "harmonic_ratio": plain_float(self.harmonic_ratio),
+            "probability": plain_float(self.probability),
             "share": float(self.share),
         }
 
@@ -198,13 +199,6 @@ class PlantDiagnosis:
         }
 
 
-def _plain(v) -> float | None:
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
 def _finite(v, default: float) -> float:
     return float(v) if v is not None and math.isfinite(float(v)) else default
 
@@ -242,7 +236,7 @@ def rank_sources(
             loop=m,
             lead_s=-float(lags[m]),
             harmonic_ratio=harmonic_ratio(signals[m], dt, period),
-            probability=_plain(probabilities.get(m)),
+            probability=plain_float(probabilities.get(m)),
             share=float(s),
         )
         for m, s in zip(group.members, group.shares, strict=True)
