@@ -107,7 +107,9 @@ def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
         try:
             got = _stamped_pv(s, read_options)
         except StictionError as exc:
-            got = str(exc).splitlines()[0]
+            got = _first_line(exc)
+        except Exception as exc:  # the loops' own results must survive a failed step
+            got = f"internal error: {type(exc).__name__}: {_first_line(exc)}"
         if isinstance(got, str):
             return _off(rows, f"{s.loop}: {got}; grouping needs time-aligned loops")
         stamped[s.loop] = got
@@ -119,7 +121,9 @@ def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
     try:
         diagnosis = diagnose_plant(signals, dt, probabilities)
     except StictionError as exc:
-        return _off(rows, str(exc).splitlines()[0])
+        return _off(rows, _first_line(exc))
+    except Exception as exc:  # the loops' own results must survive a failed step
+        return _off(rows, f"internal error: {type(exc).__name__}: {_first_line(exc)}")
     for r in rows:
         role = diagnosis.roles.get(r["loop"])
         if role is None:
@@ -134,6 +138,11 @@ def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
             r["own_verdict"] = r.get("verdict")
             r["verdict"] = "propagated"
     return {"status": "on", **diagnosis.to_dict(), "diagnosis": diagnosis}
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def _off(rows: list[dict], reason: str) -> dict:
