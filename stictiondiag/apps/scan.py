@@ -428,6 +428,7 @@ LEADING_COLUMNS = (
     "loop",
     "verdict",
     "probability",
+    "cause",
     "severity",
     "confidence",
     "S",
