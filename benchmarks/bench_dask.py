@@ -19,7 +19,8 @@ wall time grows with the load.
 
 ``--with-trim`` adds a Dask scan whose workers get ``MALLOC_TRIM_THRESHOLD_=65536``
 (Dask's default, which the scan now removes): the cost before the fix.
-Results are in docs/performance.md, section "Dask".
+Results are in docs/performance.md, section "Dask" (latest), and
+docs/history.md, section "Dask" (every run).
 """
 
 from __future__ import annotations

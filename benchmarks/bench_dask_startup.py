@@ -13,7 +13,7 @@ folder, so every kernel must be compiled:
 * ``warm``: the same scan again on the now warm cache, for reference.
 
 Printed: CPU seconds of the whole process tree (``RUSAGE_CHILDREN``) and wall time.
-Results are in docs/performance.md, section "Dask".
+Results are in docs/history.md, section "Dask".
 """
 
 from __future__ import annotations

@@ -10,6 +10,8 @@ import typer
 from .app import app
 from .common import check_output_dir, check_output_file, emit, friendly_errors, info
 from .options import (
+    ActionOption,
+    CompressionOption,
     IntegratingOption,
     JsonOption,
     LoopType,
@@ -23,6 +25,7 @@ from .options import (
     SpOption,
     TimeOption,
     TsOption,
+    VendorOption,
     read_options,
 )
 
@@ -44,13 +47,15 @@ def check_outputs(out: Path | None, json_path: str | None, file: Path | None = N
     check_output_file("--json", json_path, inputs)
 
 
-def _param(st: dict, sym: str) -> str:
+def _param(st: dict, sym: str, unknown_scale: bool = False) -> str:
     """``5 % of op span (interval 4.98-5.01; 1.64 scaled)``, poorly determined
-    values marked as such (:func:`stictiondiag.apps.findings.param_note`)."""
-    from stictiondiag.apps.findings import param_note
+    values marked as such (:func:`stictiondiag.apps.findings.param_note`); in op's own
+    units when op is not in % of span."""
+    from stictiondiag.apps.findings import OWN_UNITS, param_note
 
     value = st.get(sym)
-    text = "n/a" if value is None else f"{value:.3g} % of op span"
+    unit = OWN_UNITS if unknown_scale else " % of op span"
+    text = "n/a" if value is None else f"{value:.3g}{unit}"
     note = param_note(st, sym)
     scaled = f"{_fmt(st.get(f'{sym}_scaled'))} scaled"
     return f"{text} ({note}; {scaled})" if note else f"{text} ({scaled})"
@@ -77,8 +82,8 @@ def render_summary(d: dict) -> str:
         f"loop        {d['loop']}  ({tg['loop_type']} [{source}], {tg['n_samples']} samples at "
         f"{tg['ts_s']:g} s, {'with' if tg['has_mv'] else 'no'} mv)",
         f"verdict     {st.get('status', '?').upper().replace('_', ' ')}  ({probability_text(st)})",
-        f"S           {_param(st, 'S')}",
-        f"J           {_param(st, 'J')}",
+        f"S           {_param(st, 'S', tg.get('op_scale') == 'unknown')}",
+        f"J           {_param(st, 'J', tg.get('op_scale') == 'unknown')}",
         f"method      {st.get('method')}",
         "oscillation "
         + (
@@ -94,6 +99,14 @@ def render_summary(d: dict) -> str:
         lines.append(f"replay      process {rep.get('process', {}).get('type')}")
         if rep.get("metrics"):
             lines.append(f"            {render_metrics(rep['metrics'])}")
+        refit = (rep.get("settings") or {}).get("refit") or {}
+        if refit.get("accepted"):
+            lines.append(
+                f"            closed-loop refit: S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
+                f"(open-loop fit S {_fmt(refit.get('S_open_loop'))}, "
+                f"J {_fmt(refit.get('J_open_loop'))}); cycle mismatch "
+                f"{_fmt(refit.get('cost_open_loop'), '.3g')} -> {_fmt(refit.get('cost'), '.3g')}"
+            )
     gap = d.get("gap")
     if gap:
         lines.append(
@@ -121,6 +134,9 @@ def analyze(
     op_range: OpRangeOption = None,
     loop_type: LoopTypeOption = LoopType.other,
     integrating: IntegratingOption = None,
+    vendor: VendorOption = None,
+    action: ActionOption = None,
+    compression: CompressionOption = None,
     out: Annotated[Path | None, typer.Option(help="Directory for the plots.")] = None,
     json_path: JsonOption = None,
     gap: Annotated[bool, typer.Option(help="Run the sim-to-real gap diagnosis.")] = True,
@@ -136,7 +152,21 @@ def analyze(
     os.environ.setdefault(THREADS_VARIABLE, str(os.cpu_count() or 1))
     with friendly_errors():
         check_outputs(out, json_path, file)
-        options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
+        options = read_options(
+            pv,
+            op,
+            mv,
+            sp,
+            time,
+            ts,
+            op_units,
+            op_range,
+            loop_type,
+            integrating,
+            vendor,
+            action,
+            compression,
+        )
         info(f"analysing {file} ...")
         result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
         from stictiondiag.apps.findings import with_findings

@@ -77,7 +77,7 @@ FIGURE_SUFFIXES = (
 def _same_file(a: Path, b: Path) -> bool:
     try:
         return a.resolve() == b.resolve() or (a.exists() and b.exists() and a.samefile(b))
-    except OSError:
+    except (OSError, RuntimeError):  # RuntimeError: a link loop
         return False
 
 
@@ -152,15 +152,3 @@ def check_output_dir(
                     f"choose another {option}"
                 )
             break
-
-
-def read_loop(file: str | Path, options: dict):
-    """One loop's tags read with ``options``, the structure settled as the analysis does.
-
-    The ISA tag, else the data, decide the loop type when ``--loop-type`` is not
-    given (:func:`stictiondiag.identification.looptype.settle_loop_type`).
-    """
-    from stictiondiag.identification.looptype import settle_loop_type
-    from stictiondiag.io.tags import read_tags
-
-    return settle_loop_type(read_tags(file, **options))

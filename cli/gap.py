@@ -8,8 +8,10 @@ from typing import Annotated
 import typer
 
 from .app import app
-from .common import check_output_file, emit, friendly_errors, info, read_loop
+from .common import check_output_file, emit, friendly_errors, info
 from .options import (
+    ActionOption,
+    CompressionOption,
     IntegratingOption,
     JsonOption,
     LoopType,
@@ -23,6 +25,7 @@ from .options import (
     SpOption,
     TimeOption,
     TsOption,
+    VendorOption,
     read_options,
 )
 
@@ -76,6 +79,9 @@ def gap(
     op_range: OpRangeOption = None,
     loop_type: LoopTypeOption = LoopType.other,
     integrating: IntegratingOption = None,
+    vendor: VendorOption = None,
+    action: ActionOption = None,
+    compression: CompressionOption = None,
     json_path: JsonOption = None,
     plot: Annotated[
         Path | None,
@@ -86,8 +92,8 @@ def gap(
     ] = None,
 ) -> None:
     """Sim-to-real gap: measure and locate it, and name the unmodelled effect that explains it."""
+    from stictiondiag.analysis import diagnose_gap_file
     from stictiondiag.core.atomic import atomic_path
-    from stictiondiag.gap.diagnose import diagnose_tags
 
     with friendly_errors():
         check_output_file("--plot", plot, [file], figure=True)
@@ -97,8 +103,22 @@ def gap(
             )
         check_output_file("--json", json_path, [file])
         info(f"diagnosing the gap of {file} ...")
-        options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
-        result = diagnose_tags(read_loop(file, options))
+        options = read_options(
+            pv,
+            op,
+            mv,
+            sp,
+            time,
+            ts,
+            op_units,
+            op_range,
+            loop_type,
+            integrating,
+            vendor,
+            action,
+            compression,
+        )
+        result = diagnose_gap_file(file, **options)
         d = result.to_dict()
         emit(d, render_gap(d), json_path)
         if plot is not None:

@@ -27,6 +27,51 @@ class OpUnits(str, Enum):
     mA = "mA"
 
 
+class Vendor(str, Enum):
+    yokogawa = "yokogawa"
+    honeywell = "honeywell"
+    deltav = "deltav"
+    pi = "pi"
+    generic = "generic"
+
+
+class Action(str, Enum):
+    direct = "direct"
+    reverse = "reverse"
+
+
+class Compression(str, Enum):
+    hold = "hold"
+    linear = "linear"
+
+
+VendorOption = Annotated[
+    Vendor | None,
+    typer.Option(
+        "--vendor",
+        help="Tag convention of the control system: yokogawa reads .MV as op (the "
+        "controller output); the others read MV as the valve position. Default: .MV is "
+        "op only when no op tag is beside it (said in the output).",
+    ),
+]
+ActionOption = Annotated[
+    Action | None,
+    typer.Option(
+        "--action",
+        help="Controller action (direct: op rises with pv; reverse: op falls), used by "
+        "the replay and the compensation. Default: from the data.",
+    ),
+]
+CompressionOption = Annotated[
+    Compression | None,
+    typer.Option(
+        "--compression",
+        help="How a compressed historian archive (recorded values) is rebuilt: hold "
+        "(exception reporting) or linear (swinging door). Default: told per tag.",
+    ),
+]
+
+
 PvOption = Annotated[str | None, typer.Option("--pv", help="Column holding pv.")]
 OpOption = Annotated[
     str | None, typer.Option("--op", help="Column holding op (controller output).")
@@ -121,13 +166,22 @@ def read_options(
     op_range: tuple[float, float] | None,
     loop_type: LoopType | None,
     integrating: bool | None,
+    vendor: Vendor | None = None,
+    action: Action | None = None,
+    compression: Compression | None = None,
 ) -> dict:
     """Keyword arguments for :func:`stictiondiag.io.tags.read_tags` from CLI options.
 
     ``--loop-type`` left at its default becomes ``loop_type=None``: the ISA tag, else
     the data, decide (:mod:`stictiondiag.io.looptype`).
     """
+    extra = {
+        name: value.value
+        for name, value in (("vendor", vendor), ("action", action), ("compression", compression))
+        if value is not None
+    }
     return {
+        **extra,
         "pv": pv,
         "op": op,
         "mv": mv,

@@ -22,6 +22,8 @@ from stictiondiag.core.errors import (
 from .app import app
 from .common import check_output_dir, check_output_file, fail, friendly_errors, info
 from .options import (
+    ActionOption,
+    CompressionOption,
     IntegratingOption,
     LoopsOption,
     LoopType,
@@ -35,6 +37,7 @@ from .options import (
     SpOption,
     TimeOption,
     TsOption,
+    VendorOption,
     read_options,
 )
 
@@ -82,6 +85,9 @@ def report(
     op_range: OpRangeOption = None,
     loop_type: LoopTypeOption = LoopType.other,
     integrating: IntegratingOption = None,
+    vendor: VendorOption = None,
+    action: ActionOption = None,
+    compression: CompressionOption = None,
     loops: LoopsOption = None,
 ) -> None:
     """Write a self-contained HTML report per loop, an index page, summary.md and JSON.
@@ -106,7 +112,21 @@ def report(
     with friendly_errors():
         check_output_dir("--out", out, files)
         check_output_file("--markdown", markdown, files)
-        options = read_options(pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating)
+        options = read_options(
+            pv,
+            op,
+            mv,
+            sp,
+            time,
+            ts,
+            op_units,
+            op_range,
+            loop_type,
+            integrating,
+            vendor,
+            action,
+            compression,
+        )
         manifest = None
         if loops is not None:
             from stictiondiag.io.plant import read_manifest
@@ -126,6 +146,7 @@ def report(
             workers=workers,
             manifest=manifest,
             progress=progress,
+            on_note=info,
         )
         md = render_markdown(result.rows)
         if markdown == "-":

@@ -14,12 +14,15 @@ from stictiondiag.core.errors import EXIT_PARTIAL
 from .app import app
 from .common import check_output_dir, friendly_errors, info
 from .options import (
+    ActionOption,
+    CompressionOption,
     LoopsOption,
     LoopType,
     LoopTypeOption,
     OpRangeOption,
     OpUnits,
     OpUnitsOption,
+    VendorOption,
     positive_seconds,
 )
 
@@ -61,6 +64,9 @@ def scan(
     loop_type: LoopTypeOption = LoopType.other,
     op_units: OpUnitsOption = OpUnits.percent,
     op_range: OpRangeOption = None,
+    vendor: VendorOption = None,
+    action: ActionOption = None,
+    compression: CompressionOption = None,
 ) -> None:
     """Scan many loops; write a ranked table (Parquet, CSV, HTML). Exit 4 if some loops failed.
 
@@ -91,6 +97,9 @@ def scan(
             options["op_units"] = op_units.value
         if op_range is not None:
             options["op_range"] = tuple(op_range)
+        for name, choice in (("vendor", vendor), ("action", action), ("compression", compression)):
+            if choice is not None:
+                options[name] = choice.value
         console = Console(file=sys.stderr)
         bar = Progress(
             TextColumn("[bold]scan"),
@@ -102,6 +111,13 @@ def scan(
             transient=False,
         )
         task = bar.add_task("", total=None)
+
+        def note(text: str) -> None:
+            # Above the bar while it runs, on stderr either way.
+            if bar.live.is_started:
+                bar.console.print(text, markup=False, highlight=False)
+            else:
+                info(text)
 
         def progress(done: int, total: int, loop: str) -> None:
             # The bar appears once the loops are found: a bad PATH prints one line only.
@@ -123,6 +139,7 @@ def scan(
                 manifest=manifest,
                 exclude=(loops,) if loops is not None else (),
                 progress=progress,
+                on_note=note,
             )
         finally:
             if bar.live.is_started:

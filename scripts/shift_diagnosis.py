@@ -68,31 +68,12 @@ def record_stats(tags, osc_pv, osc_op) -> dict:
 
 
 def _features(tags):
-    from stictiondiag.analysis import FLOW_LIKE, check_record_length
-    from stictiondiag.signals.oscillation import detect_oscillation
-    from stictiondiag.stiction.hammerstein import fit_hammerstein
-    from stictiondiag.stiction.verdict import verdict_features
+    from stictiondiag.analysis import estimate_loop
 
-    dt = float(tags.ts)
-    osc_pv = detect_oscillation(tags.pv, dt)
-    if not osc_pv.present and tags.sp is not None:
-        osc_e = detect_oscillation(tags.sp - tags.pv, dt)
-        if osc_e.present:
-            osc_pv = osc_e
-    osc_op = detect_oscillation(tags.op, dt)
-    stats = record_stats(tags, osc_pv, osc_op)
-    short = check_record_length(tags, osc_pv, osc_op)
-    fit = fit_hammerstein(
-        tags.op,
-        tags.pv,
-        dt,
-        integrating=bool(tags.integrating),
-        flow_loop=tags.loop_type in FLOW_LIKE,
-    )
-    feats, (support, f, f_iv), _ = verdict_features(
-        fit, osc_pv, osc_op, short_record=bool(short), data=tags
-    )
-    S_iv = fit.S_interval
+    est = estimate_loop(tags)
+    stats = record_stats(est.tags, est.oscillation, est.oscillation_op)
+    feats, (support, f, f_iv), _ = est.features()
+    S_iv = est.fit.S_interval
     stats["s_width_share"] = (
         float((S_iv[1] - S_iv[0]) / stats["op_spread"])
         if S_iv is not None and stats["op_spread"] > 0

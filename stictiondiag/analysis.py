@@ -1,10 +1,12 @@
 """The orchestrator: one loop's data in, the stiction diagnosis out.
 
-:func:`analyze` follows the paper's procedure for plant data (Choudhury, Thornhill &
-Shah 2005):
+The paper's procedure for plant data (Choudhury, Thornhill & Shah 2005) is one
+chain, run by everything that needs it (``analyze``, ``gap``, ``validate``, the
+training of P(stiction), the scripts):
 
-1. the tags, in % of span for op and mv (Section 5.1), shown mean-centred with unit
-   variance in plots and comparisons (Section 3);
+1. the tags, in % of span for op and mv (Section 5.1), with the process structure
+   settled when neither the user nor the tag named it
+   (:func:`~stictiondiag.identification.looptype.identify_structure`);
 2. is there an oscillation at all (the limit cycles of Sections 4.2.2 and 5.3);
 3. S and J of the data-driven model (Section 5.1): from the stick and slip segments
    of the mv-op plot when mv is recorded, otherwise by fitting the valve model and a
@@ -16,9 +18,23 @@ Shah 2005):
 6. the sim-to-real gap: where the replay departs from the data and which unmodelled
    effect explains the departure.
 
+Steps 1-3 are the chain's head, :func:`estimate_loop`, whose result
+:class:`LoopEstimate` carries everything later steps need (the identified
+structure included: the replay reuses its controller and process fits instead of
+identifying them again).  The entry points, in the manner of pvlib's
+``ModelChain.run_model_from_*``, share that head:
+
+* :func:`analyze` (tags) and :func:`analyze_file` (a file): the whole chain;
+* :func:`run_from_estimate`: steps 4-6 from a head already computed;
+* :func:`diagnose_gap_tags` and :func:`diagnose_gap_file`: the head, then the gap
+  diagnosis alone (``stiction gap``);
+* :meth:`LoopEstimate.features`: the head's evidence as the probability model's
+  features (its training, ``scripts/train_probability.py``).
+
 Every step is a pure function of its own module; this module only calls them in
-order and gathers their results in :class:`Analysis`.  Nothing here starts a
-process or a thread: the parallelism of many loops is ``stiction scan``'s.
+order and gathers their results in :class:`~stictiondiag.result.Analysis`.
+Nothing here starts a process or a thread: the parallelism of many loops is
+``stiction scan``'s.
 """
 
 from __future__ import annotations
@@ -26,22 +42,23 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, datetime
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
 from stictiondiag.core.errors import DataError, StictionError
-from stictiondiag.core.memo import memo_scope
-from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.diagnose import GapDiagnosis, diagnose_gap
-from stictiondiag.identification.looptype import settle_loop_type
+from stictiondiag.identification.looptype import (
+    StructureEvidence,
+    identify_structure,
+    settle_loop_type,
+)
 from stictiondiag.io.tags import Tags, read_tags
-from stictiondiag.replay import Replay, replay
-from stictiondiag.replay.compensation import Compensation, compensation_from_replay
-from stictiondiag.replay.metrics import replay_metrics
+from stictiondiag.replay import replay
+from stictiondiag.replay.compensation import compensation_from_replay
+from stictiondiag.result import FIGURE_DPI, Analysis
 from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
@@ -52,20 +69,27 @@ from stictiondiag.signals.oscillation import (
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import Segments, estimate_from_mv, segment_valve
 from stictiondiag.stiction.valvefit import StictionFit
-from stictiondiag.stiction.verdict import Verdict, stiction_verdict
+from stictiondiag.stiction.verdict import Verdict, stiction_verdict, verdict_features
 
-if TYPE_CHECKING:
-    import pandas as pd
-    from matplotlib.figure import Figure
+__all__ = [
+    "FIGURE_DPI",
+    "FLOW_LIKE",
+    "Analysis",
+    "AnalysisConfig",
+    "LoopEstimate",
+    "analyze",
+    "analyze_file",
+    "diagnose_gap_file",
+    "diagnose_gap_tags",
+    "estimate_loop",
+    "run_from_estimate",
+]
 
 #: Loop types where pv is (nearly) proportional to the valve opening (Section 5.3.1:
 #: "in liquid flow loops ... pv can be taken to be proportional to valve opening").
 #: Without mv the fit records it and uses the self-regulating structure
 #: (:mod:`stictiondiag.stiction.hammerstein`, "The linear part").
 FLOW_LIKE = frozenset({"flow"})
-
-#: Resolution of the PNG files of :meth:`Analysis.save_figures` [dots per inch].
-FIGURE_DPI = 110
 
 _T = TypeVar("_T")
 
@@ -88,246 +112,6 @@ class AnalysisConfig:
     gap: bool = True
     replay: bool = True
     compensation: bool = True
-
-
-@dataclass(frozen=True)
-class Analysis:
-    """Everything :func:`analyze` found for one loop.
-
-    Attributes
-    ----------
-    tags : Tags
-        The data as analysed (uniformly sampled, op and mv in % of span).
-    oscillation : Oscillation
-        Oscillation of pv (period [s], amplitude [pv units], regularity); of the
-        control error ``sp - pv`` when only that shows it (a set-point change hides
-        the cycle of pv; noted in ``warnings``).
-    oscillation_op : Oscillation
-        Oscillation of op (period [s], amplitude [% of span]).
-    fit : StictionFit
-        S and J [% of op span] with intervals and method.
-    verdict : Verdict
-        stiction / no_stiction / inconclusive, with confidence [0-1] and reasons.
-    replay : Replay or None
-        Closed-loop reconstruction (pv in pv units, op and mv in % of span), None
-        when not run or not possible (see ``warnings``).
-    gap : GapDiagnosis or None
-        Sim-to-real gap diagnosis (errors in % of the data's spread), None when not
-        run or not possible.
-    warnings : tuple of str
-        Data-quality and analysis warnings, in the order they arose.
-    compensation : Compensation or None
-        The smallest variable-integral band [pv units] that stops the replayed
-        loop's cycle and the offset it leaves (Section 6.4), None when not run.
-    analysed_at : str
-        When the analysis ran (ISO 8601, UTC).
-    """
-
-    tags: Tags
-    oscillation: Oscillation
-    oscillation_op: Oscillation
-    fit: StictionFit
-    verdict: Verdict
-    replay: Replay | None = None
-    gap: GapDiagnosis | None = None
-    warnings: tuple[str, ...] = field(default_factory=tuple)
-    compensation: Compensation | None = None
-    analysed_at: str = ""
-
-    @property
-    def loop(self) -> str:
-        """Loop name: the source file's stem."""
-        return Path(str(self.tags.source)).stem or "loop"
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able summary (the ``--json`` output of ``stiction analyze``)."""
-        tags = self.tags
-        stiction = to_plain(self.fit.to_dict())
-        stiction["units"] = "% of op span"
-        stiction.update(to_plain(self.verdict.to_dict()))
-        rep = None
-        if self.replay is not None:
-            rep = to_plain(self.replay.to_dict())
-            rep["metrics"] = to_plain(replay_metrics(self.replay).to_dict())
-        return {
-            "source": str(tags.source),
-            "loop": self.loop,
-            "analysed_at": self.analysed_at or None,
-            "tags": {
-                "names": dict(tags.names),
-                "n_samples": int(tags.n),
-                "ts_s": float(tags.ts),
-                "duration_s": float(tags.n * tags.ts),
-                "start": _plain_text(getattr(tags, "start", None)),
-                "loop_type": tags.loop_type,
-                "loop_type_source": _plain_text(getattr(tags, "loop_type_source", None)),
-                "integrating": bool(tags.integrating),
-                "has_mv": tags.mv is not None,
-                "has_sp": tags.sp is not None,
-            },
-            "oscillation": {
-                "pv": to_plain(self.oscillation.to_dict()),
-                "op": to_plain(self.oscillation_op.to_dict()),
-            },
-            "stiction": stiction,
-            "replay": rep,
-            "compensation": (
-                None if self.compensation is None else to_plain(self.compensation.to_dict())
-            ),
-            "gap": None if self.gap is None else to_plain(self.gap.to_dict()),
-            "warnings": list(self.warnings),
-        }
-
-    def summary_row(self, d: dict[str, Any] | None = None) -> dict[str, Any]:
-        """One flat row for plant-wide tables (``stiction scan``).
-
-        ``d`` is this analysis's :meth:`to_dict` when the caller has it already (it
-        is not computed again; a scan serialises every loop once).
-        """
-        if d is None:
-            d = self.to_dict()
-        st = d["stiction"]
-        gap = d["gap"] or {}
-        rep = d["replay"] or {}
-        s_int = st.get("S_interval") or [None, None]
-        j_int = st.get("J_interval") or [None, None]
-        return {
-            "loop": self.loop,
-            "source": d["source"],
-            "loop_type": d["tags"]["loop_type"],
-            "loop_type_source": d["tags"]["loop_type_source"],
-            "integrating": d["tags"]["integrating"],
-            "n_samples": d["tags"]["n_samples"],
-            "has_mv": d["tags"]["has_mv"],
-            "oscillating": bool(self.oscillation.present),
-            "period_s": d["oscillation"]["pv"].get("period_s"),
-            "verdict": st.get("status"),
-            "detected": st.get("detected"),
-            "confidence": st.get("confidence"),
-            "probability": st.get("probability"),
-            "cause": st.get("cause"),
-            "runner_up": st.get("runner_up"),
-            "S": st.get("S"),
-            "J": st.get("J"),
-            "S_lo": s_int[0],
-            "S_hi": s_int[1],
-            "J_lo": j_int[0],
-            "J_hi": j_int[1],
-            "S_determinacy": ((st.get("details") or {}).get("determinacy") or {}).get("S"),
-            "J_determinacy": ((st.get("details") or {}).get("determinacy") or {}).get("J"),
-            "method": st.get("method"),
-            "replay_fit_pv": (rep.get("fit") or {}).get("pv"),
-            "replay_period_error_pct": (rep.get("metrics") or {}).get("period_error_pct"),
-            "gap_effect": gap.get("effect"),
-            "gap_shrink_pct": gap.get("shrink_pct"),
-            "n_warnings": len(self.warnings),
-            "flags": "; ".join(self.warnings),
-        }
-
-    def to_pandas(self) -> pd.DataFrame:
-        """The loop's time series, one row per sample.
-
-        Columns: ``time`` [s], the recorded ``sp``, ``pv`` [pv units], ``op``, ``mv``
-        [% of span] (those present), ``mv_model`` (the fitted valve's output for the
-        recorded op [% of span]) and, with a replay, ``pv_replay``, ``op_replay``,
-        ``mv_replay`` (NaN on the samples before the replay starts).
-        """
-        frame = self.tags.to_pandas()
-        if np.size(self.fit.mv_model) == self.tags.n:
-            frame["mv_model"] = np.asarray(self.fit.mv_model, dtype=float)
-        if self.replay is not None:
-            start = int(round(float(self.replay.time[0]) / float(self.replay.dt)))
-            for name in ("pv", "op", "mv"):
-                column = np.full(self.tags.n, np.nan)
-                values = np.asarray(getattr(self.replay, name), dtype=float)
-                stop = min(self.tags.n, start + values.size)
-                column[start:stop] = values[: stop - start]
-                frame[f"{name}_replay"] = column
-        return frame
-
-    def plot(self, **kwargs: Any) -> Figure:
-        """Time trends and phase plots of the loop with the fitted valve (Figs. 3-6).
-
-        Keyword arguments go to :func:`stictiondiag.plotting.analysis.plot_phase`.
-        """
-        from stictiondiag.plotting.analysis import plot_phase
-
-        options: dict[str, Any] = {
-            "fit": self.fit,
-            "title": self.loop,
-            "period_s": self.oscillation.period_s or self.oscillation_op.period_s,
-        }
-        return plot_phase(self.tags, **{**options, **kwargs})
-
-    def figure_builders(self) -> dict[str, Callable[[], Figure]]:
-        """The functions that draw :meth:`figures`, by name, without drawing them:
-        ``phase`` (Figs. 3-6 style), ``valve_zoom`` (a few cycles of mv-op, or of the
-        model's mv-op, with S and J drawn as in Fig. 10), ``reconstruction`` (with a
-        replay), ``gap_breakdown`` and ``gap_replay`` (with a gap diagnosis)."""
-        builders: dict[str, Callable[[], Figure]] = {"phase": self.plot}
-        zoom = self._valve_zoom_builder()
-        if zoom is not None:
-            builders["valve_zoom"] = zoom
-        if self.replay is not None:
-            from stictiondiag.plotting.replay import plot_replay
-
-            rep = self.replay
-            metrics = to_plain(replay_metrics(rep).to_dict())
-            builders["reconstruction"] = lambda: plot_replay(rep, metrics=metrics)
-        if self.gap is not None:
-            from stictiondiag.plotting.gap import plot_gap_breakdown, plot_gap_replay
-
-            gap = self.gap
-            builders["gap_breakdown"] = lambda: plot_gap_breakdown(gap)
-            builders["gap_replay"] = lambda: plot_gap_replay(gap)
-        return builders
-
-    def _valve_zoom_builder(self) -> Callable[[], Figure] | None:
-        """The ``valve_zoom`` figure's builder, None without a valve signal or a
-        finite S and J."""
-        from stictiondiag.plotting.valve import plot_valve_zoom, poorly_determined
-
-        tags, fit = self.tags, self.fit
-        model = tags.mv is None
-        mv = np.asarray(fit.mv_model if model else tags.mv, dtype=float)
-        if mv.size != tags.n or not (math.isfinite(fit.S) and math.isfinite(fit.J)):
-            return None
-        period = self.oscillation_op.period_s or self.oscillation.period_s
-        return lambda: plot_valve_zoom(
-            tags.op,
-            mv,
-            ts=float(tags.ts),
-            S=float(fit.S),
-            J=float(fit.J),
-            period_s=period,
-            model=model,
-            poorly=[sym for sym in ("S", "J") if poorly_determined(fit, sym)],
-            title=f"{self.loop}: valve signature (Fig. 10)",
-        )
-
-    def figures(self) -> dict[str, Figure]:
-        """Figures by name (see :meth:`figure_builders`)."""
-        return {name: build() for name, build in self.figure_builders().items()}
-
-    def figure_file(self, name: str) -> str:
-        """File name of the figure ``name``: ``<loop>_<name>.png``."""
-        return f"{self.loop}_{name}.png"
-
-    def save_figures(self, folder: str | os.PathLike[str], *, dpi: int = FIGURE_DPI) -> list[Path]:
-        """Write every figure as ``folder/<loop>_<name>.png``, one at a time, each
-        file whole or not at all; return the files in the order of :meth:`figures`.
-
-        Raises
-        ------
-        UsageError
-            ``folder`` cannot be written.
-        """
-        from stictiondiag.plotting import save_png
-
-        return [
-            save_png(build(), Path(folder) / self.figure_file(name), dpi=dpi)
-            for name, build in self.figure_builders().items()
-        ]
 
 
 #: Fewest periods of a regular cycle a record must hold to be analysed at all [-].
@@ -396,6 +180,98 @@ def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) ->
     return None
 
 
+@dataclass(frozen=True)
+class LoopEstimate:
+    """The head of the chain (steps 1-3): the loop as analysed and S and J.
+
+    Attributes
+    ----------
+    tags : Tags
+        The data as analysed (uniformly sampled, op and mv in % of span), with the
+        process structure settled.
+    structure : StructureEvidence or None
+        The data's evidence on the process structure and the fits behind it, when
+        the structure was left to the data; None when the user or the tag named it.
+    oscillation : Oscillation
+        Oscillation of pv, or of the control error when only it shows one (period
+        [s], amplitude [pv units], regularity [-]).
+    oscillation_op : Oscillation
+        Oscillation of op (period [s], amplitude [% of span]).
+    short_record : str or None
+        The short-record warning of :func:`check_record_length`, None when the
+        record is long enough.
+    segments : Segments or None
+        Stick and slip segments of the mv-op plot (mv recorded only).
+    fit : StictionFit
+        S and J [% of op span] with intervals and method.
+    warnings : tuple of str
+        The tags' warnings and those of steps 1-3, in the order they arose.
+    """
+
+    tags: Tags
+    structure: StructureEvidence | None
+    oscillation: Oscillation
+    oscillation_op: Oscillation
+    short_record: str | None
+    segments: Segments | None
+    fit: StictionFit
+    warnings: tuple[str, ...] = ()
+
+    def verdict(self) -> Verdict:
+        """Step 4: the verdict on this estimate."""
+        return stiction_verdict(
+            self.fit,
+            self.oscillation,
+            oscillation_op=self.oscillation_op,
+            has_mv=self.tags.mv is not None,
+            short_record=bool(self.short_record),
+            data=self.tags,
+        )
+
+    def features(self) -> tuple[dict, tuple[float, float, tuple[float, float]], dict]:
+        """The evidence the verdict decides on
+        (:func:`~stictiondiag.stiction.verdict.verdict_features`): the probability
+        model's features, the improvement's support and the classic tests' statistics.
+        The same call the verdict makes, so a model trained on these features scores
+        exactly what it was trained on."""
+        return verdict_features(
+            self.fit,
+            self.oscillation,
+            self.oscillation_op,
+            short_record=bool(self.short_record),
+            data=self.tags,
+        )
+
+
+def estimate_loop(tags: Tags) -> LoopEstimate:
+    """Steps 1-3 of the chain: settle the loop type, find the oscillations, check
+    the record's length, and estimate S and J.
+
+    Raises
+    ------
+    DataError
+        The record holds fewer than two periods of a regular cycle
+        (:func:`check_record_length`), or the estimator cannot use the data.
+    """
+    structure = None
+    if tags.loop_type_source == "pending":
+        structure = identify_structure(tags)
+        tags = settle_loop_type(tags, structure)  # the data decide the structure
+    warnings = list(tags.warnings)
+
+    # 2. Is there an oscillation at all?
+    osc_pv, osc_op = find_oscillations(tags, warnings)
+    short = check_record_length(tags, osc_pv, osc_op)
+    if short:
+        warnings.append(short)
+
+    # 3. S and J: from the valve's own signal when recorded, else the Hammerstein fit.
+    # The stick and slip segments of the mv-op plot serve the gap diagnosis too.
+    segments = segment_valve(tags.op, tags.mv, float(tags.ts)) if tags.mv is not None else None
+    fit = estimate_stiction(tags, segments=segments)
+    return LoopEstimate(tags, structure, osc_pv, osc_op, short, segments, fit, tuple(warnings))
+
+
 def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
     """Diagnose stiction in one loop, in the paper's order (see the module docstring).
 
@@ -418,42 +294,30 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         (:func:`check_record_length`), or a step cannot use the data (its message
         says why).  The replay and the gap diagnosis do not raise: when they cannot
         use the data the reason goes into the warnings and their field is None.
-
-    Notes
-    -----
-    The steps run inside one :func:`stictiondiag.core.memo.memo_scope`: the loop
-    type from the data and the replay identify the controller and the process from
-    the same signals, and the second identification is the first one's result.
     """
-    with memo_scope():
-        return _procedure(tags, config or AnalysisConfig())
+    return run_from_estimate(estimate_loop(tags), config=config)
 
 
-def _procedure(tags: Tags, config: AnalysisConfig) -> Analysis:
-    """The steps of :func:`analyze`, in the paper's order."""
-    tags = settle_loop_type(tags)  # the data decide the structure when nothing else did
-    warnings = list(tags.warnings)
+def analyze_file(
+    path: str | os.PathLike[str],
+    *,
+    config: AnalysisConfig | None = None,
+    **read_options: Any,
+) -> Analysis:
+    """Read one loop's file with :func:`~stictiondiag.io.tags.read_tags` and
+    :func:`analyze` it."""
+    return analyze(read_tags(path, **read_options), config=config)
 
-    # 2. Is there an oscillation at all?
-    osc_pv, osc_op = find_oscillations(tags, warnings)
-    short = check_record_length(tags, osc_pv, osc_op)
-    if short:
-        warnings.append(short)
 
-    # 3. S and J: from the valve's own signal when recorded, else the Hammerstein fit.
-    # The stick and slip segments of the mv-op plot serve the gap diagnosis too.
-    segments = segment_valve(tags.op, tags.mv, float(tags.ts)) if tags.mv is not None else None
-    fit = estimate_stiction(tags, segments=segments)
+def run_from_estimate(est: LoopEstimate, *, config: AnalysisConfig | None = None) -> Analysis:
+    """Steps 4-6 of the chain from its head: the verdict, the closed-loop replay
+    (with the variable-integral compensation of Section 6.4) and the gap."""
+    config = config or AnalysisConfig()
+    tags, fit, segments = est.tags, est.fit, est.segments
+    warnings = list(est.warnings)
 
     # 4. Verdict.
-    verdict = stiction_verdict(
-        fit,
-        osc_pv,
-        oscillation_op=osc_op,
-        has_mv=tags.mv is not None,
-        short_record=bool(short),
-        data=tags,
-    )
+    verdict = est.verdict()
 
     # 5. Closed-loop replay; its own notes (a poor identification, a replay without
     # a cycle) say how far the reconstruction can be trusted.
@@ -462,7 +326,13 @@ def _procedure(tags: Tags, config: AnalysisConfig) -> Analysis:
         rep = _or_warn(
             "replay not possible",
             warnings,
-            lambda: replay(tags, fit, integrating=tags.integrating),
+            lambda: replay(
+                tags,
+                fit,
+                integrating=tags.integrating,
+                action=tags.action,
+                known=est.structure,
+            ),
         )
         if rep is not None:
             warnings.extend(f"replay: {w}" for w in rep.warnings)
@@ -489,8 +359,8 @@ def _procedure(tags: Tags, config: AnalysisConfig) -> Analysis:
 
     return Analysis(
         tags=tags,
-        oscillation=osc_pv,
-        oscillation_op=osc_op,
+        oscillation=est.oscillation,
+        oscillation_op=est.oscillation_op,
         fit=fit,
         verdict=verdict,
         replay=rep,
@@ -499,6 +369,26 @@ def _procedure(tags: Tags, config: AnalysisConfig) -> Analysis:
         compensation=comp,
         analysed_at=datetime.now(UTC).isoformat(timespec="seconds"),
     )
+
+
+def diagnose_gap_tags(tags: Tags) -> GapDiagnosis:
+    """The chain's head, then the sim-to-real gap alone (``stiction gap``): S and J
+    estimated as :func:`analyze` does, and the gap diagnosed without the
+    closed-loop replay of step 5.
+
+    Raises
+    ------
+    DataError
+        As :func:`estimate_loop`.
+    """
+    est = estimate_loop(tags)
+    return diagnose_gap(est.tags, est.fit, segments=est.segments)
+
+
+def diagnose_gap_file(path: str | os.PathLike[str], **read_options: Any) -> GapDiagnosis:
+    """Read a loop's file with :func:`~stictiondiag.io.tags.read_tags` and
+    :func:`diagnose_gap_tags` it."""
+    return diagnose_gap_tags(read_tags(path, **read_options))
 
 
 def find_oscillations(tags: Tags, warnings: list[str]) -> tuple[Oscillation, Oscillation]:
@@ -540,11 +430,6 @@ def estimate_stiction(tags: Tags, segments: Segments | None = None) -> StictionF
     )
 
 
-def _plain_text(v: object) -> str | None:
-    """A tag attribute as text for the JSON (None stays None)."""
-    return None if v is None else str(v)
-
-
 def _or_warn(what: str, warnings: list[str], step: Callable[[], _T]) -> _T | None:
     """``step()``, or None with ``"<what>: <reason>"`` among the warnings when the
     step cannot use the data (a :class:`StictionError`; other errors propagate)."""
@@ -553,14 +438,3 @@ def _or_warn(what: str, warnings: list[str], step: Callable[[], _T]) -> _T | Non
     except StictionError as exc:
         warnings.append(f"{what}: {exc}")
         return None
-
-
-def analyze_file(
-    path: str | os.PathLike[str],
-    *,
-    config: AnalysisConfig | None = None,
-    **read_options: Any,
-) -> Analysis:
-    """Read one loop's file with :func:`~stictiondiag.io.tags.read_tags` and
-    :func:`analyze` it."""
-    return analyze(read_tags(path, **read_options), config=config)

@@ -60,3 +60,16 @@ def test_dask_workers_run_without_the_trim_setting(monkeypatch):
     monkeypatch.setenv(TRIM, "1048576")
     got = dict(run_dask([TRIM], _worker_environ, (), 1, None))
     assert got == {TRIM: "1048576"} and os.environ[TRIM] == "1048576"
+
+
+def test_dask_engine_without_dask_says_which_extra_to_install(monkeypatch):
+    """Dask is an optional extra: without it the engine refuses with one line
+    naming the extra, not an ImportError."""
+    import sys
+
+    from stictiondiag.apps import workers
+    from stictiondiag.core.errors import UsageError
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import fails as if absent
+    with pytest.raises(UsageError, match=r"pip install 'stiction\[dask\]'"):
+        workers._connect(1, None)

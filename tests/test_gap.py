@@ -311,10 +311,10 @@ def test_quantised_sample_loop_names_quantization():
     """
     from pathlib import Path
 
-    from stictiondiag.gap.diagnose import diagnose_file
+    from stictiondiag.analysis import diagnose_gap_file
 
     path = Path(__file__).resolve().parents[1] / "sample_data" / "temperature_quantised.csv"
-    g = diagnose_file(path)
+    g = diagnose_gap_file(path)
     assert g.effect == "quantization"
     # The rounding of a 1 % grid (q^2/12) is nearly all of mv's replay error: the gap
     # shrinks by far more than half (measured 96 %; any other effect shrinks it < 15 %).

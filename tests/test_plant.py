@@ -185,7 +185,7 @@ def test_percent_declared_as_milliamps_is_a_one_line_data_error(tmp_path):
 # --------------------------------------------------------------------------- long, wide
 
 
-def test_long_export_is_resampled_to_the_coarsest_step(tmp_path):
+def test_long_export_is_put_on_the_fastest_tags_grid(tmp_path):
     frame = pd.read_csv(SAMPLES / "healthy_flow.csv").iloc[:1200]
     start = pd.Timestamp("2024-01-01")
     parts = [
@@ -210,10 +210,15 @@ def test_long_export_is_resampled_to_the_coarsest_step(tmp_path):
     (loop,) = plant_loops(path)
     assert loop.layout == "long" and loop.loop == "FIC7"
     tags = read_plant_loop(loop)
-    assert tags.ts == 2.0 and tags.n == 600
-    assert "common grid of 600 points every 2 s" in tags.warnings[0]
-    # On the grid, pv is the recorded pv at every other second (exact: grid = sample times).
-    np.testing.assert_allclose(tags.pv, frame["pv"].to_numpy()[::2], atol=1e-12)
+    # op's last sample is at 1198 s: the tags overlap on 1199 points every second.
+    assert tags.ts == 1.0 and tags.n == 1199
+    assert "common grid of 1199 points every 1 s" in tags.warnings[0]
+    # pv is recorded at every grid point (exact); op between its samples is their mean.
+    np.testing.assert_allclose(tags.pv, frame["pv"].to_numpy()[:1199], atol=1e-12)
+    op = frame["op"].to_numpy()
+    np.testing.assert_allclose(tags.op[1::2], 0.5 * (op[0:1198:2] + op[2:1199:2]), atol=1e-9)
+    # The export's clock is kept: the record starts at 2024-01-01 00:00 UTC.
+    assert tags.start_time == pd.Timestamp("2024-01-01", tz="UTC").timestamp()
     assert tags.loop_type == "flow" and tags.loop_type_source == "tag"
 
 

@@ -190,20 +190,20 @@ def test_valve_zoom_draws_S_and_J_at_a_slip():
 
 
 def test_poorly_determined_parameters_are_marked_on_the_figures():
-    from types import SimpleNamespace
+    from stictiondiag.plotting.valve import plot_valve_zoom
+    from stictiondiag.stiction.valvefit import Determinacy, StictionFit
 
-    from stictiondiag.plotting.valve import plot_valve_zoom, poorly_determined
+    def fit_of(S, S_iv, det_S, J=5.78, J_iv=(2.89, 5.78), det_J=Determinacy.OPEN):
+        return StictionFit(
+            S=S, J=J, S_scaled=S, J_scaled=J, S_interval=S_iv, J_interval=J_iv,
+            method="hammerstein", mv_model=np.zeros(3), n_slips=0, cost=1.0,
+            linear_cost=1.0, details={"determinacy": {"S": det_S.value, "J": det_J.value}},
+        )  # fmt: skip
 
-    fit = SimpleNamespace(
-        S=0.5,
-        J=5.78,
-        S_interval=(0.0, 1.7),
-        J_interval=(2.89, 5.78),
-        details={"determinacy": {"S": "well determined", "J": "poorly determined (search)"}},
-    )
-    assert [s for s in ("S", "J") if poorly_determined(fit, s)] == ["J"]
-    zero = SimpleNamespace(S=0.0, S_interval=(0.0, 0.0), details={"determinacy": {"S": "poorly"}})
-    assert not poorly_determined(zero, "S")  # pinned at zero by the data
+    fit = fit_of(0.5, (0.0, 1.7), Determinacy.WELL)
+    assert [s for s in ("S", "J") if fit.poorly_determined(s)] == ["J"]
+    zero = fit_of(0.0, (0.0, 0.0), Determinacy.POOR)
+    assert not zero.poorly_determined("S")  # pinned at zero by the data
     t = np.arange(0, 300, 0.1)
     op = 50 + 10 * np.sin(2 * np.pi * t / 50)
     fig = plot_valve_zoom(op, op, ts=0.1, S=0.5, J=5.78, period_s=50.0, poorly=["J"])

@@ -95,3 +95,35 @@ def test_sample_level_loop_amplitudes_are_compared_by_one_measure():
         assert abs(m.amplitude_error_pct[name]) < 10.0, (name, m.amplitude[name])
     window = int(round(m.period_data_s / a.replay.dt))
     assert m.amplitude["op"]["data"] == cycle_amplitude(a.replay.data["op"], window)
+
+
+# ------------------------------------------------------------------ cycle reproduction
+
+
+def _sine(period: float, amplitude: float, n: int = 2000) -> np.ndarray:
+    return amplitude * np.sin(2 * np.pi * np.arange(n) / period)
+
+
+def test_spread_amplitude_of_a_square_wave_is_its_amplitude():
+    # 5-95 % spread of a +-2 square wave is 4 exactly (both levels hold 50 % each).
+    x = np.where(np.arange(1000) % 100 < 50, 2.0, -2.0)
+    from stictiondiag.replay.metrics import spread_amplitude
+
+    assert spread_amplitude(x) == pytest.approx(2.0, abs=1e-12)
+
+
+def test_cycle_reproduction_within_and_outside_tolerance():
+    from stictiondiag.replay.metrics import cycle_reproduction
+
+    data = _sine(100.0, 1.0)
+    # 10 % longer period, 20 % larger: within 20 % / 35 %.
+    ok = cycle_reproduction(data, _sine(110.0, 1.2), 1.0)
+    assert ok.reproduced, ok.reason
+    assert ok.period_error_pct == pytest.approx(10.0, abs=2.0)  # ACF period estimate
+    assert ok.amplitude_error_pct == pytest.approx(20.0, abs=2.0)  # percentile grid
+    long = cycle_reproduction(data, _sine(130.0, 1.0), 1.0)
+    assert not long.reproduced and "period" in long.reason
+    small = cycle_reproduction(data, _sine(100.0, 0.5), 1.0)
+    assert not small.reproduced and "amplitude" in small.reason
+    decay = cycle_reproduction(data, _sine(100.0, 1.0) * np.exp(-np.arange(2000) / 300.0), 1.0)
+    assert not decay.reproduced and "does not cycle" in decay.reason

@@ -536,7 +536,7 @@ def test_a_user_file_named_like_the_table_is_not_overwritten(plant, tmp_path):
     folder = tmp_path / "plant"
     _two_loops(folder, plant)
     (folder / "scan.csv").write_bytes((plant / "L0000.csv").read_bytes())
-    with pytest.raises(UsageError, match="not written by a scan"):
+    with pytest.raises(UsageError, match="not written by stiction scan"):
         scan(folder, out=folder, workers=1, gap=False)
     assert (folder / "scan.csv").read_bytes() == (plant / "L0000.csv").read_bytes()
 

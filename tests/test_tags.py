@@ -104,7 +104,12 @@ def test_corrupt_parquet(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("name", "fragment"), [("data.dat", "unknown file type"), ("data.xlsx", "spreadsheet")]
+    ("name", "fragment"),
+    [
+        ("data.dat", "unknown file type"),
+        ("data.ods", "spreadsheet"),
+        ("data.xlsx", "not a readable .xlsx workbook"),
+    ],
 )
 def test_unknown_extension(tmp_path, name, fragment):
     path = tmp_path / name
@@ -118,10 +123,20 @@ def test_missing_required_tag(tmp_path, role):
     one_line_error(DataError, lambda: read_tags(path), f"no {role} column", f"{role}=<column>")
 
 
-def test_missing_op_with_mv_column_hints_at_yokogawa_naming(tmp_path):
-    frame = loop_frame().rename(columns={"pv": "FIC1.PV", "sp": "FIC1.SV", "mv": "FIC1.MV"})
-    path = write_csv(frame.drop(columns=["op"]), tmp_path / "yoko.csv")
-    one_line_error(DataError, lambda: read_tags(path), "op='FIC1.MV'")
+def test_yokogawa_mv_without_op_is_read_as_op_and_said(tmp_path):
+    # Yokogawa CENTUM names the controller output MV: with no op beside it, MV is op
+    # and the output says so; vendor=generic reads MV as the valve position (no op).
+    frame = loop_frame()
+    yoko = frame.drop(columns=["mv"]).rename(
+        columns={"pv": "FIC1.PV", "sp": "FIC1.SV", "op": "FIC1.MV"}
+    )
+    path = write_csv(yoko, tmp_path / "yoko.csv")
+    tags = read_tags(path)
+    np.testing.assert_array_equal(tags.op, frame["op"].to_numpy())
+    assert tags.mv is None and tags.names["op"] == "FIC1.MV"
+    assert any("'FIC1.MV' read as the controller output" in w for w in tags.warnings)
+    assert read_tags(path, vendor="yokogawa").names["op"] == "FIC1.MV"
+    one_line_error(DataError, lambda: read_tags(path, vendor="generic"), "op='FIC1.MV'")
 
 
 def test_non_numeric_column(tmp_path):

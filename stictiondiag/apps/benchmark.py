@@ -91,7 +91,7 @@ class BenchmarkResult:
     effects : tuple of str
         Effect names (rows and columns of the confusion matrix).
     path : str
-        How the files were diagnosed (``analyze_file`` or ``diagnose_file``).
+        How the files were diagnosed (``analyze_file``).
     """
 
     seed: int
@@ -220,18 +220,9 @@ class BenchmarkResult:
 
 def _diagnose_path(path: Path):
     """Diagnose one file the way ``stiction analyze FILE`` does; returns (gap, how)."""
-    try:
-        from stictiondiag.analysis import (
-            AnalysisConfig,
-            analyze_file,
-        )
+    from stictiondiag.analysis import AnalysisConfig, analyze_file
 
-        analysis = analyze_file(path, config=AnalysisConfig())
-    except ImportError:
-        # The orchestrator is not available in this build: the gap command's path.
-        from stictiondiag.gap.diagnose import diagnose_file
-
-        return diagnose_file(path), "diagnose_file"
+    analysis = analyze_file(path, config=AnalysisConfig())
     if analysis.gap is None:
         reasons = "; ".join(analysis.warnings) or "no gap diagnosis"
         raise UsageError(f"analysis gave no gap diagnosis: {reasons}")

@@ -51,12 +51,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from stictiondiag.core.errors import StictionError
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.physical import PhysicalValve
 from stictiondiag.models.processes import FOPTD, PI, Integrating
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 #: Share of sticky loops [-] (healthy loops in the same proportion).
 STICKY_SHARE = 0.5
@@ -118,20 +123,35 @@ class FamilyLoop:
     sticky: bool
     truth: dict = field(default_factory=dict)
 
-    def tags(self):
-        """The record as :class:`stictiondiag.io.tags.Tags`."""
-        from stictiondiag.io.tags import Tags
+    def frame(self) -> pd.DataFrame:
+        """The record as a historian exports it: a ``time`` column [s] and the
+        loop's tags named by the ISA convention of its loop type (``FIC1.PV``,
+        ``FIC1.OP``, ``FIC1.SP``, and ``FIC1.MV`` when the valve position is
+        recorded), so that reading it decides the loop type as it does for a
+        plant file (:mod:`stictiondiag.io.looptype`)."""
+        import pandas as pd
 
-        return Tags.from_arrays(
-            self.pv,
-            self.op,
-            mv=self.mv,
-            sp=self.sp,
-            ts=self.ts,
-            loop_type=self.loop_type,
-            integrating=self.integrating,
-            source=f"family-{self.truth.get('seed')}",
-        )
+        tag = f"{ISA_PREFIX[self.loop_type]}{self.truth.get('seed', 0)}"
+        columns = {
+            "time": np.arange(self.pv.size) * self.ts,
+            f"{tag}.PV": self.pv,
+            f"{tag}.OP": self.op,
+            f"{tag}.SP": self.sp,
+        }
+        if self.mv is not None:
+            columns[f"{tag}.MV"] = self.mv
+        return pd.DataFrame(columns)
+
+    def tags(self):
+        """The record as :class:`stictiondiag.io.tags.Tags`, read from :meth:`frame`
+        by the reader of plant files (:func:`stictiondiag.io.tags.read_frame`)."""
+        from stictiondiag.io.tags import read_frame
+
+        return read_frame(self.frame(), source=f"family-{self.truth.get('seed')}")
+
+
+#: ISA instrument prefix of a family loop's tags, by loop type.
+ISA_PREFIX = {"flow": "FIC", "pressure": "PIC", "temperature": "TIC", "level": "LIC"}
 
 
 def _loguniform(rng, lo, hi) -> float:
@@ -404,46 +424,21 @@ def family_loop(seed: int, *, twin: bool = False) -> FamilyLoop:
 
 
 def loop_features(loop: FamilyLoop, *, with_classic: bool = False):
-    """The probability model's features of one family loop, computed by the steps
-    of :func:`stictiondiag.analysis.analyze` (oscillation of pv, else of the control
-    error; of op; record length; the mv or Hammerstein fit) and
-    :func:`stictiondiag.stiction.verdict.verdict_features`.
+    """The probability model's features of one family loop: the loop read as a
+    plant file (:meth:`FamilyLoop.tags`) and taken through the head of the analysis
+    chain (:func:`stictiondiag.analysis.estimate_loop`), whose
+    :meth:`~stictiondiag.analysis.LoopEstimate.features` are what the verdict
+    decides on.
 
     Returns the features (a dict of :data:`~stictiondiag.stiction.probability.CANDIDATES`),
     or with ``with_classic`` the pair (features, the classic tests' statistics and the
     shape statistics); None for a loop the analysis refuses (a record too short for
     its cycle, or data it cannot use), as it would refuse a plant record.
     """
-    from stictiondiag.analysis import FLOW_LIKE, check_record_length
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.signals.oscillation import detect_oscillation
-    from stictiondiag.stiction.hammerstein import fit_hammerstein
-    from stictiondiag.stiction.segments import estimate_from_mv
-    from stictiondiag.stiction.verdict import verdict_features
+    from stictiondiag.analysis import estimate_loop
 
     try:
-        tags = loop.tags()
-        dt = float(tags.ts)
-        osc_pv = detect_oscillation(tags.pv, dt)
-        if not osc_pv.present and tags.sp is not None and float(np.ptp(tags.sp)) > 0:
-            osc_error = detect_oscillation(tags.sp - tags.pv, dt)
-            if osc_error.present:
-                osc_pv = osc_error
-        osc_op = detect_oscillation(tags.op, dt)
-        short = check_record_length(tags, osc_pv, osc_op)
-        if tags.mv is not None:
-            fit = estimate_from_mv(tags.op, tags.mv, dt)
-        else:
-            fit = fit_hammerstein(
-                tags.op,
-                tags.pv,
-                dt,
-                integrating=bool(tags.integrating),
-                flow_loop=tags.loop_type in FLOW_LIKE,
-            )
-        features, _, classic = verdict_features(
-            fit, osc_pv, osc_op, short_record=bool(short), data=tags
-        )
+        features, _, classic = estimate_loop(loop.tags()).features()
     except StictionError:
         return None
     return (features, classic) if with_classic else features

@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from stictiondiag.stiction.valvefit import Determinacy, poorly_determined
 from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL
 
 if TYPE_CHECKING:
@@ -147,24 +148,23 @@ def _fmt(v: float | None) -> str:
     return format(float(v), ".3g")
 
 
-def determinacy(st: dict, sym: str) -> str:
-    """The estimator's note on how well ``sym`` is determined ('' when none)."""
+def determinacy_of(st: dict, sym: str) -> Determinacy | None:
+    """How well ``sym`` is determined (``details.determinacy`` in the JSON), None
+    when the estimator did not say."""
     details = st.get("details") or {}
-    return str((details.get("determinacy") or {}).get(sym) or "")
+    return Determinacy.of((details.get("determinacy") or {}).get(sym))
 
 
-def _zero_and_pinned(st: dict, sym: str) -> bool:
-    """Estimate and interval all zero: the data pin the parameter at zero (the
-    estimator's width-to-value test cannot be passed by a zero estimate)."""
-    iv = st.get(f"{sym}_interval")
-    values = [st.get(sym), *(iv or [None, None])]
-    return all(isinstance(v, int | float) and v == 0 for v in values)
+def determinacy(st: dict, sym: str) -> str:
+    """The estimator's words on how well ``sym`` is determined ('' when none)."""
+    member = determinacy_of(st, sym)
+    return "" if member is None else member.value
 
 
 def is_poorly_determined(st: dict, sym: str) -> bool:
-    """The data determine ``sym`` poorly: the estimator's determinacy note says so
-    (``details.determinacy`` in the JSON), unless estimate and interval are all zero."""
-    return determinacy(st, sym).startswith("poorly") and not _zero_and_pinned(st, sym)
+    """The data determine ``sym`` poorly (:func:`stictiondiag.stiction.valvefit.
+    poorly_determined`: the figures' rule too)."""
+    return poorly_determined(determinacy_of(st, sym), st.get(sym), st.get(f"{sym}_interval"))
 
 
 def param_note(st: dict, sym: str) -> str:
@@ -174,11 +174,11 @@ def param_note(st: dict, sym: str) -> str:
     iv = list(st.get(f"{sym}_interval") or [])
     have_iv = len(iv) == 2 and None not in iv
     iv_text = f"interval {_fmt(iv[0])}\u2013{_fmt(iv[1])}" if have_iv else "no interval"
-    note = determinacy(st, sym)
+    member = determinacy_of(st, sym)
     if is_poorly_determined(st, sym):
-        edge = " at the search edge" if "search limit" in note else ""
+        edge = " at the search edge" if member is not None and member.open else ""
         return f"poorly determined: {iv_text}{edge}"
-    if note.startswith("moderately"):
+    if member is Determinacy.MODERATE:
         return f"moderately determined: {iv_text}"
     return iv_text if have_iv else ""
 
@@ -268,9 +268,26 @@ def _meaning(status: str, st: dict, oscillating: bool) -> str:
     return "no verdict"
 
 
-def _action(status: str, st: dict, oscillating: bool) -> str:
+def _unknown_scale(d: dict) -> bool:
+    """Whether op was not in % of span (:attr:`stictiondiag.io.tags.Tags.op_scale`)."""
+    return (d.get("tags") or {}).get("op_scale") == "unknown"
+
+
+#: Unit of S and J when op's scale is unknown.
+OWN_UNITS = " in op's own units (scale unknown, not % of span)"
+
+
+def _action(status: str, st: dict, oscillating: bool, unknown_scale: bool = False) -> str:
     from stictiondiag.stiction.cause import ACTIONS
 
+    if status == "stiction" and unknown_scale:
+        # A size in unknown units cannot schedule work: S of 0.002 may be 0.2 % of span
+        # or nothing at all.
+        return (
+            "size the stiction before any valve work: give op's values at 0 and 100 % of "
+            "span (--op-range LO HI, or op_range in the loops manifest), or test the "
+            "valve directly in manual"
+        )
     cause = st.get("cause")
     if status != "inconclusive" and cause in ACTIONS:
         return ACTIONS[cause]
@@ -316,18 +333,18 @@ def _compensation(status: str, d: dict) -> str:
 
 
 def _gap(d: dict) -> str:
+    """The gap in words: how much of the departure is the fitted loop's (the
+    closed-loop refit) and how much an unmodelled effect's
+    (:func:`stictiondiag.gap.attribution.attribute_gap`)."""
+    from stictiondiag.gap.attribution import attribute_gap
+
     gap = d.get("gap")
+    why = attribute_gap(d.get("replay"), gap)
     if not gap:
-        return "no gap diagnosis (it needs the closed-loop replay)"
-    effect = gap.get("effect")
-    before, shrink = gap.get("before"), gap.get("shrink_pct")
-    head = f"the replay departs from the data by {_num(before, '.3g')} % ({gap.get('metric')})"
-    if not effect or effect == "none":
-        return head + "; no unmodelled effect explains the difference"
-    return (
-        f"{head}; the effect that explains most of it is {effect} "
-        f"(shrinks the difference by {_num(shrink, '.0f')} %)"
-    )
+        text = "no gap diagnosis (it needs the closed-loop replay)"
+        return f"{text}; {why['text']}" if why["identification"]["refit_accepted"] else text
+    head = f"the replay departs from the data by {_num(gap.get('before'), '.3g')} % ({gap.get('metric')})"
+    return f"{head}; {why['text']}" if why["text"] else head
 
 
 def _limits(d: dict, st: dict, poorly: list[str]) -> list[str]:
@@ -373,6 +390,14 @@ def findings_from_dict(d: dict) -> Findings:
         float(ev.get("stiction_level", STICTION_LEVEL)),
     )
     word = status.upper().replace("_", " ")
+    unknown = _unknown_scale(d)
+    unit = OWN_UNITS if unknown else " % of travel"
+    meaning = _meaning(status, st, oscillating)
+    if unknown and status == "stiction":
+        meaning = (
+            f"a sticky valve's pattern, S = {_fmt(st.get('S'))} and J = {_fmt(st.get('J'))}"
+            f"{OWN_UNITS}: op is not in % of span, so its size in travel is not known"
+        )
     return Findings(
         loop=str(d.get("loop")),
         verdict=status,
@@ -380,12 +405,12 @@ def findings_from_dict(d: dict) -> Findings:
         levels=levels,
         S=st.get("S"),
         J=st.get("J"),
-        S_text=param_text(st, "S", unit=" % of travel"),
-        J_text=param_text(st, "J", unit=" % of travel"),
+        S_text=param_text(st, "S", unit=unit),
+        J_text=param_text(st, "J", unit=unit),
         poorly_determined=tuple(poorly),
         headline=f"{word}, {probability_text(st)}",
-        meaning=_meaning(status, st, oscillating),
-        action=_action(status, st, oscillating),
+        meaning=meaning,
+        action=_action(status, st, oscillating, unknown),
         compensation=_compensation(status, d),
         gap=_gap(d),
         limits=tuple(_limits(d, st, poorly)),

@@ -89,10 +89,26 @@ def html_page(title: str, body: str) -> str:
     )
 
 
+#: Longest file name of a loop [bytes of UTF-8], before its extension: with
+#: ``.html`` and the atomic writer's temporary names it stays far below the 255
+#: bytes of common file systems.  A longer name is cut and ends in a short hash of
+#: the whole name, so two long names that share their start stay distinct.
+MAX_NAME_BYTES = 120
+
+
 def safe_name(loop: object) -> str:
-    """File-system-safe name of a loop (letters, digits, ``-``, ``_`` and ``.``)."""
+    """File-system-safe name of a loop (letters, digits, ``-``, ``_`` and ``.``).
+
+    At most :data:`MAX_NAME_BYTES` bytes: a longer name keeps its start and ends in
+    ``-`` and 10 hex digits of the SHA-256 of the whole name.
+    """
     keep = "".join(c if (c.isalnum() or c in "-_.") else "_" for c in str(loop))
-    return keep.strip(".") or "loop"
+    name = keep.strip(".") or "loop"
+    if len(name.encode("utf-8")) <= MAX_NAME_BYTES:
+        return name
+    tag = hashlib.sha256(str(loop).encode("utf-8", "surrogatepass")).hexdigest()[:10]
+    head = name.encode("utf-8")[: MAX_NAME_BYTES - len(tag) - 1].decode("utf-8", "ignore")
+    return f"{head.rstrip('.')}-{tag}"
 
 
 def unique_names(

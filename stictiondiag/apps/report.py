@@ -20,14 +20,15 @@ injected could run.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
+import time
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from stictiondiag.apps.outdir import OutputFolder
 from stictiondiag.apps.pages import safe_name, unique_names
 from stictiondiag.apps.report_html import (
     md_escape,
@@ -41,7 +42,7 @@ from stictiondiag.core.errors import (
     StictionError,
     UsageError,
 )
-from stictiondiag.io.plant import PlantLoop, manifest_options
+from stictiondiag.io.plant import PlantLoop, manifest_options, unmatched_manifest_rows
 
 __all__ = [
     "ReportResult",
@@ -81,12 +82,15 @@ class ReportResult:
     renamed : dict
         Input file -> loop name, for inputs whose name is not their file's stem
         (two inputs with one stem get distinct names).
+    notes : tuple of str
+        Warnings of the run (manifest rows that match no loop), one line each.
     """
 
     rows: list
     failed: list = field(default_factory=list)
     outputs: dict = field(default_factory=dict)
     renamed: dict = field(default_factory=dict)
+    notes: tuple = ()
 
     def max_stiction_confidence(self) -> float | None:
         """Highest confidence among loops called stiction; None when there is none."""
@@ -96,33 +100,59 @@ class ReportResult:
         return max(vals) if vals else None
 
 
-def _read_manifest(out: Path) -> list[str]:
-    try:
-        files = json.loads((out / MANIFEST_FILE).read_text())["files"]
-        return [str(f) for f in files if isinstance(f, str)]
-    except (OSError, ValueError, KeyError, TypeError):
-        return []
+#: Who writes a report folder (recorded in its manifest).
+REPORT_TOOL = "stiction report"
+
+#: The report's own files beside ``loops/`` (the manifest aside).
+REPORT_FILES = (ROWS_FILE, "index.html", "summary.md")
 
 
-class _Manifest:
-    """The files a report wrote in its folder, recorded *before* each is written.
+def _folder(out: Path) -> OutputFolder:
+    return OutputFolder(out, MANIFEST_FILE, REPORT_TOOL)
 
-    A report killed midway leaves a manifest that lists every file it may have
-    written, so ``clean`` can always remove them, and nothing else.
+
+def clean_report(out: Path, inputs: Sequence[str | os.PathLike] = ()) -> list[Path]:
+    """Remove the files an earlier report wrote in ``out``, as its manifest lists them.
+
+    Nothing else is touched: not a file the manifest does not list, not a file the
+    user has replaced or edited since, not a link's target (a listed name that is a
+    link is removed as the link), never one of ``inputs``; folders only when left
+    empty (:meth:`stictiondiag.apps.outdir.OutputFolder.clean`).
+
+    Returns
+    -------
+    list of Path
+        The entries removed.
     """
+    return _folder(Path(out)).clean(inputs)
 
-    def __init__(self, out: Path) -> None:
-        self.out = out
-        self.files = _read_manifest(out)
 
-    def add(self, *names: str) -> None:
-        from stictiondiag.core.atomic import write_atomic
+def _prepare_folder(out: Path) -> None:
+    st = out.lstat() if os.path.lexists(out) else None
+    if st is not None and not out.is_dir():
+        raise UsageError(f"--out {out} is a file; give a folder for the report")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(
+            f"cannot create the report folder {out}: {(exc.strerror or str(exc)).lower()}; "
+            "choose a writable --out"
+        ) from None
 
-        new = [name for name in names if name not in self.files]
-        if new:
-            self.files.extend(new)
-            payload = {"written_by": "stiction report", "files": self.files}
-            write_atomic(self.out / MANIFEST_FILE, json.dumps(payload, indent=1) + "\n")
+
+def _make_loops_dir(out: Path) -> None:
+    loops = out / LOOPS_DIR
+    if os.path.lexists(loops) and (loops.is_symlink() or not loops.is_dir()):
+        raise UsageError(
+            f"{loops} exists and was not made by {REPORT_TOOL}: the report writes its loop "
+            "pages there; move it or choose another --out"
+        )
+    try:
+        loops.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise UsageError(
+            f"cannot create {loops}: {(exc.strerror or str(exc)).lower()}; choose a writable --out"
+        ) from None
 
 
 def _inside(path: Path, folder: Path) -> bool:
@@ -131,50 +161,6 @@ def _inside(path: Path, folder: Path) -> bool:
         return True
     except ValueError:
         return False
-
-
-def clean_report(out: Path, inputs: Sequence[str | os.PathLike] = ()) -> list[Path]:
-    """Remove the files an earlier report wrote in ``out``, as its manifest lists them.
-
-    Nothing else is touched: not a file the manifest does not list, not a file
-    outside ``out``, never one of ``inputs``; folders only when left empty.
-
-    Returns
-    -------
-    list of Path
-        The files removed.
-    """
-    root = out.resolve()
-    keep = {Path(f).resolve() for f in inputs}
-    removed: list[Path] = []
-    for name in _read_manifest(out):
-        target = (out / name).resolve()
-        if not _inside(target, root) or target in keep or target == root:
-            continue
-        if target.is_file() or target.is_symlink():
-            target.unlink(missing_ok=True)
-            removed.append(target)
-    for folder in (out / LOOPS_DIR,):
-        with contextlib.suppress(OSError):
-            folder.rmdir()  # only when empty
-    if (out / MANIFEST_FILE).resolve() not in keep:
-        (out / MANIFEST_FILE).unlink(missing_ok=True)
-    return removed
-
-
-def _prepare_folder(out: Path, clean: bool, inputs: Sequence[str]) -> None:
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} is a file; give a folder for the report")
-    if clean and out.exists():
-        clean_report(out, inputs)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / LOOPS_DIR).mkdir(exist_ok=True)
-    except OSError as exc:
-        raise UsageError(
-            f"cannot create the report folder {out}: {(exc.strerror or str(exc)).lower()}; "
-            "choose a writable --out"
-        ) from None
 
 
 def _read_rows(out: Path) -> dict[str, dict]:
@@ -188,13 +174,14 @@ def _read_rows(out: Path) -> dict[str, dict]:
 
 def _check_outputs(out: Path, files: Sequence[str]) -> None:
     """Refuse a report whose own files would replace an input."""
-    inputs = {Path(f).resolve() for f in files}
+    # realpath, not resolve: a link loop in the folder must not stop the check.
+    inputs = {Path(os.path.realpath(f)) for f in files}
     for name in (ROWS_FILE, "index.html", "summary.md", MANIFEST_FILE):
-        if (out / name).resolve() in inputs:
+        if Path(os.path.realpath(out / name)) in inputs:
             raise UsageError(
                 f"{out / name} is an input and the report would overwrite it; choose another --out"
             )
-    loops = (out / LOOPS_DIR).resolve()
+    loops = Path(os.path.realpath(out / LOOPS_DIR))
     for f in inputs:
         if _inside(f, loops):
             raise UsageError(
@@ -331,6 +318,7 @@ def build_report(
     workers: int | None = None,
     manifest: dict[str, dict] | None = None,
     progress: Callable[[int, int, str], None] | None = None,
+    on_note: Callable[[str], None] | None = None,
 ) -> ReportResult:
     """Analyse ``files`` and write (or update) the report folder ``out``.
 
@@ -376,9 +364,6 @@ def build_report(
     DataError
         No input could be analysed (the index is written all the same).
     """
-    from stictiondiag.apps.workers import run_local
-    from stictiondiag.core.atomic import write_atomic
-
     out = Path(out)
     paths = [str(f) for f in files]
     workers = default_workers(len(paths)) if workers is None else int(workers)
@@ -402,20 +387,85 @@ def build_report(
         for (f, loop, plant), n in zip(entries, names, strict=True)
     ]
     order = [f"{f}#{plant.loop}" if plant is not None else f for f, _, plant in entries]
+    notes = unmatched_manifest_rows(
+        manifest or {}, [(plant.loop if plant else loop, f) for f, loop, plant in entries]
+    )
+    for note in notes:
+        if on_note:
+            on_note(f"warning: {note}")
     _check_outputs(out, paths)
-    _prepare_folder(out, clean, paths)
-    written = _Manifest(out)
-    written.add(ROWS_FILE, "index.html", "summary.md")
-    rows = _read_rows(out)
+    _prepare_folder(out)
+    folder = _folder(out)
+    started = time.time()
+    with folder.locked(on_note):
+        if clean:
+            folder.clean(paths)
+        folder.sweep(started, ("", LOOPS_DIR))
+        folder.refuse_foreign(REPORT_FILES)
+        _make_loops_dir(out)
+        folder.claim(*REPORT_FILES)
+        rows = _read_rows(out)
+        failed = _run_loops(
+            folder, sources, rows, dict(read_options or {}), bool(gap), workers, progress
+        )
+        # Failures in file order, so the message of an all-failed run names the first file.
+        failed.sort(key=lambda fm: order.index(fm[0]) if fm[0] in order else len(order))
+        ordered = sorted(rows.values(), key=sort_key)
+        folder.write(
+            {
+                ROWS_FILE: _rows_json(rows),
+                "index.html": render_index_html(ordered),
+                "summary.md": render_markdown(ordered),
+            }
+        )
+        folder.flush()
+    if failed and len(failed) == len(sources):
+        # Nothing could be read: the caller reports a data error.
+        raise DataError(f"no input could be analysed; {failed[0][0]}: {failed[0][1]}")
+    return ReportResult(
+        ordered,
+        failed,
+        {"index": str(out / "index.html"), "markdown": str(out / "summary.md")},
+        renamed,
+        tuple(notes),
+    )
+
+
+def _run_loops(
+    folder: OutputFolder,
+    sources: list,
+    rows: dict[str, dict],
+    read_options: dict,
+    gap: bool,
+    workers: int,
+    progress: Callable[[int, int, str], None] | None,
+) -> list[tuple[str, str]]:
+    """Analyse ``sources`` and write each loop's files as it finishes; the failures.
+
+    A loop's page and JSON are written here, not in the worker.  A page that cannot
+    be written (a foreign file at its name, a name the file system refuses) fails
+    its own row (when no page at all could be written, the run: UsageError); the index rows are written after every loop, so an interrupted
+    report keeps what it did, and a full disk stops the report at the index.
+    """
+    from stictiondiag.apps.workers import run_local
+
     failed: list[tuple[str, str]] = []
+    unwritten: set[str] = set()
     outcomes = run_local(
         sources,
         analyse_for_report,
-        (dict(read_options or {}), bool(gap)),
+        (read_options, gap),
         min(workers, max(1, len(sources))),
         on_error=_worker_died,
     )
     for done, res in enumerate(outcomes, start=1):
+        if "error" not in res:
+            base = f"{LOOPS_DIR}/{res['name']}"
+            try:
+                folder.write({f"{base}.json": res["json"], f"{base}.html": res["page"]})
+            except UsageError as exc:
+                res = {"file": res["file"], "loop": res["loop"], "error": _first_line(exc)}
+                unwritten.add(res["file"])
         if "error" in res:
             failed.append((res["file"], res["error"]))
             rows[res["loop"]] = {
@@ -425,34 +475,14 @@ def build_report(
                 "error": res["error"],
             }
         else:
-            # Written here, not in the worker: an output that cannot be written stops
-            # the report (a usage error) instead of being blamed on the loop.  The
-            # manifest names the files before they exist, so a report killed in
-            # between can still be cleaned.
-            base = f"{LOOPS_DIR}/{res['name']}"
-            written.add(f"{base}.json", f"{base}.html")
-            write_atomic(out / f"{base}.json", res["json"])
-            write_atomic(out / f"{base}.html", res["page"])
             rows[res["loop"]] = res["row"]
-        # The index rows after every loop: an interrupted report keeps what it did.
-        write_atomic(out / ROWS_FILE, _rows_json(rows))
+        folder.write({ROWS_FILE: _rows_json(rows)})
         if progress:
             progress(done, len(sources), res["loop"])
-    # Failures in file order, so the message of an all-failed run names the first file.
-    failed.sort(key=lambda fm: order.index(fm[0]) if fm[0] in order else len(order))
-    ordered = sorted(rows.values(), key=sort_key)
-    write_atomic(out / ROWS_FILE, _rows_json(rows))
-    write_atomic(out / "index.html", render_index_html(ordered))
-    write_atomic(out / "summary.md", render_markdown(ordered))
-    if failed and len(failed) == len(sources):
-        # Nothing could be read: the caller reports a data error.
-        raise DataError(f"no input could be analysed; {failed[0][0]}: {failed[0][1]}")
-    return ReportResult(
-        ordered,
-        failed,
-        {"index": str(out / "index.html"), "markdown": str(out / "summary.md")},
-        renamed,
-    )
+    if failed and len(unwritten) == len(sources):
+        # Every loop was analysed and none could be written: an output error.
+        raise UsageError(failed[0][1])
+    return failed
 
 
 def _rows_json(rows: dict[str, dict]) -> str:

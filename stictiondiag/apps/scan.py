@@ -28,6 +28,7 @@ import hashlib
 import json
 import math
 import os
+import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -35,8 +36,21 @@ from pathlib import Path
 
 import pandas as pd
 
-from stictiondiag.apps.pages import html_page, safe_name, unique_names
-from stictiondiag.apps.scan_page import scan_html
+from stictiondiag.apps.pages import safe_name, unique_names
+from stictiondiag.apps.scan_output import (
+    OUTPUT_TABLES,
+    SCAN_MANIFEST,
+    SCAN_TOOL,
+    _check_out,
+    _json_default,
+    _make_dir,
+    _make_loops_dir,
+    _save_loop,
+    is_scan_output,
+    loop_html,
+    scan_folder,
+    write_table,
+)
 from stictiondiag.apps.workers import run_dask, run_local
 from stictiondiag.core.errors import (
     DataError,
@@ -52,7 +66,7 @@ LOOP_ID_COLUMNS = ("loop_id", "loop", "loop_name", "tag", "loopid")
 LOOP_FILE_SUFFIXES = (".csv", ".parquet", ".pq")
 
 #: Order of verdicts in the ranked table: what maintenance should look at first.
-VERDICT_RANK = {"stiction": 0, "inconclusive": 1, "no_stiction": 2, "error": 3}
+VERDICT_RANK = {"stiction": 0, "inconclusive": 1, "propagated": 2, "no_stiction": 3, "error": 4}
 
 
 @dataclass(frozen=True)
@@ -96,6 +110,9 @@ class ScanResult:
     renamed : dict
         File -> loop name, for files named otherwise than their stem (two files
         with one stem, e.g. ``loop.csv`` and ``loop.parquet``, get distinct names).
+    plantwide : dict
+        The plant-wide step (:func:`stictiondiag.apps.plantwide.plantwide_step`):
+        ``status`` ``"on"`` with the groups, or ``"off"`` with the ``reason``.
     """
 
     table: pd.DataFrame
@@ -104,29 +121,30 @@ class ScanResult:
     n_skipped: int
     outputs: dict = field(default_factory=dict)
     renamed: dict = field(default_factory=dict)
+    plantwide: dict = field(default_factory=dict)
+    notes: tuple = ()
 
 
 _safe_name = safe_name
 
-#: Files of a scan's output folder (beside ``loops/`` and ``index.html``).
-OUTPUT_TABLES = ("scan.parquet", "scan.csv")
+__all__ = [
+    "OUTPUT_TABLES",
+    "SCAN_MANIFEST",
+    "SCAN_TOOL",
+    "LoopSource",
+    "ScanResult",
+    "discover",
+    "is_scan_output",
+    "loop_html",
+    "rank",
+    "scan",
+    "write_table",
+]
 
 
 def _is_hidden(name: str) -> bool:
     # Dataset writers leave _SUCCESS, _common_metadata and .crc files beside the data.
     return name.startswith((".", "_"))
-
-
-def is_scan_output(f: Path) -> bool:
-    """Whether ``f`` is a file a scan wrote: its table beside its ``loops/`` and index.
-
-    Outputs are never read back as loops, so ``scan DIR --out DIR`` can run again.
-    """
-    return (
-        f.name in OUTPUT_TABLES
-        and (f.parent / "loops").is_dir()
-        and (f.parent / "index.html").is_file()
-    )
 
 
 def _loop_files(folder: Path) -> list[Path]:
@@ -481,6 +499,7 @@ def scan(
     manifest: dict[str, dict] | None = None,
     exclude: tuple[str | os.PathLike, ...] = (),
     progress: Callable[[int, int, str], None] | None = None,
+    on_note: Callable[[str], None] | None = None,
 ) -> ScanResult:
     """Analyse every loop under ``path`` and write the ranked table to ``out``.
 
@@ -529,8 +548,6 @@ def scan(
         ``path`` holds no loops (see :func:`discover`).  A loop that cannot be read
         or analysed is not an exception: it is a row with verdict ``error``.
     """
-    from stictiondiag.core.atomic import write_atomic
-
     if engine not in ("local", "dask"):
         raise UsageError(f"unknown engine {engine!r}: use local or dask")
     if workers is not None and int(workers) < 1:
@@ -540,10 +557,11 @@ def scan(
     out = Path(out)
     _check_out(out)
     sources = discover(path, loop_column=loop_column, exclude=exclude)
+    notes: list[str] = []
     if manifest:
         from dataclasses import replace
 
-        from stictiondiag.io.plant import manifest_options
+        from stictiondiag.io.plant import manifest_options, unmatched_manifest_rows
 
         sources = [
             replace(
@@ -554,6 +572,9 @@ def scan(
             )
             for s in sources
         ]
+        notes += unmatched_manifest_rows(
+            manifest, [(s.plant.loop if s.plant is not None else s.loop, s.path) for s in sources]
+        )
     names = unique_names([s.loop for s in sources])
     file_names = {s.loop: name for s, name in zip(sources, names, strict=True)}
     renamed = {
@@ -561,82 +582,100 @@ def scan(
         for s in sources
         if s.loop_column is None and s.plant is None and s.loop != Path(s.path).stem
     }
-    loops_dir = _make_loops_dir(out)
+    _make_dir(out)
+    folder = scan_folder(out)
     settings = {"gap": bool(gap), "read_options": read_options}
     if manifest:
         settings["manifest"] = manifest
+    started = time.time()
+    for note in notes:
+        if on_note:
+            on_note(f"warning: {note}")
+    with folder.locked(on_note):
+        folder.sweep(started, ("", "loops"))
+        folder.refuse_foreign(("index.html", "plantwide.json", *OUTPUT_TABLES))
+        loops_dir = _make_loops_dir(out)
+        rows, todo = _resumed(sources, names, loops_dir, settings, force)
+        n_skipped = len(rows)
+        keys = {src.loop: source_key(src) for src in todo}
+        n_workers = _pool_size(engine, scheduler, workers, len(todo), notes, on_note)
+        args = (read_options, gap)
+        runner = (
+            run_local(todo, analyse_source, args, n_workers, on_error=worker_failure)
+            if engine == "local"
+            else run_dask(todo, analyse_source, args, n_workers, scheduler, on_error=worker_failure)
+        )
+        if progress:
+            progress(n_skipped, len(sources), "")
+        for res in runner:
+            row = _save_loop(folder, res, file_names, keys, settings)
+            rows.append(row)
+            if progress:
+                progress(len(rows), len(sources), row["loop"])
+        from stictiondiag.apps.plantwide import plantwide_step, write_plantwide
 
+        plant = plantwide_step(sources, rows, read_options)
+        table = rank(rows)
+        outputs = write_table(table, out, file_names, folder, plant)
+        folder.claim("plantwide.json")
+        outputs["plantwide"] = write_plantwide(plant, out)
+        folder.record("plantwide.json")
+        folder.flush()
+    n_failed = int((table["verdict"] == "error").sum()) if not table.empty else 0
+    return ScanResult(
+        table, len(sources), n_failed, n_skipped, outputs, renamed, plant, notes=tuple(notes)
+    )
+
+
+#: Dask workers of a LocalCluster per core at most: each is a process of about
+#: 300 MB, and more of them than this only compete for the cores.
+DASK_WORKERS_PER_CORE = 2
+
+
+def _pool_size(
+    engine: str,
+    scheduler: str | None,
+    workers: int,
+    n_loops: int,
+    notes: list[str],
+    on_note: Callable[[str], None] | None,
+) -> int:
+    """Worker processes to start: no more than loops to analyse, and for a Dask
+    LocalCluster no more than :data:`DASK_WORKERS_PER_CORE` per core (with a note)."""
+    n = max(1, min(workers, n_loops))
+    if engine == "dask" and scheduler is None:
+        cores = os.cpu_count() or 1
+        n = min(n, DASK_WORKERS_PER_CORE * cores)
+        if n < workers:
+            note = (
+                f"note: started {n} Dask workers, not {workers}: at most one per loop to "
+                f"analyse ({n_loops}) and {DASK_WORKERS_PER_CORE} per core ({cores} cores)"
+            )
+            notes.append(note)
+            if on_note:
+                on_note(note)
+    return n
+
+
+def _resumed(
+    sources: list[LoopSource], names: list[str], loops_dir: Path, settings: dict, force: bool
+) -> tuple[list[dict], list[LoopSource]]:
+    """(rows of loops an earlier run finished, sources still to analyse)."""
     rows: list[dict] = []
     todo: list[LoopSource] = []
     hashes: dict[str, str] = {}
-    keys = {src.loop: source_key(src, hashes) for src in sources}
     for src, name in zip(sources, names, strict=True):
         record_file = loops_dir / f"{name}.json"
-        done = None if force else _finished_row(record_file, keys[src.loop], settings)
+        done = (
+            None
+            if force or not record_file.is_file()
+            else _finished_row(record_file, source_key(src, hashes), settings)
+        )
         if done is None:
             todo.append(src)
         else:
             rows.append(done)
-    n_skipped = len(rows)
-    total = len(sources)
-
-    args = (read_options, gap)
-    runner = (
-        run_local(todo, analyse_source, args, workers, on_error=worker_failure)
-        if engine == "local"
-        else run_dask(todo, analyse_source, args, workers, scheduler, on_error=worker_failure)
-    )
-    n_done = n_skipped
-    if progress:
-        progress(n_done, total, "")
-    for res in runner:
-        row = res["row"]
-        rows.append(row)
-        name = file_names.get(row["loop"], _safe_name(row["loop"]))
-        record = {
-            "row": row,
-            "settings": settings,
-            "source_key": keys.get(row["loop"]),
-            "analysis": res["analysis"],
-        }
-        write_atomic(loops_dir / f"{name}.html", loop_html(row, res["analysis"], name))
-        # The JSON record marks the loop as done, so it is written last.
-        write_atomic(
-            loops_dir / f"{name}.json", json.dumps(record, indent=1, default=_json_default)
-        )
-        n_done += 1
-        if progress:
-            progress(n_done, total, row["loop"])
-
-    table = rank(rows)
-    outputs = write_table(table, out, file_names)
-    n_failed = int((table["verdict"] == "error").sum()) if not table.empty else 0
-    return ScanResult(table, total, n_failed, n_skipped, outputs, renamed)
-
-
-def _make_loops_dir(out: Path) -> Path:
-    loops_dir = out / "loops"
-    try:
-        loops_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(
-            f"cannot create the scan folder {loops_dir}: {(exc.strerror or str(exc)).lower()}; "
-            "choose a writable --out"
-        ) from None
-    return loops_dir
-
-
-def _check_out(out: Path) -> None:
-    """Refuse an output folder whose table files would replace files of the user."""
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"cannot write to {out}: it is a file; give a folder for --out")
-    for name in OUTPUT_TABLES:
-        f = out / name
-        if f.exists() and not is_scan_output(f):
-            raise UsageError(
-                f"{f} exists and was not written by a scan: it would be overwritten; "
-                "choose another --out"
-            )
+    return rows, todo
 
 
 def _file_digest(path: Path) -> str:
@@ -694,66 +733,3 @@ def _finished_row(record_file: Path, key: dict, settings: dict) -> dict | None:
     ):
         return None
     return row
-
-
-def loop_html(row: dict, analysis: dict | None, name: str | None = None) -> str:
-    """Per-loop page linked from the scan's ``index.html`` (no plots: fast at scale).
-
-    ``stiction report`` on the loop's file gives the page with the phase and
-    reconstruction plots.
-    """
-    from html import escape
-
-    from stictiondiag.apps.report_html import render_loop_html
-
-    name = name or _safe_name(row["loop"])
-    if analysis is not None:
-        return render_loop_html(analysis, {}, json_name=f"{name}.json", index_href="../index.html")
-    body = (
-        f"<h1>Loop {escape(str(row.get('loop')))}</h1>"
-        f"<p>Source <code>{escape(str(row.get('source')))}</code></p>"
-        f'<p><span class="verdict error">not analysed</span></p>'
-        f"<p>{escape(str(row.get('error')))}</p>"
-        '<p><a href="../index.html">all loops</a></p>'
-    )
-    return html_page(f"stiction: {row.get('loop')}", body)
-
-
-def _json_default(o):
-    try:
-        v = float(o)
-    except (TypeError, ValueError):
-        return str(o)
-    return v if math.isfinite(v) else None
-
-
-def write_table(table: pd.DataFrame, out: Path, file_names: dict | None = None) -> dict:
-    """Write the ranked table as an HTML page, Parquet and CSV (each atomically).
-
-    The page comes first: beside ``loops/`` it marks the tables as the scan's own
-    (:func:`is_scan_output`), also when the run stops between them.
-    ``file_names`` maps a loop to its file name in ``loops/`` (default its safe name).
-    """
-    from stictiondiag.core.atomic import (
-        atomic_path,
-        write_atomic,
-    )
-
-    paths = {"parquet": out / "scan.parquet", "csv": out / "scan.csv", "html": out / "index.html"}
-    clean = table.copy()
-    for c in clean.columns:
-        if clean[c].dtype == object:
-            clean[c] = clean[c].map(
-                lambda v: (
-                    None
-                    if v is None
-                    else (v if isinstance(v, str | bool) else str(v))
-                    if not isinstance(v, int | float)
-                    else v
-                )
-            )
-    write_atomic(paths["html"], scan_html(clean, file_names))
-    with atomic_path(paths["parquet"]) as tmp:
-        clean.to_parquet(tmp, index=False)
-    write_atomic(paths["csv"], clean.to_csv(index=False))
-    return {k: str(v) for k, v in paths.items()}

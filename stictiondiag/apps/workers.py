@@ -232,7 +232,7 @@ def _quiet_workers() -> Iterator[None]:
 #: * ``MALLOC_TRIM_THRESHOLD_``: the nanny puts ``65536`` in every worker's
 #:   environment by default.  That pins glibc's mmap threshold at 128 KiB, so every
 #:   numpy temporary of that size or more is a fresh mmap whose pages fault in one by
-#:   one: 1.41-1.47x the local pool's CPU per loop (docs/performance.md, "Dask").
+#:   one: 1.41-1.47x the local pool's CPU per loop (docs/history.md, "Dask").
 #:   ``None`` takes the key off the nanny's list; a value the user set in the
 #:   environment is still inherited by the workers.
 #: * The periodic work of an idle cluster, for a dashboard nobody watches: the
@@ -283,9 +283,9 @@ def _connect(workers: int, scheduler: str | None):
     """(client, cluster or None): a client of ``scheduler`` or of a new LocalCluster."""
     try:
         from distributed import Client, LocalCluster
-    except ImportError:  # pragma: no cover - dask is a declared dependency
+    except ImportError:
         raise UsageError(
-            "the dask engine needs dask.distributed: pip install 'dask[distributed]'"
+            "the dask engine needs Dask, an optional extra: pip install 'stiction[dask]'"
         ) from None
     cluster = None
     if not scheduler:

@@ -26,7 +26,16 @@ from pathlib import Path
 
 from stictiondiag.core.errors import UsageError
 
-__all__ = ["atomic_path", "write_atomic"]
+__all__ = ["TEMP_MARK", "atomic_path", "write_atomic"]
+
+#: Marks the temporary files of this module (``.<name>.stiction-XXXXXXXX.tmp<ext>``),
+#: so that a run can sweep the ones a killed run left behind
+#: (:mod:`stictiondiag.apps.outdir`) and nothing else.
+TEMP_MARK = "stiction-"
+
+#: Longest part of the destination's name kept in a temporary file's name [characters]:
+#: the temporary name stays within the file system's 255 bytes whatever the name.
+_TEMP_STEM_CHARS = 40
 
 
 def _current_umask() -> int:
@@ -83,8 +92,11 @@ def _temp_file(target: Path) -> tuple[int, Path]:
     # The temporary name keeps the real extension last, so libraries that infer
     # the format from the name (savefig: .png/.svg/.pdf) write the right format.
     try:
+        suffix = target.suffix if len(target.suffix.encode()) <= 16 else ""
         fd, name = tempfile.mkstemp(
-            prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}", dir=target.parent
+            prefix=f".{target.stem[:_TEMP_STEM_CHARS]}.{TEMP_MARK}",
+            suffix=f".tmp{suffix}",
+            dir=target.parent,
         )
     except OSError as exc:
         raise _fail(target, exc) from None
@@ -187,7 +199,12 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     fd, temp = _temp_file(target)
     os.close(fd)
     try:
-        yield temp
+        try:
+            yield temp
+        except OSError as exc:
+            # The library writing by name (savefig, to_parquet) hit a full disk or a
+            # lost folder: an output error naming the destination, not a data error.
+            raise _fail(target, exc) from None
         if not temp.exists():
             raise UsageError(
                 f"cannot write {target}: the temporary file {temp.name} disappeared before commit"

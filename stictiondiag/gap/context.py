@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stictiondiag.core.errors import DataError
+from stictiondiag.core.robust import robust_std
 
 #: Shortest record analysed [samples].
 MIN_SAMPLES = 400
@@ -30,8 +31,7 @@ def noise_variance(x: np.ndarray) -> float:
     d = np.diff(np.asarray(x, dtype=float))
     if d.size == 0:
         return 0.0
-    mad = float(np.median(np.abs(d - np.median(d))))
-    return (1.4826 * mad) ** 2 / 2.0
+    return robust_std(d) ** 2 / 2.0
 
 
 def signals_of(tags) -> LoopSignals:

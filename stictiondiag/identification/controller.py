@@ -32,11 +32,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.errors import DataError, UsageError
 from stictiondiag.core.filters import lfilter1
-from stictiondiag.core.memo import memo_by_content
+from stictiondiag.core.robust import robust_std
 from stictiondiag.core.serialize import to_plain
-from stictiondiag.identification.numerics import MIN_SAMPLES, as_signal, check_dt, r_squared, wls
+from stictiondiag.identification.numerics import MIN_SAMPLES, as_signal, r_squared, wls
 from stictiondiag.models.processes import PI
 
 #: Outlier trimming of the velocity-form fit: residuals beyond this many robust
@@ -174,7 +175,6 @@ def filtered_pv(pv: np.ndarray, time_constant: float, dt: float) -> np.ndarray:
     return lfilter1((1.0 - a,), -a, pv, zi=a * pv[0])
 
 
-@memo_by_content()
 def identify_controller(
     sp: np.ndarray | None,
     pv: np.ndarray,
@@ -290,7 +290,7 @@ def _identify_pi(sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: floa
         coef, *_ = np.linalg.lstsq(X[keep], dop[keep], rcond=None)
         resid = dop - X @ coef
         r_in = resid[keep]
-        sigma = 1.4826 * float(np.median(np.abs(r_in - np.median(r_in))))
+        sigma = robust_std(r_in)
         inlier = np.abs(resid) <= max(TRIM_SIGMAS * sigma, floor)
         if inlier.sum() < max(MIN_SAMPLES, dop.size // 2) or np.array_equal(inlier, keep):
             break

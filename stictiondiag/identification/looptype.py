@@ -46,12 +46,28 @@ before the data were asked.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 
 from stictiondiag.core.errors import StictionError
+from stictiondiag.identification.controller import ControllerFit, identify_controller
+from stictiondiag.identification.process import (
+    FOPTD,
+    ProcessFit,
+    identify_process,
+    longest_time_constant,
+)
 from stictiondiag.io.tags import Tags
+from stictiondiag.signals.oscillation import detect_oscillation
 
-__all__ = ["R2_MARGIN", "infer_integrating", "settle_loop_type"]
+__all__ = [
+    "R2_MARGIN",
+    "StructureEvidence",
+    "identify_structure",
+    "infer_integrating",
+    "settle_loop_type",
+]
 
 #: Least R^2 advantage [-] of one structure over the other for the data to decide
 #: when both are consistent with negative feedback: one tenth of pv's variance,
@@ -65,8 +81,48 @@ R2_MARGIN = 0.10
 TOP_OF_RANGE = 0.01
 
 
+@dataclass(frozen=True)
+class StructureEvidence:
+    """What the data say of the process structure, and the fits that said it.
+
+    Attributes
+    ----------
+    integrating : bool or None
+        The process integrates (True), regulates itself (False), or the data cannot
+        tell (None).
+    why : str
+        One-line reason.
+    controller : ControllerFit or None
+        The PI controller identified from sp, pv and op over the whole record; None
+        when pv does not cycle or the controller could not be identified.
+    processes : Mapping[bool, ProcessFit]
+        The process fits from the valve position (mv, else op) to pv over the whole
+        record, by structure (``True``: integrating), with the default drift
+        high-pass; the structures that could be fitted.
+    u_signal : str
+        ``"mv"`` or ``"op"``: the input of the process fits.
+
+    The closed-loop replay (:func:`stictiondiag.replay.replay`, ``known=``) reuses
+    the controller, and with mv the process, when it identifies from the same
+    samples with the same settings: the fits are passed on, not computed again.
+    """
+
+    integrating: bool | None
+    why: str
+    controller: ControllerFit | None = None
+    processes: Mapping[bool, ProcessFit] = field(default_factory=lambda: MappingProxyType({}))
+    u_signal: str = "op"
+
+
 def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
-    """Whether the data say the process integrates (None: they cannot tell), and why.
+    """Whether the data say the process integrates (None: they cannot tell), and why
+    (:func:`identify_structure` without its fits)."""
+    evidence = identify_structure(tags)
+    return evidence.integrating, evidence.why
+
+
+def identify_structure(tags: Tags) -> StructureEvidence:
+    """Whether the data say the process integrates, why, and the fits behind it.
 
     Parameters
     ----------
@@ -75,28 +131,28 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
 
     Returns
     -------
-    (bool or None, str)
-        The decision and a one-line reason.
+    StructureEvidence
+        The decision (None: the data cannot tell), a one-line reason, and the
+        controller and process fits it rests on.
     """
-    from stictiondiag.identification.controller import identify_controller
-    from stictiondiag.identification.process import (
-        FOPTD,
-        identify_process,
-        longest_time_constant,
-    )
-    from stictiondiag.signals.oscillation import detect_oscillation
-
     has_mv = tags.mv is not None
     u = tags.op if tags.mv is None else tags.mv
     what = "mv" if has_mv else "op"
     dt = float(tags.ts)
     error = tags.pv if tags.sp is None else tags.sp - tags.pv  # a set-point step hides the cycle
     if not (detect_oscillation(tags.pv, dt).present or detect_oscillation(error, dt).present):
-        return None, "pv does not cycle, so the response to the valve is not seen clearly"
+        return StructureEvidence(
+            None,
+            "pv does not cycle, so the response to the valve is not seen clearly",
+            None,
+            u_signal=what,
+        )
     try:
-        kc = float(identify_controller(tags.sp, tags.pv, tags.op, dt).controller.gain)
+        cf = identify_controller(tags.sp, tags.pv, tags.op, dt)
     except (StictionError, ValueError, FloatingPointError):
-        return None, "the controller could not be identified"
+        return StructureEvidence(None, "the controller could not be identified", u_signal=what)
+    kc = float(cf.controller.gain)
+    processes: dict[bool, ProcessFit] = {}
     fits: dict[bool, tuple[bool, float]] = {}
     lag = math.nan  # time constant of the self-regulating fit [s]
     for integrating in (False, True):
@@ -104,11 +160,23 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
             pf = identify_process(u, tags.pv, dt, integrating=integrating)
         except (StictionError, ValueError, FloatingPointError):
             continue
+        processes[integrating] = pf
         r2 = float(pf.fit_r2)
         if math.isfinite(r2) and math.isfinite(kc):
             fits[integrating] = (kc * float(pf.process.gain) > 0.0, r2)
         if isinstance(pf.process, FOPTD):
             lag = float(pf.process.time_constant)
+    decided, why = _decide(tags, fits, lag, what)
+    return StructureEvidence(decided, why, cf, MappingProxyType(processes), what)
+
+
+def _decide(
+    tags: Tags, fits: dict[bool, tuple[bool, float]], lag: float, what: str
+) -> tuple[bool | None, str]:
+    """The three principles of the module docstring applied to the fits (sign
+    consistency and R^2 by structure, the self-regulating fit's time constant)."""
+    has_mv = tags.mv is not None
+    dt = float(tags.ts)
     consistent = [k for k, (ok, _) in fits.items() if ok]
     r2s = ", ".join(
         f"{'integrating' if k else 'self-regulating'} R^2 {r2:.2f}" for k, (_, r2) in fits.items()
@@ -141,7 +209,7 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
     return None, f"{why} ({r2s})"
 
 
-def settle_loop_type(tags: Tags) -> Tags:
+def settle_loop_type(tags: Tags, evidence: StructureEvidence | None = None) -> Tags:
     """``tags`` with the process structure decided, when reading left it to the data.
 
     Only tags whose :attr:`~stictiondiag.io.tags.Tags.loop_type_source` is
@@ -149,11 +217,14 @@ def settle_loop_type(tags: Tags) -> Tags:
     type stays ``other``: the data tell integrating from self-regulating, not a
     level from a flow), or to ``"default"``
     (self-regulating) with a warning when they cannot tell.  A note gives the
-    reason either way.
+    reason either way.  ``evidence``: :func:`identify_structure` of ``tags`` when
+    the caller has it already.
     """
     if tags.loop_type_source != "pending":
         return tags
-    integrating, why = infer_integrating(tags)
+    if evidence is None:
+        evidence = identify_structure(tags)
+    integrating, why = evidence.integrating, evidence.why
     if integrating is None:
         note = (
             f"loop type not known (no ISA tag such as LIC101 names it and the data cannot "

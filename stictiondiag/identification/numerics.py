@@ -27,16 +27,6 @@ def as_signal(x, name: str) -> np.ndarray:
     return a
 
 
-def check_dt(dt) -> float:
-    try:
-        dt_ = float(dt)
-    except (TypeError, ValueError):
-        raise UsageError(f"sample time dt must be a number of seconds, got {dt!r}") from None
-    if not (math.isfinite(dt_) and dt_ > 0):
-        raise UsageError(f"sample time dt must be a positive number of seconds, got {dt_}")
-    return dt_
-
-
 def r_squared(y: np.ndarray, y_hat: np.ndarray) -> float:
     sst = float(np.sum((y - y.mean()) ** 2))
     if sst <= 0.0:

@@ -47,13 +47,12 @@ from typing import cast
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.errors import DataError, UsageError
-from stictiondiag.core.memo import memo_by_content
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.numerics import (
     MIN_SAMPLES,
     as_signal,
-    check_dt,
     delayed,
     r_squared,
 )
@@ -343,7 +342,6 @@ def _chosen_process(chosen: str, p: dict, u, pv, dt):
     return process, _biases(process, u, pv, dt, d, u_bias=p.get("u_bias"))
 
 
-@memo_by_content()
 def identify_process(
     u: np.ndarray,
     pv: np.ndarray,

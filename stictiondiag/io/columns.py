@@ -20,7 +20,15 @@ from stictiondiag.io.readers import duplicate_names
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["ROLES", "column_list", "is_time_name", "match_columns", "numeric_column", "roles_of"]
+__all__ = [
+    "ROLES",
+    "VENDORS",
+    "column_list",
+    "is_time_name",
+    "match_columns",
+    "numeric_column",
+    "roles_of",
+]
 
 #: Signal roles in the paper's notation (Section 3).
 ROLES = ("pv", "op", "mv", "sp")
@@ -40,7 +48,18 @@ _ROLE_NAMES = {
 _TIME_FIRST_TOKENS = {"time", "timestamp", "datetime", "date"}
 _POSITION_INSTRUMENT = re.compile(r"^z[ti][a-z]?\d*[a-z]?$")
 _BRACKETS = re.compile(r"[\(\[\{][^\)\]\}]*[\)\]\}]")
-_SEPARATORS = re.compile(r"[\s._\-:/]+")
+_SEPARATORS = re.compile(r"[\s._\-:/\\]+")
+
+#: Control-system tag conventions (``vendor``).  Honeywell ``.PV/.OP/.SP``, Emerson
+#: DeltaV ``/PV.CV``, ``/OUT.CV``, ``/SP.CV`` (``.CV`` is the parameter's current value),
+#: OSIsoft PI tag-per-column exports (``\\server\TAG.PV``) and the generic names are
+#: read by the suffix rules alike; they differ only in ``.MV``: Yokogawa CENTUM's
+#: ``.PV/.MV/.SV`` name the controller output MV, everywhere else (and in the paper)
+#: MV is the valve position.
+VENDORS = ("yokogawa", "honeywell", "deltav", "pi", "generic")
+
+# Field names a tag's parameter may carry after its role (DeltaV's current value).
+_FIELDS = {"cv"}
 
 
 def _refuse_duplicates(frame: pd.DataFrame, overrides: Mapping[str, str | None], file: str) -> None:
@@ -59,7 +78,30 @@ def _refuse_duplicates(frame: pd.DataFrame, overrides: Mapping[str, str | None],
 
 def _tokens(name: str) -> list[str]:
     cleaned = _BRACKETS.sub(" ", name.lower())
-    return [token for token in _SEPARATORS.split(cleaned) if token]
+    tokens = [token for token in _SEPARATORS.split(cleaned) if token]
+    if len(tokens) >= 3 and tokens[-1] in _FIELDS:
+        tokens = tokens[:-1]  # FIC101/PV.CV -> fic101, pv
+    return tokens
+
+
+def is_mv_suffix(name: str) -> bool:
+    """Whether a tag ends in ``MV`` (the Yokogawa output, elsewhere the valve position)."""
+    tokens = _tokens(name)
+    return len(tokens) >= 2 and tokens[-1] == "mv"
+
+
+def check_vendor(vendor: str | None) -> None:
+    if vendor is not None and vendor not in VENDORS:
+        raise UsageError(f"vendor must be one of {', '.join(VENDORS)}, not {vendor!r}")
+
+
+def yokogawa_note(column: str, given: bool) -> str:
+    """The note that says which reading of an ``.MV`` tag was taken."""
+    why = "vendor yokogawa" if given else "no op tag beside it: the Yokogawa CENTUM convention"
+    return (
+        f"op: {column!r} read as the controller output ({why}); if MV is the valve "
+        "position, give vendor=generic (CLI --vendor generic) and name op"
+    )
 
 
 def is_time_name(name: str) -> bool:
@@ -67,11 +109,14 @@ def is_time_name(name: str) -> bool:
     return bool(tokens) and (tokens[0] in _TIME_FIRST_TOKENS or tokens == ["t"])
 
 
-def roles_of(name: str) -> set[str]:
-    """Roles a column name is a candidate for (module docstring rules)."""
+def roles_of(name: str, vendor: str | None = None) -> set[str]:
+    """Roles a column name is a candidate for (module docstring rules); with vendor
+    ``yokogawa`` an ``.MV`` tag is op."""
     tokens = _tokens(name)
     if not tokens:
         return set()
+    if vendor == "yokogawa" and len(tokens) >= 2 and tokens[-1] == "mv":
+        return {"op"}
     joined = "".join(tokens)
     roles = {
         role for role in ROLES if tokens[-1] in _ROLE_SUFFIXES[role] or joined in _ROLE_NAMES[role]
@@ -106,10 +151,16 @@ def match_columns(
     overrides: Mapping[str, str | None],
     file: str,
     notes: list[str] | None = None,
+    vendor: str | None = None,
 ) -> dict[str, str]:
-    """Role -> column name, from explicit names first, then the matching rules."""
+    """Role -> column name, from explicit names first, then the matching rules.
+
+    ``vendor`` as :data:`VENDORS`: with ``yokogawa`` ``.MV`` is op; without a vendor,
+    an ``.MV`` tag and no op is read as op (noted); other vendors keep MV as mv.
+    """
     import pandas as pd
 
+    check_vendor(vendor)
     _refuse_duplicates(frame, overrides, file)
     chosen: dict[str, str] = {}
     for role, name in overrides.items():
@@ -128,7 +179,14 @@ def match_columns(
         if role in chosen:
             continue
         exact = [column for column in free if column.strip().lower() == role]
-        candidates = exact or [column for column in free if role in roles_of(column)]
+        candidates = exact or [column for column in free if role in roles_of(column, vendor)]
+        if role == "op" and not candidates and vendor is None:
+            candidates = [column for column in free if is_mv_suffix(column)][:2]
+            if len(candidates) == 1 and notes is not None:
+                notes.append(yokogawa_note(candidates[0], given=False))
+        elif role == "op" and vendor == "yokogawa" and len(candidates) == 1 and notes is not None:
+            if is_mv_suffix(candidates[0]):
+                notes.append(yokogawa_note(candidates[0], given=True))
         if len(exact) == 1 and notes is not None:
             others = [c for c in free if c != exact[0] and role in roles_of(c)]
             if others:

@@ -34,6 +34,10 @@ OUTSIDE_SHARE = 0.01
 #: below 3.6 mA and above 21 mA.
 MA_LIMITS = (3.6, 21.0)
 
+#: Share of samples below 0 that says op is not in % of span (a valve demand rests
+#: below its closed end only briefly; a mean-centred export spends half its time there).
+NEGATIVE_SHARE = 0.1
+
 #: Full scales of common converters [counts] (8- to 16-bit).
 FULL_SCALES = (255.0, 1023.0, 4095.0, 16383.0, 32767.0, 65535.0)
 
@@ -49,8 +53,14 @@ def check_op_units(
     label: str,
     where: str,
     notes: list[str],
-) -> None:
+) -> str:
     """Check raw ``op`` (in the file's units) against ``op_units`` and ``op_range``.
+
+    Returns ``"percent"`` when op is in % of span (units or range given, or a range
+    consistent with it) and ``"unknown"`` when its range says otherwise: beyond
+    -5 to 105, below 0 for more than :data:`NEGATIVE_SHARE` of the record, within
+    0-1, or filling most of 4-20 (at least 8 of its 16 units);
+    S and J are then in op's own units, not % of span.
 
     Raises
     ------
@@ -62,6 +72,7 @@ def check_op_units(
     values = np.asarray(op, dtype=float)
     values = values[np.isfinite(values)]
     if values.size == 0 or op_range is not None:
+        scale = "percent"
         if values.size and op_range is not None:
             low, high = (float(v) for v in op_range)
             span = high - low
@@ -70,7 +81,8 @@ def check_op_units(
                     f"op {label!r}{where} spans {values.min():.4g} to {values.max():.4g}, beyond "
                     f"its op_range {low:g} to {high:g}: check op_units/op_range (CLI --op-range)"
                 )
-        return
+                scale = "unknown"
+        return scale
     lo, hi = float(values.min()), float(values.max())
     if op_units == "mA":
         if _share_outside(values, *MA_LIMITS) > OUTSIDE_SHARE:
@@ -78,7 +90,7 @@ def check_op_units(
                 f"op {label!r}{where} spans {lo:.4g} to {hi:.4g}: not a 4-20 mA signal; "
                 "drop --op-units mA if op is in percent, or give --op-range LO HI"
             )
-        return
+        return "percent"
     if _share_outside(values, -5.0, 105.0) > OUTSIDE_SHARE:
         if lo >= -5.0 and hi > 105.0:
             full = next((f for f in FULL_SCALES if f >= hi), None)
@@ -93,15 +105,29 @@ def check_op_units(
                 f"op {label!r}{where} spans {lo:.4g} to {hi:.4g}, beyond 0-100 % of span: "
                 "check op_units/op_range (S and J are reported in these units)"
             )
-    elif lo >= 0.0 and hi <= 1.0:
+        return "unknown"
+    below = float(np.mean(values < 0.0))
+    if below > NEGATIVE_SHARE:
+        notes.append(
+            f"op {label!r}{where} is below 0 for {100 * below:.0f} % of the record ({lo:.4g} "
+            f"to {hi:.4g}): a normalised or deviation export, not % of span? give the "
+            "values at 0 and 100 % with op_range (CLI --op-range LO HI); S and J are "
+            "stated in op's own units"
+        )
+        return "unknown"
+    if lo >= 0.0 and hi <= 1.0:
         notes.append(
             f"op {label!r}{where} stays within 0-1: if it is a fraction of span, give "
             "op_range=(0, 1) (CLI --op-range 0 1); read as percent, S and J are 100 times "
             "too small"
         )
-    elif lo >= MA_LIMITS[0] and hi <= MA_LIMITS[1]:
+        return "unknown"
+    if lo >= MA_LIMITS[0] and hi <= MA_LIMITS[1]:
         notes.append(
             f"op {label!r}{where} stays within 4-20: if it is a 4-20 mA signal, pass "
             "op_units='mA' (CLI --op-units mA); read as percent, S and J are 0.16 times "
             "their size"
         )
+        # A percent op that fills most of 4-20 and never leaves it is unlikely.
+        return "unknown" if hi - lo >= 8.0 else "percent"
+    return "percent"

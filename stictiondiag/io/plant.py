@@ -9,12 +9,12 @@ A historian export of a plant comes in two layouts:
   a pv and an op is a loop, read with :func:`~stictiondiag.io.tags.read_tags` and
   its columns named, so only its columns are read;
 * **long**: three columns ``timestamp, tag, value`` (CSV or Parquet).  Tags are
-  grouped by prefix as above; each loop's tags are resampled by linear
-  interpolation to one common grid: the step is the coarsest of the tags' median
-  steps (no tag is given detail it does not have), the span the time all tags
-  cover; grid points farther than :data:`~stictiondiag.io.timebase.MAX_GAP_SAMPLES`
-  steps from a sample of a tag are missing values.  The grid is reported in the
-  loop's warnings.
+  grouped by prefix as above; each loop's tags are put on one grid by
+  :func:`stictiondiag.io.compression.reconstruct`: the step is the scan step of the
+  loop's fastest tag, a compressed tag ("recorded values" of an exception or
+  swinging-door archive) is held or interpolated the way its historian reads it, a
+  regularly sampled one is interpolated linearly with the gap rule of a wide file.
+  The grid is reported in the loop's warnings.
 
 A file is a wide plant export when at least two prefixes have a pv and an op.  In
 it, a group that is not a loop (a pv without op, two pv columns) is listed with the
@@ -23,8 +23,10 @@ loop keeps the file's own reading (:func:`~stictiondiag.io.tags.read_tags`).
 
 The loops manifest (:func:`read_manifest`) gives per-loop settings: a CSV with a
 column ``file`` or ``loop`` and any of ``loop_type``, ``ts``, ``op_units``,
-``op_range`` (``LO HI``) or ``op_lo``/``op_hi``, ``integrating`` and the tag names
-``pv``, ``op``, ``mv``, ``sp``, ``time``.
+``op_range`` (``LO HI``) or ``op_lo``/``op_hi``, ``integrating``, ``vendor``
+(``yokogawa`` reads ``.MV`` as op), ``action`` (``direct``/``reverse``),
+``compression`` (``hold``/``linear``) and the tag names ``pv``, ``op``, ``mv``,
+``sp``, ``time``.
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ __all__ = [
     "plant_loops",
     "read_manifest",
     "read_plant_loop",
+    "unmatched_manifest_rows",
 ]
 
 #: Column names of a long export (first match of each, case-insensitive).
@@ -64,6 +67,8 @@ LONG_COLUMNS = {
 }
 
 _SUFFIX = re.compile(r"[\s._\-:/]+[^\s._\-:/]+$")
+_FIELD = re.compile(r"[.](cv)$", re.IGNORECASE)  # DeltaV's current value: FIC101/PV.CV
+_SERVER = re.compile(r"^\\\\[^\\]+\\")  # a PI server path: \\SRV01\FIC101.PV
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,8 @@ class PlantLoop:
         Role -> column (wide) or tag (long) name.
     problem : str or None
         Why the loop cannot be analysed (incomplete or ambiguous), else None.
+    notes : tuple of str
+        How the tags were read (a Yokogawa ``.MV`` taken as op), for the loop's warnings.
     """
 
     loop: str
@@ -89,12 +96,14 @@ class PlantLoop:
     layout: str = "file"
     columns: dict = field(default_factory=dict)
     problem: str | None = None
+    notes: tuple[str, ...] = ()
 
 
 def _prefix(name: str) -> str:
     """A tag's loop prefix: the name without its role suffix (``FIC101.PV`` -> ``FIC101``)."""
-    stripped = _SUFFIX.sub("", str(name).strip())
-    return stripped if stripped != str(name).strip() else ""
+    name = _FIELD.sub("", _SERVER.sub("", str(name).strip()))
+    stripped = _SUFFIX.sub("", name)
+    return stripped if stripped != name else ""
 
 
 def group_tags(names: list[str]) -> dict[str, dict[str, list[str]]]:
@@ -111,10 +120,27 @@ def group_tags(names: list[str]) -> dict[str, dict[str, list[str]]]:
     return groups
 
 
+def _promote_mv(groups: dict[str, dict[str, list[str]]]) -> dict[str, str]:
+    """Groups with one ``.MV`` tag and no op: the MV read as op (Yokogawa), in place.
+
+    Returns prefix -> the note saying so.
+    """
+    from stictiondiag.io.columns import is_mv_suffix, yokogawa_note
+
+    notes = {}
+    for prefix, roles in groups.items():
+        mv = roles.get("mv", [])
+        if "op" not in roles and len(mv) == 1 and is_mv_suffix(mv[0]):
+            roles["op"] = roles.pop("mv")
+            notes[prefix] = yokogawa_note(mv[0], given=False)
+    return notes
+
+
 def _loops_of_groups(
     path: str, groups: dict[str, dict[str, list[str]]], layout: str, time: str | None
 ) -> list[PlantLoop]:
     loops = []
+    promoted = _promote_mv(groups)
     for prefix, roles in sorted(groups.items()):
         problem = None
         twice = [
@@ -129,7 +155,8 @@ def _loops_of_groups(
         columns = {r: names[0] for r, names in roles.items()}
         if time is not None:
             columns["time"] = time
-        loops.append(PlantLoop(prefix, path, layout, columns, problem))
+        note = (promoted[prefix],) if prefix in promoted else ()
+        loops.append(PlantLoop(prefix, path, layout, columns, problem, note))
     return loops
 
 
@@ -199,7 +226,9 @@ def plant_loops(path: str | os.PathLike) -> list[PlantLoop]:
             )
         return _loops_of_groups(str(file), groups, "long", None)
     groups = group_tags(names)
-    complete = [g for g in groups.values() if "pv" in g and "op" in g]
+    complete = [
+        g for g in groups.values() if "pv" in g and ("op" in g or len(g.get("mv", [])) == 1)
+    ]
     if len(complete) < 2:
         # One loop (perhaps beside a valve-position tag of another name): the file's
         # own reading, with its column rules and messages.
@@ -237,12 +266,21 @@ def _read_long(file: Path, long: dict[str, str], tags: list[str] | None) -> pd.D
 
 
 def _resample_long(
-    frame: pd.DataFrame, long: dict[str, str], tags: dict[str, str], label: str
+    frame: pd.DataFrame,
+    long: dict[str, str],
+    tags: dict[str, str],
+    label: str,
+    compression: str | None = None,
 ) -> tuple[pd.DataFrame, str]:
-    """Role columns on one grid (time [s] from the first grid point) and a note."""
+    """Role columns on one grid (time [s] from the first grid point) and a note.
+
+    The grid and the reconstruction of compressed tags are those of
+    :func:`stictiondiag.io.compression.reconstruct`.
+    """
     import pandas as pd
 
-    from stictiondiag.io.timebase import check_grid, onto_grid, time_seconds
+    from stictiondiag.io.compression import reconstruct
+    from stictiondiag.io.timebase import time_seconds
 
     seconds = time_seconds(frame[long["time"]], long["time"], label)
     values = pd.to_numeric(frame[long["value"]], errors="coerce").to_numpy(dtype=float)
@@ -251,32 +289,26 @@ def _resample_long(
         if role == "time":
             continue
         keep = (frame[long["tag"]].astype(str) == tag).to_numpy() & np.isfinite(seconds)
+        keep &= np.isfinite(values)
         t, v = seconds[keep], values[keep]
         order = np.argsort(t, kind="stable")
         t, v = t[order], v[order]
-        if t.size < 2:
+        unique = np.concatenate(([True], np.diff(t) > 0)) if t.size else np.ones(0, bool)
+        t, v = t[unique], v[unique]
+        if t.size < 1 or (t.size < 2 and role in ("pv", "op")):
             raise DataError(f"{label}: tag {tag!r} has {t.size} samples: export more of it")
         series[role] = (t, v)
-    steps = {r: float(np.median(np.diff(np.unique(t)))) for r, (t, _) in series.items()}
-    step = max(steps.values())
-    start = max(t[0] for t, _ in series.values())
-    stop = min(t[-1] for t, _ in series.values())
-    if not (math.isfinite(step) and step > 0 and stop > start):
-        raise DataError(f"{label}: the tags of the loop do not overlap in time")
-    n_grid = int(math.floor((stop - start) / step + 1e-9)) + 1
-    check_grid(n_grid, step, f"{long['time']} ({label})")
-    grid = start + step * np.arange(n_grid)
-    out = {"time": grid - grid[0]}
-    for role, (t, v) in series.items():
-        good = np.isfinite(v)
-        # The gap rule of a wide file's clock: a tag's hole longer than the
-        # interpolation limit is missing data, not a straight line.
-        out[role] = onto_grid({role: v[good]}, t[good], grid, step)[role]
-    tagged = ", ".join(f"{tags[r]} {steps[r]:g} s" for r in series)
-    note = (
-        f"long export: tags resampled to a common grid of {grid.size} points every {step:g} s "
-        f"(the coarsest median step: {tagged})"
-    )
+    arrays, grid, step, compressed = reconstruct(series, label, compression)
+    # Absolute time kept (epoch seconds where the export has dates): the clock of the record.
+    out = {"time": grid, **arrays}
+    if compressed is not None:
+        note = f"long export: {compressed}"
+    else:
+        tagged = ", ".join(f"{tags[r]} {series[r][0].size} rows" for r in series)
+        note = (
+            f"long export: tags resampled to a common grid of {grid.size} points every "
+            f"{step:g} s (the fastest tag's step: {tagged})"
+        )
     return pd.DataFrame(out), note
 
 
@@ -299,11 +331,18 @@ def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
         raise DataError(f"loop {loop.loop} of {loop.path}: {loop.problem}")
     if loop.layout == "file":
         return read_tags(loop.path, **read_options)
+    vendor = read_options.get("vendor")
+    if loop.notes and vendor not in (None, "yokogawa"):
+        raise DataError(
+            f"loop {loop.loop} of {loop.path}: no op tag (vendor {vendor} reads "
+            f"{loop.columns['op']!r} as the valve position): name op in --loops"
+        )
     named = {r: c for r, c in loop.columns.items() if read_options.get(r) is None}
     options = {**read_options, **named}
     label = f"{loop.path}#{loop.loop}"
     if loop.layout == "wide":
-        return _read_wide(Path(loop.path), options, label)
+        tags = _read_wide(Path(loop.path), options, label)
+        return replace(tags, warnings=(*loop.notes, *tags.warnings)) if loop.notes else tags
     file = Path(loop.path)
     header = _header(file)
     long = _long_columns([str(c) for c in header.columns])
@@ -311,11 +350,11 @@ def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
         raise DataError(f"{file} is no longer a long export (timestamp, tag, value)")
     wanted = {r: options[r] for r in ROLES if options.get(r)}
     frame = _read_long(file, long, list(wanted.values()))
-    grid, note = _resample_long(frame, long, wanted, label)
-    given = {k: v for k, v in options.items() if k not in (*ROLES, "time")}
+    grid, note = _resample_long(frame, long, wanted, label, options.get("compression"))
+    given = {k: v for k, v in options.items() if k not in (*ROLES, "time", "compression")}
     # Columns named by their tags, so the ISA tag decides the loop type as in a wide file.
     tags = read_frame(grid.rename(columns=wanted), source=label, time="time", **given, **wanted)
-    return replace(tags, warnings=(note, *tags.warnings))
+    return replace(tags, warnings=(*loop.notes, note, *tags.warnings))
 
 
 def _read_wide(file: Path, options: dict, label: str) -> Tags:
@@ -343,7 +382,25 @@ def _read_wide(file: Path, options: dict, label: str) -> Tags:
 
 # --------------------------------------------------------------------------- manifest
 
-_MANIFEST_KEYS = ("loop_type", "ts", "op_units", "op_range", "integrating", *ROLES, "time")
+_MANIFEST_KEYS = (
+    "loop_type",
+    "ts",
+    "op_units",
+    "op_range",
+    "integrating",
+    "vendor",
+    "action",
+    "compression",
+    *ROLES,
+    "time",
+)
+
+#: Manifest columns with a fixed set of values -> the values (lower case).
+_CHOICES = {
+    "vendor": ("yokogawa", "honeywell", "deltav", "pi", "generic"),
+    "action": ("direct", "reverse"),
+    "compression": ("hold", "linear"),
+}
 
 
 def _cell(value) -> str | None:
@@ -431,6 +488,14 @@ def read_manifest(path: str | os.PathLike) -> dict[str, dict]:
             if not (math.isfinite(low) and math.isfinite(high) and low < high):
                 raise UsageError(f"{where}: op_range must be 'LO HI' with finite LO < HI")
             options["op_range"] = (low, high)
+        for setting, choices in _CHOICES.items():
+            choice = _cell(row.get(setting))
+            if choice is not None:
+                if choice.lower() not in choices:
+                    raise UsageError(
+                        f"{where}: {setting} {choice!r} is not one of {', '.join(choices)}"
+                    )
+                options[setting] = choice.lower()
         integ = _cell(row.get("integrating"))
         if integ is not None:
             flag = {"true": True, "yes": True, "1": True, "false": False, "no": False, "0": False}
@@ -450,6 +515,35 @@ def manifest_options(manifest: dict[str, dict], loop: str, path: str) -> dict | 
         if key in manifest:
             return manifest[key]
     return None
+
+
+def unmatched_manifest_rows(manifest: dict[str, dict], loops: list[tuple[str, str]]) -> list[str]:
+    """One warning naming the manifest rows that match none of ``loops`` (name, file).
+
+    A row that matches no loop (a typo, a name in the wrong case) would otherwise be
+    dropped without a word, its settings never applied.  Returns an empty list when
+    every row matches.
+    """
+    used: set[str] = set()
+    for loop, path in loops:
+        p = Path(path)
+        for key in (loop, p.name, str(p), p.stem):
+            if key in manifest:
+                used.add(key)
+                break
+    unmatched = [key for key in manifest if key not in used]
+    if not unmatched:
+        return []
+    known = {name.lower(): name for loop, path in loops for name in (loop, Path(path).name)}
+    shown = []
+    for key in unmatched[:10]:
+        near = known.get(key.lower())
+        shown.append(f"{key!r} (did you mean {near!r}?)" if near else repr(key))
+    more = f" and {len(unmatched) - 10} more" if len(unmatched) > 10 else ""
+    return [
+        f"loops manifest: {len(unmatched)} row(s) match no loop, their settings are not "
+        f"used: {', '.join(shown)}{more}; names are matched exactly (case included)"
+    ]
 
 
 def is_long_file(path: str | os.PathLike) -> bool:

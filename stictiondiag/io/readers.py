@@ -1,10 +1,14 @@
-"""Reading historian exports (CSV, Parquet) into a table, read-only and bounded in memory.
+"""Reading historian exports (CSV, Excel .xlsx, Parquet) into a table, read-only and bounded in memory.
 
 :func:`read_table` opens a file (never writing to it) and returns a DataFrame.  It
 first reads the header (a CSV's first line, a Parquet file's schema) and lets the
 caller choose the columns it needs (``select``), so a 20 000-column export costs the
 few columns of one loop.  A large CSV is read in chunks of :data:`CHUNK_ROWS` rows,
 so the parser's working memory does not grow with the file.
+
+A CSV's separator is the most frequent of ``,``, ``;``, tab and ``|`` in its header; a
+``;``-separated file whose numbers carry a decimal comma (a European locale) is read
+with ``decimal=","``.  An ``.xlsx`` workbook's first sheet is read with openpyxl.
 
 Header names are stripped of surrounding spaces.  Two columns whose names are equal
 (ignoring case) would be silently renamed by the parser (``pv`` and ``pv.1``); the
@@ -19,6 +23,7 @@ import csv
 import gzip
 import io
 import lzma
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -39,7 +44,8 @@ _CHUNKED_ABOVE = 64 * 1024 * 1024
 _CSV_SUFFIXES = {".csv", ".tsv", ".txt"}
 _PARQUET_SUFFIXES = {".parquet", ".pq"}
 _COMPRESSION = {".gz": "gzip", ".bz2": "bz2", ".xz": "xz"}
-_SPREADSHEET_SUFFIXES = {".xls", ".xlsx", ".xlsm", ".ods"}
+_EXCEL_SUFFIXES = {".xlsx", ".xlsm"}
+_SPREADSHEET_SUFFIXES = {".xls", ".ods"}
 _DELIMITERS = (",", ";", "\t", "|")
 
 #: ``select(header)`` gets the header as an empty DataFrame (Parquet: with the
@@ -74,11 +80,15 @@ def read_table(file: Path, select: Select | None = None) -> pd.DataFrame:
         return _read_parquet(file, select)
     if kind in _CSV_SUFFIXES:
         return _read_csv(file, compression, select)
+    if kind in _EXCEL_SUFFIXES and compression is None:
+        return _read_excel(file, select)
     if kind in _SPREADSHEET_SUFFIXES:
-        raise DataError(f"{file} is a spreadsheet: save the sheet as CSV, or export Parquet")
+        raise DataError(
+            f"{file} is a {kind} spreadsheet: save the sheet as .xlsx or CSV, or export Parquet"
+        )
     shown = "".join(file.suffixes) or "no extension"
     raise DataError(
-        f"unknown file type ({shown}) for {file}: give a .csv, .tsv, .txt or .parquet file"
+        f"unknown file type ({shown}) for {file}: give a .csv, .tsv, .txt, .xlsx or .parquet file"
     )
 
 
@@ -110,6 +120,36 @@ def _read_parquet(file: Path, select: Select | None) -> pd.DataFrame:
     # A datetime index written by pandas becomes a column in read_frame and can
     # then serve as the time column.
     return frame
+
+
+def _read_excel(file: Path, select: Select | None) -> pd.DataFrame:
+    """The first sheet of an ``.xlsx`` workbook (openpyxl), header in its first row."""
+    import zipfile
+
+    import pandas as pd
+
+    if file.stat().st_size == 0:
+        raise DataError(f"{file} is empty: export the loop data again")
+    try:
+        frame = pd.read_excel(file, sheet_name=0, engine="openpyxl")
+    except ImportError:
+        raise DataError(f"{file}: reading .xlsx needs openpyxl (pip install openpyxl)") from None
+    except (ValueError, KeyError, OSError, zipfile.BadZipFile, TypeError) as exc:
+        raise DataError(f"{file} is not a readable .xlsx workbook ({_reason(exc)})") from None
+    frame.columns = [str(c).strip() for c in frame.columns]
+    if select is not None:
+        chosen = select(frame.iloc[:0])
+        if chosen is not None:
+            frame = frame[[c for c in frame.columns if c in set(chosen)]]
+    return frame
+
+
+def _decimal_comma(text: str, separator: str) -> bool:
+    """Whether a ``;``-separated CSV writes numbers with a decimal comma (European locale)."""
+    if separator == ",":
+        return False
+    body = "\n".join(text.splitlines()[1:50])
+    return len(re.findall(r"\d,\d", body)) > len(re.findall(r"\d\.\d", body))
 
 
 def _head(file: Path, compression: str | None) -> bytes:
@@ -150,6 +190,8 @@ def _read_csv(file: Path, compression: str | None, select: Select | None) -> pd.
         "compression": compression,
         "skipinitialspace": True,
     }
+    if _decimal_comma(head.decode(encoding, errors="replace"), separator):
+        options["decimal"] = ","
     chunked = file.stat().st_size > _CHUNKED_ABOVE
     try:
         if select is not None:

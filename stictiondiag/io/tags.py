@@ -86,11 +86,14 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.errors import (
     DataError,
     UsageError,
 )
 from stictiondiag.io.columns import ROLES, match_columns, numeric_column
+from stictiondiag.io.compression import from_archive, sparse_roles
+from stictiondiag.io.gaps import MIN_SAMPLES, fill_gaps
 from stictiondiag.io.looptype import resolve_loop_type
 from stictiondiag.io.opunits import check_op_units
 from stictiondiag.io.readers import read_table
@@ -110,6 +113,7 @@ __all__ = [
     "MAX_GAP_SAMPLES",
     "MIN_SAMPLES",
     "OP_UNITS",
+    "ACTIONS",
     "ROLES",
     "Tags",
     "read_frame",
@@ -117,17 +121,15 @@ __all__ = [
     "scale",
 ]
 
-#: Fewest samples a loop record must keep after gap handling. Stiction shows as
-#: stick-slip cycles; 100 samples hold only a few cycles at typical sampling, which
-#: is the least any of the later steps (oscillation detection, fitting) can use.
-MIN_SAMPLES = 100
-
 
 #: Loop types accepted by ``loop_type``; "level" implies an integrating process.
 LOOP_TYPES = ("flow", "pressure", "level", "temperature", "composition", "other")
 
 #: Units of the op (and mv) columns in the file.
 OP_UNITS = ("percent", "mA")
+
+#: Controller actions (ISA): ``direct`` raises op when pv rises, ``reverse`` lowers it.
+ACTIONS = ("direct", "reverse")
 
 
 LoopType = Literal["flow", "pressure", "level", "temperature", "composition", "other"]
@@ -200,6 +202,15 @@ class Tags:
         (:mod:`stictiondiag.identification.looptype`), ``"default"`` (nothing did:
         self-regulating assumed), or ``"pending"`` (read without a loop type; the
         data are still to decide).
+    action : str or None
+        Controller action given by the user (:data:`ACTIONS`), None when not given.
+    op_scale : str
+        ``"percent"`` (op read as % of span, units given or consistent with it) or
+        ``"unknown"`` (op's range says it is in other units:
+        :func:`stictiondiag.io.opunits.check_op_units`); S and J are then in op's units.
+    start_time : float or None
+        Clock time of the first sample [s since 1970-01-01 UTC] where the export has
+        dates, else None.
     """
 
     time: np.ndarray
@@ -214,6 +225,9 @@ class Tags:
     integrating: bool = False
     warnings: tuple[str, ...] = ()
     loop_type_source: str = "user"
+    action: str | None = None
+    op_scale: str = "percent"
+    start_time: float | None = None
 
     @property
     def n(self) -> int:
@@ -287,6 +301,9 @@ class Tags:
             "has_mv": self.mv is not None,
             "has_sp": self.sp is not None,
             "op_range_pct": [float(self.op.min()), float(self.op.max())],
+            "op_scale": self.op_scale,
+            "action": self.action,
+            "start_time_s": self.start_time,
             "warnings": list(self.warnings),
         }
 
@@ -301,6 +318,9 @@ class Tags:
             "integrating",
             "warnings",
             "loop_type_source",
+            "action",
+            "op_scale",
+            "start_time",
         )
         if any(getattr(self, name) != getattr(other, name) for name in scalars):
             return False
@@ -357,7 +377,7 @@ class Tags:
         UsageError
             Bad ``ts``, ``op_units``, ``op_range`` or ``loop_type``.
         """
-        ts = _check_ts(ts)
+        ts = check_dt(ts, "ts")
         raw = {"pv": pv, "op": op, "mv": mv, "sp": sp}
         arrays: dict[str, np.ndarray] = {}
         for role, values in raw.items():
@@ -407,6 +427,9 @@ def read_tags(
     op_range: tuple[float, float] | None = None,
     loop_type: str | None = None,
     integrating: bool | None = None,
+    compression: str | None = None,
+    vendor: str | None = None,
+    action: str | None = None,
 ) -> Tags:
     """Read one control loop from a CSV or Parquet file.
 
@@ -442,6 +465,14 @@ def read_tags(
         :func:`stictiondiag.analysis.analyze`) lets the data decide.
     integrating : bool, optional
         Whether the process integrates; default: True for level loops only.
+    compression : {"hold", "linear"}, optional
+        How a compressed archive's tags are rebuilt (:mod:`stictiondiag.io.compression`);
+        default: told per tag from its archived values.
+    vendor : {"yokogawa", "honeywell", "deltav", "pi", "generic"}, optional
+        The control system's tag convention (:mod:`stictiondiag.io.vendors`); decides
+        whether ``.MV`` is the controller output (Yokogawa) or the valve position.
+    action : {"direct", "reverse"}, optional
+        Controller action (:attr:`Tags.action`), used by the replay and compensation.
 
     Returns
     -------
@@ -460,14 +491,14 @@ def read_tags(
     """
     _check_options(op_units, op_range, loop_type)
     if ts is not None:
-        _check_ts(ts)
+        check_dt(ts, "ts")
     file = Path(path)
     overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time}
 
     def select(header: pd.DataFrame) -> list[str]:
         # The columns of this loop, matched on the header alone (same rules, same
         # errors as on the whole table), so only they are read.
-        chosen = match_columns(header, overrides, str(file), header_notes)
+        chosen = match_columns(header, overrides, str(file), header_notes, vendor)
         return list(chosen.values())
 
     header_notes: list[str] = []
@@ -484,6 +515,9 @@ def read_tags(
         op_range=op_range,
         loop_type=loop_type,
         integrating=integrating,
+        compression=compression,
+        vendor=vendor,
+        action=action,
     )
     if header_notes:
         # Notes about columns that were not read (another candidate for a role).
@@ -505,6 +539,9 @@ def read_frame(
     op_range: tuple[float, float] | None = None,
     loop_type: str | None = None,
     integrating: bool | None = None,
+    compression: str | None = None,
+    vendor: str | None = None,
+    action: str | None = None,
 ) -> Tags:
     """Tags from a DataFrame already in memory, with the rules of :func:`read_tags`.
 
@@ -515,14 +552,15 @@ def read_frame(
         DatetimeIndex) is used as a column, so it can serve as the time column.
     source : str
         Label for messages and :attr:`Tags.source`.
-    pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating
+    pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating, compression,
+    vendor, action
         As for :func:`read_tags`.
     """
     import pandas as pd
 
     _check_options(op_units, op_range, loop_type)
     if ts is not None:
-        ts = _check_ts(ts)
+        ts = check_dt(ts, "ts")
     if not isinstance(frame.index, pd.RangeIndex):
         frame = frame.reset_index()
     frame = frame.rename(columns=lambda column: str(column).strip())
@@ -530,15 +568,23 @@ def read_frame(
         raise DataError(f"{source} has no data rows: export the loop data with a header row")
     overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time}
     notes: list[str] = []
-    columns = match_columns(frame, overrides, source, notes)
+    columns = match_columns(frame, overrides, source, notes, vendor)
     arrays = {
         role: numeric_column(frame[column], role, column, source, notes)
         for role, column in columns.items()
         if role != "time"
     }
+    start_time: float | None = None
     if ts is None and "time" in columns:
         seconds = time_seconds(frame[columns["time"]], columns["time"], source, notes)
-        arrays, ts = uniform(arrays, seconds, columns["time"], notes)
+        first: float | None
+        if sparse_roles(arrays, seconds):
+            arrays, ts, first = from_archive(arrays, seconds, source, compression, notes)
+        else:
+            arrays, ts = uniform(arrays, seconds, columns["time"], notes)
+            first = float(np.nanmin(seconds)) if np.isfinite(seconds).any() else None
+        # Clock time only where the stamps are dates (epoch seconds 1990 to 2100).
+        start_time = first if first is not None and 6.3e8 <= first <= 4.1e9 else None
     else:
         if ts is None:
             ts = 1.0
@@ -558,20 +604,12 @@ def read_frame(
         loop_type=loop_type,
         integrating=integrating,
         notes=notes,
+        action=action,
+        start_time=start_time,
     )
 
 
 # --------------------------------------------------------------------------- options
-
-
-def _check_ts(ts: float) -> float:
-    try:
-        value = float(ts)
-    except (TypeError, ValueError):
-        raise UsageError(f"ts must be a number of seconds, not {ts!r}") from None
-    if not math.isfinite(value) or value <= 0.0:
-        raise UsageError(f"ts must be a positive sample time in seconds, not {ts!r}")
-    return value
 
 
 def _check_options(
@@ -615,79 +653,6 @@ def _note_ts_mismatch(series: pd.Series, column: str, ts: float, notes: list[str
 # --------------------------------------------------------------------------- assembly
 
 
-def _nan_runs(missing: np.ndarray) -> list[tuple[int, int]]:
-    """(start, stop) index pairs of runs of True."""
-    padded = np.concatenate(([False], missing, [False])).astype(np.int8)
-    edges = np.flatnonzero(np.diff(padded))
-    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
-
-
-def _longest_true_run(good: np.ndarray) -> tuple[int, int]:
-    runs = _nan_runs(good)
-    if not runs:
-        return 0, 0
-    return max(runs, key=lambda run: (run[1] - run[0], -run[0]))
-
-
-def _fill_gaps(
-    arrays: dict[str, np.ndarray], labels: Mapping[str, str], notes: list[str]
-) -> dict[str, np.ndarray]:
-    """Interpolate short interior gaps, cut to the longest stretch without long gaps."""
-    n = next(iter(arrays.values())).size
-    if not any(np.isnan(values).any() for values in arrays.values()):
-        return arrays
-    unusable = np.zeros(n, dtype=bool)
-    long_gaps: dict[str, int] = {}
-    for role, values in arrays.items():
-        for start, stop in _nan_runs(np.isnan(values)):
-            if stop - start > MAX_GAP_SAMPLES or start == 0 or stop == n:
-                unusable[start:stop] = True
-                if stop - start > MAX_GAP_SAMPLES:
-                    long_gaps[role] = max(long_gaps.get(role, 0), stop - start)
-    start, stop = _longest_true_run(~unusable)
-    # Cutting can leave a short gap of one signal at the new edge; edges cannot be
-    # interpolated, so trim until every signal is present at both ends.
-    while start < stop and any(np.isnan(values[start]) for values in arrays.values()):
-        start += 1
-    while stop > start and any(np.isnan(values[stop - 1]) for values in arrays.values()):
-        stop -= 1
-    if stop - start < MIN_SAMPLES:
-        raise DataError(
-            f"only {stop - start} contiguous samples without gaps longer than "
-            f"{MAX_GAP_SAMPLES} remain (need at least {MIN_SAMPLES}): fill the gaps or "
-            f"export a longer complete record"
-        )
-    if long_gaps:
-        worst = ", ".join(f"{role} up to {size}" for role, size in long_gaps.items())
-        notes.append(
-            f"gaps longer than {MAX_GAP_SAMPLES} samples ({worst}): kept the longest complete "
-            f"stretch, samples {start} to {stop - 1} ({stop - start} of {n})"
-        )
-    elif start > 0 or stop < n:
-        notes.append(
-            f"missing values at the start or end: kept samples {start} to {stop - 1} "
-            f"({stop - start} of {n})"
-        )
-    index = np.arange(stop - start, dtype=float)
-    filled: dict[str, np.ndarray] = {}
-    interpolated: list[str] = []
-    for role, values in arrays.items():
-        part = values[start:stop].copy()
-        missing = np.isnan(part)
-        if missing.any():
-            part[missing] = np.interp(index[missing], index[~missing], part[~missing])
-            runs = _nan_runs(missing)
-            interpolated.append(
-                f"{labels.get(role, role)} ({len(runs)} gaps, {int(missing.sum())} samples)"
-            )
-        filled[role] = part
-    if interpolated:
-        notes.append(
-            f"interpolated short gaps (<= {MAX_GAP_SAMPLES} samples) in " + ", ".join(interpolated)
-        )
-    return filled
-
-
 def _check_magnitude(values: np.ndarray, role: str, label: str, where: str) -> None:
     """Refuse values so large that the statistics of later steps would overflow.
 
@@ -716,8 +681,12 @@ def _assemble(
     loop_type: str | None,
     integrating: bool | None,
     notes: list[str],
+    action: str | None = None,
+    start_time: float | None = None,
 ) -> Tags:
     """Validate, convert op/mv to % of span, handle gaps and build :class:`Tags`."""
+    if action is not None and action not in ACTIONS:
+        raise UsageError(f"action must be one of {', '.join(ACTIONS)}, not {action!r}")
     low, high = _check_options(op_units, op_range, loop_type)
     where = "" if source == "<memory>" else f" in {source}"
     # Private copies: the caller's arrays are neither modified nor frozen.
@@ -737,7 +706,7 @@ def _assemble(
             notes.append(f"{role}: infinite values treated as missing")
             values[np.isinf(values)] = np.nan
         _check_magnitude(values, role, labels.get(role, role), where)
-    arrays = _fill_gaps(arrays, labels, notes)
+    arrays, first = fill_gaps(arrays, labels, notes)
     n = arrays["pv"].size
     if n < MIN_SAMPLES:
         raise DataError(
@@ -750,7 +719,9 @@ def _assemble(
                 f"{role} {labels.get(role, role)!r}{where} is constant ({values[0]:g}): stiction "
                 f"needs a moving loop; pick a period when the loop was in automatic and cycling"
             )
-    check_op_units(arrays["op"], op_units, op_range, labels.get("op", "op"), where, notes)
+    op_scale = check_op_units(
+        arrays["op"], op_units, op_range, labels.get("op", "op"), where, notes
+    )
     for role in ("op", "mv"):
         if role in arrays and (low, high) != (0.0, 100.0):
             arrays[role] = (arrays[role] - low) / (high - low) * 100.0
@@ -776,4 +747,7 @@ def _assemble(
         integrating=bool(integrating),
         warnings=tuple(notes),
         loop_type_source=decided_by,
+        action=action,
+        op_scale=op_scale,
+        start_time=None if start_time is None else start_time + first * ts,
     )

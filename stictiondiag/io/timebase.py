@@ -206,8 +206,13 @@ def _parse_stamps(text: pd.Series, column: str, file: str) -> pd.Series:
     except (ValueError, TypeError, OverflowError):
         stamps = pd.Series(pd.NaT, index=text.index)
     if stamps.notna().sum() < need:
+        # 26.11.2026 14:00 (a European locale) is day first; 11/26/2026 is left to pandas.
+        first = str(text.dropna().iloc[0]) if text.notna().any() else ""
+        dayfirst = re.match(r"^\d{1,2}\.\d{1,2}\.\d{4}", first) is not None
         try:
-            stamps = pd.to_datetime(text, format="mixed", utc=True, errors="coerce")
+            stamps = pd.to_datetime(
+                text, format="mixed", utc=True, errors="coerce", dayfirst=dayfirst
+            )
         except (ValueError, TypeError, OverflowError):
             stamps = pd.Series(pd.NaT, index=text.index)
     if stamps.notna().sum() < need:

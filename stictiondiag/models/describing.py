@@ -38,6 +38,7 @@ import numpy as np
 from scipy import optimize
 
 from stictiondiag.core.errors import UsageError
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.models.processes import (
     FOPTD,
     PI,
@@ -232,10 +233,7 @@ class LimitCyclePrediction:
 
     def to_dict(self) -> dict:
         """JSON-able dict (plain floats, None when there is no limit cycle)."""
-
-        def plain(v):
-            return None if v is None else float(v)
-
+        plain = plain_float
         return {
             "limit_cycle": bool(self.limit_cycle),
             "period_s": plain(self.period_s),

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stictiondiag.core.errors import UsageError
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.models.physical import PhysicalValve
 from stictiondiag.models.processes import FOPTD, PI, Integrating
 
@@ -46,8 +47,8 @@ class LimitCycle:
         """JSON-able dict."""
         return {
             "present": bool(self.present),
-            "period_s": _plain(self.period_s),
-            "amplitude": {k: _plain(v) for k, v in self.amplitude.items()},
+            "period_s": plain_float(self.period_s),
+            "amplitude": {k: plain_float(v) for k, v in self.amplitude.items()},
             "oscillations": {k: v.to_dict() for k, v in self.oscillations.items()},
             "transient_s": float(self.transient_s),
         }
@@ -111,7 +112,7 @@ class Simulation:
         d = {"dt": float(self.dt), "n_samples": self.n, "settings": self.settings}
         if include_series:
             d["series"] = {
-                name: [_plain(v) for v in getattr(self, name).tolist()]
+                name: [plain_float(v) for v in getattr(self, name).tolist()]
                 for name in ("time", "sp", "pv", "op", "mv")
             }
         return d
@@ -181,12 +182,12 @@ class Simulation:
         prediction, basis = self.describing_function()
         return {
             "limit_cycle": bool(lc.present),
-            "period_s": _plain(lc.period_s),
-            "amplitude": {k: _plain(lc.amplitude[k]) for k in ("op", "mv", "pv")},
+            "period_s": plain_float(lc.period_s),
+            "amplitude": {k: plain_float(lc.amplitude[k]) for k in ("op", "mv", "pv")},
             "describing_function": {
                 "limit_cycle": bool(prediction.limit_cycle),
-                "period_s": _plain(prediction.period_s),
-                "amplitude": _plain(prediction.amplitude_op),
+                "period_s": plain_float(prediction.period_s),
+                "amplitude": plain_float(prediction.amplitude_op),
                 "S": float(basis["S"]),
                 "J": float(basis["J"]),
                 "basis": basis["source"],
@@ -230,10 +231,3 @@ class Simulation:
             oscillations=osc,
             transient_s=start * self.dt,
         )
-
-
-def _plain(v):
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None

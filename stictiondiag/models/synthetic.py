@@ -88,6 +88,7 @@ import pyarrow.csv as pa_csv
 
 from stictiondiag.core.atomic import write_atomic
 from stictiondiag.core.errors import UsageError
+from stictiondiag.core.serialize import to_plain
 from stictiondiag.models.synthetic_effects import (
     PILOT_EFFECTS,
     PRE_RUN_EFFECTS,
@@ -157,22 +158,6 @@ class SyntheticCase:
     hidden: dict = field(default_factory=dict, repr=False, compare=False)
 
 
-def _plain(value):
-    """JSON-able copy: numpy scalars to Python, NaN to None."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating | float):
-        f = float(value)
-        return None if not math.isfinite(f) else f
-    if isinstance(value, np.bool_):
-        return bool(value)
-    return value
-
-
 def generate_case(
     effect: str,
     seed: int,
@@ -226,7 +211,7 @@ def generate_case(
     keep = slice(WARMUP_SAMPLES, w.n_total)
     data = _recorded_data(w, pv[keep].copy(), op[keep], position[keep])
     hidden = _hidden(w, valve_out, position, flow, pv_clean)
-    return SyntheticCase(data=data, truth=_plain(_truth(w, effect, seed)), hidden=hidden)
+    return SyntheticCase(data=data, truth=to_plain(_truth(w, effect, seed)), hidden=hidden)
 
 
 def _recorded_data(

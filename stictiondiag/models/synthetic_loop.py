@@ -16,7 +16,17 @@ import math
 import numpy as np
 
 from stictiondiag.core.jit import jit
-from stictiondiag.models.valve import _sign as _sgn
+
+
+@jit
+def _sgn(v):
+    """Sign of ``v`` as a float (0 at 0): the oracle's own, shared with no valve model."""
+    if v > 0.0:
+        return 1.0
+    if v < 0.0:
+        return -1.0
+    return 0.0
+
 
 # Stick-slip state layout (float64 array).
 _POS, _XSTICK, _STUCK, _LASTDIR, _PREVX, _PREVSLOPE = range(6)

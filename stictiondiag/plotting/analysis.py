@@ -79,7 +79,12 @@ def _line(ax, x, y, **style):
 
 
 def plot_phase(
-    tags, *, fit=None, title: str | None = None, period_s: float | None = None
+    tags,
+    *,
+    fit=None,
+    title: str | None = None,
+    period_s: float | None = None,
+    poorly: tuple[str, ...] | list[str] = (),
 ) -> Figure:
     """Time trends (left) and phase plots (right) of a loop.
 
@@ -96,6 +101,10 @@ def plot_phase(
     period_s : float, optional
         Oscillation period [s]; sets the trend window to :data:`WINDOW_CYCLES`
         cycles (default: :data:`WINDOW_DEFAULT` samples).
+    poorly : sequence of str
+        The parameters (``"S"``, ``"J"``) the fit determines poorly
+        (:meth:`stictiondiag.stiction.valvefit.StictionFit.poorly_determined`),
+        marked in the mv-op title.
 
     Returns
     -------
@@ -147,9 +156,8 @@ def plot_phase(
         ax_p.set_aspect("equal", adjustable="datalim")
         label = "mv-op" if has_mv else "mv-op of the model (no mv recorded)"
         if fit is not None and np.isfinite(getattr(fit, "S", np.nan)):
-            from stictiondiag.plotting.valve import poorly_determined, sj_label
+            from stictiondiag.plotting.valve import sj_label
 
-            poorly = [sym for sym in ("S", "J") if poorly_determined(fit, sym)]
             label += f"\n{sj_label(fit.S, fit.J, poorly)} of span"
         ax_p.set_title(label, fontsize=9)
         if has_mv and has_model:

@@ -29,20 +29,6 @@ _S_COLOR = "tab:blue"
 _J_COLOR = "tab:red"
 
 
-def poorly_determined(fit, sym: str) -> bool:
-    """The fit's determinacy note calls ``sym`` poorly determined (``fit.details
-    ["determinacy"]``), unless estimate and interval are all zero (a zero estimate
-    cannot pass the estimator's width-to-value test; the data pin it at zero).
-    The same rule as :func:`stictiondiag.apps.findings.is_poorly_determined`."""
-    details = getattr(fit, "details", None) or {}
-    note = str((details.get("determinacy") or {}).get(sym) or "")
-    if not note.startswith("poorly"):
-        return False
-    iv = getattr(fit, f"{sym}_interval", None) or (None, None)
-    values = [getattr(fit, sym, None), *iv]
-    return not all(isinstance(v, int | float) and v == 0 for v in values)
-
-
 def _one_label(sym: str, value: float, poorly=()) -> str:
     mark = " (poorly determined)" if sym in poorly else ""
     return f"{sym} = {value:.3g} %{mark}"

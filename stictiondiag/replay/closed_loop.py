@@ -71,11 +71,13 @@ from stictiondiag.core.errors import (
 )
 from stictiondiag.core.filters import lfilter1
 from stictiondiag.core.jit import jit
+from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.controller import (
     ControllerFit,
     controller_fit,
     identify_controller,
 )
+from stictiondiag.identification.looptype import StructureEvidence
 from stictiondiag.identification.process import (
     ProcessFit,
     drift_pole,
@@ -202,23 +204,23 @@ class Replay:
     def to_dict(self, include_series: bool = False) -> dict:
         """JSON-able dict: models, measures and, optionally, the time series."""
         out = {
-            "process": _clean(self.process),
-            "controller": _clean(self.controller),
-            "S": _plain(self.S),
-            "J": _plain(self.J),
-            "fit": _clean(self.fit),
-            "nrmse": _clean(self.nrmse),
-            "waveform": _clean(self.waveform),
-            "period_s": _clean(self.period_s),
+            "process": to_plain(self.process),
+            "controller": to_plain(self.controller),
+            "S": to_plain(self.S),
+            "J": to_plain(self.J),
+            "fit": to_plain(self.fit),
+            "nrmse": to_plain(self.nrmse),
+            "waveform": to_plain(self.waveform),
+            "period_s": to_plain(self.period_s),
             "period_signal": self.period_signal,
-            "period_error_pct": _plain(self.period_error_pct),
-            "amplitude": _clean(self.amplitude),
-            "settings": _clean(self.settings),
+            "period_error_pct": to_plain(self.period_error_pct),
+            "amplitude": to_plain(self.amplitude),
+            "settings": to_plain(self.settings),
             "warnings": list(self.warnings),
         }
         if include_series:
             out["series"] = {
-                name: [_plain(v) for v in np.asarray(col).tolist()]
+                name: [to_plain(v) for v in np.asarray(col).tolist()]
                 for name, col in self.to_pandas().items()
             }
         return out
@@ -250,30 +252,6 @@ class Replay:
         from stictiondiag.plotting.replay import plot_replay
 
         return plot_replay(self, **kwargs)
-
-
-def _plain(v) -> float | None:
-    if v is None:
-        return None
-    if isinstance(v, bool | np.bool_):
-        return bool(v)
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
-def _clean(obj: Any):
-    """Nested JSON-able copy: numpy scalars to floats, NaN/inf to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
-    if obj is None or isinstance(obj, str | bool):
-        return obj
-    if isinstance(obj, int | np.integer) and not isinstance(obj, bool):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        return _plain(obj)
-    return obj
 
 
 # --------------------------------------------------------------------------- measures
@@ -497,22 +475,45 @@ def _replay_record(tags, fit) -> _Record:
 
 
 def _replay_models(
-    rec: _Record, controller, process, integrating: bool | None
+    rec: _Record,
+    controller,
+    process,
+    integrating: bool | None,
+    action: str | None = None,
+    known: StructureEvidence | None = None,
 ) -> tuple[ControllerFit, ProcessFit, list[str]]:
     """Steps 1 and 2: the PI controller from sp, pv, op and the process from the
     valve position to pv (given, completed from the data, or identified), with
-    notes on a poor identification or inconsistent signs.  O(n log n): the
+    notes on a poor identification or inconsistent signs.  ``known``: the fits of
+    the loop-type step, used where they are the very identification this step
+    would make (the same samples and settings: the replay starts at sample 0, and
+    for the process mv is recorded and no drift high-pass is imposed).  O(n log n): the
     controller is O(n), the process fit O(n log n) with a number of O(n) cost
     evaluations that does not grow with the record (its search ranges follow the
     loop's period, :func:`stictiondiag.identification.process.search_span`)."""
     warnings: list[str] = []
     pv, op, dt = rec.pv, rec.op, rec.dt
+    same_samples = known is not None and rec.start == 0
     if controller is None:
-        cf = identify_controller(rec.sp, pv, op, dt)
+        if same_samples and known is not None and known.controller is not None:
+            cf = known.controller
+        else:
+            cf = identify_controller(rec.sp, pv, op, dt)
     elif isinstance(controller, ControllerFit):
         cf = controller
     else:
         cf = controller_fit(controller, rec.sp, pv, op, dt)
+    if action is not None and controller is None:
+        # The declared action fixes the controller's sign (e = sp - pv: reverse Kc > 0,
+        # direct Kc < 0); an identification of the other sign keeps its size only.
+        sign = -1.0 if action == "direct" else 1.0
+        if cf.controller.gain * sign < 0:
+            flipped = PI(gain=-cf.controller.gain, integral_time=cf.controller.integral_time)
+            cf = controller_fit(flipped, rec.sp, pv, op, dt)
+            warnings.append(
+                f"identified controller gain has the sign of the other action; the declared "
+                f"{action} action is used (Kc = {cf.controller.gain:.3g})"
+            )
     if cf.sp_assumed:
         warnings.append("no setpoint recorded: taken as constant at the mean of pv")
     if process is None:
@@ -525,7 +526,13 @@ def _replay_models(
             _, default_T = drift_pole(pv, dt, None)
             if default_T is not None and DRIFT_INTEGRAL_TIMES * ti_c < default_T:
                 drift = max(DRIFT_INTEGRAL_TIMES * ti_c, MIN_DRIFT_SAMPLES * dt)
-        pf = identify_process(rec.u, pv, dt, integrating=integrating, drift_time_constant=drift)
+        reuse = None
+        if same_samples and known is not None and known.u_signal == "mv" and rec.mv is not None:
+            if drift is None and integrating is not None:
+                reuse = known.processes.get(bool(integrating))
+        pf = reuse or identify_process(
+            rec.u, pv, dt, integrating=integrating, drift_time_constant=drift
+        )
     elif isinstance(process, ProcessFit):
         pf = process
     else:
@@ -679,6 +686,9 @@ def replay(
     valve: str = "choudhury",
     noise_std: float = 0.0,
     seed: int | None = 0,
+    refit: bool = True,
+    action: str | None = None,
+    known: StructureEvidence | None = None,
 ) -> Replay:
     """Replay a recorded loop with the fitted valve and compare with the data.
 
@@ -710,6 +720,17 @@ def replay(
         asks for an EWMA filter on noisy op), so use ``valve="kano"`` with noise.
     seed : int, optional
         Seed of the replay noise.
+    refit : bool
+        Refine S, J and the process by closed-loop simulation when the open-loop
+        fit's replay does not reproduce the recorded cycle
+        (:mod:`stictiondiag.replay.refit`; at most 60 more O(n) simulations).  The
+        replay then uses the refitted loop; ``settings["refit"]`` holds both.
+    action : {"direct", "reverse"}, optional
+        Declared controller action: fixes the sign of the identified controller gain.
+    known : StructureEvidence, optional
+        The controller and process fits of the loop-type step
+        (:func:`stictiondiag.identification.looptype.identify_structure`), reused
+        where they are the identification this replay would make.
 
     Returns
     -------
@@ -728,8 +749,23 @@ def replay(
         raise UsageError(f"replay valve must be choudhury or kano, got {valve!r}")
     rec = _replay_record(tags, fit)
     S, J = float(fit.S), float(fit.J)
-    cf, pf, model_warnings = _replay_models(rec, controller, process, integrating)
+    cf, pf, model_warnings = _replay_models(rec, controller, process, integrating, action, known)
+    refit_result = None
+    if refit and valve == "choudhury" and noise_std == 0.0 and process is None:
+        from stictiondiag.replay.refit import refine_loop
+
+        refit_result, pf = refine_loop(
+            rec,
+            pf,
+            S,
+            J,
+            lambda p, s, j: _replay_simulate(rec, cf, p, s, j, valve, 0.0, seed),
+            controller=cf.controller,
+        )
+        S, J = refit_result.S, refit_result.J
     sim = _replay_simulate(rec, cf, pf, S, J, valve, noise_std, seed)
+    if refit_result is not None:
+        sim.settings["refit"] = refit_result.to_dict()
     measures = _replay_compare(rec, sim)
     data = {"pv": rec.pv, "op": rec.op, "sp": sim.sp, "mv": rec.mv, "mv_model": rec.mv_model}
     return Replay(

@@ -49,6 +49,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from stictiondiag.core.errors import UsageError
+from stictiondiag.core.serialize import plain_float
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -126,13 +127,13 @@ class Compensation:
         return {
             "applicable": bool(self.applicable),
             "reason": self.reason,
-            "band_pv": _plain(self.band),
-            "band_pct_of_amplitude": _plain(self.band_pct_of_amplitude),
-            "offset_pv": _plain(self.offset),
-            "offset_bound_pv": _plain(self.band),
-            "amplitude_pv": _plain(self.amplitude),
-            "period_s": _plain(self.period_s),
-            "settle_s": _plain(self.settle_s),
+            "band_pv": plain_float(self.band),
+            "band_pct_of_amplitude": plain_float(self.band_pct_of_amplitude),
+            "offset_pv": plain_float(self.offset),
+            "offset_bound_pv": plain_float(self.band),
+            "amplitude_pv": plain_float(self.amplitude),
+            "period_s": plain_float(self.period_s),
+            "settle_s": plain_float(self.settle_s),
             "n_trials": len(self.trials),
             "model": "variable-integral PI (Gerry & Ruel 2001), Section 6.4",
         }
@@ -147,13 +148,6 @@ class Compensation:
                 "stopped": [s for _, s in self.trials],
             }
         )
-
-
-def _plain(v: float | None) -> float | None:
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
 
 
 def _trial(

@@ -26,11 +26,12 @@ at a time, from a :class:`~stictiondiag.replay.closed_loop.Replay`:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from stictiondiag.core.serialize import plain_float
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -102,16 +103,16 @@ class ReplayMetrics:
         """JSON-able dict."""
         return {
             "period_signal": self.period_signal,
-            "period_data_s": _plain(self.period_data_s),
-            "period_replay_s": _plain(self.period_replay_s),
-            "period_error_pct": _plain(self.period_error_pct),
+            "period_data_s": plain_float(self.period_data_s),
+            "period_replay_s": plain_float(self.period_replay_s),
+            "period_error_pct": plain_float(self.period_error_pct),
             "amplitude": {
-                k: {side: _plain(v.get(side)) for side in ("data", "replay")}
+                k: {side: plain_float(v.get(side)) for side in ("data", "replay")}
                 for k, v in self.amplitude.items()
             },
-            "amplitude_error_pct": {k: _plain(v) for k, v in self.amplitude_error_pct.items()},
-            "waveform": {k: _plain(v) for k, v in self.waveform.items()},
-            "nrmse": {k: _plain(v) for k, v in self.nrmse.items()},
+            "amplitude_error_pct": {k: plain_float(v) for k, v in self.amplitude_error_pct.items()},
+            "waveform": {k: plain_float(v) for k, v in self.waveform.items()},
+            "nrmse": {k: plain_float(v) for k, v in self.nrmse.items()},
             "amplitude_measure": "median over one-period windows of half the range",
         }
 
@@ -135,13 +136,6 @@ class ReplayMetrics:
     def text(self) -> str:
         """One line: period error, amplitude errors and waveform agreement."""
         return render_metrics(self.to_dict())
-
-
-def _plain(v) -> float | None:
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
 
 
 def _signed(v, unit: str = " %") -> str:
@@ -189,4 +183,127 @@ def replay_metrics(rep) -> ReplayMetrics:
         amplitude_error_pct=errors,
         waveform={k: rep.waveform.get(k) for k in pairs},
         nrmse={k: rep.nrmse.get(k) for k in pairs},
+    )
+
+
+# --------------------------------------------------------------------------- reproduction
+
+#: A replay reproduces a recorded cycle when its period is within this fraction of
+#: the data's [-] ...
+PERIOD_TOLERANCE = 0.20
+#: ... and its amplitude (:func:`spread_amplitude`) within this fraction [-].
+AMPLITUDE_TOLERANCE = 0.35
+#: Percentiles of :func:`spread_amplitude` [%].
+SPREAD_PERCENTILES = (5.0, 95.0)
+
+
+def spread_amplitude(x: np.ndarray) -> float | None:
+    """Half the spread between the 5th and 95th percentiles of ``x`` [units of x]
+    (a sine of amplitude a gives 0.95 a, a square wave a); None when empty or not
+    finite."""
+    y = np.asarray(x, dtype=float)
+    if y.size == 0 or not np.all(np.isfinite(y)):
+        return None
+    lo, hi = np.percentile(y, SPREAD_PERCENTILES)
+    return float(hi - lo) / 2.0
+
+
+@dataclass(frozen=True)
+class CycleReproduction:
+    """Does a replay reproduce the recorded limit cycle of one signal?
+
+    Both sides are measured on the same samples: the period by the autocorrelation
+    zero crossings (Thornhill et al. 2003, :func:`detect_oscillation`) and the
+    amplitude by :func:`spread_amplitude`.
+
+    Attributes
+    ----------
+    period_data_s, period_replay_s : float or None
+        Oscillation periods [s]; None where the signal does not cycle
+        (:func:`_cycle_period`: regular and sustained).
+    amplitude_data, amplitude_replay : float or None
+        Half the 5-95 % spread [units of the signal].
+    period_error_pct, amplitude_error_pct : float or None
+        ``100 (replay / data - 1)`` [%].
+    reproduced : bool
+        Both signals cycle, the period within :data:`PERIOD_TOLERANCE` and the
+        amplitude within :data:`AMPLITUDE_TOLERANCE`.
+    reason : str
+        Why not reproduced, in words ("" when reproduced).
+    """
+
+    period_data_s: float | None
+    period_replay_s: float | None
+    amplitude_data: float | None
+    amplitude_replay: float | None
+    period_error_pct: float | None
+    amplitude_error_pct: float | None
+    reproduced: bool
+    reason: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dict."""
+        return {
+            "period_data_s": plain_float(self.period_data_s),
+            "period_replay_s": plain_float(self.period_replay_s),
+            "amplitude_data": plain_float(self.amplitude_data),
+            "amplitude_replay": plain_float(self.amplitude_replay),
+            "period_error_pct": plain_float(self.period_error_pct),
+            "amplitude_error_pct": plain_float(self.amplitude_error_pct),
+            "reproduced": bool(self.reproduced),
+            "reason": self.reason,
+        }
+
+
+def _cycle_period(x: np.ndarray, dt: float) -> tuple[float | None, str]:
+    """Period [s] of a cycling signal and, when None, why not.
+
+    A signal cycles when :func:`detect_oscillation` finds a regular, sustained
+    oscillation; a record too short for its three cycles still cycles when its
+    autocorrelation is regular (five zero crossings at least, regularity >= 1,
+    Thornhill et al. 2003): the period is then the autocorrelation's.
+    """
+    from stictiondiag.signals.oscillation import (
+        REGULARITY_THRESHOLD,
+        detect_oscillation,
+        dominant_period,
+    )
+
+    osc = detect_oscillation(x, dt)
+    if osc.present:
+        return osc.period_s, ""
+    reason = str(osc.reason)
+    if reason.startswith("only ") and (osc.regularity or 0.0) >= REGULARITY_THRESHOLD:
+        return dominant_period(x, dt), ""
+    return None, reason
+
+
+def cycle_reproduction(data: np.ndarray, replayed: np.ndarray, dt: float) -> CycleReproduction:
+    """Compare the cycle of ``replayed`` with that of ``data`` (same samples, sample
+    time ``dt`` [s]).  O(n log n) (the autocorrelations)."""
+    y = np.asarray(data, dtype=float)
+    yr = np.asarray(replayed, dtype=float)
+    (t_d, why_d), (t_r, why_r) = _cycle_period(y, dt), _cycle_period(yr, dt)
+    a_d, a_r = spread_amplitude(y), spread_amplitude(yr)
+    per = _pct_error(t_r, t_d)
+    amp = _pct_error(a_r, a_d)
+    if t_d is None:
+        reason = f"the data do not cycle ({why_d})"
+    elif t_r is None:
+        reason = f"the replay does not cycle ({why_r})"
+    elif per is None or abs(per) > 100.0 * PERIOD_TOLERANCE:
+        reason = f"period {_signed(per)} (tolerance {100 * PERIOD_TOLERANCE:.0f} %)"
+    elif amp is None or abs(amp) > 100.0 * AMPLITUDE_TOLERANCE:
+        reason = f"amplitude {_signed(amp)} (tolerance {100 * AMPLITUDE_TOLERANCE:.0f} %)"
+    else:
+        reason = ""
+    return CycleReproduction(
+        period_data_s=t_d,
+        period_replay_s=t_r,
+        amplitude_data=a_d,
+        amplitude_replay=a_r,
+        period_error_pct=per,
+        amplitude_error_pct=amp,
+        reproduced=reason == "",
+        reason=reason,
     )

@@ -49,11 +49,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stictiondiag.core.errors import UsageError
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.filters import (
     detrend_linear,
     savgol_smooth,
 )
+from stictiondiag.core.robust import second_difference_noise_std
+from stictiondiag.core.serialize import plain_float
 
 #: Regularity above which a signal is called oscillating (Thornhill et al. 2003).
 REGULARITY_THRESHOLD = 1.0
@@ -115,36 +117,19 @@ class Oscillation:
         """JSON-able dict (plain floats or None)."""
         return {
             "present": bool(self.present),
-            "period_s": _plain(self.period_s),
-            "amplitude": _plain(self.amplitude),
-            "regularity": _plain(self.regularity),
-            "n_cycles": _plain(self.n_cycles),
+            "period_s": plain_float(self.period_s),
+            "amplitude": plain_float(self.amplitude),
+            "regularity": plain_float(self.regularity),
+            "n_cycles": plain_float(self.n_cycles),
             "reason": self.reason,
         }
-
-
-def _plain(v: float | None) -> float | None:
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
 
 
 def _absent(reason: str, regularity: float | None = None) -> Oscillation:
     return Oscillation(False, None, None, regularity, None, reason)
 
 
-def _check_dt(dt: float) -> float:
-    try:
-        dt_ = float(dt)
-    except (TypeError, ValueError):
-        raise UsageError(f"sample time dt must be a number of seconds, got {dt!r}") from None
-    if not (math.isfinite(dt_) and dt_ > 0):
-        raise UsageError(f"sample time dt must be a positive number of seconds, got {dt_}")
-    return dt_
-
-
-def _clean(x: np.ndarray) -> np.ndarray:
+def _interpolate_nans(x: np.ndarray) -> np.ndarray:
     """1-D float copy with interior NaNs interpolated and leading/trailing NaNs dropped."""
     x = np.asarray(x, dtype=float).ravel()
     ok = np.isfinite(x)
@@ -238,8 +223,8 @@ def dominant_period(x: np.ndarray, dt: float) -> float | None:
     zero crossings.  No regularity check: use :func:`detect_oscillation` to decide
     whether an oscillation is present.
     """
-    dt = _check_dt(dt)
-    x = _clean(x)
+    dt = check_dt(dt)
+    x = _interpolate_nans(x)
     if x.size < MIN_SAMPLES or np.ptp(x) == 0:
         return None
     _, periods = _acf_periods(detrend_linear(x))
@@ -305,19 +290,6 @@ def _refine_detrend(
     return xd, crossings, periods
 
 
-def _noise_std(x: np.ndarray) -> float:
-    """Robust white-noise standard deviation from second differences [units of x].
-
-    Second differences of a smooth oscillation are small except at a few corners,
-    so the median absolute deviation sees the noise (var of d2 = 6 sigma^2).
-    """
-    if x.size < 5:
-        return 0.0
-    d2 = np.diff(x, 2)
-    mad = np.median(np.abs(d2 - np.median(d2)))
-    return float(1.4826 * mad / math.sqrt(6.0))
-
-
 def _cycle_ranges(x: np.ndarray, period_samples: float) -> np.ndarray:
     """Peak-to-peak range of consecutive windows one period long [units of x]."""
     m = max(2, int(round(period_samples)))
@@ -362,8 +334,8 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
     do not inflate them; the cubic fit keeps the peaks of sines and of the triangular
     stiction cycles within a few percent.
     """
-    dt = _check_dt(dt)
-    x = _clean(x)
+    dt = check_dt(dt)
+    x = _interpolate_nans(x)
     n = x.size
     if n < MIN_SAMPLES:
         return _absent(f"too few samples ({n} < {MIN_SAMPLES})")
@@ -391,7 +363,7 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
         return _absent(f"only {n_cycles:.1f} cycles in the record (< {MIN_CYCLES})", regularity)
 
     xs = xd
-    sigma = _noise_std(xd)
+    sigma = second_difference_noise_std(xd, min_samples=5)
     win = int(round(mean_tp / 10.0)) | 1
     if sigma > 0.01 * float(np.std(xd)) and win >= 5:
         xs = savgol_smooth(xd, win, 3)

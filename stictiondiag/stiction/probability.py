@@ -183,9 +183,9 @@ def evidence_features(
     ``halves`` is ``(S_1, S_2, improvement_1, improvement_2)`` of the fits on the two
     halves of the record [% of span, % of span, -, -], or None.
     """
-    d = fit.details or {}
     S_iv = fit.S_interval
-    S_open = "reaches the search limit" in str((d.get("determinacy") or {}).get("S", ""))
+    S_det = fit.determinacy_of("S") if hasattr(fit, "determinacy_of") else None
+    S_open = S_det is not None and S_det.open
     q5, q95 = np.percentile(np.asarray(op, dtype=float), [5.0, 95.0])
     spread = float(q95 - q5)
     s_low = float(S_iv[0]) if S_iv is not None else 0.0

@@ -25,10 +25,12 @@ import math
 import multiprocessing
 import os
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 
 from stictiondiag.core.jit import jit
+from stictiondiag.core.robust import MAD_TO_STD, robust_std, second_difference_noise_std
 from stictiondiag.core.serialize import to_plain as _plain
 from stictiondiag.models.valve import _choudhury_next, _kano_next
 
@@ -43,6 +45,49 @@ INTERVAL_LEVEL = 0.95
 # --------------------------------------------------------------------------------------
 # Result dataclasses
 # --------------------------------------------------------------------------------------
+
+
+class Determinacy(StrEnum):
+    """How well the data determine S or J (:func:`determinacy`).
+
+    The value is the phrase the JSON and the reports carry; code reads the member
+    (``Determinacy(text)``, :attr:`poor`, :attr:`open`), never the words.
+    """
+
+    WELL = "well determined"
+    MODERATE = "moderately determined"
+    POOR = "poorly determined"
+    OPEN = "poorly determined (interval reaches the search limit)"
+
+    @property
+    def poor(self) -> bool:
+        """Values across the interval fit the data alike: poorly determined."""
+        return self in (Determinacy.POOR, Determinacy.OPEN)
+
+    @property
+    def open(self) -> bool:
+        """The interval reaches the search limit: the data give no upper bound."""
+        return self is Determinacy.OPEN
+
+    @classmethod
+    def of(cls, value: object) -> Determinacy | None:
+        """The member for a JSON value (None for a missing or unknown one)."""
+        try:
+            return cls(str(value)) if value is not None else None
+        except ValueError:
+            return None
+
+
+def poorly_determined(determinacy: Determinacy | None, value, interval) -> bool:
+    """The data determine a parameter poorly: its :class:`Determinacy` says so,
+    unless estimate and interval are all zero (a zero estimate cannot pass the
+    width-to-value test of :func:`determinacy`; the data pin it at zero).  The one
+    rule of the figures (:meth:`StictionFit.poorly_determined`) and of the findings
+    (:func:`stictiondiag.apps.findings.is_poorly_determined`)."""
+    if determinacy is None or not determinacy.poor:
+        return False
+    values = [value, *(interval or (None, None))]
+    return not all(isinstance(v, int | float) and v == 0 for v in values)
 
 
 @dataclass(frozen=True)
@@ -90,6 +135,17 @@ class StictionFit:
     linear_cost: float
     details: dict = field(default_factory=dict, repr=False)
 
+    def determinacy_of(self, sym: str) -> Determinacy | None:
+        """How well the data determine ``sym`` (``"S"`` or ``"J"``); None when the
+        estimator did not say."""
+        return Determinacy.of(((self.details or {}).get("determinacy") or {}).get(sym))
+
+    def poorly_determined(self, sym: str) -> bool:
+        """``sym`` is poorly determined (:func:`poorly_determined`)."""
+        return poorly_determined(
+            self.determinacy_of(sym), getattr(self, sym), getattr(self, f"{sym}_interval")
+        )
+
     @property
     def improvement(self) -> float | None:
         """Fraction of the linear valve's residual removed by the stiction model [-]."""
@@ -136,16 +192,9 @@ class StictionFit:
 
 
 def noise_std(x: np.ndarray) -> float:
-    """Robust standard deviation of white measurement noise on ``x`` [units of x].
-
-    From the second difference (insensitive to ramps) with the median absolute
-    deviation (insensitive to slips): ``1.4826 MAD(diff2 x) / sqrt(6)``.
-    """
-    d2 = np.diff(np.asarray(x, dtype=float), 2)
-    if d2.size == 0:
-        return 0.0
-    mad = float(np.median(np.abs(d2 - np.median(d2))))
-    return 1.4826 * mad / math.sqrt(6.0)
+    """Robust standard deviation of white measurement noise on ``x`` [units of x]
+    (:func:`stictiondiag.core.robust.second_difference_noise_std`)."""
+    return second_difference_noise_std(x)
 
 
 @jit
@@ -231,7 +280,7 @@ def white_noise_std(x: np.ndarray) -> float:
     mad = float(np.median(np.abs(d2 - med)))
     if mad <= 0:
         return 0.0
-    d = np.clip(d2 - med, -5 * 1.4826 * mad, 5 * 1.4826 * mad)
+    d = np.clip(d2 - med, -5 * MAD_TO_STD * mad, 5 * MAD_TO_STD * mad)
     d = d - d.mean()
     den = float(np.dot(d, d))
     rho1 = float(np.dot(d[1:], d[:-1])) / den if den > 0 else 1.0
@@ -426,7 +475,7 @@ def valve_sse_many(op, mv, S_arr, J_arr, kano, k0, k_start, d_start, offset):
 
 def _schmitt_period(x: np.ndarray) -> float | None:
     """Mean period [samples] from crossings of a +-half-robust-std band around zero."""
-    s = 1.4826 * float(np.median(np.abs(x - np.median(x))))
+    s = robust_std(x)
     if s <= 0:
         return None
     h = 0.5 * s
@@ -603,7 +652,7 @@ def block_sse(residual: np.ndarray, block: int, start: int = 0) -> np.ndarray:
 RESOLUTION_PCT = 0.1
 
 
-def determinacy(S, S_iv, S_open, J, J_iv, J_open) -> dict:
+def determinacy(S, S_iv, S_open, J, J_iv, J_open) -> dict[str, Determinacy]:
     """How well S and J are determined: interval width relative to the estimate.
 
     An interval narrower than :data:`RESOLUTION_PCT` determines the value even when
@@ -611,14 +660,14 @@ def determinacy(S, S_iv, S_open, J, J_iv, J_open) -> dict:
     determined, not poorly).
     """
 
-    def one(v, iv, open_hi):
+    def one(v, iv, open_hi) -> Determinacy:
         width = iv[1] - iv[0]
         if open_hi:
-            return "poorly determined (interval reaches the search limit)"
+            return Determinacy.OPEN
         if width <= RESOLUTION_PCT or (v > 0 and width <= 0.5 * v):
-            return "well determined"
+            return Determinacy.WELL
         if v > 0 and width <= 1.5 * v:
-            return "moderately determined"
-        return "poorly determined"
+            return Determinacy.MODERATE
+        return Determinacy.POOR
 
     return {"S": one(S, S_iv, S_open), "J": one(J, J_iv, J_open)}

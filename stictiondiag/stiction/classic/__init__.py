@@ -66,9 +66,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.errors import DataError
 from stictiondiag.signals.oscillation import Oscillation, detect_oscillation
-from stictiondiag.stiction.classic._common import VERDICT_CODE, check_dt, nan_if_none, signal
+from stictiondiag.stiction.classic._common import VERDICT_CODE, nan_if_none, signal
 from stictiondiag.stiction.classic.bicoherence import (
     BicoherenceResult,
     ChoudhuryResult,

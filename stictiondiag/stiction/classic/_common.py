@@ -7,7 +7,7 @@ from typing import Literal
 
 import numpy as np
 
-from stictiondiag.core.errors import DataError, UsageError
+from stictiondiag.core.errors import DataError
 from stictiondiag.core.filters import detrend_linear
 
 VerdictLabel = Literal["stiction", "no_stiction", "inconclusive", "not_applicable"]
@@ -42,17 +42,6 @@ def same_length(*pairs: tuple[str, np.ndarray]) -> None:
             raise DataError(
                 f"{pairs[0][0]} and {name} must have the same length, got {n0} and {a.size}"
             )
-
-
-def check_dt(dt) -> float:
-    """Sample time [s] as a positive float, else a one-line UsageError."""
-    try:
-        dt_ = float(dt)
-    except (TypeError, ValueError):
-        raise UsageError(f"sample time dt must be a number of seconds, got {dt!r}") from None
-    if not (math.isfinite(dt_) and dt_ > 0):
-        raise UsageError(f"sample time dt must be a positive number of seconds, got {dt_}")
-    return dt_
 
 
 def lowpass(x: np.ndarray, dt: float, cutoff_hz: float, order: int = 2) -> np.ndarray:
@@ -99,14 +88,6 @@ def extrema_segments(x: np.ndarray, period_samples: float) -> list[tuple[int, in
     ext = [a + int(np.argmax(np.abs(y[a:b]))) for a, b in half_cycles(y)]
     min_len = max(4, int(0.1 * period_samples))
     return [(a, b) for a, b in zip(ext[:-1], ext[1:], strict=False) if b - a >= min_len]
-
-
-def plain(v) -> float | None:
-    """Finite float or None (JSON)."""
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
 
 
 def nan_if_none(v) -> float:

@@ -67,13 +67,13 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.errors import DataError, UsageError
 from stictiondiag.core.filters import detrend_linear
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.signals.oscillation import Oscillation, detect_oscillation
 from stictiondiag.stiction.classic._common import (
     VerdictLabel,
-    check_dt,
-    plain,
     same_length,
     signal,
 )
@@ -187,22 +187,22 @@ class BicoherenceResult:
     def to_dict(self) -> dict:
         """JSON-able dict of the scalar fields."""
         return {
-            "ngi": plain(self.ngi),
-            "nli": plain(self.nli),
-            "tnli": plain(self.tnli),
+            "ngi": plain_float(self.ngi),
+            "nli": plain_float(self.nli),
+            "tnli": plain_float(self.tnli),
             "non_gaussian": bool(self.non_gaussian),
             "nonlinear": bool(self.nonlinear),
-            "threshold": plain(self.threshold),
-            "alpha": plain(self.alpha),
+            "threshold": plain_float(self.threshold),
+            "alpha": plain_float(self.alpha),
             "correction": self.correction,
             "n_segments": int(self.n_segments),
             "nfft": int(self.nfft),
             "decimation": int(self.decimation),
             "n_bifrequencies": int(self.n_bifrequencies),
             "n_significant": int(self.n_significant),
-            "max_bicoherence": plain(self.max_bicoherence),
-            "peak_f1_hz": plain(self.peak_f1_hz),
-            "peak_f2_hz": plain(self.peak_f2_hz),
+            "max_bicoherence": plain_float(self.max_bicoherence),
+            "peak_f1_hz": plain_float(self.peak_f1_hz),
+            "peak_f2_hz": plain_float(self.peak_f2_hz),
         }
 
     def to_pandas(self) -> pd.DataFrame:

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stictiondiag.core.filters import detrend_linear
-from stictiondiag.stiction.classic._common import plain
+from stictiondiag.core.serialize import plain_float
 
 # --------------------------------------------------------------------------------------
 # pv-op ellipse (Choudhury et al. 2004, 2006)
@@ -74,9 +74,9 @@ class EllipseResult:
         """JSON-able dict."""
         return {
             "fitted": bool(self.fitted),
-            "axis_ratio": plain(self.axis_ratio),
+            "axis_ratio": plain_float(self.axis_ratio),
             "elliptic": bool(self.elliptic),
-            "apparent_stiction": plain(self.apparent_stiction),
+            "apparent_stiction": plain_float(self.apparent_stiction),
         }
 
 

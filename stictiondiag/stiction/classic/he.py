@@ -44,13 +44,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.filters import detrend_linear
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.stiction.classic._common import (
     VerdictLabel,
-    check_dt,
     half_cycles,
     lowpass,
-    plain,
     signal,
 )
 
@@ -100,9 +100,9 @@ class HeResult:
         return {
             "verdict": self.verdict,
             "signal": self.signal,
-            "stiction_index": plain(self.stiction_index),
-            "mse_sin": plain(self.mse_sin),
-            "mse_tri": plain(self.mse_tri),
+            "stiction_index": plain_float(self.stiction_index),
+            "mse_sin": plain_float(self.mse_sin),
+            "mse_tri": plain_float(self.mse_tri),
             "n_half_cycles": int(self.n_half_cycles),
             "reasons": list(self.reasons),
         }

@@ -46,12 +46,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.filters import detrend_linear
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.signals.oscillation import detect_oscillation
 from stictiondiag.stiction.classic._common import (
     VerdictLabel,
-    check_dt,
-    plain,
     same_length,
     signal,
 )
@@ -184,16 +184,16 @@ class HorchResult:
             "verdict": self.verdict,
             "method": self.method,
             "oscillating": bool(self.oscillating),
-            "period_s": plain(self.period_s),
-            "delta_phi": plain(self.delta_phi),
+            "period_s": plain_float(self.period_s),
+            "delta_phi": plain_float(self.delta_phi),
             "delta_phi_deg": (
-                None if self.delta_phi is None else plain(math.degrees(self.delta_phi))
+                None if self.delta_phi is None else plain_float(math.degrees(self.delta_phi))
             ),
-            "tau_left_s": plain(self.tau_left_s),
-            "tau_right_s": plain(self.tau_right_s),
-            "r0": plain(self.r0),
-            "r_peak": plain(self.r_peak),
-            "kurtosis": plain(self.kurtosis),
+            "tau_left_s": plain_float(self.tau_left_s),
+            "tau_right_s": plain_float(self.tau_right_s),
+            "r0": plain_float(self.r0),
+            "r_peak": plain_float(self.r_peak),
+            "kurtosis": plain_float(self.kurtosis),
             "reasons": list(self.reasons),
         }
 

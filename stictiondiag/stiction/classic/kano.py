@@ -39,11 +39,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.robust import robust_std
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.stiction.classic._common import (
     VerdictLabel,
-    check_dt,
-    plain,
     same_length,
     signal,
 )
@@ -92,9 +92,9 @@ class KanoResult:
         return {
             "verdict": self.verdict,
             "signal": self.signal,
-            "rho": plain(self.rho),
+            "rho": plain_float(self.rho),
             "n_sections": int(self.n_sections),
-            "mv_band": plain(self.mv_band),
+            "mv_band": plain_float(self.mv_band),
             "reasons": list(self.reasons),
         }
 

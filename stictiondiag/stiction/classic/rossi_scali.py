@@ -41,13 +41,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stictiondiag.core.checks import check_dt
 from stictiondiag.core.filters import detrend_linear
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.stiction.classic._common import (
     VerdictLabel,
-    check_dt,
     extrema_segments,
     lowpass,
-    plain,
     signal,
 )
 
@@ -92,9 +92,9 @@ class RossiScaliResult:
         """JSON-able dict."""
         return {
             "verdict": self.verdict,
-            "delta_e": plain(self.delta_e),
-            "mse_sin": plain(self.mse_sin),
-            "mse_relay": plain(self.mse_relay),
+            "delta_e": plain_float(self.delta_e),
+            "mse_sin": plain_float(self.mse_sin),
+            "mse_relay": plain_float(self.mse_relay),
             "n_stretches": int(self.n_stretches),
             "reasons": list(self.reasons),
         }

@@ -1,0 +1,245 @@
+"""The plant-wide step of a scan: group the aligned loops, rank sources, relabel the rows.
+
+After every loop of a scan has its own analysis, :func:`plantwide_step` reads the
+pv of the loops again with their time stamps, puts them on one grid, and runs
+:func:`stictiondiag.stiction.plantwide.diagnose_plant`.  Each row of the scan's
+table gets:
+
+* ``plant_group``: the groups it belongs to (``"1"``, ``"1,3"``; empty for none);
+* ``plant_role``: ``source_candidate``, ``propagated`` or ``independent``;
+* ``plant_cause``: ``"propagated: the cycle comes from <loop>"`` for a propagated loop;
+* for a propagated loop, ``verdict`` becomes ``propagated`` and its own call is kept
+  in ``own_verdict`` (the cycle it shows is not its valve's).
+
+Loops are time-aligned when each has a time column, all share one sample time
+(within :data:`TS_TOLERANCE`) and their records overlap for at least
+:data:`MIN_OVERLAP` of the shortest one: separate files recorded together, or the
+loops of one wide plant export.  Otherwise grouping is off and the result says why
+(a scan of loops recorded at different times has no common cycle to find).  Loops
+of a long (``timestamp, tag, value``) export or of a Parquet dataset with a loop-id
+column are not grouped (their readers resample each loop on its own grid).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from stictiondiag.core.errors import StictionError
+
+__all__ = ["MIN_OVERLAP", "TS_TOLERANCE", "plant_html", "plantwide_step", "write_plantwide"]
+
+#: Largest relative difference between the loops' sample times [-].
+TS_TOLERANCE = 0.01
+#: Shortest common span, as a fraction of the shortest record [-].
+MIN_OVERLAP = 0.5
+#: Fewest loops for grouping.
+MIN_LOOPS = 2
+
+
+def _stamped_pv(source, read_options: dict) -> tuple[np.ndarray, np.ndarray, float] | str:
+    """(time [s], pv, ts [s]) of one loop with its file's own stamps, or why not."""
+    from stictiondiag.apps.scan import load_source
+    from stictiondiag.io.readers import read_table
+    from stictiondiag.io.timebase import time_seconds
+
+    if source.loop_column is not None:
+        return "a loop of a Parquet dataset"
+    if source.plant is not None and source.plant.layout == "long":
+        return "a loop of a long (timestamp, tag, value) export"
+    tags = load_source(source, **{**read_options, **(source.read_options or {})})
+    tcol, pcol = tags.names.get("time"), tags.names.get("pv")
+    if not tcol or not pcol:
+        return "no time column"
+    frame = read_table(Path(source.path), lambda header: [tcol, pcol])
+    t = time_seconds(frame[tcol], tcol, source.path)
+    pv = frame[pcol].to_numpy(dtype=float, na_value=np.nan)
+    ok = np.isfinite(t) & np.isfinite(pv)
+    if ok.sum() < 2:
+        return "no readable time stamps"
+    return t[ok], pv[ok], float(tags.ts)
+
+
+def _aligned(stamped: dict) -> tuple[dict, float] | str:
+    """The loops' pv on one grid [s], or why they are not aligned."""
+    ts = np.array([v[2] for v in stamped.values()])
+    dt = float(np.median(ts))
+    if np.max(np.abs(ts / dt - 1.0)) > TS_TOLERANCE:
+        return f"the loops' sample times differ ({ts.min():g} to {ts.max():g} s)"
+    start = max(float(v[0][0]) for v in stamped.values())
+    stop = min(float(v[0][-1]) for v in stamped.values())
+    shortest = min(float(v[0][-1] - v[0][0]) for v in stamped.values())
+    if stop - start < MIN_OVERLAP * shortest or stop <= start:
+        return "the loops' records do not overlap in time (recorded at different times)"
+    grid = start + dt * np.arange(int(math.floor((stop - start) / dt + 1e-9)) + 1)
+    return {k: np.interp(grid, v[0], v[1]) for k, v in stamped.items()}, dt
+
+
+def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
+    """Group the scan's aligned loops and mark their rows (see the module docstring).
+
+    Parameters
+    ----------
+    sources : list of LoopSource
+        The scan's loops.
+    rows : list of dict
+        Their table rows (updated in place: ``plant_group``, ``plant_role``,
+        ``plant_cause``, and ``verdict``/``own_verdict`` of propagated loops).
+    read_options : dict
+        The scan's reading options.
+
+    Returns
+    -------
+    dict
+        ``{"status": "on", ...}`` with the :class:`PlantDiagnosis` as a dict and the
+        object under ``"diagnosis"``, or ``{"status": "off", "reason": ...}``.
+    """
+    from stictiondiag.stiction.plantwide import diagnose_plant
+
+    analysed = {r["loop"] for r in rows if r.get("verdict") not in (None, "error")}
+    chosen = [s for s in sources if s.loop in analysed]
+    if len(chosen) < MIN_LOOPS:
+        return _off(rows, f"fewer than {MIN_LOOPS} analysed loops")
+    stamped = {}
+    for s in chosen:
+        try:
+            got = _stamped_pv(s, read_options)
+        except StictionError as exc:
+            got = str(exc).splitlines()[0]
+        if isinstance(got, str):
+            return _off(rows, f"{s.loop}: {got}; grouping needs time-aligned loops")
+        stamped[s.loop] = got
+    aligned = _aligned(stamped)
+    if isinstance(aligned, str):
+        return _off(rows, aligned)
+    signals, dt = aligned
+    probabilities = {r["loop"]: r.get("probability") for r in rows}
+    try:
+        diagnosis = diagnose_plant(signals, dt, probabilities)
+    except StictionError as exc:
+        return _off(rows, str(exc).splitlines()[0])
+    for r in rows:
+        role = diagnosis.roles.get(r["loop"])
+        if role is None:
+            r.update(plant_group=None, plant_role=None, plant_cause=None)
+            continue
+        r.update(
+            plant_group=",".join(str(g) for g in role.groups) or None,
+            plant_role=role.role,
+            plant_cause=role.cause,
+        )
+        if role.role == "propagated":
+            r["own_verdict"] = r.get("verdict")
+            r["verdict"] = "propagated"
+    return {"status": "on", **diagnosis.to_dict(), "diagnosis": diagnosis}
+
+
+def _off(rows: list[dict], reason: str) -> dict:
+    for r in rows:
+        r.update(plant_group=None, plant_role=None, plant_cause=None)
+    return {"status": "off", "reason": f"plant-wide grouping off: {reason}"}
+
+
+def _svg_spectrum(group) -> str:
+    """One small SVG: the members' normalised spectra against period (log axis)."""
+    from html import escape
+
+    f = group.freq_hz
+    keep = f > 0
+    period = 1.0 / f[keep]
+    x = np.log10(period)
+    width, height, pad = 520, 180, 30
+    x0, x1 = float(x.min()), float(x.max())
+    ymax = float(group.spectra[:, keep].max()) or 1.0
+    colours = ("#c0392b", "#2471a3", "#229954", "#b9770e", "#7d3c98", "#566573")
+
+    def px(v):
+        return pad + (x1 - v) / max(x1 - x0, 1e-12) * (width - 2 * pad)
+
+    def py(v):
+        return height - pad - v / ymax * (height - 2 * pad)
+
+    lines = []
+    for i, (m, row) in enumerate(zip(group.members, group.spectra, strict=True)):
+        pts = " ".join(f"{px(a):.1f},{py(b):.1f}" for a, b in zip(x, row[keep], strict=True))
+        c = colours[i % len(colours)]
+        lines.append(f'<polyline fill="none" stroke="{c}" stroke-width="1.2" points="{pts}">'
+                     f"<title>{escape(m)}</title></polyline>")  # fmt: skip
+        lines.append(
+            f'<text x="{width - pad + 4}" y="{pad + 12 * i}" font-size="10" fill="{c}">'
+            f"{escape(m)}</text>"
+        )
+    mark = px(math.log10(group.period_s))
+    ticks = "".join(
+        f'<text x="{px(math.log10(p)):.1f}" y="{height - 8}" font-size="10" '
+        f'text-anchor="middle">{p:g}</text>'
+        for p in _ticks(10**x0, 10**x1)
+    )
+    return (
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width + 70}" height="{height}">'
+        f'<line x1="{mark:.1f}" y1="{pad - 5}" x2="{mark:.1f}" y2="{height - pad}" '
+        f'stroke="#999" stroke-dasharray="3,3"/>{"".join(lines)}{ticks}'
+        f'<text x="{width / 2}" y="{height}" font-size="10" text-anchor="middle">'
+        "period [s] (normalised power spectra of pv)</text></svg>"
+    )
+
+
+def _ticks(lo: float, hi: float) -> list[float]:
+    out = []
+    for e in range(int(math.floor(math.log10(lo))), int(math.ceil(math.log10(hi))) + 1):
+        for m in (1, 2, 5):
+            v = m * 10.0**e
+            if lo <= v <= hi:
+                out.append(v)
+    return out
+
+
+def plant_html(plant: dict | None) -> str:
+    """HTML section of the fleet page: the groups, their sources and one plot each."""
+    from html import escape
+
+    if not plant:
+        return ""
+    if plant.get("status") != "on":
+        return f'<h2>Plant-wide oscillations</h2><p class="plant-off">{escape(plant["reason"])}</p>'
+    diagnosis = plant["diagnosis"]
+    if not diagnosis.groups:
+        return (
+            "<h2>Plant-wide oscillations</h2><p>No oscillation is shared by two loops or more.</p>"
+        )
+    parts = ["<h2>Plant-wide oscillations</h2>"]
+    for g in diagnosis.groups:
+        grp = g.group
+        rows = "".join(
+            f"<tr><td>{k + 1}</td><td>{escape(e.loop)}</td><td>{e.share:.2f}</td>"
+            f"<td>{e.lead_s:.0f}</td><td>{_fmt(e.harmonic_ratio)}</td>"
+            f"<td>{_fmt(e.probability)}</td>"
+            f"<td>{'source candidate' if e.loop in g.candidates else 'propagated'}</td></tr>"
+            for k, e in enumerate(g.ranking)
+        )
+        parts.append(
+            f"<h3>Group {grp.group}: period {grp.period_s:.4g} s, {len(grp.members)} loops</h3>"
+            f"<p>{escape(g.note)}</p>"
+            "<table><thead><tr><th>rank</th><th>loop</th><th>share of power</th>"
+            "<th>lead [s]</th><th>harmonics/fundamental</th><th>P(stiction)</th>"
+            f"<th>role</th></tr></thead><tbody>{rows}</tbody></table>{_svg_spectrum(grp)}"
+        )
+    return "".join(parts)
+
+
+def _fmt(v) -> str:
+    return "" if v is None or not math.isfinite(float(v)) else f"{float(v):.3g}"
+
+
+def write_plantwide(plant: dict, out: Path) -> str:
+    """Write the plant-wide result to ``out/plantwide.json`` (atomically); its path."""
+    import json
+
+    from stictiondiag.core.atomic import write_atomic
+
+    path = Path(out) / "plantwide.json"
+    record = {k: v for k, v in plant.items() if k != "diagnosis"}
+    write_atomic(path, json.dumps(record, indent=1))
+    return str(path)
