@@ -18,7 +18,7 @@
    :data:`MAX_SHIFT` is dropped (the rule was stated before any distance was seen).
 3. Fits a softmax regression (L2, :data:`C`) on the training loops with a cycle and a
    cause, leaving out every loop of the held-out generator (:data:`HELD_OUT`, the
-   Kano et al. stick model); writes ``stictiondiag/stiction/cause_model.json``.
+   Karnopp physical valve); writes ``stictiondiag/stiction/cause_model.json``.
 4. Measures, on the held-out loops: accuracy, confusion, the reliability of each
    cause's probability (bands of :data:`BAND`, each within :data:`TOLERANCE` of its
    observed frequency where it holds at least :data:`MIN_BAND` loops), the held-out
@@ -51,8 +51,9 @@ C = 1.0
 #: Largest Kolmogorov-Smirnov distance between simulated and real loops with a cycle
 #: for a feature to enter the model [-].
 MAX_SHIFT = 0.5
-#: The stick model held out of training (its loops test the model's generality).
-HELD_OUT = "kano"
+#: The stick model held out of training (its loops test the model's generality):
+#: Karnopp's physical valve, the one stick model not written as a data-driven rule.
+HELD_OUT = "physical"
 #: Width of the reliability bands [-], allowed gap [-], fewest loops for a band to
 #: count [-].
 BAND = 0.2
@@ -146,7 +147,9 @@ def real_rows(folder: Path, cache: Path, workers: int) -> list[dict]:
             LOOP_TYPE_MAP.get(str(lt).lower(), "other"),
             bool(integ),
         )
-        for f, lt, integ, ts in zip(m["file"], m["loop_type"], m["integrating"], m["ts_s"], strict=True)
+        for f, lt, integ, ts in zip(
+            m["file"], m["loop_type"], m["integrating"], m["ts_s"], strict=True
+        )
     ]
     if workers > 1:
         with ProcessPoolExecutor(workers) as pool:
@@ -258,7 +261,9 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--real", type=Path, default=None)
     ap.add_argument("--doc", type=Path, default=None)
-    ap.add_argument("--out", type=Path, default=ROOT / "stictiondiag" / "stiction" / "cause_model.json")
+    ap.add_argument(
+        "--out", type=Path, default=ROOT / "stictiondiag" / "stiction" / "cause_model.json"
+    )
     a = ap.parse_args(argv)
     t0 = time.time()
     train_all = family_rows(a.seed, a.n_train, a.cache, a.workers)
@@ -392,7 +397,7 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat)
         f"**Stage 1** (loops without a cycle, {len(no_cycle)}): the direct stick-slip rule"
         f" called {sum(bool(r['direct']) for r in sticky)} of {len(sticky)} sticky loops and"
         f" {sum(bool(r['direct']) for r in healthy)} of {len(healthy)} healthy loops `stiction`;"
-        " the rest are `no_stiction` with the reason \"no limit cycle\" (no mv is recorded in"
+        ' the rest are `no_stiction` with the reason "no limit cycle" (no mv is recorded in'
         " this family; with mv, see the friction family above).",
     ]
     if shift:

@@ -8,8 +8,8 @@ friction, which most simulated sticky valves never show.  This family draws each
 from one of several **generators**, each a plausible source of a plant oscillation:
 
 ``valve``
-    A sticky valve (S log-uniform over 0.5-6 % of span, ``J/S`` uniform over 0-1,
-    pure dead band ``J = 0`` in a sixth of them) under normal or aggressive SIMC
+    A sticky valve (S log-uniform over 1-8 % of span, ``J/S`` uniform over 0.2-1,
+    pure dead band ``J = 0`` in a tenth of them) under normal or aggressive SIMC
     tuning, with random non-periodic loads.  The stick model itself is drawn:
     Choudhury's data-driven model, Kano et al.'s, or Karnopp's physical valve
     (Section 4 of Choudhury, Thornhill & Shah 2005).
@@ -23,8 +23,8 @@ from one of several **generators**, each a plausible source of a plant oscillati
     for cascade slaves the master's set point carries the oscillation.
 ``quantiser``
     A linear valve and a controller that sees pv through a quantiser (a coarse
-    transmitter or A/D converter; 0.5-3 times the noise-free pv's spread without the
-    quantiser... see :func:`_quantised_loop`): the integral action hunts between two
+    transmitter or A/D converter; a step of 1-4 times the spread of the loop's
+    noise-free pv without it, little measurement noise; :func:`_quantised_loop`): the integral action hunts between two
     levels, a limit cycle no valve causes.
 
 Every generator uses the friction family's process kinds (flow, self-regulating,
@@ -72,7 +72,7 @@ from stictiondiag.models.physical import PhysicalValve
 from stictiondiag.models.processes import FOPTD, PI
 
 #: The generators and their shares of the family.
-GENERATORS: dict[str, float] = {"valve": 0.4, "tuning": 0.15, "external": 0.25, "quantiser": 0.2}
+GENERATORS: dict[str, float] = {"valve": 0.5, "tuning": 0.15, "external": 0.2, "quantiser": 0.15}
 
 #: The stick models of the ``valve`` generator and their shares.
 STICK_MODELS: dict[str, float] = {"choudhury": 0.4, "kano": 0.4, "physical": 0.2}
@@ -212,11 +212,11 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     # Valve.
     sticky = gen == "valve" or (gen == "external" and u_gen[3] < 0.25)
     S = (
-        (_loguniform(rng, 0.5, 6.0) if gen == "valve" else _loguniform(rng, 0.2, 1.0))
+        (_loguniform(rng, 1.0, 8.0) if gen == "valve" else _loguniform(rng, 0.2, 1.0))
         if sticky
         else 0.0
     )
-    J = S * (0.0 if u_gen[4] < 1 / 6 else float(rng.uniform(0.0, 1.0))) if sticky else 0.0
+    J = S * (0.0 if u_gen[4] < 0.1 else float(rng.uniform(0.2, 1.0))) if sticky else 0.0
     valve = stick if sticky else "linear"
     n_rec = int(np.clip(span * t_loop / decim, *N_RANGE))
     if valve == "physical":
@@ -239,10 +239,10 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     dominant = bool(rng.random() < NOISE_DOMINANT_SHARE)
     noise_ratio = _loguniform(rng, *(NOISE_DOMINANT if dominant else NOISE_RANGE))
     if gen == "quantiser":
-        noise_ratio = _loguniform(rng, 0.005, 0.1)
+        noise_ratio = _loguniform(rng, 0.001, 0.03)
     op_bias = float(rng.uniform(30.0, 70.0))
     sim_seed = int(rng.integers(2**31))
-    q_ratio = float(rng.uniform(0.5, 3.0))
+    q_ratio = float(rng.uniform(1.0, 4.0))
     linear = change == "linear_valve"
     physical = None
     if valve == "physical":

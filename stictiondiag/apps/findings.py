@@ -203,9 +203,9 @@ def probability_text(st: dict) -> str:
 
     ev = st.get("evidence") or {}
     probs = st.get("cause_probabilities")
-    cause = st.get("cause")
+    cause = str(st.get("cause"))
     if probs and cause in probs:
-        runner = st.get("runner_up")
+        runner = str(st.get("runner_up"))
         text = f"cause: {CAUSE_WORDS[cause]} (P {float(probs[cause]):.2f})"
         if runner in probs:
             text += f", runner-up: {CAUSE_WORDS[runner]} (P {float(probs[runner]):.2f})"

@@ -556,6 +556,7 @@ def stiction_verdict(
     if not cycle.present:
         direct = direct_stick_slip(features, bool(has_mv), P, min_improvement=min_improvement)
     cause: str | None = None
+    detected: bool | None
     if not cycle.present and direct:
         status, detected, confidence, cause = "stiction", True, P, "valve"
         head = f"stick-slip without a limit cycle: {direct} (P(stiction) = {P:.2f})"
