@@ -233,3 +233,45 @@ def test_gap_breakdown_layout_survives_a_summary_wider_than_the_figure():
     width_in = (params.right - params.left) * fig.get_figwidth()
     assert width_in >= 3 * 1.2  # three columns of at least min_cell
     fig.clf()
+
+
+def _gap_stub(mv_share, pv_share):
+    from types import SimpleNamespace
+
+    phase = {
+        p: {
+            "samples_pct": 25.0,
+            "mv_share_pct_before": mv_share,
+            "mv_share_pct_after": mv_share,
+            "pv_share_pct_before": pv_share,
+            "pv_share_pct_after": pv_share,
+        }
+        for p in ("stuck", "slip", "moving", "reversal")
+    }
+    signal = {s: {"before": 1.0, "after": 1.0, "noise_floor": 0.0} for s in ("op", "pv", "mv")}
+    return SimpleNamespace(
+        breakdown={"signal": signal, "phase": phase},
+        candidates=(),
+        before=3.5,
+        after=3.5,
+        effect="none",
+        shrink_pct=0.0,
+        runner_up=None,
+        margin=0.0,
+        not_assessed=(),
+    )
+
+
+def test_gap_valve_phase_panel_is_never_empty():
+    """Issue 27: on level_undershoot the mv replay is exact (every mv share 0): the
+    panel shows pv's shares, and with no error in either it is left out and the
+    summary says so in words."""
+    from stictiondiag.plotting.gap import plot_gap_breakdown
+
+    fig = plot_gap_breakdown(_gap_stub(0.0, 25.0))
+    titles = [ax.get_title() for ax in fig.axes]
+    assert "By valve phase (share of pv error)" in titles
+    fig = plot_gap_breakdown(_gap_stub(0.0, 0.0))
+    assert not any("valve phase" in ax.get_title() for ax in fig.axes)
+    texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+    assert any("by valve phase: no replay error in mv or pv" in t for t in texts)

@@ -55,8 +55,9 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     # Only the panels with something to show, in reading order; the summary text
     # takes the last cell and a cell left over is removed (no empty panels).
     panels = [lambda ax: _signal_panel(ax, b.get("signal", {}))]
-    if b.get("phase"):
-        panels.append(lambda ax: _phase_panel(ax, b.get("phase")))
+    phase_signal = _phase_signal(b.get("phase"))
+    if phase_signal is not None:
+        panels.append(lambda ax: _phase_panel(ax, b.get("phase"), phase_signal))
     if any(s in (b.get("frequency") or {}) for s in ("mv", "pv", "op")):
         panels.append(lambda ax: _frequency_panel(ax, b.get("frequency", {})))
     if b.get("time"):
@@ -101,30 +102,40 @@ def _signal_panel(ax, sig: dict) -> None:
     ax.legend(fontsize=8)
 
 
-def _phase_panel(ax, ph: dict | None) -> None:
-    """Share of the mv error per valve phase (stuck, slip, moving, reversal)."""
-    if ph:
-        labels = list(ph)
-        _bars(
-            ax,
-            labels,
-            [ph[p].get("mv_share_pct_before") for p in labels],
-            [ph[p].get("mv_share_pct_after") for p in labels],
-            "By valve phase (share of mv error)",
-            "% of squared error",
+def _phase_signal(ph: dict | None) -> str | None:
+    """The signal whose error the valve-phase panel shows: mv where its replay
+    departs at all, else pv; None when neither does (the panel is left out and the
+    summary says so)."""
+    if not ph:
+        return None
+    for signal in ("mv", "pv"):
+        shares = [ph[p].get(f"{signal}_share_pct_before") for p in ph]
+        if any(v is not None and np.isfinite(v) and v > 0 for v in shares):
+            return signal
+    return None
+
+
+def _phase_panel(ax, ph: dict, signal: str) -> None:
+    """Share of the ``signal`` replay error per valve phase (stuck, slip, moving,
+    reversal)."""
+    labels = list(ph)
+    _bars(
+        ax,
+        labels,
+        [ph[p].get(f"{signal}_share_pct_before") for p in labels],
+        [ph[p].get(f"{signal}_share_pct_after") for p in labels],
+        f"By valve phase (share of {signal} error)",
+        "% of squared error",
+    )
+    for i, p in enumerate(labels):
+        ax.text(
+            i,
+            0,
+            f"{ph[p]['samples_pct']:.0f}% of\nsamples",
+            ha="center",
+            va="bottom",
+            fontsize=7,
         )
-        for i, p in enumerate(labels):
-            ax.text(
-                i,
-                0,
-                f"{ph[p]['samples_pct']:.0f}% of\nsamples",
-                ha="center",
-                va="bottom",
-                fontsize=7,
-            )
-    else:
-        ax.text(0.5, 0.5, "no valve position recorded", ha="center", transform=ax.transAxes)
-        ax.set_axis_off()
 
 
 def _frequency_panel(ax, fr: dict) -> None:
@@ -208,6 +219,10 @@ def _summary(diagnosis) -> str:
             cells = [valve[w].get(key) for w in ("data", "before", "after")]
             txt = " / ".join("-" if v is None else f"{v:.2f}" for v in cells)
             lines.append(f"{label} (data/before/after): {txt}")
+    if b.get("phase") and _phase_signal(b.get("phase")) is None:
+        lines.append("by valve phase: no replay error in mv or pv")
+    elif not b.get("phase"):
+        lines.append("by valve phase: no valve phases (no stick and slip found)")
     if diagnosis.not_assessed:
         lines.append("not assessed: " + ", ".join(diagnosis.not_assessed))
     return "\n".join(lines)
