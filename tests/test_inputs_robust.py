@@ -21,7 +21,7 @@ import pytest
 import stictiondiag.apps.report as report_module
 from stictiondiag.analysis import AnalysisConfig, analyze
 from stictiondiag.apps.report import build_report
-from stictiondiag.apps.scan import discover
+from stictiondiag.apps.scan import discover, scan
 from stictiondiag.core.errors import DataError, UsageError
 from stictiondiag.io.plant import plant_loops, read_plant_loop, unmatched_manifest_rows
 from stictiondiag.io.tags import Tags, read_frame, read_tags
@@ -226,6 +226,7 @@ def test_symlinked_folders_are_followed_once(tmp_path):
         (lambda: read_tags(None), "path must be a file path"),
         (lambda: build_report("loop.csv", "out"), "a list of paths"),
         (lambda: build_report([], "out", gap="yes"), "gap must be True or False"),
+        (lambda: scan(".", out="out", force="no"), "force must be True or False"),
     ],
 )
 def test_wrong_types_raise_clear_type_errors(call, match):

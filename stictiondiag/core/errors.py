@@ -8,10 +8,12 @@ Exit codes
 ----------
 0  success
 1  a finding the user asked to fail on (``--fail-on-stiction``)
-2  usage error: bad option value, unknown loop or valve, impossible request
+2  usage error: bad option value, unknown loop or valve, impossible request, or an
+   output that cannot be written (named)
 3  unreadable or invalid data: missing file, unknown format, missing tag,
    non-numeric, all-NaN or constant signals, too few samples
 4  partial failure: some loops of a scan or report could not be analysed
+130, 143  stopped by Ctrl-C (SIGINT) or SIGTERM (cli.app)
 """
 
 from __future__ import annotations
