@@ -236,7 +236,7 @@ def rank_sources(
     evidence = [
         SourceEvidence(
             loop=m,
-            lead_s=-float(lags[m]),
+            lead_s=0.0 - float(lags[m]),  # never -0.0
             harmonic_ratio=harmonic_ratio(signals[m], dt, period),
             probability=plain_float(probabilities.get(m)),
             share=float(s),
