@@ -30,6 +30,16 @@ def validate(
     ] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="Worker processes.")] = None,
     gap: Annotated[bool, typer.Option(help="Include the gap diagnosis per loop.")] = True,
+    loops: Annotated[
+        str | None, typer.Option(help="Only these loops (comma-separated names).")
+    ] = None,
+    expert_causes: Annotated[
+        bool,
+        typer.Option(
+            help="Only the loops whose comment names a cause (quantisation, external "
+            "disturbance, tuning, dead zone): the gap's cause against the expert's."
+        ),
+    ] = False,
 ) -> None:
     """Analyse every ISDB loop; compare verdicts (and baselines) with the published labels."""
     from stictiondiag.apps.validation import (
@@ -45,10 +55,23 @@ def validate(
         def progress(i: int, n: int, loop: str) -> None:
             info(f"[{i}/{n}] {loop}")
 
-        result = validate_isdb(isdb, workers=workers, gap=gap, progress=progress)
+        chosen = [x.strip() for x in loops.split(",") if x.strip()] if loops else None
+        if expert_causes:
+            from stictiondiag.apps.validation import expert_cause, load_manifest
+
+            m = load_manifest(isdb)
+            named = [
+                str(r.loop)
+                for r in m.itertuples()
+                if expert_cause(r.other_fault_published)[0] is not None
+            ]
+            chosen = [x for x in named if chosen is None or x in chosen]
+        result = validate_isdb(isdb, workers=workers, gap=gap, loops=chosen, progress=progress)
         cmd = (
             "stiction validate"
             + (f" --isdb {isdb}" if isdb else "")
+            + (f" --loops {loops}" if loops else "")
+            + (" --expert-causes" if expert_causes else "")
             + (f" --out {out}" if out else "")
             + ("" if gap else " --no-gap")
         )
@@ -64,6 +87,11 @@ def validate(
             sys.stdout.write(json.dumps(payload, indent=1) + "\n")
         elif json_path:
             write_atomic(json_path, json.dumps(payload, indent=1) + "\n")
+        if result.causes:
+            typer.echo(
+                f"gap names the expert's cause: {result.causes['agree']} of "
+                f"{result.causes['n']} loops"
+            )
         s = result.scores["ours"]["stated"]
         typer.echo(
             f"stated labels: n={s['n']} accuracy={s['accuracy']:.2f} "
