@@ -123,6 +123,22 @@ def render_summary(d: dict) -> str:
             f"after {_fmt(gap.get('after'), '.1f')} % ({_fmt(gap.get('shrink_pct'), '.0f')} % shrink) "
             f"-> effect {gap.get('effect')} (runner-up {gap.get('runner_up')})"
         )
+    kp = d.get("kpis") or {}
+    if kp:
+        shown = [
+            ("op_travel_per_day", "op travel {:.4g}/day"),
+            ("op_reversals_per_day", "reversals {:.3g}/day"),
+            ("time_at_op_limits", "at op limits {:.3g} %"),
+            ("error_std", "error std {:.3g}"),
+            ("harris_index", "Harris index {:.2f}"),
+            ("service_factor", "service factor {:.3g} %"),
+        ]
+        parts = [
+            form.format(kp[name]["value"])
+            for name, form in shown
+            if (kp.get(name) or {}).get("value") is not None
+        ]
+        lines.append("kpis        " + ", ".join(parts) + " (definitions in the JSON)")
     for w in d.get("warnings") or []:
         lines.append(f"warning     {w}")
     lines.append("findings")
@@ -154,7 +170,7 @@ def analyze(
     import os
 
     from stictiondiag.analysis import AnalysisConfig, analyze_file
-    from stictiondiag.stiction.hammerstein_kernels import THREADS_VARIABLE
+    from stictiondiag.stiction.hammerstein.kernels import THREADS_VARIABLE
 
     # One loop alone: its batch kernels may use every core (the same numbers; scan
     # and report workers keep one thread each, see kernel_threads).

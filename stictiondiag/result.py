@@ -24,6 +24,7 @@ from stictiondiag.io.tags import Tags
 from stictiondiag.replay import Replay
 from stictiondiag.replay.compensation import Compensation
 from stictiondiag.replay.metrics import replay_metrics
+from stictiondiag.signals.kpis import LoopKpis
 from stictiondiag.signals.oscillation import Oscillation
 from stictiondiag.stiction.valvefit import StictionFit
 from stictiondiag.stiction.verdict import Verdict
@@ -70,6 +71,9 @@ class Analysis:
         loop's cycle and the offset it leaves (Section 6.4), None when not run.
     analysed_at : str
         When the analysis ran (ISO 8601, UTC).
+    kpis : LoopKpis or None
+        Loop performance indicators (:mod:`stictiondiag.signals.kpis`), each with
+        its unit, definition and citation.
     """
 
     tags: Tags
@@ -82,6 +86,7 @@ class Analysis:
     warnings: tuple[str, ...] = field(default_factory=tuple)
     compensation: Compensation | None = None
     analysed_at: str = ""
+    kpis: LoopKpis | None = None
 
     @property
     def loop(self) -> str:
@@ -150,6 +155,7 @@ class Analysis:
                 None if self.compensation is None else to_plain(self.compensation.to_dict())
             ),
             "gap": None if self.gap is None else to_plain(self.gap.to_dict()),
+            "kpis": None if self.kpis is None else to_plain(self.kpis.to_dict()),
             "warnings": list(self.warnings),
         }
 
@@ -198,6 +204,10 @@ class Analysis:
             "gap_shrink_pct": gap.get("shrink_pct"),
             "n_warnings": len(self.warnings),
             "flags": "; ".join(self.warnings),
+            **{
+                f"kpi_{name}": (value or {}).get("value")
+                for name, value in (d.get("kpis") or {}).items()
+            },
         }
 
     def to_pandas(self) -> pd.DataFrame:
