@@ -9,8 +9,29 @@ from typing import Annotated
 
 import typer
 
+from stictiondiag.core.errors import UsageError
+
 from .app import app
 from .common import check_output_file, friendly_errors, info
+
+
+def _loop_names(text: str | None) -> list[str] | None:
+    """The names of ``--loops`` (comma-separated), None when not given.
+
+    Raises
+    ------
+    UsageError
+        A name that is empty or holds other than letters, digits, ``_`` and ``-``.
+    """
+    import re
+
+    if text is None:
+        return None
+    names = [x.strip() for x in text.split(",")]
+    bad = [x for x in names if not re.fullmatch(r"[A-Za-z0-9_-]+", x)]
+    if bad:
+        raise UsageError(f"--loops: not a loop name: {bad[0]!r} (give names like CHEM10,PAP1)")
+    return names
 
 
 @app.command()
@@ -55,7 +76,7 @@ def validate(
         def progress(i: int, n: int, loop: str) -> None:
             info(f"[{i}/{n}] {loop}")
 
-        chosen = [x.strip() for x in loops.split(",") if x.strip()] if loops else None
+        chosen = _loop_names(loops)
         if expert_causes:
             from stictiondiag.apps.validation import expert_cause, load_manifest
 
@@ -66,6 +87,12 @@ def validate(
                 if expert_cause(r.other_fault_published)[0] is not None
             ]
             chosen = [x for x in named if chosen is None or x in chosen]
+        if chosen is not None:
+            from stictiondiag.apps.validation import load_manifest as _manifest
+
+            unknown = sorted(set(chosen) - set(_manifest(isdb)["loop"].astype(str)))
+            if unknown:
+                raise UsageError(f"--loops: not in the ISDB manifest: {', '.join(unknown)}")
         result = validate_isdb(isdb, workers=workers, gap=gap, loops=chosen, progress=progress)
         cmd = (
             "stiction validate"
