@@ -218,7 +218,7 @@ MODELS = "highpass,drift,auto"
 
 def run_case(args: tuple[dict, tuple[str, ...]]) -> list[dict]:
     from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction import hammerstein
+    from stictiondiag.stiction.hammerstein import fit as hammerstein
     from stictiondiag.stiction.hammerstein import fit_hammerstein
     from stictiondiag.stiction.verdict import improvement_support
 

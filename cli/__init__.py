@@ -21,5 +21,15 @@ def _interrupted_while_starting(signum, frame) -> None:  # pragma: no cover - ti
     _os._exit(130)
 
 
+def _terminated_while_starting(signum, frame) -> None:  # pragma: no cover - timing
+    # SIGTERM before the command can stop cleanly: the same one line and exit 143
+    # (cli.main.main() puts its own handler in place once the command runs).
+    _sys.stderr.write("stiction: terminated\n")
+    _sys.stderr.flush()
+    _os._exit(143)
+
+
 if _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler:
     _signal.signal(_signal.SIGINT, _interrupted_while_starting)
+if _signal.getsignal(_signal.SIGTERM) == _signal.SIG_DFL:
+    _signal.signal(_signal.SIGTERM, _terminated_while_starting)

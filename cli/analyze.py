@@ -161,7 +161,7 @@ def analyze(
     import os
 
     from stictiondiag.analysis import AnalysisConfig, analyze_file
-    from stictiondiag.stiction.hammerstein_kernels import THREADS_VARIABLE
+    from stictiondiag.stiction.hammerstein.kernels import THREADS_VARIABLE
 
     # One loop alone: its batch kernels may use every core (the same numbers; scan
     # and report workers keep one thread each, see kernel_threads).

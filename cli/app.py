@@ -7,7 +7,8 @@ One error format: whatever goes wrong is reported as one line on stderr,
 ``stiction: error: <what is wrong and how to fix it>``, with a documented exit code
 (:mod:`stictiondiag.core.errors`): 2 for a usage error, Click's and Typer's own
 included (unknown option, bad option value, missing argument), 3 for data that
-cannot be read or analysed, and 130 after Ctrl-C (``stiction: interrupted``).
+cannot be read or analysed, 130 after Ctrl-C (``stiction: interrupted``) and 143
+after SIGTERM, which takes the same path (``stiction: terminated``).
 """
 
 from __future__ import annotations
@@ -26,6 +27,21 @@ click = typer.core._click
 
 #: Exit code after Ctrl-C (128 + SIGINT, the shell's convention).
 EXIT_INTERRUPTED = 130
+
+#: Exit code after SIGTERM (128 + SIGTERM), which takes Ctrl-C's path.
+EXIT_TERMINATED = 143
+
+#: Set by the SIGTERM handler of :func:`cli.main.main` before it raises
+#: KeyboardInterrupt: the interrupt was a termination.
+terminated = False
+
+
+def stop_message() -> tuple[str, int]:
+    """The line and exit code of an interrupt: Ctrl-C (130) or SIGTERM (143)."""
+    if terminated:
+        return "stiction: terminated", EXIT_TERMINATED
+    return "stiction: interrupted", EXIT_INTERRUPTED
+
 
 #: Exit code of a usage error (same value as ``stictiondiag.core.errors.EXIT_USAGE``;
 #: repeated here so that parsing the command line imports no numerics).
@@ -86,9 +102,9 @@ class StictionGroup(TyperGroup):
             click.echo(f"stiction: error: {one_line(exc.format_message())}", err=True)
             code = exc.exit_code
         except typer.Abort:
-            # EOF on a prompt, or Ctrl-C outside a command.
-            click.echo("stiction: interrupted", err=True)
-            code = EXIT_INTERRUPTED
+            # EOF on a prompt, or Ctrl-C (or SIGTERM) outside a command.
+            line, code = stop_message()
+            click.echo(line, err=True)
         except MemoryError:
             click.echo(
                 "stiction: error: not enough memory for this request: shorten the data "
@@ -107,7 +123,8 @@ class StictionGroup(TyperGroup):
             # Typer turns Ctrl-C (KeyboardInterrupt) into exit code 130 and prints
             # nothing; the command has already stopped its workers on the way out.
             if code == EXIT_INTERRUPTED:
-                click.echo("stiction: interrupted", err=True)
+                line, code = stop_message()
+                click.echo(line, err=True)
             code = code if isinstance(code, int) else 0
         if standalone_mode:
             sys.exit(code)

@@ -9,15 +9,26 @@ from typing import Annotated
 import typer
 
 from .app import app
-from .common import friendly_errors, info
+from .common import friendly_errors, info, write_stdout
+
+#: Most cases (or plants) one benchmark run takes: each costs seconds of CPU, so
+#: more would run for days; the cases are drawn one at a time whatever the number.
+MAX_CASES = 100_000
+
+#: Seeds are 32-bit unsigned integers (numpy's SeedSequence entropy).
+MAX_SEED = 2**32 - 1
 
 
 @app.command()
 def benchmark(
     cases: Annotated[
-        int, typer.Option(min=1, help="Number of generated loops (plants with --plant).")
+        int,
+        typer.Option(min=1, max=MAX_CASES, help="Number of generated loops (plants with --plant)."),
     ] = 40,
-    seed: Annotated[int, typer.Option(help="Benchmark seed (same seed, same cases).")] = 2026,
+    seed: Annotated[
+        int,
+        typer.Option(min=0, max=MAX_SEED, help="Benchmark seed (same seed, same cases)."),
+    ] = 2026,
     out: Annotated[
         Path, typer.Option(help="Directory for the case files and results.json / .csv / .md.")
     ] = Path("benchmark_out"),
@@ -57,7 +68,7 @@ def benchmark(
 
         info(f"benchmark: {cases} cases, seed {seed}, files in {out}")
         result = run_benchmark(out, n_cases=cases, seed=seed, progress=progress)
-        typer.echo(result.table())
+        write_stdout(result.table() + "\n")
         info(f"wrote {out / 'results.json'}, {out / 'results.csv'}, {out / 'results.md'}")
 
 
@@ -74,5 +85,5 @@ def _plant_benchmark(plants: int, seed: int, out: Path) -> None:
 
     info(f"plant benchmark: {plants} plants, seeds {seed} to {seed + plants - 1}, files in {out}")
     result = run_plant_benchmark(out, n_plants=plants, seed=seed, workers=1, progress=progress)
-    typer.echo(result.table())
+    write_stdout(result.table() + "\n")
     info(f"wrote {out / 'plant_results.json'}, {out / 'plant_results.md'}")

@@ -36,6 +36,63 @@ def info(message: str) -> None:
     print(message, file=sys.stderr)
 
 
+def write_stdout(text: str) -> None:
+    """Write ``text`` to stdout and flush it; a stdout that cannot take it is an
+    output error (exit 2) naming it, not a data error.
+
+    Raises
+    ------
+    UsageError
+        stdout is full (``/dev/full``), closed or otherwise unwritable.
+    """
+    from stictiondiag.core.errors import UsageError
+
+    try:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    except OSError as exc:
+        reason = (exc.strerror or type(exc).__name__).lower()
+        raise UsageError(
+            f"cannot write to standard output: {reason}; redirect it to a writable file"
+        ) from None
+
+
+def probe_writable(target: Path, option: str, shown: Path | None = None) -> None:
+    """Refuse, before any work, an output location this process cannot write.
+
+    ``target`` is the folder the output goes into (it may not exist yet): a
+    temporary file is made and removed at once in it, or when it does not exist
+    yet in the nearest existing folder above it (where its folders would be made;
+    ``os.access`` would not do: it grants root everything).  ``shown`` is the path
+    the message names (default ``target``).
+
+    Raises
+    ------
+    UsageError
+        Naming ``target`` and the reason.
+    """
+    import errno
+    import os
+    import tempfile
+
+    from stictiondiag.core.errors import UsageError
+
+    existing = target
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    try:
+        if not existing.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, "not a directory")
+        fd, name = tempfile.mkstemp(prefix=".stiction-probe-", dir=existing)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as exc:
+        reason = (exc.strerror or type(exc).__name__).lower()
+        raise UsageError(
+            f"cannot write {shown or target}: {reason}; choose a writable {option}"
+        ) from None
+
+
 def emit(d: dict, summary: str, json_path: str | None) -> None:
     """Print a result's summary and write its JSON.
 
@@ -48,9 +105,9 @@ def emit(d: dict, summary: str, json_path: str | None) -> None:
     text = json.dumps(d, indent=2) + "\n"
     if json_path == "-":
         info(summary)
-        sys.stdout.write(text)
+        write_stdout(text)
         return
-    typer.echo(summary)
+    write_stdout(summary + "\n")
     if json_path:
         from stictiondiag.core.atomic import write_atomic
 
@@ -124,6 +181,7 @@ def check_output_file(
             f"cannot write a figure as {target.suffix!r} ({target}): use one of "
             f"{', '.join(FIGURE_SUFFIXES)}"
         )
+    probe_writable(target.parent, option, shown=target)
 
 
 def check_output_dir(
@@ -152,3 +210,4 @@ def check_output_dir(
                     f"choose another {option}"
                 )
             break
+    probe_writable(target, option)

@@ -8,7 +8,6 @@ progress goes to stderr.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -20,7 +19,14 @@ from stictiondiag.core.errors import (
 )
 
 from .app import app
-from .common import check_output_dir, check_output_file, fail, friendly_errors, info
+from .common import (
+    check_output_dir,
+    check_output_file,
+    fail,
+    friendly_errors,
+    info,
+    write_stdout,
+)
 from .options import (
     ActionOption,
     CompressionOption,
@@ -150,7 +156,7 @@ def report(
         )
         md = render_markdown(result.rows)
         if markdown == "-":
-            sys.stdout.write(md)
+            write_stdout(md)
         elif markdown:
             write_atomic(markdown, md)
         info(f"wrote {result.outputs['index']} and {result.outputs['markdown']}")

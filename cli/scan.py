@@ -12,7 +12,7 @@ import typer
 from stictiondiag.core.errors import EXIT_PARTIAL
 
 from .app import app
-from .common import check_output_dir, friendly_errors, info
+from .common import check_output_dir, friendly_errors, info, write_stdout
 from .options import (
     ActionOption,
     CompressionOption,
@@ -159,6 +159,7 @@ def scan(
         info(
             f"wrote {result.outputs.get('html')}, {result.outputs.get('parquet')}, {result.outputs.get('csv')}"
         )
+        _plant_lines(result.plantwide)
         cols = [
             c
             for c in (
@@ -171,13 +172,32 @@ def scan(
                 "loop_type",
                 "loop_type_source",
                 "gap_effect",
+                "plant_role",
             )
             if c in t
         ]
         if "error" in t:
             for _, row in t[t["verdict"] == "error"].iterrows():
                 info(f"not analysed: {row['loop']}: {row['error']}")
-        typer.echo(t[cols].head(20).to_string(index=False))
+        write_stdout(t[cols].head(20).to_string(index=False) + "\n")
         if result.n_failed:
             info(f"{result.n_failed} loop(s) failed; see the 'error' column")
             raise typer.Exit(EXIT_PARTIAL)
+
+
+def _plant_lines(plant: dict) -> None:
+    """The plant-wide groups (or why there are none) on stderr."""
+    if not plant:
+        return
+    if plant.get("status") != "on":
+        info(plant.get("reason", "plant-wide grouping off"))
+        return
+    groups = plant.get("groups", [])
+    info(f"plant-wide: {len(groups)} group(s) of loops sharing a cycle")
+    for g in groups:
+        source = " or ".join(g["source_candidates"])
+        single = "" if g["source_clear"] else " (the evidence does not single out one)"
+        info(
+            f"  group {g['group']}: period {g['period_s']:.4g} s, {', '.join(g['members'])}; "
+            f"source {source}{single}"
+        )

@@ -17,7 +17,7 @@ import typer
 from stictiondiag.core.errors import UsageError
 
 from .app import app
-from .common import check_output_file, friendly_errors, info
+from .common import check_output_file, friendly_errors, info, write_stdout
 
 _VALVES = {"datadriven": "choudhury", "kano": "kano", "physical": "physical", "linear": "linear"}
 
@@ -318,7 +318,7 @@ def simulate(
         info(render_summary(loop_name, summary))
         text = json.dumps(summary, indent=2, allow_nan=False) + "\n"
         if json_out == "-":
-            typer.echo(text, nl=False)
+            write_stdout(text)
         elif json_out is not None:
             write_atomic(json_out, text)
         if csv is not None:

@@ -139,7 +139,7 @@ def _searched(tags):
     on ``tags`` (as :func:`stictiondiag.stiction.hammerstein.fit_hammerstein` runs
     them), or None where the fit refuses the record."""
     from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction import hammerstein as hs
+    from stictiondiag.stiction.hammerstein import fit as hs
 
     op, pv, dt = hs._check(tags.op, tags.pv, float(tags.ts))
     op, pv = op[: hs.MAX_SAMPLES], pv[: hs.MAX_SAMPLES]
@@ -165,8 +165,8 @@ def _fitted(tags):
 
 def _rich_cost(prob, u, taus, delays) -> float:
     """Least cost of the linear part with four time constants (gains of one sign)."""
-    from stictiondiag.stiction.hammerstein_columns import lag, regressors
-    from stictiondiag.stiction.hammerstein_kernels import same_sign_lstsq
+    from stictiondiag.stiction.hammerstein.columns import lag, regressors
+    from stictiondiag.stiction.hammerstein.kernels import same_sign_lstsq
 
     uf = lag(u, prob.pre_lag, prob.k_start) if prob.pre_lag > 0 else u
     phis = [regressors(uf, float(t), prob.a_hp, prob.k_start) for t in taus]
@@ -182,8 +182,8 @@ def _rich_cost(prob, u, taus, delays) -> float:
 
 def _rich_one(seed: int) -> dict | None:
     from stictiondiag.apps.family import family_loop
-    from stictiondiag.stiction.hammerstein_kernels import valve_run
-    from stictiondiag.stiction.hammerstein_search import fit_linear
+    from stictiondiag.stiction.hammerstein.kernels import valve_run
+    from stictiondiag.stiction.hammerstein.search import fit_linear
     from stictiondiag.stiction.valvefit import ValveVariant
 
     loop = family_loop(seed)
@@ -228,7 +228,7 @@ def _overshoot_one(args) -> dict | None:
     """Improvement of the free search and of the search held to J <= S."""
     seed, held = args
     from stictiondiag.apps.family import family_loop
-    from stictiondiag.stiction import hammerstein_search as hsearch
+    from stictiondiag.stiction.hammerstein import search as hsearch
 
     if held:
         free_grid = hsearch.grid

@@ -72,15 +72,14 @@ def test_benchmark_command(tmp_path, monkeypatch):
         g = GapDiagnosis("excess_nrmse", "", 10.0, 3.0, 70.0, named, None, 5.0, (), {})
         return g, "test"
 
-    orig = syn.write_benchmark
+    orig = syn.iter_benchmark
 
     def spy(out_dir, n_cases, seed):
-        written = orig(out_dir, n_cases, seed)
-        for p, t in written:
+        for p, t in orig(out_dir, n_cases, seed):
             truths[p.name] = t["effect"]
-        return written
+            yield p, t
 
-    monkeypatch.setattr(syn, "write_benchmark", spy)
+    monkeypatch.setattr(syn, "iter_benchmark", spy)
     monkeypatch.setattr(bm, "_diagnose_path", fake_diagnose)
     res = runner.invoke(app, ["benchmark", "--cases", "8", "--seed", "3", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
@@ -95,3 +94,31 @@ def test_benchmark_bad_cases_is_a_usage_error(tmp_path):
     res = runner.invoke(app, ["benchmark", "--cases", "0", "--out", str(tmp_path)])
     assert res.exit_code == 2
     assert "Traceback" not in res.output
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["--seed", "-1"], ["--cases", "1000000000"], ["--seed", str(2**32)]],
+)
+def test_benchmark_out_of_range_options_are_usage_errors(tmp_path, args):
+    # Issue 31: --seed -1 was a ValueError shown as a data error (exit 3), and
+    # --cases 1000000000 allocated gigabytes before the first case.
+    res = runner.invoke(app, ["benchmark", *args, "--out", str(tmp_path / "b")])
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    assert not (tmp_path / "b").exists()
+
+
+def test_benchmark_cases_are_drawn_one_at_a_time(tmp_path):
+    import stictiondiag.models.synthetic as syn
+
+    cases = syn.iter_benchmark(tmp_path / "a", 5, 11)
+    first, truth = next(cases)  # one case simulated and written, the others not yet
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == [first.name]
+    # The same cases as the eager writer, in the same order.
+    lazy = [truth, *(t for _, t in cases)]
+    eager = [t for _, t in syn.write_benchmark(tmp_path / "b", 5, 11)]
+    assert lazy == eager
+    assert (tmp_path / "a" / first.name).read_bytes() == (tmp_path / "b" / first.name).read_bytes()
+    with pytest.raises(syn.UsageError, match="seed"):
+        next(syn.iter_benchmark(tmp_path, 5, -1))

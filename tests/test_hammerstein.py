@@ -244,7 +244,7 @@ def _noisy_flow_loop(lag_s=8.0, seed=3):
 def test_play_variant_band_below_play_width_is_the_raw_flowchart():
     # Behind the play operator every S below its width w is the same deadband of w;
     # the search must see S = J = 0 as the linear valve and S < w as that band.
-    from stictiondiag.stiction.hammerstein import _setup
+    from stictiondiag.stiction.hammerstein.fit import _setup
     from stictiondiag.stiction.valvefit import (
         ValveVariant,
         valve_variants,
@@ -295,7 +295,7 @@ def test_drift_states_in_the_compiled_cost_match_the_explicit_fit():
     # same cost; 1e-6 relative leaves room for the kernel's 1e-10 ridge (measured
     # 6e-9).  A time constant of 50 samples keeps the free column of the process's
     # own start response away from zero, where the ridge and lstsq part ways.
-    from stictiondiag.stiction.hammerstein import _setup
+    from stictiondiag.stiction.hammerstein.fit import _setup
     from stictiondiag.stiction.valvefit import valve_variants
 
     op, pv = _drifting_loop("kano", 3.0)

@@ -74,8 +74,8 @@ def test_first_compilation_is_announced_once_on_a_terminal(monkeypatch):
 #: Kernels the package defines but no code path calls (``same_sign_fit_many`` took
 #: their place in the Hammerstein fit); the warm-up cannot reach them.
 UNCALLED = {
-    "stictiondiag.stiction.hammerstein_kernels.same_sign_fit",
-    "stictiondiag.stiction.hammerstein_kernels._solve_subset",
+    "stictiondiag.stiction.hammerstein.kernels.same_sign_fit",
+    "stictiondiag.stiction.hammerstein.kernels._solve_subset",
 }
 
 

@@ -17,8 +17,8 @@ from stictiondiag.identification.predictor_kernels import (
     _prediction_errors,
     _prediction_errors_rows,
 )
-from stictiondiag.stiction import hammerstein_columns as hc
-from stictiondiag.stiction import hammerstein_kernels as hk
+from stictiondiag.stiction.hammerstein import columns as hc
+from stictiondiag.stiction.hammerstein import kernels as hk
 
 
 def _stepped_errors(z, drive, pole, k1, k2, y0, horizon):

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from stictiondiag.core.atomic import write_atomic
+from stictiondiag.core.csvsafe import safe_cell
 from stictiondiag.core.errors import (
     StictionError,
     UsageError,
@@ -188,7 +189,8 @@ class BenchmarkResult:
         w = csv.DictWriter(buf, fieldnames=fields)
         w.writeheader()
         for c in self.cases:
-            w.writerow(c.to_dict())
+            # Spreadsheet-safe text cells (an error message may start with "-").
+            w.writerow({k: safe_cell(v) for k, v in c.to_dict().items()})
         return buf.getvalue()
 
     def table(self) -> str:
@@ -257,16 +259,22 @@ def run_benchmark(
     -------
     BenchmarkResult
     """
-    from stictiondiag.models.synthetic import write_benchmark
+    from stictiondiag.models.synthetic import (
+        check_benchmark,
+        iter_benchmark,
+        write_benchmark_truth,
+    )
 
-    if int(n_cases) < 1:
-        raise UsageError(f"--cases must be at least 1, got {n_cases}")
+    n_cases, seed = check_benchmark(n_cases, seed)
     out = Path(out_dir)
     cases_dir = out / "cases"
-    written = write_benchmark(cases_dir, int(n_cases), int(seed))
     results = []
+    truths: list[dict] = []
     how = "custom" if diagnose is not None else None
-    for i, (path, truth) in enumerate(written):
+    # Each case is generated (and its file written whole) just before it is
+    # diagnosed: memory does not grow with the number of cases.
+    for i, (path, truth) in enumerate(iter_benchmark(cases_dir, n_cases, seed)):
+        truths.append(truth)
         t0 = time.perf_counter()
         try:
             if diagnose is not None:
@@ -297,7 +305,8 @@ def run_benchmark(
             )
         results.append(r)
         if progress is not None:
-            progress(i, len(written), r)
+            progress(i, n_cases, r)
+    write_benchmark_truth(cases_dir, seed, truths)
     res = BenchmarkResult(
         seed=int(seed),
         cases=tuple(results),

@@ -56,6 +56,7 @@ from stictiondiag.core.errors import (
     DataError,
     StictionError,
     UsageError,
+    require_bool,
 )
 from stictiondiag.io.plant import PlantLoop, is_long_file, plant_loops
 
@@ -147,15 +148,37 @@ def _is_hidden(name: str) -> bool:
     return name.startswith((".", "_"))
 
 
+def _walk(folder: Path) -> list[Path]:
+    """Files under ``folder``, hidden entries left out; symlinked folders followed once.
+
+    Each folder is entered once (a visited set of device and inode), so a link back
+    up the tree (a cycle) or two links to one folder cost nothing twice.  A file is
+    listed under the path it was found at.
+    """
+    files: list[Path] = []
+    visited: set[tuple[int, int]] = set()
+    for root, dirs, names in os.walk(folder, followlinks=True):
+        try:
+            st = os.stat(root)
+        except OSError:
+            dirs[:] = []
+            continue
+        if (st.st_dev, st.st_ino) in visited:
+            dirs[:] = []
+            continue
+        visited.add((st.st_dev, st.st_ino))
+        dirs[:] = sorted(d for d in dirs if not _is_hidden(d))
+        files.extend(Path(root) / n for n in names if not _is_hidden(n))
+    return files
+
+
 def _loop_files(folder: Path) -> list[Path]:
-    """Loop files under ``folder``, subfolders included; hidden ones and scan outputs not."""
+    """Loop files under ``folder``, subfolders included (symlinked ones once); hidden
+    ones and scan outputs not."""
     return sorted(
         f
-        for f in folder.rglob("*")
-        if f.is_file()
-        and f.suffix.lower() in LOOP_FILE_SUFFIXES
-        and not any(_is_hidden(part) for part in f.relative_to(folder).parts)
-        and not is_scan_output(f)
+        for f in _walk(folder)
+        if f.suffix.lower() in LOOP_FILE_SUFFIXES and f.is_file() and not is_scan_output(f)
     )
 
 
@@ -163,11 +186,8 @@ def _parquet_files(folder: Path) -> list[Path]:
     """Parquet files of a dataset folder, including hive partitions (``loop_id=L1/``)."""
     return sorted(
         f
-        for f in folder.rglob("*")
-        if f.is_file()
-        and f.suffix.lower() in (".parquet", ".pq")
-        and not any(_is_hidden(part) for part in f.relative_to(folder).parts)
-        and not is_scan_output(f)
+        for f in _walk(folder)
+        if f.suffix.lower() in (".parquet", ".pq") and f.is_file() and not is_scan_output(f)
     )
 
 
@@ -530,6 +550,8 @@ def scan(
         ``path`` holds no loops (see :func:`discover`).  A loop that cannot be read
         or analysed is not an exception: it is a row with verdict ``error``.
     """
+    gap = bool(require_bool("gap", gap))
+    force = bool(require_bool("force", force))
     if engine not in ("local", "dask"):
         raise UsageError(f"unknown engine {engine!r}: use local or dask")
     if workers is not None and int(workers) < 1:

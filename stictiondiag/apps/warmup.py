@@ -88,7 +88,7 @@ def _closed_loops() -> None:
 def _kernel_threads(n: int) -> Iterator[None]:
     """The batch kernels may use ``n`` threads in this block, as in ``stiction
     analyze`` (their threaded variants compile too); the environment is restored."""
-    from stictiondiag.stiction.hammerstein_kernels import THREADS_VARIABLE
+    from stictiondiag.stiction.hammerstein.kernels import THREADS_VARIABLE
 
     before = os.environ.get(THREADS_VARIABLE)
     os.environ[THREADS_VARIABLE] = str(n)

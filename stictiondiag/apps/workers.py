@@ -24,17 +24,45 @@ from typing import Any
 from stictiondiag.core.blas import one_blas_thread
 from stictiondiag.core.errors import UsageError
 
-__all__ = ["children_ignore_sigint", "quiet_worker", "run_dask", "run_local"]
+__all__ = ["children_ignore_sigint", "quiet_worker", "run_dask", "run_local", "watch_parent"]
+
+
+#: How often a worker checks that its parent is alive [s].
+PARENT_POLL_S = 0.5
+
+
+def _exit_with_parent(parent: int) -> None:
+    """End this process (at once, no clean-up) as soon as ``parent`` is gone.
+
+    A parent killed with SIGKILL (or the out-of-memory killer) cannot stop its
+    workers; without this, each (about 300 MB) would run on for good.  The parent
+    is gone when this process has been handed to another (``getppid`` changes).
+    """
+    import time
+
+    while os.getppid() == parent:
+        time.sleep(PARENT_POLL_S)
+    os._exit(1)
+
+
+def watch_parent() -> None:
+    """Start a daemon thread that ends this process when its parent dies."""
+    parent = os.getppid()
+    threading.Thread(
+        target=_exit_with_parent, args=(parent,), name="stiction-parent-watch", daemon=True
+    ).start()
 
 
 def quiet_worker() -> None:
     """Initializer of a worker process: Ctrl-C is the main process's to handle.
 
     SIGINT is ignored (the main process stops the worker) and SIGTERM has its
-    default action, so a worker that is terminated prints no traceback.
+    default action, so a worker that is terminated prints no traceback.  The
+    worker ends by itself when the main process dies (:func:`watch_parent`).
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    watch_parent()
 
 
 @contextlib.contextmanager
@@ -306,6 +334,10 @@ def _connect(workers: int, scheduler: str | None):
                     n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
                 )
             client = Client(cluster)
+            # The workers are this process's children (their nannies run here): each
+            # ends by itself should this process be killed.
+            with contextlib.suppress(Exception):
+                client.run(watch_parent)
     except (OSError, ValueError, TypeError) as exc:
         # OSError: nothing listens there (timeout); ValueError/TypeError: not an
         # address at all (``garbage://``).

@@ -363,6 +363,65 @@ def benchmark_effects(n_cases: int, seed: int) -> list[str]:
     return [effects[i] for i in order]
 
 
+#: Most cases one benchmark may have: each costs seconds of CPU to diagnose, so more
+#: would run for days (the CLI's ``--cases`` has the same bound).
+MAX_BENCHMARK_CASES = 100_000
+
+
+def check_benchmark(n_cases: object, seed: object) -> tuple[int, int]:
+    """``(n_cases, seed)`` as ints, or a UsageError saying what is wrong."""
+    for name, value in (("n_cases", n_cases), ("seed", seed)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise UsageError(f"{name} must be a whole number, not {value!r}")
+    n, s = int(n_cases), int(seed)  # type: ignore[call-overload]
+    if not 1 <= n <= MAX_BENCHMARK_CASES:
+        raise UsageError(f"n_cases must be between 1 and {MAX_BENCHMARK_CASES:,}, got {n}")
+    if not 0 <= s < 2**32:
+        raise UsageError(f"seed must be between 0 and {2**32 - 1}, got {s}")
+    return n, s
+
+
+def iter_benchmark(out_dir: str | Path, n_cases: int, seed: int):
+    """Write the cases of a withheld-effect benchmark one at a time, lazily.
+
+    Yields ``(path, truth)`` after each case's CSV is written (whole or not at
+    all); a case is simulated only when the caller asks for it, so memory does not
+    grow with ``n_cases``.  Same files as :func:`write_benchmark` (without
+    ``truth.json``).
+
+    Raises
+    ------
+    UsageError
+        ``n_cases`` outside 1 to :data:`MAX_BENCHMARK_CASES`, a seed outside
+        0 to 2**32 - 1, or either not a whole number.
+    """
+    n, s = check_benchmark(n_cases, seed)
+    out = Path(out_dir)
+    # Each effect n // len(EFFECTS) times at least, the remainder round-robin, in a
+    # seed-dependent order (as benchmark_effects): case i's effect is that of
+    # position order[i] of the round-robin list.
+    order = np.random.default_rng(np.random.SeedSequence([s, 7919])).permutation(n)
+    seeds = np.random.SeedSequence(s).generate_state(n, dtype=np.uint32)
+    width = max(3, len(str(n - 1)))
+    for i in range(n):
+        effect = EFFECTS[int(order[i]) % len(EFFECTS)]
+        case = generate_case(effect, int(seeds[i]))
+        path = out / f"case_{i:0{width}d}.csv"
+        write_atomic(path, _csv_bytes(case.data))
+        yield path, dict(case.truth, file=path.name)
+
+
+def write_benchmark_truth(out_dir: str | Path, seed: int, truths: list[dict]) -> None:
+    """Write ``truth.json`` of a benchmark: each case file's hidden truth."""
+    manifest = {
+        "seed": int(seed),
+        "n_cases": len(truths),
+        "effects": list(EFFECTS),
+        "cases": truths,
+    }
+    write_atomic(Path(out_dir) / "truth.json", json.dumps(manifest, indent=1))
+
+
 def write_benchmark(out_dir: str | Path, n_cases: int, seed: int) -> list[tuple[Path, dict]]:
     """Write a withheld-effect benchmark: one CSV per case plus ``truth.json``.
 
@@ -372,34 +431,16 @@ def write_benchmark(out_dir: str | Path, n_cases: int, seed: int) -> list[tuple[
         Directory (created if missing). Files ``case_000.csv`` ... hold the columns
         ``time, sp, pv, op, mv``; ``truth.json`` maps each file to its truth.
     n_cases : int
-        Number of cases (>= 1), balanced across :data:`EFFECTS`.
+        Number of cases (1 to :data:`MAX_BENCHMARK_CASES`), balanced across
+        :data:`EFFECTS`.
     seed : int
-        Benchmark seed; the same seed writes the same files.
+        Benchmark seed (0 to 2**32 - 1); the same seed writes the same files.
 
     Returns
     -------
     list of (Path, dict)
         CSV path and truth of every case, in file order.
     """
-    if int(n_cases) < 1:
-        raise UsageError(f"n_cases must be at least 1, got {n_cases}")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    effects = benchmark_effects(int(n_cases), int(seed))
-    seeds = np.random.SeedSequence(int(seed)).generate_state(len(effects), dtype=np.uint32)
-    width = max(3, len(str(len(effects) - 1)))
-    written: list[tuple[Path, dict]] = []
-    for i, (effect, case_seed) in enumerate(zip(effects, seeds, strict=True)):
-        case = generate_case(effect, int(case_seed))
-        path = out / f"case_{i:0{width}d}.csv"
-        path.write_bytes(_csv_bytes(case.data))
-        truth = dict(case.truth, file=path.name)
-        written.append((path, truth))
-    manifest = {
-        "seed": int(seed),
-        "n_cases": len(written),
-        "effects": list(EFFECTS),
-        "cases": [t for _, t in written],
-    }
-    write_atomic(out / "truth.json", json.dumps(manifest, indent=1))
+    written = list(iter_benchmark(out_dir, n_cases, seed))
+    write_benchmark_truth(out_dir, seed, [t for _, t in written])
     return written

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from stictiondiag.core.robust import robust_std
+
 __all__ = [
     "HARRIS_AR_ORDER",
     "SATURATION_BAND_PCT",
@@ -229,7 +231,7 @@ def loop_kpis(
         )
     )
     steps = np.diff(op)
-    noise = 1.4826 * float(np.median(np.abs(steps - np.median(steps)))) if steps.size else 0.0
+    noise = robust_std(steps)
     hysteresis = max(REVERSAL_SIGMAS * noise, 1e-9 * max(1.0, float(np.ptp(op))))
     items.append(
         Kpi(

@@ -10,19 +10,22 @@ evidence, and gives every loop its role:
   (:func:`~stictiondiag.signals.plantwide.cycle_lag`, relative to one reference
   member, then again relative to the earliest, so a chain longer than half a
   period is timed from its head);
-* **nonlinearity** (second key, between members whose leads are within
-  :data:`LEAD_MARGIN` of each other): the harmonic content of the cycle
-  (:func:`~stictiondiag.signals.plantwide.harmonic_ratio`), largest nearest
-  the source because each process on the way is a low-pass filter
-  (Thornhill & Horch 2007, Section 4.2);
-* **P(stiction)** of each loop's own analysis (third key), when given.
+* **P(stiction)** of each loop's own analysis (second key, between members whose
+  leads are within :data:`LEAD_MARGIN` samples of each other), when given;
+* **nonlinearity** (third key): the harmonic content of the cycle
+  (:func:`~stictiondiag.signals.plantwide.harmonic_ratio`), largest nearest the
+  source where each process on the way is a low-pass filter (Thornhill & Horch
+  2007, Section 4.2).
 
-Measured on the 20 development plants of
-:mod:`stictiondiag.models.synthetic_plant` (seeds 0-19): the earliest member is the
-true source in 23 of 24 groups, the largest harmonic content in 15, the highest
-P(stiction) in fewer (a propagated loop's pv and op cycle as a sticky loop's do,
-which is why its own analysis calls it sticky).  Time order therefore decides and
-the others break its ties.
+The order of the keys is measured, on the 20 simulated plants of
+:mod:`stictiondiag.models.synthetic_plant` the method was developed on (seeds
+0-19, 24 groups whose true source is a member; ``python
+benchmarks/bench_plantwide_methods.py --probability``): each piece of evidence
+alone puts the true source first in 23 groups (time order), 20 (P(stiction)) and
+15 (harmonic content).  The harmonic content is weakest because the receiving
+loop's own controller takes more out of the fundamental than of the harmonics
+(its sensitivity rises with frequency), so a propagated loop's pv can be more
+distorted than the source's.
 
 Roles (:data:`ROLES`): ``source_candidate`` (ranked first, or tied with the first
 when the evidence does not single one out), ``propagated`` (in a group whose source
@@ -60,8 +63,9 @@ __all__ = [
 
 #: Roles of a loop in a plant.
 ROLES = ("source_candidate", "propagated", "independent")
-#: Leads closer than this are a tie [fraction of the period]; at least two samples.
-LEAD_MARGIN = 0.03
+#: Leads closer than this are a tie [samples]: a lag is the peak of a sampled
+#: cross-correlation, known to a sample either way.
+LEAD_MARGIN = 2
 
 
 @dataclass(frozen=True)
@@ -238,12 +242,12 @@ def rank_sources(
         for m, s in zip(group.members, group.shares, strict=True)
     ]
     top_lead = max(e.lead_s for e in evidence)
-    margin = max(2.0 * dt, LEAD_MARGIN * period)
+    margin = LEAD_MARGIN * dt
     tied = [e for e in evidence if top_lead - e.lead_s < margin]
     rest = [e for e in evidence if top_lead - e.lead_s >= margin]
 
     def tie_key(e: SourceEvidence) -> tuple:
-        return (-_finite(e.harmonic_ratio, -1.0), -_finite(e.probability, -1.0), e.loop)
+        return (-_finite(e.probability, -1.0), -_finite(e.harmonic_ratio, -1.0), e.loop)
 
     tied.sort(key=tie_key)
     rest.sort(key=lambda e: (-e.lead_s, *tie_key(e)))
@@ -258,7 +262,7 @@ def rank_sources(
     else:
         note = (
             f"no single source: the cycles of {', '.join(candidates)} arrive within "
-            f"{margin:.0f} s of each other; ranked by harmonic content, then P(stiction)"
+            f"{margin:.0f} s of each other; ranked by P(stiction), then harmonic content"
         )
     return GroupSources(group, ranking, candidates, clear, note)
 

@@ -3,7 +3,7 @@
 For a fixed valve output ``u`` (the valve model of Fig. 10 of Choudhury, Thornhill &
 Shah (2005) run on op) the linear part of :mod:`stictiondiag.stiction.hammerstein` is
 linear in its parameters: the columns of
-:func:`stictiondiag.stiction.hammerstein_columns.regressors` (a first-order process
+:func:`stictiondiag.stiction.hammerstein.columns.regressors` (a first-order process
 with dead time and a direct part, Eq. 3 / Table 3, seen through a high-pass), two of
 them gains of one sign.  :func:`batch_cost` evaluates many (S, J) pairs in one
 compiled call; :class:`Problem` holds what those costs need for one fit.
@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from stictiondiag.core.jit import jit
-from stictiondiag.stiction.hammerstein_columns import lag, normal_equations, regressors
+from stictiondiag.stiction.hammerstein.columns import lag, normal_equations, regressors
 from stictiondiag.stiction.valvefit import ValveVariant, valve_run
 
 

@@ -6,7 +6,7 @@ a coarse search over the valve variants of Fig. 10 of Choudhury, Thornhill & Sha
 (:func:`coarse_search`); grids and zooms around the best (:func:`refine`); a
 Nelder-Mead polish (:func:`polish`); and the same search for a linear valve
 (:func:`fit_linear`).  Every cost is a least-squares cost of
-:class:`stictiondiag.stiction.hammerstein_kernels.Problem`.
+:class:`stictiondiag.stiction.hammerstein.kernels.Problem`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stictiondiag.stiction.hammerstein_kernels import Problem
+from stictiondiag.stiction.hammerstein.kernels import Problem
 from stictiondiag.stiction.valvefit import ValveVariant, valve_variants
 
 #: Starting states tried: the valve is started stuck at the first extreme of op, its

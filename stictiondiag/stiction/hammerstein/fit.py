@@ -58,7 +58,7 @@ so they inflate both residuals and pull the improvement ``1 - C / C_linear``
 towards zero.  The default model for them is the high-pass above, an integrated-noise
 model: pv and the regressors go through ``(1 - q^-1) / (1 - a q^-1)``, a difference
 below a quarter of the cycle frequency, plus the free start terms and the misfit
-half-cycles left out (:data:`stictiondiag.stiction.hammerstein_search.OUTLIER_FACTOR`).
+half-cycles left out (:data:`stictiondiag.stiction.hammerstein.search.OUTLIER_FACTOR`).
 ``disturbance="drift"`` adds drift states estimated alongside: the cosines of a
 discrete cosine transform below :data:`DRIFT_CUTOFF` of the cycle frequency, fitted
 with the linear part (projected out of the normal equations in the compiled cost,
@@ -114,7 +114,7 @@ Each fit tries the published flowchart and Kano's variant, on op itself and, whe
 carries white noise, behind a play operator of four noise deviations
 (:class:`stictiondiag.stiction.valvefit.ValveVariant`).  A record starts at an arbitrary point
 of the valve's history, so the model is started stuck at the first clear extreme of
-op with its stop point a searched offset back from it (:data:`stictiondiag.stiction.hammerstein_search.START_OFFSETS`).
+op with its stop point a searched offset back from it (:data:`stictiondiag.stiction.hammerstein.search.START_OFFSETS`).
 
 How well S and J are determined
 -------------------------------
@@ -156,9 +156,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from stictiondiag.core.errors import DataError
-from stictiondiag.stiction.hammerstein_columns import NCOL, highpass, lag
-from stictiondiag.stiction.hammerstein_kernels import Problem
-from stictiondiag.stiction.hammerstein_search import (
+from stictiondiag.stiction.hammerstein.columns import NCOL, highpass, lag
+from stictiondiag.stiction.hammerstein.kernels import Problem
+from stictiondiag.stiction.hammerstein.search import (
     START_OFFSETS,
     FitSetup,
     Search,

@@ -7,7 +7,7 @@ with dead time and a direct part, Eq. 3 / Table 3, seen through a high-pass), tw
 them gains of one sign.  :func:`regressors` defines them plainly, one time constant
 at a time; :func:`normal_equations` computes their normal equations at the kept
 regression rows for many time constants in one pass over the record, which is
-what the batch costs of :mod:`stictiondiag.stiction.hammerstein_kernels` evaluate.
+what the batch costs of :mod:`stictiondiag.stiction.hammerstein.kernels` evaluate.
 """
 
 from __future__ import annotations
