@@ -193,6 +193,8 @@ class Analysis:
             "detected": st.get("detected"),
             "confidence": st.get("confidence"),
             "probability": st.get("probability"),
+            "cause": st.get("cause"),
+            "runner_up": st.get("runner_up"),
             "S": st.get("S"),
             "J": st.get("J"),
             "S_lo": s_int[0],

@@ -454,6 +454,7 @@ LEADING_COLUMNS = (
     "loop",
     "verdict",
     "probability",
+    "cause",
     "severity",
     "confidence",
     "S",
