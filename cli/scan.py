@@ -51,6 +51,9 @@ def scan(
     ] = None,
     force: Annotated[bool, typer.Option(help="Re-analyse loops already in --out.")] = False,
     gap: Annotated[bool, typer.Option(help="Include the sim-to-real gap diagnosis.")] = True,
+    plots: Annotated[
+        bool, typer.Option(help="Draw each loop page's figures (about a second per loop).")
+    ] = True,
     loop_column: Annotated[
         str | None, typer.Option(help="Loop-id column of a Parquet dataset.")
     ] = None,
@@ -134,6 +137,7 @@ def scan(
                 scheduler=scheduler,
                 force=force,
                 gap=gap,
+                plots=plots,
                 loop_column=loop_column,
                 read_options=options,
                 manifest=manifest,
