@@ -8,7 +8,14 @@ from typing import Annotated
 import typer
 
 from .app import app
-from .common import check_output_dir, check_output_file, emit, friendly_errors, info
+from .common import (
+    check_output_dir,
+    check_output_file,
+    compile_if_cold,
+    emit,
+    friendly_errors,
+    info,
+)
 from .options import (
     ActionOption,
     CompressionOption,
@@ -130,7 +137,7 @@ def render_summary(d: dict) -> str:
             ("op_reversals_per_day", "reversals {:.3g}/day"),
             ("time_at_op_limits", "at op limits {:.3g} %"),
             ("error_std", "error std {:.3g}"),
-            ("harris_index", "Harris index {:.2f}"),
+            ("harris_index", "Harris index {:.2g}"),
             ("service_factor", "service factor {:.3g} %"),
         ]
         parts = [
@@ -192,6 +199,7 @@ def analyze(
             action,
             compression,
         )
+        compile_if_cold()
         info(f"analysing {file} ...")
         result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
         from stictiondiag.apps.findings import with_findings

@@ -114,6 +114,14 @@ class AnalysisConfig:
     replay: bool = True
     compensation: bool = True
 
+    def __post_init__(self) -> None:
+        # AnalysisConfig(gap="no") must not run the gap diagnosis: booleans only.
+        from stictiondiag.core.errors import require_bool
+
+        for name in ("gap", "replay", "compensation"):
+            flag = require_bool(f"AnalysisConfig.{name}", getattr(self, name))
+            object.__setattr__(self, name, flag)
+
 
 #: Fewest periods of a regular cycle a record must hold to be analysed at all [-].
 #: Seen twice, a pattern repeats (and a sticky valve slips at least four times);
@@ -295,8 +303,30 @@ def analyze(tags: Tags, *, config: AnalysisConfig | None = None) -> Analysis:
         (:func:`check_record_length`), or a step cannot use the data (its message
         says why).  The replay and the gap diagnosis do not raise: when they cannot
         use the data the reason goes into the warnings and their field is None.
+    TypeError
+        ``tags`` is not a :class:`Tags` (a DataFrame, a path, None) or ``config``
+        not an :class:`AnalysisConfig`.
     """
+    _check_arguments(tags, config)
     return run_from_estimate(estimate_loop(tags), config=config)
+
+
+def _check_arguments(tags: object, config: object) -> None:
+    """TypeErrors that say what :func:`analyze` takes and how to get it."""
+    if not isinstance(tags, Tags):
+        what = type(tags).__name__
+        if what == "DataFrame":
+            hint = "read it with stictiondiag.io.tags.read_frame(frame) first"
+        elif isinstance(tags, str | os.PathLike):
+            hint = "use analyze_file(path) for a file"
+        else:
+            hint = "get them from read_tags(path), read_frame(frame) or Tags.from_arrays(pv, op)"
+        raise TypeError(f"analyze() takes the loop's Tags, not {what}: {hint}")
+    if config is not None and not isinstance(config, AnalysisConfig):
+        raise TypeError(
+            f"config must be an AnalysisConfig (e.g. AnalysisConfig(gap=False)), "
+            f"not {type(config).__name__}"
+        )
 
 
 def analyze_file(

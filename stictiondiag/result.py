@@ -90,8 +90,12 @@ class Analysis:
 
     @property
     def loop(self) -> str:
-        """Loop name: the source file's stem."""
-        return Path(str(self.tags.source)).stem or "loop"
+        """Loop name: the tag of a loop of a plant export (``plant.csv#FIC101`` ->
+        ``FIC101``), else the source file's stem."""
+        source = str(self.tags.source)
+        if "#" in source:
+            return source.rsplit("#", 1)[1] or "loop"
+        return Path(source).stem or "loop"
 
     def to_json(self) -> str:
         """The whole result, time series included, as one JSON document
@@ -189,6 +193,8 @@ class Analysis:
             "detected": st.get("detected"),
             "confidence": st.get("confidence"),
             "probability": st.get("probability"),
+            "cause": st.get("cause"),
+            "runner_up": st.get("runner_up"),
             "S": st.get("S"),
             "J": st.get("J"),
             "S_lo": s_int[0],

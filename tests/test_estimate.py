@@ -152,7 +152,8 @@ def test_no_oscillation_but_recorded_stick_slip_is_stiction():
 
     v = stiction_verdict(fit, NoCycle(), oscillation_op=NoCycle(), has_mv=True)
     assert v.status == "stiction"
-    assert v.reasons[0].startswith("P(stiction) = ")
+    assert v.reasons[0].startswith("stick-slip without a limit cycle: the recorded valve")
+    assert v.cause == "valve"
 
 
 def test_verdict_is_unit_invariant():

@@ -357,7 +357,11 @@ def _constant_model(p: float) -> dict:
     ],
 )
 def test_verdict_follows_the_probability(p, status):
-    v = stiction_verdict(_fit(), _Cycle(), oscillation_op=_Cycle(), model=_constant_model(p))
+    # With the valve position recorded the friction model decides (stage 2, the cause
+    # of the cycle, is asked of loops without mv).
+    v = stiction_verdict(
+        _fit(), _Cycle(), oscillation_op=_Cycle(), has_mv=True, model=_constant_model(p)
+    )
     assert v.status == status
     assert v.probability == pytest.approx(p, abs=1e-12)
     expected = {"stiction": p, "no_stiction": 1 - p, "inconclusive": p}[status]

@@ -190,3 +190,29 @@ def test_split_summary_counts():
         "S_within": 1,
         "S_within_share": 0.5,
     }
+
+
+def test_stated_auc_and_per_cause_table():
+    import pandas as pd
+
+    from stictiondiag.apps.validation import cause_table, stated_auc
+
+    t = pd.DataFrame(
+        {
+            "label_group": ["stated"] * 4 + ["likely"],
+            "label": ["stiction", "stiction", "no_stiction", "no_stiction", "stiction"],
+            "probability": [0.9, 0.4, 0.5, 0.1, 0.0],
+            "stiction_published": ["yes", "yes", "not stated", "not stated", "yes_likely"],
+            "other_fault_published": [None, "tight tuning", "quantisation", "no oscillation", None],
+            "cause": ["valve", "tuning", "other", "none", "external"],
+            "verdict": ["stiction", "no_stiction", "inconclusive", "no_stiction", "no_stiction"],
+        }
+    )
+    # Pairs (stiction, other) on the stated loops: (0.9 > 0.5), (0.9 > 0.1),
+    # (0.4 < 0.5), (0.4 > 0.1): 3 of 4; the likely loop is not counted.
+    assert stated_auc(t) == pytest.approx(0.75, abs=1e-12)
+    rows = {r.split(" | ")[0].lstrip("| "): r for r in cause_table(t)[2:]}
+    assert set(rows) == {"stiction", "quantisation", "no oscillation", "stiction (likely)"}
+    # stiction: 2 loops, one named valve, one tuning.
+    assert rows["stiction"].startswith("| stiction | 2 | 1 | 1 | 0 | 0 | 0 | 0 | 0 |")
+    assert rows["quantisation"].endswith("| 0 | 1 |")  # inconclusive, cause other

@@ -196,8 +196,25 @@ def param_text(st: dict, sym: str, *, unit: str = " %") -> str:
 
 
 def probability_text(st: dict) -> str:
-    """``P(stiction) = 0.55 (decision levels 0.3 and 0.7)``."""
+    """``P(stiction) = 0.55 (decision levels 0.3 and 0.7)``, or with stage 2 of the
+    verdict ``cause: the valve (P 0.72), runner-up: the controller's tuning (P 0.15)``,
+    or ``no limit cycle`` for a loop without one."""
+    from stictiondiag.stiction.cause import CAUSE_WORDS
+
     ev = st.get("evidence") or {}
+    probs = st.get("cause_probabilities")
+    cause = str(st.get("cause"))
+    if probs and cause in probs:
+        runner = str(st.get("runner_up"))
+        text = f"cause: {CAUSE_WORDS[cause]} (P {float(probs[cause]):.2f})"
+        if runner in probs:
+            text += f", runner-up: {CAUSE_WORDS[runner]} (P {float(probs[runner]):.2f})"
+        return text
+    if cause == "none":
+        pf = ev.get("p_friction")
+        return "no limit cycle" + (
+            f"; P(the valve has friction) = {float(pf):.2f}" if pf is not None else ""
+        )
     lo = ev.get("no_stiction_level", NO_STICTION_LEVEL)
     hi = ev.get("stiction_level", STICTION_LEVEL)
     p = st.get("probability")
@@ -233,6 +250,15 @@ def _meaning(status: str, st: dict, oscillating: bool) -> str:
             "between the decision levels"
         )
     if status == "no_stiction":
+        cause = st.get("cause")
+        if cause in ("tuning", "external", "other"):
+            from stictiondiag.stiction.cause import CAUSE_WORDS
+
+            return (
+                f"the loop cycles, and the cause is most likely {CAUSE_WORDS[cause]}, not the valve"
+            )
+        if cause == "none":
+            return "the loop has no limit cycle: the valve is not driving an oscillation"
         if oscillating:
             return (
                 "the oscillation is not explained by a sticky valve: look for its cause "
@@ -252,6 +278,8 @@ OWN_UNITS = " in op's own units (scale unknown, not % of span)"
 
 
 def _action(status: str, st: dict, oscillating: bool, unknown_scale: bool = False) -> str:
+    from stictiondiag.stiction.cause import ACTIONS
+
     if status == "stiction" and unknown_scale:
         # A size in unknown units cannot schedule work: S of 0.002 may be 0.2 % of span
         # or nothing at all.
@@ -260,6 +288,9 @@ def _action(status: str, st: dict, oscillating: bool, unknown_scale: bool = Fals
             "span (--op-range LO HI, or op_range in the loops manifest), or test the "
             "valve directly in manual"
         )
+    cause = st.get("cause")
+    if status != "inconclusive" and cause in ACTIONS:
+        return ACTIONS[cause]
     if status == "stiction":
         return "schedule a valve inspection (packing, actuator, positioner)"
     if status == "inconclusive":

@@ -41,6 +41,7 @@ from stictiondiag.core.errors import (
     DataError,
     StictionError,
     UsageError,
+    require_bool,
 )
 from stictiondiag.io.plant import PlantLoop, manifest_options, unmatched_manifest_rows
 
@@ -364,6 +365,10 @@ def build_report(
     DataError
         No input could be analysed (the index is written all the same).
     """
+    gap = bool(require_bool("gap", gap))
+    clean = bool(require_bool("clean", clean))
+    if isinstance(files, str | os.PathLike):
+        raise TypeError("files must be a list of paths, not one path: build_report([path], out)")
     out = Path(out)
     paths = [str(f) for f in files]
     workers = default_workers(len(paths)) if workers is None else int(workers)

@@ -503,12 +503,90 @@ def targets(result: ValidationResult) -> list[tuple[str, str, bool | None]]:
             None if share is None else share <= 0.15,
         ),
         (
+            "area under the ROC curve of P(valve), stated labels, >= 0.85",
+            _f(auc := stated_auc(t)),
+            _ge(auc, 0.85),
+        ),
+        (
             "split-half verdict agreement >= 0.85",
             f"{_f(sp.get('agreement'))} ({sp.get('agree', 0)} of {sp.get('n', 0)})",
             _ge(sp.get("agreement"), 0.85),
         ),
     ]
     return out
+
+
+def stated_auc(t: pd.DataFrame) -> float | None:
+    """Area under the ROC curve of our ``probability`` (P that the valve causes the
+    cycle) on the stated loops: stiction against the others (a Mann-Whitney count,
+    ties half); None when a class is empty or no P is known."""
+    g = t[(t["label_group"] == "stated")]
+    if "probability" not in g:
+        return None
+    p = pd.to_numeric(g["probability"], errors="coerce")
+    ok = p.notna()
+    y = (g["label"] == "stiction")[ok].to_numpy(bool)
+    s = p[ok].to_numpy(float)
+    pos, neg = s[y], s[~y]
+    if pos.size == 0 or neg.size == 0:
+        return None
+    gt = (pos[:, None] > neg[None, :]).sum() + 0.5 * (pos[:, None] == neg[None, :]).sum()
+    return float(gt / (pos.size * neg.size))
+
+
+#: Our causes as columns of the per-cause table (``inconclusive`` verdicts too).
+_CAUSE_COLUMNS = ("valve", "tuning", "external", "other", "none")
+
+
+def expert_cause(stiction_published: str, other_fault: str | None) -> str | None:
+    """The expert's named cause, as published (stiction first; the other diagnosis as
+    written, "(likely)" kept), None when nothing is named."""
+    s = str(stiction_published or "").strip().lower()
+    if s in ("yes", "yes_likely"):
+        return "stiction" + (" (likely)" if s == "yes_likely" else "")
+    if isinstance(other_fault, str) and other_fault.strip():
+        return other_fault.strip()
+    if s == "no":
+        return "no stiction"
+    return None
+
+
+def cause_table(t: pd.DataFrame) -> list[str]:
+    """Markdown rows: each published cause against the cause we name (and how many
+    of those loops our verdict left inconclusive)."""
+    named = [
+        (expert_cause(a, b), r)
+        for a, b, r in zip(
+            t["stiction_published"], t["other_fault_published"], t.itertuples(), strict=True
+        )
+    ]
+    order: list[str] = []
+    for c, _ in named:
+        if c is not None and c not in order:
+            order.append(c)
+    lines = [
+        "| expert's cause | loops | "
+        + " | ".join(_CAUSE_COLUMNS)
+        + " | no cause | of which inconclusive |",
+        "|---|---|" + "---|" * (len(_CAUSE_COLUMNS) + 2),
+    ]
+    for c in order:
+        rows = [r for e, r in named if e == c]
+        ours = [str(getattr(r, "cause", None)) for r in rows]
+        counts = [ours.count(k) for k in _CAUSE_COLUMNS]
+        inc = sum(str(getattr(r, "verdict", "")) == "inconclusive" for r in rows)
+        lines.append(
+            f"| {c} | {len(rows)} | "
+            + " | ".join(str(k) for k in counts)
+            + f" | {len(rows) - sum(counts)} | {inc} |"
+        )
+    return lines
+
+
+def _with_cause(r) -> str:
+    """``verdict (cause)`` of a row of the table."""
+    cause = getattr(r, "cause", None)
+    return f"{r.verdict} ({cause})" if isinstance(cause, str) else str(r.verdict)
 
 
 def _ge(v, level) -> bool | None:
@@ -584,6 +662,18 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         col = f"baseline_{test}"
         if col in t:
             lines += _confusion_lines(t, col, test)
+    if "cause" in t:
+        lines += [
+            "",
+            "## Per cause",
+            "",
+            "Each published cause (the ISDB comment, as written) against the cause our",
+            "verdict names (`stictiondiag/stiction/cause.py`): the valve, the tuning, an",
+            "external disturbance, quantisation or another nonlinearity (`other`), or no",
+            "limit cycle (`none`); an `inconclusive` verdict names its most likely cause.",
+            "",
+            *cause_table(t),
+        ]
     lines += [
         "",
         "## Split-half repeatability (no labels needed)",
@@ -620,7 +710,7 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         lines.append(
             f"| {r.loop} | {r.label_group} | {r.label.replace('_', ' ')}"
             f"{' (' + str(r.other_fault_published) + ')' if isinstance(r.other_fault_published, str) else ''}"
-            f" | {r.verdict} | {_f(getattr(r, 'probability', None))} | {str(why).replace('|', '/')} |"
+            f" | {_with_cause(r)} | {_f(getattr(r, 'probability', None))} | {str(why).replace('|', '/')} |"
         )
     cols = " | ".join(CLASSIC_COLUMNS)
     lines += [
@@ -637,7 +727,7 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         classic = " | ".join(str(getattr(r, f"baseline_{c}", "")) for c in CLASSIC_COLUMNS)
         lines.append(
             f"| {r.loop} | {r.loop_type} | {_f(r.ts_s, 'g')} | {_text(r.label, '-')} | "
-            f"{r.label_group} | {r.verdict} | {_f(getattr(r, 'probability', None))} | "
+            f"{r.label_group} | {_with_cause(r)} | {_f(getattr(r, 'probability', None))} | "
             f"{_f(getattr(r, 'confidence', None))} | {_f(getattr(r, 'S', None))} | "
             f"{_f(getattr(r, 'J', None))} | {classic} | {halves} |"
         )

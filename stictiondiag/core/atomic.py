@@ -187,7 +187,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     The temporary file lives in the destination directory and ends in the same
     extension as ``path``, so format inference by extension still works. If the
     block raises, the temporary file is removed, ``path`` is left untouched and
-    the exception propagates unchanged. If the block writes nothing, ``path``
+    the exception propagates unchanged, except an ``OSError`` of the writing
+    library (a full disk), which becomes a UsageError naming ``path``. If the block writes nothing, ``path``
     becomes an empty file.
 
     Raises

@@ -217,18 +217,19 @@ def match_columns(
             )
     if "time" not in chosen:
         by_name = [column for column in free if is_time_name(column)]
-        by_type = [
-            column
-            for column in free
-            if column not in by_name and pd.api.types.is_datetime64_any_dtype(frame[column])
-        ]
+        # The types from one pass over the header: frame[column] for every column
+        # would copy the frame's attrs (its header names) each time, quadratic in
+        # the number of columns.
+        datetime = {
+            str(column)
+            for column, dtype in zip(frame.columns, frame.dtypes, strict=True)
+            if pd.api.types.is_datetime64_any_dtype(dtype)
+        }
+        named = set(by_name)
+        by_type = [column for column in free if column not in named and column in datetime]
         candidates = by_name or by_type
         if len(candidates) > 1:
-            typed = [
-                column
-                for column in candidates
-                if pd.api.types.is_datetime64_any_dtype(frame[column])
-            ]
+            typed = [column for column in candidates if column in datetime]
             if len(typed) != 1:
                 listed = ", ".join(repr(column) for column in candidates)
                 raise DataError(

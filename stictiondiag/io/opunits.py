@@ -24,7 +24,15 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError
 
-__all__ = ["check_op_units"]
+__all__ = ["MIN_TRAVEL_PCT", "WARN_TRAVEL_PCT", "check_op_travel", "check_op_units"]
+
+#: Least travel of op over the record [% of span] that a given op range may leave:
+#: below it the valve is read as all but still (stick-slip of a few hundredths of
+#: a percent is below any positioner's resolution), so the range is refused.
+MIN_TRAVEL_PCT = 0.05
+
+#: Travel of op [% of span] below which a given op range is warned about.
+WARN_TRAVEL_PCT = 1.0
 
 #: Share of samples outside a range that makes the range wrong [-]: a few spikes
 #: (a bad sample, a transmitter fault) do not.
@@ -131,3 +139,38 @@ def check_op_units(
         # A percent op that fills most of 4-20 and never leaves it is unlikely.
         return "unknown" if hi - lo >= 8.0 else "percent"
     return "percent"
+
+
+def check_op_travel(
+    op_pct: np.ndarray, op_range: tuple[float, float], label: str, notes: list[str]
+) -> None:
+    """Check how far op moves within a given ``op_range`` (op already in % of span).
+
+    An op range whose scale leaves op nearly constant (``--op-range 0 1e6`` on an op
+    between 40 and 59: 0.002 % of span) would report S and J in the wrong scale
+    without any other sign.
+
+    Raises
+    ------
+    UsageError
+        op travels less than :data:`MIN_TRAVEL_PCT` of the span (or not at all).
+
+    A travel below :data:`WARN_TRAVEL_PCT` is noted.
+    """
+    from stictiondiag.core.errors import UsageError
+
+    values = np.asarray(op_pct, dtype=float)
+    values = values[np.isfinite(values)]
+    travel = float(np.ptp(values)) if values.size else 0.0
+    low, high = op_range
+    if not travel >= MIN_TRAVEL_PCT:
+        raise UsageError(
+            f"op {label!r} moves by {travel:.3g} % of the op range {low:g} to {high:g}: "
+            "the range makes op all but constant; give the op values at 0 and 100 % of "
+            "the valve's span (CLI --op-range LO HI)"
+        )
+    if travel < WARN_TRAVEL_PCT:
+        notes.append(
+            f"op {label!r} moves by only {travel:.3g} % of the op range {low:g} to {high:g}: "
+            "check op_range (CLI --op-range); S and J are reported in % of that range"
+        )

@@ -285,6 +285,7 @@ def _resample_long(
     seconds = time_seconds(frame[long["time"]], long["time"], label)
     values = pd.to_numeric(frame[long["value"]], errors="coerce").to_numpy(dtype=float)
     series = {}
+    repeated: dict[str, int] = {}
     for role, tag in tags.items():
         if role == "time":
             continue
@@ -294,6 +295,8 @@ def _resample_long(
         order = np.argsort(t, kind="stable")
         t, v = t[order], v[order]
         unique = np.concatenate(([True], np.diff(t) > 0)) if t.size else np.ones(0, bool)
+        if not unique.all():
+            repeated[tag] = int((~unique).sum())
         t, v = t[unique], v[unique]
         if t.size < 1 or (t.size < 2 and role in ("pv", "op")):
             raise DataError(f"{label}: tag {tag!r} has {t.size} samples: export more of it")
@@ -308,6 +311,15 @@ def _resample_long(
         note = (
             f"long export: tags resampled to a common grid of {grid.size} points every "
             f"{step:g} s (the fastest tag's step: {tagged})"
+        )
+    if repeated:
+        # A clock set back (the daylight-saving fall-back hour written in local
+        # time) repeats stamps: the first value of each stamp is kept, said here.
+        listed = ", ".join(f"{tag} {n}" for tag, n in repeated.items())
+        note += (
+            f"; repeated time stamps ({listed} rows; a clock set back, e.g. the "
+            "daylight-saving fall-back hour in local time?): kept the first value of each, "
+            "export in UTC to keep them all"
         )
     return pd.DataFrame(out), note
 

@@ -33,10 +33,39 @@ from stictiondiag.core.errors import DataError, StictionError
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["CHUNK_ROWS", "duplicate_names", "read_table"]
+__all__ = ["CHUNK_ROWS", "MAX_ROWS", "duplicate_names", "max_rows", "read_table"]
 
 #: Rows per chunk when a CSV is read in chunks.
 CHUNK_ROWS = 1_000_000
+
+#: Most rows a file may have [rows]; ``STICTION_MAX_ROWS`` overrides it.  The
+#: analysis needs up to about 1 KB per sample (docs/performance.md: 0.3 KB without
+#: the gap diagnosis, about 2 KB with it; 10^7 samples ran in 3.4 GB), so 10^7 rows
+#: keep one loop within a few GB.  Rows are counted while the file is read, a chunk
+#: at a time (compressed files included, whose size on disk says nothing of their
+#: rows), so a file past the ceiling stops the read in bounded memory.
+MAX_ROWS = 10_000_000
+
+
+def max_rows() -> int:
+    """The row ceiling in force: ``STICTION_MAX_ROWS`` if set to a positive whole
+    number, else :data:`MAX_ROWS`."""
+    import os
+
+    try:
+        value = int(os.environ.get("STICTION_MAX_ROWS", MAX_ROWS))
+    except ValueError:
+        return MAX_ROWS
+    return value if value > 0 else MAX_ROWS
+
+
+def _too_many_rows(file: Path, ceiling: int) -> DataError:
+    return DataError(
+        f"{file} has more than {ceiling:,} rows, the ceiling of one record (the analysis "
+        "needs up to 1 KB of memory per sample): cut the export to the period to "
+        "analyse, or raise STICTION_MAX_ROWS"
+    )
+
 
 #: Files above this size [bytes] are read in chunks (below, one read is faster).
 _CHUNKED_ABOVE = 64 * 1024 * 1024
@@ -106,6 +135,9 @@ def _read_parquet(file: Path, select: Select | None) -> pd.DataFrame:
     try:
         with open(file, "rb") as handle:
             parquet = pq.ParquetFile(handle)
+            ceiling = max_rows()
+            if parquet.metadata.num_rows > ceiling:
+                raise _too_many_rows(file, ceiling)
             if select is not None:
                 header = parquet.schema_arrow.empty_table().to_pandas()
                 header.columns = [str(c).strip() for c in header.columns]
@@ -192,7 +224,9 @@ def _read_csv(file: Path, compression: str | None, select: Select | None) -> pd.
     }
     if _decimal_comma(head.decode(encoding, errors="replace"), separator):
         options["decimal"] = ","
-    chunked = file.stat().st_size > _CHUNKED_ABOVE
+    # A compressed file's size says nothing of its rows: read it in chunks, counted.
+    chunked = compression is not None or file.stat().st_size > _CHUNKED_ABOVE
+    ceiling = max_rows()
     try:
         if select is not None:
             with open(file, "rb") as handle:
@@ -209,9 +243,11 @@ def _read_csv(file: Path, compression: str | None, select: Select | None) -> pd.
                 options["usecols"] = sorted({positions[n] for n in chosen if n in positions})
         with open(file, "rb") as handle:
             if chunked:
-                frame = _read_chunks(handle, options)
+                frame = _read_chunks(handle, options, ceiling, file)
             else:
                 frame = pd.read_csv(handle, low_memory=False, **options)
+        if len(frame) > ceiling:
+            raise _too_many_rows(file, ceiling)
     except StictionError:
         raise
     except pd.errors.EmptyDataError:
@@ -231,19 +267,24 @@ def _read_csv(file: Path, compression: str | None, select: Select | None) -> pd.
     return frame
 
 
-def _read_chunks(handle, options: dict) -> pd.DataFrame:
+def _read_chunks(handle, options: dict, ceiling: int, file: Path) -> pd.DataFrame:
     """A CSV read :data:`CHUNK_ROWS` rows at a time, each column kept as one array.
 
     Each chunk's columns are appended to per-column lists and the chunk is let go, so
     the peak is the columns read plus one chunk, not the parser's buffers for the
-    whole file.
+    whole file.  Past ``ceiling`` rows the read stops (DataError).
     """
     import numpy as np
     import pandas as pd
 
     parts: dict[str, list] = {}
-    with pd.read_csv(handle, chunksize=CHUNK_ROWS, **options) as reader:
+    rows = 0
+    size = max(1, min(CHUNK_ROWS, ceiling + 1))
+    with pd.read_csv(handle, chunksize=size, **options) as reader:
         for chunk in reader:
+            rows += len(chunk)
+            if rows > ceiling:
+                raise _too_many_rows(file, ceiling)
             for column in chunk.columns:
                 parts.setdefault(column, []).append(chunk[column].to_numpy())
     columns = {}

@@ -90,12 +90,13 @@ from stictiondiag.core.checks import check_dt
 from stictiondiag.core.errors import (
     DataError,
     UsageError,
+    require_bool,
 )
 from stictiondiag.io.columns import ROLES, match_columns, numeric_column
 from stictiondiag.io.compression import from_archive, sparse_roles
 from stictiondiag.io.gaps import MIN_SAMPLES, fill_gaps
 from stictiondiag.io.looptype import resolve_loop_type
-from stictiondiag.io.opunits import check_op_units
+from stictiondiag.io.opunits import check_op_travel, check_op_units
 from stictiondiag.io.readers import read_table
 from stictiondiag.io.timebase import (
     # Longest run of missing samples [samples] that is linearly interpolated; longer
@@ -489,9 +490,11 @@ def read_tags(
         Bad ``ts``, ``op_units``, ``op_range``, ``loop_type``, or one column named
         for two roles.
     """
-    _check_options(op_units, op_range, loop_type)
+    _check_options(op_units, op_range, loop_type, integrating)
     if ts is not None:
         check_dt(ts, "ts")
+    if not isinstance(path, str | os.PathLike):
+        raise TypeError(f"path must be a file path (str or Path), not {type(path).__name__}")
     file = Path(path)
     overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time}
 
@@ -558,7 +561,12 @@ def read_frame(
     """
     import pandas as pd
 
-    _check_options(op_units, op_range, loop_type)
+    if not isinstance(frame, pd.DataFrame):
+        raise TypeError(
+            f"read_frame takes a pandas DataFrame, not {type(frame).__name__}; "
+            "use read_tags(path) for a file"
+        )
+    _check_options(op_units, op_range, loop_type, integrating)
     if ts is not None:
         ts = check_dt(ts, "ts")
     if not isinstance(frame.index, pd.RangeIndex):
@@ -613,8 +621,16 @@ def read_frame(
 
 
 def _check_options(
-    op_units: str, op_range: tuple[float, float] | None, loop_type: str | None
+    op_units: str,
+    op_range: tuple[float, float] | None,
+    loop_type: str | None,
+    integrating: object = None,
 ) -> tuple[float, float]:
+    # integrating="no" must not be read as True: booleans (or None) only.
+    require_bool("integrating", integrating, optional=True)
+    for name, value in (("op_units", op_units), ("loop_type", loop_type)):
+        if value is not None and not isinstance(value, str):
+            raise TypeError(f"{name} must be a string, not {type(value).__name__}")
     if op_units not in OP_UNITS:
         raise UsageError(f"op_units must be 'percent' or 'mA', not {op_units!r}")
     if loop_type is not None and loop_type not in LOOP_TYPES:
@@ -628,7 +644,9 @@ def _check_options(
             f"op_range must be two numbers (LO, HI), the op values at 0 % and 100 % of span, "
             f"not {op_range!r}"
         ) from None
-    if not (math.isfinite(low) and math.isfinite(high)) or high <= low:
+    if not (math.isfinite(low) and math.isfinite(high) and math.isfinite(high - low)) or (
+        high <= low
+    ):
         raise UsageError(
             f"op_range must be (LO, HI) with finite LO < HI (op at 0 % and 100 % of span), "
             f"not {op_range!r}"
@@ -687,7 +705,7 @@ def _assemble(
     """Validate, convert op/mv to % of span, handle gaps and build :class:`Tags`."""
     if action is not None and action not in ACTIONS:
         raise UsageError(f"action must be one of {', '.join(ACTIONS)}, not {action!r}")
-    low, high = _check_options(op_units, op_range, loop_type)
+    low, high = _check_options(op_units, op_range, loop_type, integrating)
     where = "" if source == "<memory>" else f" in {source}"
     # Private copies: the caller's arrays are neither modified nor frozen.
     arrays = {role: np.array(values, dtype=float) for role, values in arrays.items()}
@@ -725,6 +743,8 @@ def _assemble(
     for role in ("op", "mv"):
         if role in arrays and (low, high) != (0.0, 100.0):
             arrays[role] = (arrays[role] - low) / (high - low) * 100.0
+    if op_range is not None:
+        check_op_travel(arrays["op"], (low, high), labels.get("op", "op"), notes)
     loop_type, integrating, decided_by = resolve_loop_type(
         loop_type, integrating, [labels[r] for r in ("pv", "op", "sp") if r in labels], notes
     )

@@ -23,6 +23,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stictiondiag.core.serialize import to_plain as _plain
+from stictiondiag.stiction.cause import (
+    ACTIONS,
+    CAUSE_WORDS,
+    NO_CYCLE_REASON,
+    Cycle,
+    cycle_text,
+    direct_stick_slip,
+    find_cycle,
+)
 from stictiondiag.stiction.probability import (
     classic_votes,
     evidence_features,
@@ -54,6 +63,21 @@ class Verdict:
         The measured quantities behind the decision (JSON-able).
     probability : float or None
         Calibrated P(stiction) [-] (:mod:`stictiondiag.stiction.probability`).
+    cause : str or None
+        Why the loop oscillates (:mod:`stictiondiag.stiction.cause`): ``"none"`` (no
+        limit cycle), ``"valve"``, ``"tuning"``, ``"external"``, ``"other"``; None when
+        the verdict cannot name one.
+    cycle : Cycle or None
+        Stage 1: the limit cycle found, if any.
+    cause_probabilities : dict or None
+        Stage 2: P of each cause of the cycle [-] (None without a cycle or without
+        the cause model).
+    runner_up : str or None
+        The second most likely cause.
+
+    ``probability`` is P(the valve causes the cycle) when stage 2 decides (a cycle,
+    no mv), 0 for a loop without a cycle and without direct stick-slip, else the
+    friction model's P(stiction) (kept in ``evidence["p_friction"]`` in every case).
     """
 
     status: str
@@ -62,6 +86,10 @@ class Verdict:
     reasons: tuple[str, ...]
     evidence: dict = field(default_factory=dict, repr=False)
     probability: float | None = None
+    cause: str | None = None
+    cycle: Cycle | None = None
+    cause_probabilities: dict[str, float] | None = None
+    runner_up: str | None = None
 
     def to_dict(self) -> dict:
         return _plain(
@@ -71,6 +99,10 @@ class Verdict:
                 "detected": self.detected,
                 "confidence": self.confidence,
                 "probability": self.probability,
+                "cause": self.cause,
+                "cause_probabilities": self.cause_probabilities,
+                "runner_up": self.runner_up,
+                "cycle": None if self.cycle is None else self.cycle.to_dict(),
                 "reasons": list(self.reasons),
                 "evidence": self.evidence,
             }
@@ -383,6 +415,52 @@ def verdict_features(
     return features, (support, f, f_iv), classic
 
 
+#: P(the valve causes the cycle) at or above which stage 2 calls ``stiction``, and at
+#: or below ``1 - VALVE_LEVEL`` of which it calls ``no_stiction`` [-].  Stated before
+#: any real record was scored: with four causes, a loop is called when the valve is
+#: more likely than all other causes together by 3 to 2 (or they than it); the band
+#: between is narrow because stage 2 is asked only of loops with a cycle to explain,
+#: where maintenance must act either way (inspect the valve, or act on the cause named).
+VALVE_LEVEL = 0.6
+
+
+def _cause_probabilities(features: dict, cause_model: dict | None) -> dict[str, float] | None:
+    """Stage 2's P of each cause, None when the cause model is not installed."""
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.stiction.cause_model import cause_probabilities
+
+    try:
+        return cause_probabilities(features, cause_model)
+    except StictionError:
+        return None
+
+
+def _runner_up(probs: dict[str, float], first: str | None) -> tuple[str, float]:
+    """The most likely cause other than ``first``, with its P."""
+    rest = sorted(((p, c) for c, p in probs.items() if c != first), reverse=True)
+    return rest[0][1], rest[0][0]
+
+
+def _stage2_call(probs: dict[str, float]) -> tuple[str, bool | None, float, str, str]:
+    """(status, detected, confidence, cause, reason) of stage 2 (:data:`VALVE_LEVEL`)."""
+    p_valve = probs["valve"]
+    top = max(probs, key=lambda c: probs[c])
+    if p_valve >= VALVE_LEVEL:
+        status, detected, confidence, cause = "stiction", True, p_valve, "valve"
+    elif p_valve <= 1.0 - VALVE_LEVEL:
+        cause = _runner_up(probs, "valve")[0]
+        status, detected, confidence = "no_stiction", False, 1.0 - p_valve
+    else:
+        status, detected, confidence, cause = "inconclusive", None, p_valve, top
+    second, p2 = _runner_up(probs, cause)
+    head = (
+        f"P(the valve causes the cycle) = {p_valve:.2f}; most likely cause: "
+        f"{CAUSE_WORDS[cause]} ({probs[cause]:.2f}), runner-up: {CAUSE_WORDS[second]} "
+        f"({p2:.2f}); {ACTIONS[cause] if status != 'inconclusive' else 'the causes are too close to call'}"
+    )
+    return status, detected, float(confidence), cause, head
+
+
 def stiction_verdict(
     fit: StictionFit,
     oscillation,
@@ -394,6 +472,7 @@ def stiction_verdict(
     min_improvement: float = MIN_IMPROVEMENT,
     seed: int = 0,
     model: dict | None = None,
+    cause_model: dict | None = None,
 ) -> Verdict:
     """Does valve stiction explain the loop's oscillation, and how probably?
 
@@ -426,6 +505,9 @@ def stiction_verdict(
         Seed of the bootstrap.
     model : dict, optional
         A fitted probability model; default the packaged one.
+    cause_model : dict, optional
+        A fitted cause model (:mod:`stictiondiag.stiction.cause_model`); default the
+        packaged one.
 
     Returns
     -------
@@ -468,11 +550,27 @@ def stiction_verdict(
     levels = f"levels {NO_STICTION_LEVEL:g} and {STICTION_LEVEL:g}"
     for_text = _evidence_words(contrib, +1)
     against_text = _evidence_words(contrib, -1)
-    if P > STICTION_LEVEL:
-        status, detected, confidence = "stiction", True, P
+    cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
+    stage2 = _cause_probabilities(features, cause_model) if cycle.present else None
+    direct = None
+    if not cycle.present:
+        direct = direct_stick_slip(features, bool(has_mv), P, min_improvement=min_improvement)
+    cause: str | None = None
+    detected: bool | None
+    if not cycle.present and direct:
+        status, detected, confidence, cause = "stiction", True, P, "valve"
+        head = f"stick-slip without a limit cycle: {direct} (P(stiction) = {P:.2f})"
+    elif not cycle.present:
+        status, detected, confidence, cause = "no_stiction", False, 1.0 - min(P, 0.5), "none"
+        head = f"{NO_CYCLE_REASON} (P that the valve has friction = {P:.2f})"
+    elif stage2 is not None and not has_mv:
+        status, detected, confidence, cause, head = _stage2_call(stage2)
+    elif P > STICTION_LEVEL:
+        status, detected, confidence, cause = "stiction", True, P, "valve"
         head = f"P(stiction) = {P:.2f} (above {STICTION_LEVEL:g}): {for_text}"
     elif P < NO_STICTION_LEVEL:
         status, detected, confidence = "no_stiction", False, 1.0 - P
+        cause = _runner_up(stage2, "valve")[0] if stage2 is not None else None
         head = f"P(stiction) = {P:.2f} (below {NO_STICTION_LEVEL:g}): {against_text}"
     else:
         status, detected, confidence = "inconclusive", None, P
@@ -482,6 +580,9 @@ def stiction_verdict(
         )
     evidence = {
         "probability": P,
+        "p_friction": P,
+        "cause_probabilities": stage2,
+        "valve_level": VALVE_LEVEL,
         "features": features,
         "contributions": {k: t for k, t, _ in contrib},
         "stiction_level": STICTION_LEVEL,
@@ -493,11 +594,15 @@ def stiction_verdict(
         "n_blocks": int(n_blocks),
         "has_mv": bool(has_mv),
         "short_record": bool(short_record),
+        "cycle": cycle.to_dict(),
+        "direct_stick_slip": direct,
         "classic": classic,
         "confidence_formula": (
             "P = calibrated logistic model of the features (stictiondiag.stiction."
             "probability, fitted on simulated loops); confidence = P (stiction, "
-            "inconclusive) or 1 - P (no stiction)"
+            "inconclusive) or 1 - P (no stiction); without a limit cycle, "
+            "max(1 - P, 0.5) for no stiction (stage 1 answers the question of the "
+            "cycle, P only whether the valve has friction)"
         ),
     }
     notes: tuple[str, ...] = ()
@@ -506,5 +611,29 @@ def stiction_verdict(
             f"the record does not bound S: stiction up to {fit.S_interval[1]:.3g} % of span "
             "cannot be excluded from these data alone",
         )
-    reasons = (head, *notes, improve_text, _fit_text(fit, bool(has_mv)), *osc_texts)
-    return Verdict(status, detected, float(confidence), reasons, evidence, probability=P)
+    reasons = (
+        head,
+        *notes,
+        cycle_text(cycle),
+        improve_text,
+        _fit_text(fit, bool(has_mv)),
+        *osc_texts,
+    )
+    p_out = P
+    if stage2 is not None and not has_mv:
+        p_out = stage2["valve"]
+    elif not cycle.present and not direct:
+        p_out = 0.0  # no cycle: the valve causes none (P(friction) is in the evidence)
+    runner = _runner_up(stage2, cause)[0] if stage2 is not None else None
+    return Verdict(
+        status,
+        detected,
+        float(confidence),
+        reasons,
+        evidence,
+        probability=p_out,
+        cause=cause,
+        cycle=cycle,
+        cause_probabilities=stage2,
+        runner_up=runner,
+    )

@@ -1,0 +1,419 @@
+"""Fit the cause model of stage 2 on simulated loops labelled by counterfactual twins.
+
+    python scripts/train_cause.py [--n-train 400] [--n-test 200] [--seed 11] \
+        [--test-seed 12] [--cache /tmp/stiction_causes] [--workers 1] \
+        [--real /path/to/isdb] [--doc docs/calibration.md]
+
+1. Draws ``--n-train`` and ``--n-test`` loops of :mod:`stictiondiag.apps.family_causes`
+   (seeds ``seed * 1_000_000 + i``), labels each by its counterfactual twins
+   (:func:`~stictiondiag.apps.family_causes.cause_label`) and analyses it exactly as a
+   user's file is analysed (:func:`stictiondiag.analysis.analyze` without the replay:
+   the loop-type step, the oscillation test, the fit, the evidence); the verdict's
+   features are the model's inputs.  Cached as JSON lines under ``--cache``.
+2. **Shift check**: with ``--real``, the same features of the real records in that
+   folder (its ``manifest.csv`` gives each file's sample time, loop type and
+   integrating flag; no label column is read), restricted to the loops with a cycle,
+   are compared with those of the simulated loops with a cycle by the two-sample
+   Kolmogorov-Smirnov distance.  A feature whose distance exceeds
+   :data:`MAX_SHIFT` is dropped (the rule was stated before any distance was seen).
+3. Fits a softmax regression (L2, :data:`C`) on the training loops with a cycle and a
+   cause, leaving out every loop of the held-out generator (:data:`HELD_OUT`, the
+   Karnopp physical valve); writes ``stictiondiag/stiction/cause_model.json``.
+4. Measures, on the held-out loops: accuracy, confusion, the reliability of each
+   cause's probability (bands of :data:`BAND`, each within :data:`TOLERANCE` of its
+   observed frequency where it holds at least :data:`MIN_BAND` loops), the held-out
+   generator's accuracy; and stage 1 (how many loops without a cycle the direct
+   stick-slip rule calls stiction, sticky and healthy).  Prints the section of
+   ``docs/calibration.md`` and, with ``--doc``, replaces it there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from stictiondiag.stiction.cause import CAUSES  # noqa: E402
+
+#: Inverse strength of the L2 penalty on the standardised coefficients [-].
+C = 1.0
+#: Largest Kolmogorov-Smirnov distance between simulated and real loops with a cycle
+#: for a feature to enter the model [-].
+MAX_SHIFT = 0.5
+#: The stick model held out of training (its loops test the model's generality):
+#: Karnopp's physical valve, the one stick model not written as a data-driven rule.
+HELD_OUT = "physical"
+#: Width of the reliability bands [-], allowed gap [-], fewest loops for a band to
+#: count [-].
+BAND = 0.2
+TOLERANCE = 0.1
+MIN_BAND = 10
+#: Heading of the section this script writes in docs/calibration.md.
+HEADING = "## Why the loop oscillates: the cause model"
+
+
+def _one(seed: int) -> dict | None:
+    from stictiondiag.analysis import AnalysisConfig, analyze
+    from stictiondiag.apps.family_causes import cause_label
+    from stictiondiag.core.errors import StictionError
+
+    try:
+        loop, label = cause_label(seed)
+        if label is None:
+            return None
+        a = analyze(loop.tags(), config=AnalysisConfig(gap=False, replay=False, compensation=False))
+    except StictionError:
+        return None
+    v = a.verdict
+    t = loop.truth
+    return {
+        "seed": seed,
+        "label": label,
+        "generator": t["generator"],
+        "valve": t["valve"],
+        "kind": t["kind"],
+        "shape": t["shape"],
+        "features": v.evidence["features"],
+        "cycle": bool(v.cycle.present) if v.cycle is not None else None,
+        "direct": v.evidence.get("direct_stick_slip"),
+        "p_friction": v.evidence.get("p_friction", v.probability),
+    }
+
+
+def family_rows(seed: int, n: int, cache: Path, workers: int) -> list[dict]:
+    """Labelled, analysed loops ``seed * 1_000_000 + i``, i < n (cached)."""
+    cache.mkdir(parents=True, exist_ok=True)
+    path = cache / f"causes_{seed}_{n}.jsonl"
+    if path.is_file():
+        return [json.loads(line) for line in path.read_text().splitlines() if line]
+    seeds = [seed * 1_000_000 + i for i in range(n)]
+    if workers > 1:
+        with ProcessPoolExecutor(workers) as pool:
+            rows = list(pool.map(_one, seeds, chunksize=4))
+    else:
+        rows = []
+        for i, s in enumerate(seeds):
+            rows.append(_one(s))
+            if (i + 1) % 25 == 0:
+                print(f"  {i + 1}/{n}", file=sys.stderr, flush=True)
+    rows = [r for r in rows if r is not None]
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    os.replace(tmp, path)
+    return rows
+
+
+def _real_one(args: tuple[str, float, str, bool]) -> dict | None:
+    from stictiondiag.analysis import AnalysisConfig, analyze
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.io.tags import read_tags
+
+    path, ts, loop_type, integrating = args
+    try:
+        tags = read_tags(path, ts=ts, loop_type=loop_type, integrating=integrating)
+        a = analyze(tags, config=AnalysisConfig(gap=False, replay=False, compensation=False))
+    except StictionError:
+        return None
+    v = a.verdict
+    return {"features": v.evidence["features"], "cycle": bool(v.cycle and v.cycle.present)}
+
+
+def real_rows(folder: Path, cache: Path, workers: int) -> list[dict]:
+    """Features of the real records of ``folder`` (its manifest's sample time, loop type
+    and integrating flag; labels never read), cached."""
+    import pandas as pd
+
+    from stictiondiag.apps.validation import LOOP_TYPE_MAP
+
+    path = cache / "real_features.jsonl"
+    if path.is_file():
+        return [json.loads(line) for line in path.read_text().splitlines() if line]
+    m = pd.read_csv(folder / "manifest.csv", usecols=["file", "loop_type", "integrating", "ts_s"])
+    jobs = [
+        (
+            str(folder / f),
+            float(ts),
+            LOOP_TYPE_MAP.get(str(lt).lower(), "other"),
+            bool(integ),
+        )
+        for f, lt, integ, ts in zip(
+            m["file"], m["loop_type"], m["integrating"], m["ts_s"], strict=True
+        )
+    ]
+    if workers > 1:
+        with ProcessPoolExecutor(workers) as pool:
+            rows = list(pool.map(_real_one, jobs))
+    else:
+        rows = [_real_one(j) for j in jobs]
+    rows = [r for r in rows if r is not None]
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return rows
+
+
+def ks_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Two-sample Kolmogorov-Smirnov distance (largest gap between the two empirical
+    distribution functions) [-]."""
+    grid = np.union1d(a, b)
+    fa = np.searchsorted(np.sort(a), grid, side="right") / a.size
+    fb = np.searchsorted(np.sort(b), grid, side="right") / b.size
+    return float(np.max(np.abs(fa - fb)))
+
+
+def fit_softmax(X: np.ndarray, y: np.ndarray, c: float = C) -> dict:
+    """L2-regularised softmax regression on standardised X (intercepts not penalised)."""
+    from stictiondiag.stiction.cause_model import softmax
+
+    mean = X.mean(axis=0)
+    scale = X.std(axis=0)
+    scale[scale == 0] = 1.0
+    Z = (X - mean) / scale
+    n, d = Z.shape
+    k = len(CAUSES)
+    Y = np.zeros((n, k))
+    Y[np.arange(n), y] = 1.0
+
+    def nll(w):
+        W = w[: d * k].reshape(d, k)
+        b = w[d * k :]
+        P = softmax(Z @ W + b)
+        loss = -np.sum(Y * np.log(np.clip(P, 1e-300, None))) + np.sum(W * W) / (2 * c)
+        G = P - Y
+        grad = np.concatenate([(Z.T @ G + W / c).ravel(), G.sum(axis=0)])
+        return loss, grad
+
+    res = minimize(nll, np.zeros(d * k + k), jac=True, method="L-BFGS-B")
+    W = res.x[: d * k].reshape(d, k)
+    return {
+        "mean": mean.tolist(),
+        "scale": scale.tolist(),
+        "coef": W.tolist(),
+        "intercept": res.x[d * k :].tolist(),
+    }
+
+
+def _xy(rows: list[dict], names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    X = np.array([[float(r["features"][k]) for k in names] for r in rows])
+    y = np.array([CAUSES.index(r["label"]) for r in rows], dtype=int)
+    return X, y
+
+
+def reliability(P: np.ndarray, y: np.ndarray) -> list[tuple[str, float, float, float, int, bool]]:
+    """Per cause and band: (cause, band low, mean predicted, observed, n, within)."""
+    out = []
+    for j, cause in enumerate(CAUSES):
+        p = P[:, j]
+        hit = (y == j).astype(float)
+        for lo in np.arange(0.0, 1.0, BAND):
+            m = (p >= lo) & ((p < lo + BAND) if lo + BAND < 1.0 else (p <= 1.0))
+            if not m.any():
+                continue
+            mp, ob = float(p[m].mean()), float(hit[m].mean())
+            out.append((cause, float(lo), mp, ob, int(m.sum()), abs(mp - ob) <= TOLERANCE))
+    return out
+
+
+def roc_auc(y: np.ndarray, s: np.ndarray) -> float:
+    """Area under the ROC curve of score s for the binary labels y (ties half)."""
+    pos, neg = s[y == 1], s[y == 0]
+    if pos.size == 0 or neg.size == 0:
+        return math.nan
+    gt = (pos[:, None] > neg[None, :]).sum() + 0.5 * (pos[:, None] == neg[None, :]).sum()
+    return float(gt / (pos.size * neg.size))
+
+
+def _confusion(P: np.ndarray, y: np.ndarray) -> list[str]:
+    lines = ["| true \\ called | " + " | ".join(CAUSES) + " |", "|---" * (len(CAUSES) + 1) + "|"]
+    called = P.argmax(axis=1)
+    for j, cause in enumerate(CAUSES):
+        counts = [int(((y == j) & (called == k)).sum()) for k in range(len(CAUSES))]
+        lines.append(f"| {cause} | " + " | ".join(str(c) for c in counts) + " |")
+    return lines
+
+
+def candidate_features() -> tuple[str, ...]:
+    """The evidence the cause model may use: every feature of the friction model's
+    candidates (:data:`stictiondiag.stiction.probability.CANDIDATES`) that describes
+    a loop without its valve position (the cause family records no mv) and is not a
+    stage-1 flag (``oscillating``, ``short_record``: every loop of stage 2 has a cycle)."""
+    from stictiondiag.stiction.probability import CANDIDATES
+
+    return tuple(k for k in CANDIDATES if k not in ("oscillating", "short_record"))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n-train", type=int, default=400)
+    ap.add_argument("--n-test", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--test-seed", type=int, default=12)
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/stiction_causes"))
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--real", type=Path, default=None)
+    ap.add_argument("--doc", type=Path, default=None)
+    ap.add_argument(
+        "--out", type=Path, default=ROOT / "stictiondiag" / "stiction" / "cause_model.json"
+    )
+    a = ap.parse_args(argv)
+    t0 = time.time()
+    train_all = family_rows(a.seed, a.n_train, a.cache, a.workers)
+    test_all = family_rows(a.test_seed, a.n_test, a.cache, a.workers)
+    t_feat = time.time() - t0
+
+    def labelled(rows, held_out: bool):
+        return [
+            r
+            for r in rows
+            if r["label"] in CAUSES and r["cycle"] and ((r["valve"] == HELD_OUT) == held_out)
+        ]
+
+    train, test = labelled(train_all, False), labelled(test_all, False)
+    held = labelled(train_all, True) + labelled(test_all, True)
+    names = candidate_features()
+
+    # Shift check (unlabelled real records).
+    shift: dict[str, float] = {}
+    if a.real is not None:
+        real = [r for r in real_rows(a.real, a.cache, a.workers) if r["cycle"]]
+        sim = [r for r in train_all + test_all if r["cycle"]]
+        for k in names:
+            shift[k] = ks_distance(
+                np.array([float(r["features"][k]) for r in sim]),
+                np.array([float(r["features"][k]) for r in real]),
+            )
+    kept = tuple(k for k in names if shift.get(k, 0.0) <= MAX_SHIFT)
+    X, y = _xy(train, kept)
+    sd = X.std(axis=0)
+    kept = tuple(k for k, s in zip(kept, sd, strict=True) if s > 0)
+    X, y = _xy(train, kept)
+    fitted = fit_softmax(X, y)
+    model = {
+        "kind": "softmax regression of the causes of a loop's cycle",
+        "classes": list(CAUSES),
+        "features": list(kept),
+        "C": C,
+        "held_out_generator": HELD_OUT,
+        "n_train": len(train),
+        "trained_on": f"stictiondiag.apps.family_causes seeds {a.seed}*1e6 + i, i < {a.n_train}",
+        **fitted,
+    }
+    from stictiondiag.stiction.cause_model import apply_model
+
+    a.out.write_text(json.dumps(model, indent=1) + "\n")
+    Xt, yt = _xy(test, kept)
+    Pt = apply_model(model, Xt)
+    Xh, yh = _xy(held, kept) if held else (np.zeros((0, len(kept))), np.zeros(0, int))
+    Ph = apply_model(model, Xh) if held else np.zeros((0, len(CAUSES)))
+    text = render(a, model, train, test, held, train_all + test_all, Pt, yt, Ph, yh, shift, t_feat)
+    print(text)
+    if a.doc is not None:
+        doc = a.doc.read_text()
+        start = doc.find(HEADING)
+        if start < 0:
+            doc = doc.rstrip() + "\n\n" + text
+        else:
+            nxt = doc.find("\n## ", start + len(HEADING))
+            doc = doc[:start] + text + (doc[nxt + 1 :] if nxt >= 0 else "")
+        a.doc.write_text(doc)
+    return 0
+
+
+def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat) -> str:
+    from collections import Counter
+
+    acc = float(np.mean(Pt.argmax(axis=1) == yt)) if yt.size else math.nan
+    acc_h = float(np.mean(Ph.argmax(axis=1) == yh)) if yh.size else math.nan
+    valve = CAUSES.index("valve")
+    auc = roc_auc((yt == valve).astype(int), Pt[:, valve])
+    auc_h = roc_auc((yh == valve).astype(int), Ph[:, valve]) if yh.size else math.nan
+    rel = reliability(Pt, yt)
+    counted = [r for r in rel if r[4] >= MIN_BAND]
+    ok = all(r[5] for r in counted)
+    labels = Counter((r["generator"], r["label"]) for r in all_rows)
+    lines = [
+        HEADING,
+        "",
+        "Written by `scripts/train_cause.py` "
+        f"(`--n-train {a.n_train} --n-test {a.n_test} --seed {a.seed} --test-seed {a.test_seed}"
+        + (" --real $STICTION_ISDB" if a.real else "")
+        + f"`; features of all loops in {t_feat / 60:.1f} min of wall time).",
+        "",
+        "Loops of `stictiondiag/apps/family_causes.py`, each analysed exactly as a user's"
+        " file (`analyze` without the replay), labelled by the counterfactual twin that"
+        " stops the cycle (`none`: no cycle; `unexplained`: no single change stops it, left"
+        " out). Loops by generator and label (training and held-out seeds):",
+        "",
+        "| generator | " + " | ".join(["none", *CAUSES, "unexplained"]) + " |",
+        "|---" * (len(CAUSES) + 3) + "|",
+    ]
+    for g in sorted({r["generator"] for r in all_rows}):
+        lines.append(
+            f"| {g} | "
+            + " | ".join(str(labels.get((g, c), 0)) for c in ["none", *CAUSES, "unexplained"])
+            + " |"
+        )
+    lines += [
+        "",
+        f"Trained on {len(train)} loops with a cycle and a cause (the stick model"
+        f" `{HELD_OUT}` held out), softmax regression, L2 with C = {C:g}, features:"
+        f" {', '.join('`' + k + '`' for k in model['features'])}.",
+        "",
+        f"**Held-out seeds** ({len(test)} loops with a cycle and a cause): accuracy of the"
+        f" most likely cause {acc:.2f}; area under the ROC curve of P(valve) {auc:.2f}.",
+        "",
+        *_confusion(Pt, yt),
+        "",
+        f"**Held-out generator** (stick model `{HELD_OUT}`, {len(held)} loops with a cycle"
+        f" and a cause, never trained on): accuracy {acc_h:.2f}, area under the ROC curve"
+        f" of P(valve) {auc_h:.2f}.",
+        "",
+        *(_confusion(Ph, yh) if yh.size else []),
+        "",
+        f"**Reliability of stage 2** on the held-out seeds (bands of {BAND:g}; a band of at"
+        f" least {MIN_BAND} loops must lie within {TOLERANCE:g} of its observed frequency):"
+        f" {'all within' if ok else 'NOT all within'}.",
+        "",
+        "| cause | band | mean P | observed | loops | within |",
+        "|---|---|---|---|---|---|",
+    ]
+    for cause, lo, mp, ob, n, w in rel:
+        flag = ("yes" if w else "no") if n >= MIN_BAND else "(too few)"
+        lines.append(f"| {cause} | {lo:.1f}-{lo + BAND:.1f} | {mp:.2f} | {ob:.2f} | {n} | {flag} |")
+    no_cycle = [r for r in all_rows if r["cycle"] is False]
+    sticky = [r for r in no_cycle if r["valve"] != "linear"]
+    healthy = [r for r in no_cycle if r["valve"] == "linear"]
+    lines += [
+        "",
+        f"**Stage 1** (loops without a cycle, {len(no_cycle)}): the direct stick-slip rule"
+        f" called {sum(bool(r['direct']) for r in sticky)} of {len(sticky)} sticky loops and"
+        f" {sum(bool(r['direct']) for r in healthy)} of {len(healthy)} healthy loops `stiction`;"
+        ' the rest are `no_stiction` with the reason "no limit cycle" (no mv is recorded in'
+        " this family; with mv, see the friction family above).",
+    ]
+    if shift:
+        lines += [
+            "",
+            f"**Shift check** (Kolmogorov-Smirnov distance between the simulated loops with a"
+            f" cycle and the real records with a cycle, labels not read; dropped above"
+            f" {MAX_SHIFT:g}):",
+            "",
+            "| feature | distance | kept |",
+            "|---|---|---|",
+        ]
+        for k, d in sorted(shift.items(), key=lambda kv: -kv[1]):
+            lines.append(f"| `{k}` | {d:.2f} | {'yes' if k in model['features'] else 'no'} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
