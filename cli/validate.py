@@ -78,13 +78,13 @@ def validate(
 
         chosen = _loop_names(loops)
         if expert_causes:
-            from stictiondiag.apps.validation import expert_cause, load_manifest
+            from stictiondiag.apps.validation import catalogue_cause, load_manifest
 
             m = load_manifest(isdb)
             named = [
                 str(r.loop)
                 for r in m.itertuples()
-                if expert_cause(r.other_fault_published)[0] is not None
+                if catalogue_cause(r.other_fault_published)[0] is not None
             ]
             chosen = [x for x in named if chosen is None or x in chosen]
         if chosen is not None:

@@ -350,7 +350,7 @@ EXPERT_CAUSES = {
 }
 
 
-def expert_cause(other_fault) -> tuple[str | None, str | None]:
+def catalogue_cause(other_fault) -> tuple[str | None, str | None]:
     """(the cause a published comment names, the catalogue effect it is) of the
     manifest's ``other_fault_published`` text; (None, None) when it names none of
     :data:`EXPERT_CAUSES`."""
@@ -372,7 +372,7 @@ def cause_agreement(table: pd.DataFrame) -> dict:
     """
     rows = []
     for r in table.itertuples():
-        cause, effect = expert_cause(getattr(r, "other_fault_published", None))
+        cause, effect = catalogue_cause(getattr(r, "other_fault_published", None))
         if cause is None:
             continue
         named = getattr(r, "gap_effect", None)
