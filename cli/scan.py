@@ -12,7 +12,7 @@ import typer
 from stictiondiag.core.errors import EXIT_PARTIAL
 
 from .app import app
-from .common import check_output_dir, friendly_errors, info, write_stdout
+from .common import check_output_dir, compile_if_cold, friendly_errors, info, write_stdout
 from .options import (
     ActionOption,
     CompressionOption,
@@ -129,6 +129,7 @@ def scan(
             bar.update(task, completed=done, total=total, description=loop)
 
         try:
+            compile_if_cold()
             result = run_scan(
                 path,
                 out=out,

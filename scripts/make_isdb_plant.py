@@ -99,13 +99,15 @@ def _archive(loop: dict, role: str) -> np.ndarray:
     return swinging_door(seconds, values, width)
 
 
-def long_frame(all_loops: list[dict], compressed: bool, suffixes: dict) -> pd.DataFrame:
+def long_frame(
+    all_loops: list[dict], compressed: bool, suffixes: dict, start: pd.Timestamp = START
+) -> pd.DataFrame:
     parts = []
     for loop in all_loops:
         for role in ("pv", "op", "sp"):
             values = loop[role]
             index = _archive(loop, role) if compressed else np.arange(values.size)
-            stamps = START + pd.to_timedelta(index * loop["ts"], unit="s")
+            stamps = start + pd.to_timedelta(index * loop["ts"], unit="s")
             parts.append(
                 pd.DataFrame(
                     {
@@ -125,20 +127,21 @@ def wide_frame(long: pd.DataFrame) -> pd.DataFrame:
     return wide
 
 
-def build(isdb: Path, out: Path) -> dict[str, Path]:
-    """Write the five exports and ``tags.csv``; returns name -> path."""
+def build(isdb: Path, out: Path, start: pd.Timestamp = START) -> dict[str, Path]:
+    """Write the five exports and ``tags.csv``; returns name -> path.  ``start`` is the
+    records' clock start (exports of later periods for a history of scans)."""
     out.mkdir(parents=True, exist_ok=True)
     all_loops = loops(isdb)
     plain = {"pv": ".PV", "op": ".OP", "sp": ".SP"}
     yokogawa = {"pv": ".PV", "op": ".MV", "sp": ".SV"}
-    long = long_frame(all_loops, False, plain)
-    compressed = long_frame(all_loops, True, plain)
+    long = long_frame(all_loops, False, plain, start)
+    compressed = long_frame(all_loops, True, plain, start)
     frames = {
         "plant_wide": wide_frame(long),
         "plant_long": long,
         "plant_long_compressed": compressed,
         "plant_wide_compressed": wide_frame(compressed),
-        "plant_yokogawa": wide_frame(long_frame(all_loops, False, yokogawa)),
+        "plant_yokogawa": wide_frame(long_frame(all_loops, False, yokogawa, start)),
     }
     paths = {}
     for name, frame in frames.items():
@@ -157,8 +160,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path)
     parser.add_argument("--isdb", type=Path, default=ROOT.parent / "shared" / "data" / "isdb")
+    parser.add_argument("--start", default=str(START), help="clock start of the records")
     args = parser.parse_args()
-    for name, path in build(args.isdb, args.out).items():
+    for name, path in build(args.isdb, args.out, pd.Timestamp(args.start)).items():
         print(f"{name}: {path} ({path.stat().st_size / 1e6:.1f} MB)")
 
 

@@ -54,6 +54,8 @@ svg.iv{vertical-align:middle}
 .poor{color:#a33;font-weight:600} span.poor{font-size:.7em}
 table.findings{max-width:1000px} table.findings th{white-space:nowrap;vertical-align:top}
 details{margin:.4em 0} pre{background:#f7f7f7;padding:.5em;overflow:auto;font-size:12px}
+body:has(#fleet){max-width:none} #fleet td{font-size:12px} #fleet td.kpi{white-space:nowrap}
+#fleet td.trend{max-width:16em}
 """
 
 # Marks the page as fully loaded with all images decoded (read by the browser test and

@@ -274,7 +274,8 @@ def _header(d: dict, json_name: str | None, index_href: str) -> list[str]:
 def _param_card(st: dict, sym: str, label: str) -> str:
     """Card of S or J: value, and the interval or the poorly-determined note."""
     poor = is_poorly_determined(st, sym)
-    value = f"{_num(st.get(sym))} %" + (
+    unit = " %" if str(st.get("units") or "%").startswith("%") else " op units (scale unknown)"
+    value = f"{_num(st.get(sym))}{unit}" + (
         ' <span class="poor">poorly determined</span>' if poor else ""
     )
     return _card(label, value, escape(param_note(st, sym)))
@@ -362,11 +363,12 @@ def _parameters_section(st: dict) -> list[str]:
             f"<td{cls}>{_text(determinacy(st, sym))}</td></tr>"
         )
     interval_note = details.get("interval_method")
+    units = _text(st.get("units") or "% of op span")
     return [
         "<h2>Stiction parameters</h2>",
-        "<table><tr><th></th><th>parameter</th><th>estimate [% of op span]</th>"
-        "<th>interval [% of op span]</th><th>0 &ndash; "
-        f"{_num(x_max, '.3g')} %</th><th>scaled [op std]</th><th>determined</th></tr>"
+        f"<table><tr><th></th><th>parameter</th><th>estimate [{units}]</th>"
+        f"<th>interval [{units}]</th><th>0 &ndash; "
+        f"{_num(x_max, '.3g')}</th><th>scaled [op std]</th><th>determined</th></tr>"
         + "".join(rows)
         + "</table>",
         f'<p class="muted">method <code>{_text(st.get("method"))}</code>'

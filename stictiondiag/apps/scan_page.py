@@ -88,16 +88,17 @@ def _spark(text) -> list[float]:
 
 def _kpis(r) -> str:
     parts = []
-    for key, label, spec in (
-        ("kpi_op_travel_per_day", "travel/day", ".3g"),
-        ("kpi_op_reversals_per_day", "reversals/day", ".3g"),
-        ("kpi_time_at_op_limits", "at limits %", ".2g"),
-        ("kpi_harris_index", "Harris", ".2f"),
-        ("kpi_service_factor", "service %", ".3g"),
+    unit = "" if r.get("op_scale") == "unknown" else " %"
+    for key, form, spec in (
+        ("kpi_op_travel_per_day", "travel {}" + unit + "/d", ".0f"),
+        ("kpi_op_reversals_per_day", "reversals {}/d", ".0f"),
+        ("kpi_time_at_op_limits", "at op limits {} %", ".2g"),
+        ("kpi_harris_index", "Harris index {}", ".2g"),
+        ("kpi_service_factor", "in auto {} %", ".3g"),
     ):
         value = _num(r.get(key), spec)
         if value:
-            parts.append(f"{label} {value}")
+            parts.append(form.format(value))
     return "<br>".join(escape(p) for p in parts)
 
 
@@ -135,7 +136,7 @@ def _row(r, file_names: dict | None) -> str:
             f"<td class='kpi'>{_kpis(r)}</td>",
             f"<td class='num'>{escape(duration_text(r.get('period_s')))}</td>",
             f"<td>{escape(_text(r.get('loop_type')))}</td>",
-            f"<td>{escape(_text(r.get('trend')))}</td>",
+            f"<td class='trend'>{escape(_text(r.get('trend')))}</td>",
         ]
     cells.append(f"<td>{escape(unit)}</td>")
     return (
