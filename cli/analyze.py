@@ -8,7 +8,14 @@ from typing import Annotated
 import typer
 
 from .app import app
-from .common import check_output_dir, check_output_file, emit, friendly_errors, info
+from .common import (
+    check_output_dir,
+    check_output_file,
+    compile_if_cold,
+    emit,
+    friendly_errors,
+    info,
+)
 from .options import (
     ActionOption,
     CompressionOption,
@@ -101,10 +108,19 @@ def render_summary(d: dict) -> str:
             lines.append(f"            {render_metrics(rep['metrics'])}")
         refit = (rep.get("settings") or {}).get("refit") or {}
         if refit.get("accepted"):
-            lines.append(
-                f"            closed-loop refit: S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
+            same = (refit.get("S"), refit.get("J")) == (
+                refit.get("S_open_loop"),
+                refit.get("J_open_loop"),
+            )
+            what = (
+                "process only (S and J measured from mv kept)"
+                if same
+                else f"S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
                 f"(open-loop fit S {_fmt(refit.get('S_open_loop'))}, "
-                f"J {_fmt(refit.get('J_open_loop'))}); cycle mismatch "
+                f"J {_fmt(refit.get('J_open_loop'))}) and the process"
+            )
+            lines.append(
+                f"            closed-loop refit: {what}; cycle mismatch "
                 f"{_fmt(refit.get('cost_open_loop'), '.3g')} -> {_fmt(refit.get('cost'), '.3g')}"
             )
     gap = d.get("gap")
@@ -121,7 +137,7 @@ def render_summary(d: dict) -> str:
             ("op_reversals_per_day", "reversals {:.3g}/day"),
             ("time_at_op_limits", "at op limits {:.3g} %"),
             ("error_std", "error std {:.3g}"),
-            ("harris_index", "Harris index {:.2f}"),
+            ("harris_index", "Harris index {:.2g}"),
             ("service_factor", "service factor {:.3g} %"),
         ]
         parts = [
@@ -183,6 +199,7 @@ def analyze(
             action,
             compression,
         )
+        compile_if_cold()
         info(f"analysing {file} ...")
         result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
         from stictiondiag.apps.findings import with_findings

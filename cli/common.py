@@ -36,6 +36,32 @@ def info(message: str) -> None:
     print(message, file=sys.stderr)
 
 
+#: Said at once when the kernels must be compiled before the command can run.
+COMPILE_NOTE = (
+    "stiction: compiling kernels, first run only, about a minute "
+    "('stiction warm-up' does it ahead); progress below"
+)
+
+
+def compile_if_cold() -> None:
+    """On a cold kernel cache (a fresh installation, or kernels edited since), say so at
+    once and compile them with progress on stderr before the command's own work
+    (:func:`stictiondiag.apps.warmup.warm_up`); on a warm cache, nothing (milliseconds)."""
+    import stictiondiag.analysis  # noqa: F401  (imports the kernels the commands run)
+    from stictiondiag.core import jit
+
+    if not jit.cache_is_cold():
+        return
+    from stictiondiag.apps.warmup import warm_up
+
+    info(COMPILE_NOTE)
+    result = warm_up(progress=info)
+    info(
+        f"stiction: {len(result.compiled)} kernels compiled in {result.seconds:.0f} s; "
+        "later runs load them from the cache"
+    )
+
+
 def write_stdout(text: str) -> None:
     """Write ``text`` to stdout and flush it; a stdout that cannot take it is an
     output error (exit 2) naming it, not a data error.

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from .app import app
-from .common import check_output_file, emit, friendly_errors, info
+from .common import check_output_file, compile_if_cold, emit, friendly_errors, info
 from .options import (
     ActionOption,
     CompressionOption,
@@ -118,6 +118,7 @@ def gap(
             action,
             compression,
         )
+        compile_if_cold()
         result = diagnose_gap_file(file, **options)
         d = result.to_dict()
         emit(d, render_gap(d), json_path)

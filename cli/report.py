@@ -22,6 +22,7 @@ from .app import app
 from .common import (
     check_output_dir,
     check_output_file,
+    compile_if_cold,
     fail,
     friendly_errors,
     info,
@@ -143,6 +144,7 @@ def report(
             info(f"[{done}/{n}] {name}")
 
         info(f"reporting {len(files)} file(s) into {out}")
+        compile_if_cold()
         result = build_report(
             [str(f) for f in files],
             out,

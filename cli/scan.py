@@ -12,7 +12,7 @@ import typer
 from stictiondiag.core.errors import EXIT_PARTIAL
 
 from .app import app
-from .common import check_output_dir, friendly_errors, info, write_stdout
+from .common import check_output_dir, compile_if_cold, friendly_errors, info, write_stdout
 from .options import (
     ActionOption,
     CompressionOption,
@@ -51,6 +51,9 @@ def scan(
     ] = None,
     force: Annotated[bool, typer.Option(help="Re-analyse loops already in --out.")] = False,
     gap: Annotated[bool, typer.Option(help="Include the sim-to-real gap diagnosis.")] = True,
+    plots: Annotated[
+        bool, typer.Option(help="Draw each loop page's figures (about a second per loop).")
+    ] = True,
     loop_column: Annotated[
         str | None, typer.Option(help="Loop-id column of a Parquet dataset.")
     ] = None,
@@ -126,6 +129,7 @@ def scan(
             bar.update(task, completed=done, total=total, description=loop)
 
         try:
+            compile_if_cold()
             result = run_scan(
                 path,
                 out=out,
@@ -134,6 +138,7 @@ def scan(
                 scheduler=scheduler,
                 force=force,
                 gap=gap,
+                plots=plots,
                 loop_column=loop_column,
                 read_options=options,
                 manifest=manifest,

@@ -90,8 +90,12 @@ class Analysis:
 
     @property
     def loop(self) -> str:
-        """Loop name: the source file's stem."""
-        return Path(str(self.tags.source)).stem or "loop"
+        """Loop name: the tag of a loop of a plant export (``plant.csv#FIC101`` ->
+        ``FIC101``), else the source file's stem."""
+        source = str(self.tags.source)
+        if "#" in source:
+            return source.rsplit("#", 1)[1] or "loop"
+        return Path(source).stem or "loop"
 
     def to_json(self) -> str:
         """The whole result, time series included, as one JSON document

@@ -319,7 +319,7 @@ def test_report_then_clean_leaves_what_it_did_not_write(
 # -- scan: CSV cells a spreadsheet would run are escaped ----------------------------------
 
 
-def _fake_scan_loop(source, read_options, gap):
+def _fake_scan_loop(source, read_options, gap, plots=True):
     row = {
         "loop": source.loop,
         "source": source.path,

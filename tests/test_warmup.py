@@ -113,3 +113,31 @@ def test_an_uncalled_kernel_does_not_make_the_cache_cold(tmp_path, monkeypatch):
     assert jit.cache_is_cold()
     for name in probes:
         sys.modules.pop(name, None)
+
+
+def test_a_command_on_a_cold_cache_says_so_at_once_and_shows_progress(monkeypatch):
+    # Cold cache (a fresh installation): before "analysing ...", the command says
+    # that it compiles the kernels (first run, about a minute) and prints the
+    # warm-up's progress lines; the compilation itself is replaced by a stand-in.
+    from pathlib import Path
+
+    from stiction_cli.common import COMPILE_NOTE
+    from stictiondiag.apps import warmup
+
+    calls = []
+
+    def fake_warm_up(progress=None):
+        calls.append(1)
+        progress("[1/3] valve models (0 s)")
+        progress("  compiling stictiondiag.models.valve.choudhury_kernel")
+        return warmup.WarmUp(("k",), 1, (), 0.5)
+
+    monkeypatch.setattr(jit, "cache_is_cold", lambda: True)
+    monkeypatch.setattr(warmup, "warm_up", fake_warm_up)
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "healthy_flow.csv"
+    result = CliRunner().invoke(app, ["analyze", str(sample), "--no-gap"])
+    assert result.exit_code == 0, result.output
+    err = result.stderr
+    assert calls == [1]
+    assert err.index(COMPILE_NOTE) < err.index("[1/3] valve models") < err.index("analysing")
+    assert "1 kernels compiled in 0 s" in err

@@ -307,7 +307,13 @@ class OutputFolder:
             wait = float(os.environ.get("STICTION_LOCK_WAIT", LOCK_WAIT_S))
         except ValueError:
             wait = LOCK_WAIT_S
-        fd = os.open(self.out, os.O_RDONLY)
+        try:
+            fd = os.open(self.out, os.O_RDONLY)
+        except OSError as exc:
+            reason = (exc.strerror or type(exc).__name__).lower()
+            raise UsageError(
+                f"cannot open the output folder {self.out}: {reason}; choose another --out"
+            ) from None
         try:
             deadline = time.monotonic() + max(0.0, wait)
             told = False
@@ -325,6 +331,15 @@ class OutputFolder:
                         on_wait(f"waiting for another stiction run writing to {self.out}")
                         told = True
                     time.sleep(0.2)
+                except OSError as exc:
+                    # A file system without locks (some network mounts): run unlocked.
+                    if on_wait is not None:
+                        reason = (exc.strerror or type(exc).__name__).lower()
+                        on_wait(
+                            f"note: cannot lock {self.out} ({reason}): another run "
+                            "writing there at the same time would not be held off"
+                        )
+                    break
             # Re-read: the other run may have changed the manifest while we waited.
             self.files, self.digests = [], {}
             self._read()

@@ -18,7 +18,18 @@ from collections.abc import Sequence
 from html import escape
 from pathlib import Path
 
-__all__ = ["CSS", "html_page", "safe_name", "unique_names"]
+__all__ = [
+    "CSS",
+    "RANKING_RULE",
+    "VERDICT_ORDER",
+    "duration_text",
+    "html_page",
+    "rank_key",
+    "safe_name",
+    "severity",
+    "sparkline",
+    "unique_names",
+]
 
 CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;margin:1.2em auto;max-width:1120px;
@@ -43,6 +54,8 @@ svg.iv{vertical-align:middle}
 .poor{color:#a33;font-weight:600} span.poor{font-size:.7em}
 table.findings{max-width:1000px} table.findings th{white-space:nowrap;vertical-align:top}
 details{margin:.4em 0} pre{background:#f7f7f7;padding:.5em;overflow:auto;font-size:12px}
+body:has(#fleet){max-width:none} #fleet td{font-size:12px} #fleet td.kpi{white-space:nowrap}
+#fleet td.trend{max-width:16em}
 """
 
 # Marks the page as fully loaded with all images decoded (read by the browser test and
@@ -69,7 +82,7 @@ _CSP = (
 )
 
 
-def html_page(title: str, body: str) -> str:
+def html_page(title: str, body: str, script: str = "") -> str:
     """A complete, self-contained HTML document.
 
     Parameters
@@ -78,14 +91,112 @@ def html_page(title: str, body: str) -> str:
         Page title (plain text; escaped here).
     body : str
         HTML of the body (escaped by the caller where it holds data).
+    script : str
+        The page's own script (a fixed text, never data), allowed by its hash.
     """
+    csp = _CSP
+    tail = f"<script>{_LOAD_JS}</script>"
+    if script:
+        csp = _CSP.replace(
+            f"script-src {_csp_hash(_LOAD_JS)}",
+            f"script-src {_csp_hash(_LOAD_JS)} {_csp_hash(script)}",
+        )
+        tail += f"<script>{script}</script>"
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
-        f'<meta http-equiv="Content-Security-Policy" content="{_CSP}">'
+        f'<meta http-equiv="Content-Security-Policy" content="{csp}">'
         '<meta name="viewport" content="width=device-width,initial-scale=1">'
         '<link rel="icon" href="data:,">'
         f"<title>{escape(title)}</title><style>{CSS}</style></head>"
-        f"<body>\n{body}\n<script>{_LOAD_JS}</script>\n</body></html>\n"
+        f"<body>\n{body}\n{tail}\n</body></html>\n"
+    )
+
+
+# --------------------------------------------------------------------------- ranking
+
+#: Order of verdicts on every page and table: what maintenance looks at first.
+VERDICT_ORDER = ("stiction", "inconclusive", "propagated", "no_stiction", "error")
+
+#: The one ranking rule of the scan table, its page and the report's index.
+RANKING_RULE = (
+    "ranked by verdict (stiction, inconclusive, propagated from another loop, no stiction, "
+    "failed), then P(stiction) "
+    "(highest first), then severity = P(stiction) \u00d7 (S + J) [% of span], then loop name"
+)
+
+
+def severity(row: dict) -> float:
+    """Maintenance priority of a loop: P(stiction) times stiction size (S + J) [% of span].
+
+    A row without a probability (written by an older run) uses its confidence.
+    """
+    import math
+
+    conf = row.get("probability")
+    if conf is None or (isinstance(conf, float) and math.isnan(conf)):
+        conf = row.get("confidence")
+    s, j = row.get("S"), row.get("J")
+    if conf is None or s is None or j is None:
+        return 0.0
+    try:
+        v = float(conf) * (float(s) + float(j))
+    except (TypeError, ValueError):
+        return 0.0
+    return v if math.isfinite(v) else 0.0
+
+
+def rank_key(row: dict) -> tuple:
+    """Sort key of :data:`RANKING_RULE`."""
+    import math
+
+    verdict = str(row.get("verdict"))
+    order = VERDICT_ORDER.index(verdict) if verdict in VERDICT_ORDER else len(VERDICT_ORDER)
+    try:
+        p = float(row.get("probability"))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        p = -1.0  # a row of an older run without P: severity decides
+    p = p if math.isfinite(p) else -1.0
+    return (order, -p, -severity(row), str(row.get("loop")))
+
+
+def duration_text(seconds) -> str:
+    """A period or duration for people: ``85 s``, ``21.5 min``, ``3.2 h``, ``2.1 d``."""
+    import math
+
+    try:
+        s = float(seconds)
+    except (TypeError, ValueError):
+        return ""
+    if not math.isfinite(s):
+        return ""
+    if s < 120:
+        return f"{s:.3g} s"
+    if s < 7200:
+        return f"{s / 60:.3g} min"
+    if s < 172800:
+        return f"{s / 3600:.3g} h"
+    return f"{s / 86400:.3g} d"
+
+
+def sparkline(
+    values: Sequence[float], *, width: int = 120, height: int = 22, color: str = "#1f77b4"
+) -> str:
+    """An inline SVG polyline of ``values`` (scaled to their own range), no script, no style."""
+    import math
+
+    vals = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    if len(vals) < 2:
+        return ""
+    lo, hi = min(vals), max(vals)
+    span = (hi - lo) or 1.0
+    step = (width - 2) / (len(vals) - 1)
+    points = " ".join(
+        f"{1 + i * step:.1f},{height - 1 - (v - lo) / span * (height - 2):.1f}"
+        for i, v in enumerate(vals)
+    )
+    return (
+        f'<svg class="spark" width="{width}" height="{height}" viewBox="0 0 {width} {height}">'
+        f'<polyline fill="none" stroke="{color}" stroke-width="1" points="{points}"/></svg>'
     )
 
 

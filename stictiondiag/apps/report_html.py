@@ -21,7 +21,7 @@ from stictiondiag.apps.findings import (
     param_note,
     probability_text,
 )
-from stictiondiag.apps.pages import html_page
+from stictiondiag.apps.pages import RANKING_RULE, duration_text, html_page, rank_key
 from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL
 
 __all__ = ["md_escape", "render_index_html", "render_loop_html", "render_markdown", "sort_key"]
@@ -212,7 +212,7 @@ def _param_text(params) -> str:
 
 
 def _period(v) -> str:
-    return "no cycle" if v is None else f"{_num(v)} s"
+    return "no cycle" if v is None else _text(duration_text(v))
 
 
 def _json_details(summary: str, obj) -> str:
@@ -274,7 +274,8 @@ def _header(d: dict, json_name: str | None, index_href: str) -> list[str]:
 def _param_card(st: dict, sym: str, label: str) -> str:
     """Card of S or J: value, and the interval or the poorly-determined note."""
     poor = is_poorly_determined(st, sym)
-    value = f"{_num(st.get(sym))} %" + (
+    unit = " %" if str(st.get("units") or "%").startswith("%") else " op units (scale unknown)"
+    value = f"{_num(st.get(sym))}{unit}" + (
         ' <span class="poor">poorly determined</span>' if poor else ""
     )
     return _card(label, value, escape(param_note(st, sym)))
@@ -296,7 +297,7 @@ def _cards(d: dict, st: dict, warnings: list) -> str:
         _param_card(st, "J", "J (slip jump)"),
         _card(
             "oscillation",
-            f"{_num(osc.get('period_s'), '.4g')} s" if osc.get("present") else "none",
+            _text(duration_text(osc.get("period_s"))) if osc.get("present") else "none",
             f"regularity {_num(osc.get('regularity'), '.3g')}" if osc.get("present") else "",
         ),
     ]
@@ -362,11 +363,12 @@ def _parameters_section(st: dict) -> list[str]:
             f"<td{cls}>{_text(determinacy(st, sym))}</td></tr>"
         )
     interval_note = details.get("interval_method")
+    units = _text(st.get("units") or "% of op span")
     return [
         "<h2>Stiction parameters</h2>",
-        "<table><tr><th></th><th>parameter</th><th>estimate [% of op span]</th>"
-        "<th>interval [% of op span]</th><th>0 &ndash; "
-        f"{_num(x_max, '.3g')} %</th><th>scaled [op std]</th><th>determined</th></tr>"
+        f"<table><tr><th></th><th>parameter</th><th>estimate [{units}]</th>"
+        f"<th>interval [{units}]</th><th>0 &ndash; "
+        f"{_num(x_max, '.3g')}</th><th>scaled [op std]</th><th>determined</th></tr>"
         + "".join(rows)
         + "</table>",
         f'<p class="muted">method <code>{_text(st.get("method"))}</code>'
@@ -539,11 +541,8 @@ def render_loop_html(
 
 
 def sort_key(r: dict):
-    v = str(r.get("verdict"))
-    conf = r.get("confidence")
-    conf = float(conf) if isinstance(conf, int | float) and math.isfinite(conf) else 0.0
-    # Stiction first, most confident first: the maintenance order.
-    return (_VERDICT_RANK.get(v, 2), -conf if v == "stiction" else 0.0, str(r.get("loop")))
+    """The ranking rule of every page (:data:`stictiondiag.apps.pages.RANKING_RULE`)."""
+    return rank_key(r)
 
 
 def _probability(r: dict):
@@ -608,7 +607,7 @@ def render_index_html(rows: Sequence[dict]) -> str:
     """Index page over all loops of a report (stiction first, most confident first)."""
     head = (
         "<tr><th>loop</th><th>loop type</th><th>verdict</th><th>P(stiction)</th>"
-        "<th>S [%] (interval)</th><th>J [%] (interval)</th><th>period [s]</th>"
+        "<th>S [%] (interval)</th><th>J [%] (interval)</th><th>period</th>"
         "<th>gap effect</th><th>warnings</th></tr>"
     )
     body = []
@@ -631,12 +630,12 @@ def render_index_html(rows: Sequence[dict]) -> str:
             f"<td class='num'>{_num(_probability(r), '.2f')}</td>"
             f"<td class='num'>{_row_param(r, 'S')}</td>"
             f"<td class='num'>{_row_param(r, 'J')}</td>"
-            f"<td class='num'>{_num(r.get('period_s'), '.4g')}</td>"
+            f"<td class='num'>{_text(duration_text(r.get('period_s')))}</td>"
             f"<td>{_text(r.get('gap_effect') or '')}</td>"
             f'<td title="{_text(r.get("flags") or "")}">{n_warn}</td></tr>'
         )
     body_html = (
-        f"<h1>Stiction report</h1><p>{_counts(rows)}.</p>"
+        f"<h1>Stiction report</h1><p>{_counts(rows)}, {escape(RANKING_RULE)}.</p>"
         f"<table>{head}{''.join(body)}</table>"
         '<p class="muted">S: deadband + stickband, J: slip jump, both in % of the valve '
         "span (Choudhury, Thornhill &amp; Shah 2005); in parentheses the interval of values "

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 import time
 import traceback
@@ -36,7 +35,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from stictiondiag.apps.pages import safe_name, unique_names
+from stictiondiag.apps.pages import VERDICT_ORDER, rank_key, safe_name, unique_names
+from stictiondiag.apps.pages import severity as _severity
 from stictiondiag.apps.scan_output import (
     OUTPUT_TABLES,
     SCAN_MANIFEST,
@@ -67,7 +67,7 @@ LOOP_ID_COLUMNS = ("loop_id", "loop", "loop_name", "tag", "loopid")
 LOOP_FILE_SUFFIXES = (".csv", ".parquet", ".pq")
 
 #: Order of verdicts in the ranked table: what maintenance should look at first.
-VERDICT_RANK = {"stiction": 0, "inconclusive": 1, "propagated": 2, "no_stiction": 3, "error": 4}
+VERDICT_RANK = {verdict: k for k, verdict in enumerate(VERDICT_ORDER)}
 
 
 @dataclass(frozen=True)
@@ -384,12 +384,14 @@ def load_source(source: LoopSource, **read_options):
     return read_frame(frame, source=label, **read_options)
 
 
-def analyse_source(source: LoopSource, read_options: dict, gap: bool) -> dict:
-    """Analyse one loop and return its table row plus the full JSON (never raises)."""
+def analyse_source(source: LoopSource, read_options: dict, gap: bool, plots: bool = True) -> dict:
+    """Analyse one loop and return its table row, the full JSON and the loop page's
+    figures (PNG bytes, drawn in the worker; none when ``plots`` is False) (never raises)."""
     from stictiondiag.analysis import (
         AnalysisConfig,
         analyze,
     )
+    from stictiondiag.apps.scan_output import loop_extras
 
     row: dict = {"loop": source.loop, "source": source.path, "error": None}
     try:
@@ -400,7 +402,9 @@ def analyse_source(source: LoopSource, read_options: dict, gap: bool) -> dict:
         full["loop"] = source.loop
         row["loop"] = source.loop
         row["source"] = source.path
-        return {"row": row, "analysis": full}
+        images, extras = loop_extras(result, plots, plant=source.plant is not None)
+        row.update(extras)
+        return {"row": row, "analysis": full, "images": images}
     except StictionError as exc:
         return error_result(source, _first_line(exc))
     except Exception as exc:  # one broken loop must never stop a plant scan
@@ -439,24 +443,8 @@ def worker_failure(source: LoopSource, exc: BaseException) -> dict:
     return error_result(source, message)
 
 
-def severity(row: dict) -> float:
-    """Maintenance priority of a loop: P(stiction) times stiction size (S + J) [% of span].
-
-    Loops called ``stiction`` rank above ``inconclusive``, above ``no_stiction``,
-    above failed loops; within a verdict, higher severity first.  (A row without a
-    probability, written by an older scan, uses its confidence.)
-    """
-    conf = row.get("probability")
-    if conf is None or (isinstance(conf, float) and math.isnan(conf)):
-        conf = row.get("confidence")
-    s, j = row.get("S"), row.get("J")
-    if conf is None or s is None or j is None:
-        return 0.0
-    try:
-        v = float(conf) * (float(s) + float(j))
-    except (TypeError, ValueError):
-        return 0.0
-    return v if math.isfinite(v) else 0.0
+#: Maintenance priority of a loop (:func:`stictiondiag.apps.pages.severity`).
+severity = _severity
 
 
 #: Leading columns of the ranked table; the others follow in alphabetical order, so
@@ -479,11 +467,9 @@ LEADING_COLUMNS = (
 
 
 def rank(rows: list[dict]) -> pd.DataFrame:
-    """Rows ordered by verdict, then P(stiction) and severity (descending), then loop name.
+    """Rows in the order of :data:`~stictiondiag.apps.pages.RANKING_RULE` (verdict, then
+    P(stiction) and severity, descending, then loop name), the rule of every page.
 
-    Verdicts in the order of :data:`VERDICT_RANK` (the verdict follows from
-    P(stiction), so this ranks the analysed loops by their probability); severity
-    from :func:`severity`.
     Columns: :data:`LEADING_COLUMNS`, then the rest alphabetically.
     """
     frame = pd.DataFrame(rows)
@@ -492,14 +478,8 @@ def rank(rows: list[dict]) -> pd.DataFrame:
     if "error" not in frame:
         frame["error"] = None
     frame["severity"] = [severity(r) for r in rows]
-    frame["_vr"] = frame["verdict"].map(VERDICT_RANK).fillna(len(VERDICT_RANK))
-    p = frame["probability"] if "probability" in frame else pd.Series(float("nan"), frame.index)
-    frame["_p"] = pd.to_numeric(p, errors="coerce").fillna(-1.0)
-    frame["_loop"] = frame["loop"].astype(str)
-    frame = frame.sort_values(
-        ["_vr", "_p", "severity", "_loop"], ascending=[True, False, False, True], kind="mergesort"
-    )
-    frame = frame.drop(columns=["_vr", "_p", "_loop"]).reset_index(drop=True)
+    order = sorted(range(len(rows)), key=lambda i: rank_key(rows[i]))
+    frame = frame.iloc[order].reset_index(drop=True)
     frame.insert(0, "rank", range(1, len(frame) + 1))
     lead = [c for c in LEADING_COLUMNS if c in frame.columns]
     return frame[lead + sorted(c for c in frame.columns if c not in lead)]
@@ -514,6 +494,7 @@ def scan(
     scheduler: str | None = None,
     force: bool = False,
     gap: bool = True,
+    plots: bool = True,
     loop_column: str | None = None,
     read_options: dict | None = None,
     manifest: dict[str, dict] | None = None,
@@ -542,6 +523,8 @@ def scan(
         are always analysed again).
     gap : bool
         Include the sim-to-real gap diagnosis (slower).
+    plots : bool
+        Draw each loop page's figures (trends and phase plots, the valve signature).
     loop_column : str, optional
         Loop-id column of a Parquet dataset (see :func:`discover`).
     read_options : dict, optional
@@ -621,7 +604,7 @@ def scan(
         n_skipped = len(rows)
         keys = {src.loop: source_key(src) for src in todo}
         n_workers = _pool_size(engine, scheduler, workers, len(todo), notes, on_note)
-        args = (read_options, gap)
+        args = (read_options, gap, plots)
         runner = (
             run_local(todo, analyse_source, args, n_workers, on_error=worker_failure)
             if engine == "local"

@@ -15,6 +15,14 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from stictiondiag.apps.history import (
+    HISTORY_FOLDER,
+    entry_of,
+    history_html,
+    merge_entry,
+    read_entries,
+    trend_sentence,
+)
 from stictiondiag.apps.outdir import OutputFolder
 from stictiondiag.apps.pages import html_page, safe_name
 from stictiondiag.apps.scan_page import scan_html
@@ -28,6 +36,7 @@ __all__ = [
     "SCAN_MANIFEST",
     "SCAN_TOOL",
     "is_scan_output",
+    "loop_extras",
     "loop_html",
     "scan_folder",
     "write_table",
@@ -90,22 +99,87 @@ def scan_folder(out: str | os.PathLike) -> OutputFolder:
 def _save_loop(
     folder: OutputFolder, res: dict, file_names: dict, keys: dict, settings: dict
 ) -> dict:
-    """Write one finished loop's page and record; a write that fails fails its row."""
+    """Write one finished loop's history, page and record; a write that fails fails its row.
+
+    The history (:mod:`stictiondiag.apps.history`) keeps the results of earlier scans
+    of the loop, one entry per record period; the row carries its trend in words.
+    """
     row = res["row"]
     name = file_names.get(row["loop"], safe_name(row["loop"]))
-    record = {
-        "row": row,
-        "settings": settings,
-        "source_key": keys.get(row["loop"]),
-        "analysis": res["analysis"],
-    }
+    entries: list[dict] = []
     try:
+        if res["analysis"] is not None:
+            entries = _update_history(folder, name, row, res["analysis"], keys.get(row["loop"]))
+            trend = trend_sentence(entries)
+            if trend:
+                row = {**row, "trend": trend}
+        record = {
+            "row": row,
+            "settings": settings,
+            "source_key": keys.get(row["loop"]),
+            "analysis": res["analysis"],
+        }
+        page = loop_html(row, res["analysis"], name, res.get("images") or {}, entries)
         # The JSON record marks the loop as done, so it is written last.
-        folder.write({f"loops/{name}.html": loop_html(row, res["analysis"], name)})
+        folder.write({f"loops/{name}.html": page})
         folder.write({f"loops/{name}.json": json.dumps(record, indent=1, default=_json_default)})
     except UsageError as exc:
         return {**row, "verdict": "error", "error": _first_line(exc)}
     return row
+
+
+def _update_history(
+    folder: OutputFolder, name: str, row: dict, analysis: dict, key: dict | None
+) -> list[dict]:
+    """The loop's history with this result merged in, written back (only a history file
+    the scan wrote is read; anything else there is refused by the write)."""
+    path = f"{HISTORY_FOLDER}/{name}.json"
+    entries: list[dict] = []
+    target = folder.out / path
+    if target.is_file() and folder.owns(path):
+        entries = read_entries(target.read_text(encoding="utf-8", errors="replace"))
+    entry = entry_of(row, analysis, (key or {}).get("sha256"))
+    entries = merge_entry(entries, entry)
+    payload = {"loop": row["loop"], "entries": entries}
+    folder.write({path: json.dumps(payload, indent=1, default=_json_default)})
+    return entries
+
+
+#: Points of a loop's sparkline on the fleet page.
+SPARK_POINTS = 96
+
+
+def _spark(values) -> str:
+    """A signal as :data:`SPARK_POINTS` block means scaled to 0-99, as text (``12,40,...``)."""
+    import numpy as np
+
+    x = np.asarray(values, dtype=float)
+    if x.size < 2:
+        return ""
+    edges = np.linspace(0, x.size, min(SPARK_POINTS, x.size) + 1).astype(int)
+    means = np.add.reduceat(x, edges[:-1]) / np.diff(edges)
+    lo, hi = float(means.min()), float(means.max())
+    scaled = np.zeros_like(means) if hi == lo else (means - lo) / (hi - lo) * 99.0
+    return ",".join(str(int(round(v))) for v in scaled)
+
+
+def loop_extras(result, plots: bool, plant: bool) -> tuple[dict[str, bytes], dict]:
+    """The loop page's figures (PNG, when ``plots``) and the fleet page's extra row
+    fields: pv and op sparklines and the unit (the export a loop of a plant file came
+    from, else the folder of its file)."""
+    images: dict[str, bytes] = {}
+    if plots:
+        from stictiondiag.plotting import figure_png
+
+        builders = result.figure_builders()
+        for fig_name in ("phase", "valve_zoom"):
+            if fig_name in builders:
+                images[fig_name] = figure_png(builders[fig_name]())
+    tags = result.tags
+    source = str(tags.source).split("#", 1)[0]
+    unit = Path(source).stem if plant else Path(source).parent.name
+    extras = {"spark_pv": _spark(tags.pv), "spark_op": _spark(tags.op), "unit": unit}
+    return images, extras
 
 
 def _make_dir(out: Path) -> None:
@@ -143,19 +217,26 @@ def _check_out(out: Path) -> None:
         scan_folder(out).refuse_foreign(("index.html", *OUTPUT_TABLES))
 
 
-def loop_html(row: dict, analysis: dict | None, name: str | None = None) -> str:
-    """Per-loop page linked from the scan's ``index.html`` (no plots: fast at scale).
-
-    ``stiction report`` on the loop's file gives the page with the phase and
-    reconstruction plots.
-    """
+def loop_html(
+    row: dict,
+    analysis: dict | None,
+    name: str | None = None,
+    images: dict[str, bytes] | None = None,
+    history: list[dict] | None = None,
+) -> str:
+    """Per-loop page linked from the scan's ``index.html``: the analysis with its
+    figures (drawn by the worker) and the loop's history across scans."""
     from html import escape
 
     from stictiondiag.apps.report_html import render_loop_html
 
     name = name or safe_name(row["loop"])
     if analysis is not None:
-        return render_loop_html(analysis, {}, json_name=f"{name}.json", index_href="../index.html")
+        page = render_loop_html(
+            analysis, images or {}, json_name=f"{name}.json", index_href="../index.html"
+        )
+        section = history_html(history or [])
+        return page.replace("\n<script>", section + "\n<script>", 1) if section else page
     body = (
         f"<h1>Loop {escape(str(row.get('loop')))}</h1>"
         f"<p>Source <code>{escape(str(row.get('source')))}</code></p>"

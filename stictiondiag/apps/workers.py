@@ -333,11 +333,9 @@ def _connect(workers: int, scheduler: str | None):
                 cluster = LocalCluster(
                     n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
                 )
+            # Its workers end by themselves when this process is killed (distributed's
+            # own watch; measured with SIGKILL, docs/robustness.md).
             client = Client(cluster)
-            # The workers are this process's children (their nannies run here): each
-            # ends by itself should this process be killed.
-            with contextlib.suppress(Exception):
-                client.run(watch_parent)
     except (OSError, ValueError, TypeError) as exc:
         # OSError: nothing listens there (timeout); ValueError/TypeError: not an
         # address at all (``garbage://``).

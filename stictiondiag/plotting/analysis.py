@@ -78,6 +78,25 @@ def _line(ax, x, y, **style):
     ax.plot(x, y, **style, **markers)
 
 
+#: The pv-sp panel needs a set point that moves with the cycle: sp changing on at
+#: least this share of the window's samples, over at least this share of pv's range.
+SP_MOVING_SHARE = 0.05
+SP_RANGE_SHARE = 0.05
+
+
+def sp_moves(sp: np.ndarray, pv: np.ndarray) -> bool:
+    """Whether sp moves enough for a pv-sp phase plot (a constant sp, or one that steps
+    once, draws a vertical line; a cascade slave's sp moves with the cycle, Fig. 5)."""
+    sp = np.asarray(sp, dtype=float)
+    if sp.size < 2:
+        return False
+    changes = np.abs(np.diff(sp)) > 1e-9 * max(1.0, float(np.abs(sp).max()))
+    spread = float(np.ptp(sp))
+    return float(np.mean(changes)) >= SP_MOVING_SHARE and spread >= SP_RANGE_SHARE * max(
+        float(np.ptp(pv)), 1e-300
+    )
+
+
 def plot_phase(
     tags,
     *,
@@ -116,10 +135,14 @@ def plot_phase(
     win = trend_window(tags.n, float(tags.ts), period_s)
     # pv-sp is for a set point that moves with the cycle (cascade slave, Fig. 5);
     # a set point that is constant over the window (or steps once) adds nothing.
-    has_sp = tags.sp is not None and float(np.std(tags.sp[win])) > 0
+    has_sp = tags.sp is not None and sp_moves(tags.sp[win], tags.pv[win])
     rows = 1 + int(has_mv or has_model) + int(has_sp)
     fig, axes = new_figure(rows, 2, (11.5, 3.1 * rows), width_ratios=(2.3, 1))
     t = np.asarray(tags.time)[win]
+    start = getattr(tags, "start_time", None)
+    if start is not None:
+        # Clock time where the export has dates (UTC), to the millisecond.
+        t = np.datetime64(0, "ms") + np.round((start + t) * 1000.0).astype("timedelta64[ms]")
     pv, op = _scaled(tags.pv), _scaled(tags.op)
     cycles = f", last {WINDOW_CYCLES} cycles" if period_s else ""
 
@@ -180,7 +203,7 @@ def plot_phase(
     for ax in axes[:, 0]:
         ax.set_xlim(t[0], t[-1])
         ax.grid(alpha=0.3)
-    axes[-1][0].set_xlabel("time [s]")
+    axes[-1][0].set_xlabel("time [s]" if start is None else "time (UTC)")
     fig.suptitle(title or str(getattr(tags, "source", "")), fontsize=10)
     _fixed_layout(fig, rows)
     pin_decorations(fig)
