@@ -429,6 +429,14 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
         + (" --real $STICTION_ISDB" if a.real else "")
         + f"`; features of all loops {MEASURED_RUN}; this run {t_feat / 60:.1f} min).",
         "",
+        "Stage 2 of the verdict (`stictiondiag/stiction/cause.py`, `cause_model.py`): for a"
+        " loop with a cycle and without mv, one probability per cause of the cycle; the"
+        " verdict is `stiction` when P(valve) >= 0.6, `no_stiction` when <= 0.4"
+        " (`stictiondiag.stiction.verdict.VALVE_LEVEL`). The describing-function"
+        " consistency of Section 6 (do the identified loop and the fitted S, J predict the"
+        " observed cycle?) is not among the features yet: it needs the identified"
+        " controller and process, which only the replay computes.",
+        "",
         "Loops of `stictiondiag/apps/family_causes.py`, each analysed exactly as a user's"
         " file (`analyze` without the replay), labelled by the counterfactual twin that"
         " stops the cycle (`none`: no cycle; `unexplained`: no single change stops it, left"
