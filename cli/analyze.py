@@ -108,10 +108,19 @@ def render_summary(d: dict) -> str:
             lines.append(f"            {render_metrics(rep['metrics'])}")
         refit = (rep.get("settings") or {}).get("refit") or {}
         if refit.get("accepted"):
-            lines.append(
-                f"            closed-loop refit: S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
+            same = (refit.get("S"), refit.get("J")) == (
+                refit.get("S_open_loop"),
+                refit.get("J_open_loop"),
+            )
+            what = (
+                "process only (S and J measured from mv kept)"
+                if same
+                else f"S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
                 f"(open-loop fit S {_fmt(refit.get('S_open_loop'))}, "
-                f"J {_fmt(refit.get('J_open_loop'))}); cycle mismatch "
+                f"J {_fmt(refit.get('J_open_loop'))}) and the process"
+            )
+            lines.append(
+                f"            closed-loop refit: {what}; cycle mismatch "
                 f"{_fmt(refit.get('cost_open_loop'), '.3g')} -> {_fmt(refit.get('cost'), '.3g')}"
             )
     gap = d.get("gap")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -28,7 +29,25 @@ def friendly_errors() -> Iterator[None]:
     except MemoryError:
         fail("not enough memory for this request: shorten the duration or the data", 2)
     except OSError as exc:
+        if getattr(exc, "filename", None) is None and exc.errno in _OUTPUT_ERRNOS:
+            # A write that failed without a file name: a print to a full or closed
+            # stdout (typer.echo).  Reading never fails so: an output error.
+            reason = (exc.strerror or type(exc).__name__).lower()
+            fail(
+                f"cannot write the output: {reason}; redirect standard output to a writable "
+                "file, or free space",
+                2,
+            )
         fail(f"{exc.strerror or exc}: {getattr(exc, 'filename', '') or ''}".strip(), 3)
+
+
+#: errno values only a write gives: a full device or quota, a closed pipe, a
+#: read-only file system, a file too large.
+_OUTPUT_ERRNOS = frozenset(
+    getattr(errno, name)
+    for name in ("ENOSPC", "EDQUOT", "EPIPE", "EROFS", "EFBIG")
+    if hasattr(errno, name)
+)
 
 
 def info(message: str) -> None:
@@ -97,7 +116,6 @@ def probe_writable(target: Path, option: str, shown: Path | None = None) -> None
     UsageError
         Naming ``target`` and the reason.
     """
-    import errno
     import os
     import tempfile
 

@@ -19,10 +19,14 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from stictiondiag.analysis import (
-        Analysis,
         AnalysisConfig,
+        LoopEstimate,
         analyze,
         analyze_file,
+        diagnose_gap_file,
+        diagnose_gap_tags,
+        estimate_loop,
+        run_from_estimate,
     )
     from stictiondiag.core.atomic import (
         atomic_path,
@@ -81,6 +85,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         valve_characteristic,
     )
     from stictiondiag.replay.closed_loop import Replay
+    from stictiondiag.result import Analysis
     from stictiondiag.signals.oscillation import (
         Oscillation,
         detect_oscillation,
@@ -99,7 +104,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         estimate_from_mv,
         segment_valve,
     )
-    from stictiondiag.stiction.valvefit import StictionFit
+    from stictiondiag.stiction.valvefit import Determinacy, StictionFit
     from stictiondiag.stiction.verdict import (
         Verdict,
         stiction_verdict,
@@ -112,6 +117,12 @@ __all__ = [
     "AnalysisConfig",
     "analyze",
     "analyze_file",
+    "LoopEstimate",
+    "estimate_loop",
+    "run_from_estimate",
+    "diagnose_gap_tags",
+    "diagnose_gap_file",
+    "Determinacy",
     "DataError",
     "StictionError",
     "UsageError",
@@ -170,10 +181,16 @@ __all__ = [
 
 # public name -> submodule that defines it
 _LAZY: dict[str, str] = {
-    "Analysis": "analysis",
+    "Analysis": "result",
     "AnalysisConfig": "analysis",
     "analyze": "analysis",
     "analyze_file": "analysis",
+    "LoopEstimate": "analysis",
+    "estimate_loop": "analysis",
+    "run_from_estimate": "analysis",
+    "diagnose_gap_tags": "analysis",
+    "diagnose_gap_file": "analysis",
+    "Determinacy": "stiction.valvefit",
     "atomic_path": "core.atomic",
     "write_atomic": "core.atomic",
     "BicoherenceResult": "stiction.classic",

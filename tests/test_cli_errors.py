@@ -55,6 +55,7 @@ SEMANTIC: dict[tuple[str, str], list[list[str]]] = {
     ("benchmark", "--cases"): [["0"]],
     ("benchmark", "--out"): [["{file}"]],
     ("validate", "--workers"): [["0"]],
+    ("validate", "--loops"): [["CHEM1,not a name"], [","]],
     ("validate", "--out"): [["{dir}"]],
 }
 

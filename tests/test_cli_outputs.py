@@ -60,3 +60,21 @@ def test_a_full_disk_inside_atomic_path_names_the_destination(tmp_path):
             tmp.write_bytes(b"half")
             raise OSError(errno.ENOSPC, "No space left on device")
     assert not target.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_print_inside_a_command_is_an_output_error(capsys):
+    # typer.echo to a full stdout raises an OSError without a file name: exit 2, not
+    # the data error (3) of an unreadable input, which carries its file name.
+    import typer
+
+    from stiction_cli.common import friendly_errors
+
+    with pytest.raises(typer.Exit) as stopped:
+        with friendly_errors():
+            raise OSError(errno.ENOSPC, "No space left on device")
+    assert stopped.value.exit_code == 2
+    assert "cannot write the output: no space left on device" in capsys.readouterr().err
+    with pytest.raises(typer.Exit) as stopped:
+        with friendly_errors():
+            raise OSError(errno.EACCES, "Permission denied", "/data/loop.csv")
+    assert stopped.value.exit_code == 3

@@ -347,3 +347,32 @@ def test_scan_csv_escapes_formulas_and_parquet_stays_raw(tmp_path, monkeypatch):
     # A rerun resumes from the scan's own folder (its files are in its manifest).
     again = scan(folder, out=out, workers=1, gap=False)
     assert again.n_skipped == len(names)
+
+
+def test_a_scan_folder_from_before_manifests_is_taken_over_once(tmp_path, monkeypatch):
+    monkeypatch.setattr(scan_module, "analyse_source", _fake_scan_loop)
+    folder = tmp_path / "plant"
+    folder.mkdir()
+    (folder / "L1.csv").write_bytes(HEALTHY.read_bytes())
+    out = tmp_path / "out"
+    scan(folder, out=out, workers=1, gap=False)
+    (out / "scan-manifest.json").unlink()  # as an older scan left it
+    again = scan(folder, out=out, workers=1, gap=False)
+    assert again.n_loops == 1 and again.n_failed == 0
+    assert "loops/L1.json" in json.loads((out / "scan-manifest.json").read_text())["files"]
+
+
+def test_a_foreign_file_at_a_scan_record_fails_that_loop_only(tmp_path, monkeypatch):
+    monkeypatch.setattr(scan_module, "analyse_source", _fake_scan_loop)
+    folder = tmp_path / "plant"
+    folder.mkdir()
+    for name in ("L1", "L2"):
+        (folder / f"{name}.csv").write_bytes(HEALTHY.read_bytes())
+    out = tmp_path / "out"
+    (out / "loops").mkdir(parents=True)
+    (out / "loops" / "L1.html").write_text("my notes on L1")
+    result = scan(folder, out=out, workers=1, gap=False)
+    rows = result.table.set_index("loop")
+    assert rows.loc["L1", "verdict"] == "error" and "not written by" in rows.loc["L1", "error"]
+    assert rows.loc["L2", "verdict"] == "no_stiction"
+    assert (out / "loops" / "L1.html").read_text() == "my notes on L1"

@@ -197,7 +197,9 @@ class OutputFolder:
         for name in new:
             self.files.append(name)
             self.digests[name] = None
-        if new or self._dirty:
+        if new:
+            # Digests recorded since the last save go along; without new names they
+            # wait for the next save or flush (one manifest write per loop, not three).
             self._save()
 
     def write(self, files: dict[str, str | bytes]) -> None:

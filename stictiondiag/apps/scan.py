@@ -597,7 +597,7 @@ def scan(
         if on_note:
             on_note(f"warning: {note}")
     with folder.locked(on_note):
-        folder.sweep(started, ("", "loops"))
+        folder.sweep(started, ("", "loops", "history"))
         folder.refuse_foreign(("index.html", "plantwide.json", *OUTPUT_TABLES))
         loops_dir = _make_loops_dir(out)
         rows, todo = _resumed(sources, names, loops_dir, settings, force)

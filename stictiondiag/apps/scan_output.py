@@ -108,6 +108,8 @@ def _save_loop(
     name = file_names.get(row["loop"], safe_name(row["loop"]))
     entries: list[dict] = []
     try:
+        # Named together in the manifest before either is written (one manifest write).
+        folder.claim(f"loops/{name}.html", f"loops/{name}.json")
         if res["analysis"] is not None:
             entries = _update_history(folder, name, row, res["analysis"], keys.get(row["loop"]))
             trend = trend_sentence(entries)

@@ -225,11 +225,15 @@ class ValidationResult:
         accuracy, false positives, confusion matrix.
     split : dict
         Split-half repeatability (:func:`split_summary`).
+    causes : dict
+        The gap's cause against the expert's (:func:`cause_agreement`), empty
+        without the gap diagnosis.
     """
 
     table: pd.DataFrame
     scores: dict = field(default_factory=dict)
     split: dict = field(default_factory=dict)
+    causes: dict = field(default_factory=dict)
 
 
 def _called_stiction(verdict: str) -> bool:
@@ -304,6 +308,12 @@ def validate_isdb(
         row.update({f"baseline_{k}": v for k, v in res["baselines"].items()})
         reasons = ((res.get("analysis") or {}).get("stiction") or {}).get("reasons") or []
         row["reasons"] = "; ".join(str(x) for x in reasons)
+        full = res.get("analysis") or {}
+        if full.get("gap") is not None:
+            from stictiondiag.gap.attribution import attribute_gap
+
+            row["gap_cause"] = attribute_gap(full.get("replay"), full.get("gap"))["cause"]
+            row["gap_before"] = full["gap"].get("before")
         row.update(_split_columns(res.get("split")))
         rows.append(row)
         if progress:
@@ -325,7 +335,83 @@ def validate_isdb(
     scores = {"ours": score(table, "verdict", _called_stiction)}
     for test in CLASSIC_COLUMNS:
         scores[test] = score(table, f"baseline_{test}", _called_stiction)
-    return ValidationResult(table, scores, split_summary(table))
+    causes = cause_agreement(table) if gap else {}
+    return ValidationResult(table, scores, split_summary(table), causes)
+
+
+#: Causes named in the ISDB comments (``other_fault_published``) and the effect of the
+#: gap's catalogue (:mod:`stictiondiag.gap.effects`) each corresponds to; None where
+#: the catalogue has no such effect (the comparison is then listed, not scored).
+EXPERT_CAUSES = {
+    "quantisation": "quantization",
+    "external disturbance": "external_disturbance",
+    "tuning": None,
+    "dead zone": None,
+}
+
+
+def catalogue_cause(other_fault) -> tuple[str | None, str | None]:
+    """(the cause a published comment names, the catalogue effect it is) of the
+    manifest's ``other_fault_published`` text; (None, None) when it names none of
+    :data:`EXPERT_CAUSES`."""
+    text = "" if other_fault is None or isinstance(other_fault, float) else str(other_fault)
+    text = text.lower()
+    for cause, effect in EXPERT_CAUSES.items():
+        if cause in text:
+            return cause, effect
+    return None, None
+
+
+def cause_agreement(table: pd.DataFrame) -> dict:
+    """The gap's named effect against the cause the expert names, per loop.
+
+    Rows: ``loop``, ``expert`` (the comment's cause), ``expected`` (the catalogue
+    effect, None when the catalogue has none), ``named`` (the gap's effect),
+    ``cause`` (:func:`stictiondiag.gap.attribution.attribute_gap`), ``agrees``
+    (None when not scored).  ``n`` scored loops, ``agree`` of them.
+    """
+    rows = []
+    for r in table.itertuples():
+        cause, effect = catalogue_cause(getattr(r, "other_fault_published", None))
+        if cause is None:
+            continue
+        named = getattr(r, "gap_effect", None)
+        named = named if isinstance(named, str) else None
+        rows.append(
+            {
+                "loop": r.loop,
+                "expert": str(r.other_fault_published),
+                "expected": effect,
+                "named": named,
+                "cause": getattr(r, "gap_cause", None),
+                "gap_before": getattr(r, "gap_before", None),
+                "agrees": None if effect is None else named == effect,
+            }
+        )
+    scored = [x for x in rows if x["agrees"] is not None]
+    return {
+        "rows": rows,
+        "n": len(scored),
+        "agree": sum(bool(x["agrees"]) for x in scored),
+    }
+
+
+def render_causes(causes: dict) -> list[str]:
+    """Markdown lines: the cause table of :func:`cause_agreement`."""
+    lines = [
+        f"The gap names the expert's cause in {causes.get('agree', 0)} of "
+        f"{causes.get('n', 0)} loops whose comment names a cause the catalogue covers.",
+        "",
+        "| loop | expert's comment | catalogue effect | gap names | cause | agrees |",
+        "|---|---|---|---|---|---|",
+    ]
+    for x in causes.get("rows", []):
+        agrees = "-" if x["agrees"] is None else ("yes" if x["agrees"] else "no")
+        lines.append(
+            f"| {x['loop']} | {x['expert']} | {x['expected'] or '(not in the catalogue)'} | "
+            f"{x['named'] or 'no gap diagnosis'} | {x['cause'] or '-'} | {agrees} |"
+        )
+    return lines
 
 
 def _split_columns(split: dict | None) -> dict:
@@ -601,6 +687,8 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         f"* each half's S inside the other half's S interval: {sp.get('S_within', 0)} of"
         f" {sp.get('n_S', 0)} ({_f(sp.get('S_within_share'))})",
     ]
+    if result.causes:
+        lines += ["", "## Gap causes against the experts", "", *render_causes(result.causes)]
     stated = t[t["label_group"] == "stated"]
     lines.append("")
     lines.append(
