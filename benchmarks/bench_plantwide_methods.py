@@ -11,7 +11,8 @@ others, ``stiction benchmark --plant``), prints:
   ``acf``), scored as :mod:`stictiondiag.apps.plant_benchmark` does;
 * for the groups the spectral method finds with their true source among the
   members, how often each piece of evidence alone puts the true source first:
-  the earliest cycle (time order), the largest harmonic content, and with
+  the earliest cycle (time order), the largest harmonic content, the largest
+  bicoherence nonlinearity index (NLI, counted only when significant), and with
   ``--probability`` the highest P(stiction) of each loop's own analysis (gap
   off; about 1-3 s per loop), and the combined ranking of
   :func:`stictiondiag.stiction.plantwide.rank_sources`.
@@ -42,6 +43,15 @@ def _probabilities(plant) -> dict:
     return out
 
 
+def _nli(x: np.ndarray, dt: float, period_s: float) -> float:
+    """NLI of Choudhury et al. (2004) when the record is nonlinear, else 0."""
+    from stictiondiag.stiction.classic.bicoherence import auto_decimation, bicoherence_indices
+
+    q = auto_decimation(x.size, period_s / dt)
+    b = bicoherence_indices(x - x.mean(), dt=dt, decimation=q)
+    return float(b.nli) if b.nonlinear else 0.0
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", nargs=2, type=int, default=(0, 20), metavar=("FIRST", "STOP"))
@@ -49,7 +59,13 @@ def main() -> None:
     args = ap.parse_args()
     right = {"spectral": 0, "acf": 0}
     loops = 0
-    evidence = {"time order": 0, "harmonic content": 0, "P(stiction)": 0, "combined": 0}
+    evidence = {
+        "time order": 0,
+        "harmonic content": 0,
+        "bicoherence NLI": 0,
+        "P(stiction)": 0,
+        "combined": 0,
+    }
     groups = 0
     t0 = time.perf_counter()
     for seed in range(*args.seeds):
@@ -75,6 +91,8 @@ def main() -> None:
             src = truth["source"]
             evidence["time order"] += min(lags, key=lags.get) == src
             evidence["harmonic content"] += max(harm, key=lambda m: np.nan_to_num(harm[m])) == src
+            nli = {m: _nli(sig[m], plant.ts, g.period_s) for m in g.members}
+            evidence["bicoherence NLI"] += max(nli, key=nli.get) == src and nli[src] > 0
             if probs:
                 evidence["P(stiction)"] += max(g.members, key=lambda m: probs[m] or 0) == src
             evidence["combined"] += rank_sources(g, sig, plant.ts, probs).ranking[0].loop == src

@@ -40,10 +40,8 @@ MIN_LOOPS = 2
 
 
 def _stamped_pv(source, read_options: dict) -> tuple[np.ndarray, np.ndarray, float] | str:
-    """(time [s], pv, ts [s]) of one loop with its file's own stamps, or why not."""
+    """(time [s], pv, ts [s]) of one loop file with its own stamps, or why not."""
     from stictiondiag.apps.scan import load_source
-    from stictiondiag.io.readers import read_table
-    from stictiondiag.io.timebase import time_seconds
 
     if source.loop_column is not None:
         return "a loop of a Parquet dataset"
@@ -53,13 +51,92 @@ def _stamped_pv(source, read_options: dict) -> tuple[np.ndarray, np.ndarray, flo
     tcol, pcol = tags.names.get("time"), tags.names.get("pv")
     if not tcol or not pcol:
         return "no time column"
-    frame = read_table(Path(source.path), lambda header: [tcol, pcol])
-    t = time_seconds(frame[tcol], tcol, source.path)
-    pv = frame[pcol].to_numpy(dtype=float, na_value=np.nan)
-    ok = np.isfinite(t) & np.isfinite(pv)
-    if ok.sum() < 2:
-        return "no readable time stamps"
-    return t[ok], pv[ok], float(tags.ts)
+    got = _read_stamped(source.path, tcol, [pcol])
+    return got if isinstance(got, str) else (*got[pcol], float(tags.ts))
+
+
+def _read_stamped(path: str, tcol: str, pcols: list[str]) -> dict | str:
+    """Column -> (time [s], values) of ``pcols`` in one read of ``path``, or why not."""
+    from stictiondiag.io.readers import read_table
+    from stictiondiag.io.timebase import time_seconds
+
+    frame = read_table(Path(path), lambda header: [tcol, *dict.fromkeys(pcols)])
+    missing = [c for c in (tcol, *pcols) if c not in frame.columns]
+    if missing:
+        return f"column {missing[0]!r} not found"
+    t = time_seconds(frame[tcol], tcol, path)
+    out = {}
+    for c in pcols:
+        values = frame[c].to_numpy(dtype=float, na_value=np.nan)
+        ok = np.isfinite(t) & np.isfinite(values)
+        if ok.sum() < 2:
+            return f"{c}: no readable time stamps"
+        out[c] = (t[ok], values[ok])
+    return out
+
+
+def _stamped_wide(sources: list, read_options: dict) -> dict | str:
+    """Loop -> (time [s], pv, ts [s]) of the loops of one wide export, in one read.
+
+    The columns are the grouping's (a loops manifest's names win); the sample time
+    is the median step of the file's time stamps.
+    """
+    first = sources[0]
+    names = {
+        s.loop: {**s.plant.columns, **_named(read_options), **_named(s.read_options)}
+        for s in sources
+    }
+    tcols = {n.get("time") for n in names.values()}
+    tcol = tcols.pop() if len(tcols) == 1 else None
+    if not tcol:
+        return "no common time column"
+    pcols = {loop: n["pv"] for loop, n in names.items()}
+    got = _read_stamped(first.path, tcol, list(pcols.values()))
+    if isinstance(got, str):
+        return got
+    out = {}
+    for loop, c in pcols.items():
+        t, values = got[c]
+        steps = np.diff(t)
+        steps = steps[steps > 0]
+        if steps.size == 0:
+            return f"{loop}: no increasing time stamps"
+        out[loop] = (t, values, float(np.median(steps)))
+    return out
+
+
+def _named(options: dict | None) -> dict:
+    return {r: v for r, v in (options or {}).items() if r in ("pv", "time") and v}
+
+
+def _gather(chosen: list, read_options: dict) -> dict | str:
+    """Every chosen loop's stamped pv (one read per file), or why grouping is off."""
+    stamped: dict = {}
+    wide: dict[str, list] = {}
+    for s in chosen:
+        if s.plant is not None and s.plant.layout == "wide":
+            wide.setdefault(s.path, []).append(s)
+    for path, group in wide.items():
+        got = _guarded(_stamped_wide, group, read_options)
+        if isinstance(got, str):
+            return f"{path}: {got}"
+        stamped.update(got)
+    for s in chosen:
+        if s.loop not in stamped:
+            got = _guarded(_stamped_pv, s, read_options)
+            if isinstance(got, str):
+                return f"{s.loop}: {got}"
+            stamped[s.loop] = got
+    return stamped
+
+
+def _guarded(fn, *args):
+    try:
+        return fn(*args)
+    except StictionError as exc:
+        return _first_line(exc)
+    except Exception as exc:  # the loops' own results must survive a failed step
+        return f"internal error: {type(exc).__name__}: {_first_line(exc)}"
 
 
 def _aligned(stamped: dict) -> tuple[dict, float] | str:
@@ -102,15 +179,9 @@ def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
     chosen = [s for s in sources if s.loop in analysed]
     if len(chosen) < MIN_LOOPS:
         return _off(rows, f"fewer than {MIN_LOOPS} analysed loops")
-    stamped = {}
-    for s in chosen:
-        try:
-            got = _stamped_pv(s, read_options)
-        except StictionError as exc:
-            got = str(exc).splitlines()[0]
-        if isinstance(got, str):
-            return _off(rows, f"{s.loop}: {got}; grouping needs time-aligned loops")
-        stamped[s.loop] = got
+    stamped = _gather(chosen, read_options)
+    if isinstance(stamped, str):
+        return _off(rows, f"{stamped}; grouping needs time-aligned loops")
     aligned = _aligned(stamped)
     if isinstance(aligned, str):
         return _off(rows, aligned)
@@ -119,7 +190,9 @@ def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
     try:
         diagnosis = diagnose_plant(signals, dt, probabilities)
     except StictionError as exc:
-        return _off(rows, str(exc).splitlines()[0])
+        return _off(rows, _first_line(exc))
+    except Exception as exc:  # the loops' own results must survive a failed step
+        return _off(rows, f"internal error: {type(exc).__name__}: {_first_line(exc)}")
     for r in rows:
         role = diagnosis.roles.get(r["loop"])
         if role is None:
@@ -134,6 +207,11 @@ def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
             r["own_verdict"] = r.get("verdict")
             r["verdict"] = "propagated"
     return {"status": "on", **diagnosis.to_dict(), "diagnosis": diagnosis}
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def _off(rows: list[dict], reason: str) -> dict:

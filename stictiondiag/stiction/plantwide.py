@@ -25,7 +25,9 @@ alone puts the true source first in 23 groups (time order), 20 (P(stiction)) and
 15 (harmonic content).  The harmonic content is weakest because the receiving
 loop's own controller takes more out of the fundamental than of the harmonics
 (its sensitivity rises with frequency), so a propagated loop's pv can be more
-distorted than the source's.
+distorted than the source's.  The bicoherence NLI (Choudhury et al. 2004), counted
+when significant, puts it first in 5 only: in records of a few thousand samples
+most members show no significant bicoherence, so it is not used.
 
 Roles (:data:`ROLES`): ``source_candidate`` (ranked first, or tied with the first
 when the evidence does not single one out), ``propagated`` (in a group whose source
@@ -234,7 +236,7 @@ def rank_sources(
     evidence = [
         SourceEvidence(
             loop=m,
-            lead_s=-float(lags[m]),
+            lead_s=0.0 - float(lags[m]),  # never -0.0
             harmonic_ratio=harmonic_ratio(signals[m], dt, period),
             probability=plain_float(probabilities.get(m)),
             share=float(s),
