@@ -20,7 +20,11 @@ from . import _commands  # noqa: E402,F401
 def _terminate(signum, frame) -> None:
     """SIGTERM takes Ctrl-C's path: the command stops its workers on the way out,
     one line is printed (``stiction: terminated``) and the exit code is 143."""
+    import signal
+
     _app_module.terminated = True
+    # Once is enough: a second SIGTERM must not interrupt the stopping of the workers.
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise KeyboardInterrupt
 
 

@@ -25,13 +25,8 @@ from stictiondiag.models.processes import (
     PI,
 )
 from stictiondiag.models.valve import choudhury_model
-from stictiondiag.replay.closed_loop import (
-    Replay,
-    cycle_shape,
-    nrmse,
-    replay,
-    waveform_similarity,
-)
+from stictiondiag.replay.closed_loop import Replay, nrmse, replay
+from stictiondiag.replay.cycles import cycle_shape, waveform_similarity
 
 N = 10_000
 DT = 0.1
@@ -276,7 +271,7 @@ def test_cycle_shape_needs_cycles():
 def _cycle_shape_whole_record(x, n_bins=256):
     """cycle_shape as it was before it worked on slices: every cycle interpolated
     against the whole record's index, the cycles stacked and averaged."""
-    from stictiondiag.replay.closed_loop import (
+    from stictiondiag.replay.cycles import (
         CYCLE_HYSTERESIS,
         CYCLE_LENGTH_FACTOR,
         _up_crossings,

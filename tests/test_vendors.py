@@ -56,6 +56,9 @@ def test_wide_plant_export_in_each_vendors_naming_is_read(tmp_path, vendor, name
         # vendor generic reads MV as the valve position: no op, a one-line error.
         with pytest.raises(DataError, match="no op tag"):
             read_plant_loop(loops[0], vendor="generic")
+        # A manifest that names op rescues it whatever the vendor.
+        named = read_plant_loop(loops[0], vendor="generic", op="FIC101.MV")
+        assert named.names["op"] == "FIC101.MV"
 
 
 def test_manifest_names_vendor_action_and_compression(tmp_path):

@@ -197,14 +197,14 @@ def param_text(st: dict, sym: str, *, unit: str = " %") -> str:
 
 def probability_text(st: dict) -> str:
     """``P(stiction) = 0.55 (decision levels 0.3 and 0.7)``, or with stage 2 of the
-    verdict ``cause: the valve (P 0.72), runner-up: the controller's tuning (P 0.15)``,
-    or ``no limit cycle`` for a loop without one."""
+    verdict (a cycle and no mv) ``cause: the valve (P 0.72), runner-up: the
+    controller's tuning (P 0.15)``, or ``no limit cycle`` for a loop without one."""
     from stictiondiag.stiction.cause import CAUSE_WORDS
 
     ev = st.get("evidence") or {}
     probs = st.get("cause_probabilities")
     cause = str(st.get("cause"))
-    if probs and cause in probs:
+    if probs and cause in probs and not ev.get("has_mv"):
         runner = str(st.get("runner_up"))
         text = f"cause: {CAUSE_WORDS[cause]} (P {float(probs[cause]):.2f})"
         if runner in probs:

@@ -345,7 +345,7 @@ def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
     if loop.layout == "file":
         return read_tags(loop.path, **read_options)
     vendor = read_options.get("vendor")
-    if loop.notes and vendor not in (None, "yokogawa"):
+    if loop.notes and vendor not in (None, "yokogawa") and read_options.get("op") is None:
         raise DataError(
             f"loop {loop.loop} of {loop.path}: no op tag (vendor {vendor} reads "
             f"{loop.columns['op']!r} as the valve position): name op in --loops"

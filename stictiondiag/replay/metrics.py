@@ -18,7 +18,7 @@ at a time, from a :class:`~stictiondiag.replay.closed_loop.Replay`:
     and a clean replay can be measured differently; this module does not.
 ``waveform``
     Correlation of the average cycle of data and replay after aligning their phase
-    over one cycle (:func:`stictiondiag.replay.closed_loop.waveform_similarity`),
+    over one cycle (:func:`stictiondiag.replay.cycles.waveform_similarity`),
     1 = same shape [-].
 ``nrmse``
     Kept as the replay computed it, for those who want the phase-sensitive figure.

@@ -26,7 +26,7 @@ out), data and replay compared over the whole record and over its second half,
 the worse of the two counting (a start-up transient and a decaying
 replay both cost what their amplitude costs, which leads the search towards the
 recorded, sustained cycle), and ``waveform`` the correlation of the average cycle
-shapes (:func:`stictiondiag.replay.closed_loop.waveform_similarity`); the mv term
+shapes (:func:`stictiondiag.replay.cycles.waveform_similarity`); the mv term
 only where mv is recorded.  A replay
 that does not cycle costs :data:`NO_CYCLE_COST` on top of its amplitudes.
 
@@ -113,7 +113,7 @@ def cycle_stats(x: np.ndarray, dt: float) -> CycleStats:
     signal cycles when it has three crossings at least and its last third's
     swing is at least :data:`SUSTAIN_RATIO` of its first third's.
     """
-    from stictiondiag.replay.closed_loop import _up_crossings
+    from stictiondiag.replay.cycles import _up_crossings
 
     y = np.asarray(x, dtype=float)
     lo, hi = np.percentile(y, (5.0, 95.0))
@@ -238,7 +238,7 @@ def cycle_cost(
 ) -> tuple[float, dict]:
     """Cycle mismatch of a replay (module docstring) and its terms; ``mv`` (recorded,
     replayed) adds the amplitude term of a recorded valve position.  O(n log n)."""
-    from stictiondiag.replay.closed_loop import waveform_similarity
+    from stictiondiag.replay.cycles import waveform_similarity
 
     d_pv = data[0] if data is not None else recorded_cycle(pv, dt)
     r_pv = recorded_cycle(pv_r, dt)
