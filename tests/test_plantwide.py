@@ -188,6 +188,7 @@ def test_scan_of_a_wide_plant_file_groups_and_relabels(tmp_path):
             assert row[m, "plant_role"] == "propagated"
             assert row[m, "verdict"] == "propagated"
             assert row[m, "plant_cause"] == f"propagated: the cycle comes from {src}"
+            assert row[m, "cause"] == f"propagated: the cycle comes from {src}"
     html = (tmp_path / "out" / "index.html").read_text()
     assert "Plant-wide oscillations" in html and "<svg" in html
 

@@ -8,8 +8,9 @@ table gets:
 * ``plant_group``: the groups it belongs to (``"1"``, ``"1,3"``; empty for none);
 * ``plant_role``: ``source_candidate``, ``propagated`` or ``independent``;
 * ``plant_cause``: ``"propagated: the cycle comes from <loop>"`` for a propagated loop;
-* for a propagated loop, ``verdict`` becomes ``propagated`` and its own call is kept
-  in ``own_verdict`` (the cycle it shows is not its valve's).
+* for a propagated loop, ``verdict`` becomes ``propagated`` and ``cause`` the
+  ``plant_cause``; its own call and cause are kept in ``own_verdict`` and
+  ``own_cause`` (the cycle it shows is not its valve's).
 
 Loops are time-aligned when each has a time column, all share one sample time
 (within :data:`TS_TOLERANCE`) and their records overlap for at least
@@ -233,6 +234,9 @@ def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
         if role.role == "propagated":
             r["own_verdict"] = r.get("verdict")
             r["verdict"] = "propagated"
+            # The cause of its cycle is the source's, not what its own analysis said.
+            r["own_cause"] = r.get("cause")
+            r["cause"] = role.cause
     return {"status": "on", **diagnosis.to_dict(), "diagnosis": diagnosis}
 
 
