@@ -195,6 +195,8 @@ class Analysis:
             "probability": st.get("probability"),
             "cause": st.get("cause"),
             "runner_up": st.get("runner_up"),
+            "cause_model": _top_cause(st.get("cause_probabilities")),
+            "p_valve_cause": (st.get("cause_probabilities") or {}).get("valve"),
             "S": st.get("S"),
             "J": st.get("J"),
             "S_lo": s_int[0],
@@ -321,6 +323,13 @@ class Analysis:
             save_png(build(), Path(folder) / self.figure_file(name), dpi=dpi)
             for name, build in self.figure_builders().items()
         ]
+
+
+def _top_cause(probs: dict | None) -> str | None:
+    """The cause model's most likely cause of the cycle (None without a reading)."""
+    if not probs:
+        return None
+    return max(probs, key=lambda c: float(probs[c]))
 
 
 def _plain_text(v: object) -> str | None:
