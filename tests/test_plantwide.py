@@ -188,6 +188,7 @@ def test_scan_of_a_wide_plant_file_groups_and_relabels(tmp_path):
             assert row[m, "plant_role"] == "propagated"
             assert row[m, "verdict"] == "propagated"
             assert row[m, "plant_cause"] == f"propagated: the cycle comes from {src}"
+            assert row[m, "cause"] == f"propagated: the cycle comes from {src}"
     html = (tmp_path / "out" / "index.html").read_text()
     assert "Plant-wide oscillations" in html and "<svg" in html
 
@@ -258,3 +259,17 @@ def test_benchmark_plant_command(tmp_path, monkeypatch):
     # Seeds 0 and 1 are development plants (14 + 10 loops) whose loops all land in
     # the right group (measured while developing): a scoring slip would show here.
     assert d["totals"]["membership_pct"] == pytest.approx(100.0)
+
+
+def test_scan_of_a_long_plant_export_groups_as_the_wide_one(tmp_path):
+    from stictiondiag.apps.scan import scan
+
+    p, frame = _wide(tmp_path)
+    long = frame.melt(id_vars="time", var_name="tag", value_name="value")
+    long["time"] = pd.to_datetime(long["time"], unit="s", origin="2024-01-01")
+    long.to_csv(tmp_path / "plant_long.csv", index=False)
+    res = scan(tmp_path / "plant_long.csv", out=tmp_path / "out", gap=False, workers=1)
+    assert res.plantwide["status"] == "on", res.plantwide.get("reason")
+    (found,) = [g for g in res.plantwide["groups"] if p.groups[1]["source"] in g["members"]]
+    assert set(found["members"]) == set(p.groups[1]["members"])
+    assert found["ranking"][0]["loop"] == p.groups[1]["source"]

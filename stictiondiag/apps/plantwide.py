@@ -8,16 +8,18 @@ table gets:
 * ``plant_group``: the groups it belongs to (``"1"``, ``"1,3"``; empty for none);
 * ``plant_role``: ``source_candidate``, ``propagated`` or ``independent``;
 * ``plant_cause``: ``"propagated: the cycle comes from <loop>"`` for a propagated loop;
-* for a propagated loop, ``verdict`` becomes ``propagated`` and its own call is kept
-  in ``own_verdict`` (the cycle it shows is not its valve's).
+* for a propagated loop, ``verdict`` becomes ``propagated`` and ``cause`` the
+  ``plant_cause``; its own call and cause are kept in ``own_verdict`` and
+  ``own_cause`` (the cycle it shows is not its valve's).
 
 Loops are time-aligned when each has a time column, all share one sample time
 (within :data:`TS_TOLERANCE`) and their records overlap for at least
 :data:`MIN_OVERLAP` of the shortest one: separate files recorded together, or the
 loops of one wide plant export.  Otherwise grouping is off and the result says why
-(a scan of loops recorded at different times has no common cycle to find).  Loops
-of a long (``timestamp, tag, value``) export or of a Parquet dataset with a loop-id
-column are not grouped (their readers resample each loop on its own grid).
+(a scan of loops recorded at different times has no common cycle to find).  The
+loops of a long (``timestamp, tag, value``) export are read from the file's own
+stamps and put on the coarsest of their pv tags' steps; loops of a Parquet dataset
+with a loop-id column are not grouped.
 """
 
 from __future__ import annotations
@@ -45,8 +47,6 @@ def _stamped_pv(source, read_options: dict) -> tuple[np.ndarray, np.ndarray, flo
 
     if source.loop_column is not None:
         return "a loop of a Parquet dataset"
-    if source.plant is not None and source.plant.layout == "long":
-        return "a loop of a long (timestamp, tag, value) export"
     tags = load_source(source, **{**read_options, **(source.read_options or {})})
     tcol, pcol = tags.names.get("time"), tags.names.get("pv")
     if not tcol or not pcol:
@@ -105,6 +105,33 @@ def _stamped_wide(sources: list, read_options: dict) -> dict | str:
     return out
 
 
+def _stamped_long(sources: list, read_options: dict) -> dict | str:
+    """Loop -> (time [s], pv, ts [s]) of the loops of one long export, in one read.
+
+    Each pv tag keeps its own stamps; every loop is given the coarsest of the pv
+    tags' median steps as its sample time, as the long reader puts a loop's tags
+    on the coarsest of their steps (:mod:`stictiondiag.io.plant`), so the grid
+    gives no tag detail it does not have.
+    """
+    from stictiondiag.io.plant import long_tag_series
+
+    tags = {
+        s.loop: {**s.plant.columns, **_named(read_options), **_named(s.read_options)}["pv"]
+        for s in sources
+    }
+    series = long_tag_series(sources[0].path, list(dict.fromkeys(tags.values())))
+    steps = {}
+    for loop, tag in tags.items():
+        t = series[tag][0]
+        d = np.diff(t)
+        d = d[d > 0]
+        if d.size == 0:
+            return f"{loop}: no increasing time stamps"
+        steps[loop] = float(np.median(d))
+    ts = max(steps.values())
+    return {loop: (*series[tag], ts) for loop, tag in tags.items()}
+
+
 def _named(options: dict | None) -> dict:
     return {r: v for r, v in (options or {}).items() if r in ("pv", "time") and v}
 
@@ -114,10 +141,11 @@ def _gather(chosen: list, read_options: dict) -> dict | str:
     stamped: dict = {}
     wide: dict[str, list] = {}
     for s in chosen:
-        if s.plant is not None and s.plant.layout == "wide":
+        if s.plant is not None and s.plant.layout in ("wide", "long"):
             wide.setdefault(s.path, []).append(s)
     for path, group in wide.items():
-        got = _guarded(_stamped_wide, group, read_options)
+        reader = _stamped_long if group[0].plant.layout == "long" else _stamped_wide
+        got = _guarded(reader, group, read_options)
         if isinstance(got, str):
             return f"{path}: {got}"
         stamped.update(got)
@@ -206,6 +234,9 @@ def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
         if role.role == "propagated":
             r["own_verdict"] = r.get("verdict")
             r["verdict"] = "propagated"
+            # The cause of its cycle is the source's, not what its own analysis said.
+            r["own_cause"] = r.get("cause")
+            r["cause"] = role.cause
     return {"status": "on", **diagnosis.to_dict(), "diagnosis": diagnosis}
 
 

@@ -52,6 +52,7 @@ __all__ = [
     "LONG_COLUMNS",
     "PlantLoop",
     "is_long_file",
+    "long_tag_series",
     "manifest_options",
     "plant_loops",
     "read_manifest",
@@ -565,3 +566,36 @@ def is_long_file(path: str | os.PathLike) -> bool:
     except (DataError, OSError):
         return False
     return _long_columns([str(c) for c in header.columns]) is not None
+
+
+def long_tag_series(
+    path: str | os.PathLike, tags: list[str]
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Time [s] and values of each of ``tags`` in a long export, in time order (one read).
+
+    The stamps as recorded, not resampled (the plant-wide grouping puts every
+    loop on one grid itself); rows whose time or value cannot be read are left out.
+
+    Raises
+    ------
+    DataError
+        The file is not a long export, or cannot be read.
+    """
+    import pandas as pd
+
+    from stictiondiag.io.timebase import time_seconds
+
+    file = Path(path)
+    long = _long_columns([str(c) for c in _header(file).columns])
+    if long is None:
+        raise DataError(f"{file} is not a long export (timestamp, tag, value)")
+    frame = _read_long(file, long, list(tags))
+    t = time_seconds(frame[long["time"]], long["time"], str(file))
+    values = pd.to_numeric(frame[long["value"]], errors="coerce").to_numpy(dtype=float)
+    names = frame[long["tag"]].astype(str).to_numpy()
+    out = {}
+    for tag in tags:
+        sel = (names == tag) & np.isfinite(t) & np.isfinite(values)
+        order = np.argsort(t[sel], kind="stable")
+        out[tag] = (t[sel][order], values[sel][order])
+    return out

@@ -263,8 +263,8 @@ def rank_sources(
         note = f"{lead.loop}: its cycle leads every other member's{gap}"
     else:
         note = (
-            f"no single source: the cycles of {', '.join(candidates)} arrive within "
-            f"{margin:.0f} s of each other; ranked by P(stiction), then harmonic content"
+            f"no single source: the cycles of {', '.join(candidates)} arrive less than "
+            f"{margin:.0f} s apart; ranked by P(stiction), then harmonic content"
         )
     return GroupSources(group, ranking, candidates, clear, note)
 
