@@ -139,7 +139,7 @@ class Analysis:
                 "n_samples": int(tags.n),
                 "ts_s": float(tags.ts),
                 "duration_s": float(tags.n * tags.ts),
-                "start": _plain_text(getattr(tags, "start", None)),
+                "start": _clock_text(getattr(tags, "start_time", None)),
                 "loop_type": tags.loop_type,
                 "loop_type_source": _plain_text(getattr(tags, "loop_type_source", None)),
                 "integrating": bool(tags.integrating),
@@ -330,6 +330,15 @@ def _top_cause(probs: dict | None) -> str | None:
     if not probs:
         return None
     return max(probs, key=lambda c: float(probs[c]))
+
+
+def _clock_text(seconds: float | None) -> str | None:
+    """Clock time of the first sample as ISO 8601 UTC text (None without dates)."""
+    if seconds is None or not math.isfinite(float(seconds)):
+        return None
+    from datetime import UTC, datetime
+
+    return datetime.fromtimestamp(float(seconds), UTC).isoformat(timespec="seconds")
 
 
 def _plain_text(v: object) -> str | None:
