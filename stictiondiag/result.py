@@ -139,7 +139,7 @@ class Analysis:
                 "n_samples": int(tags.n),
                 "ts_s": float(tags.ts),
                 "duration_s": float(tags.n * tags.ts),
-                "start": _plain_text(getattr(tags, "start", None)),
+                "start": _clock_text(getattr(tags, "start_time", None)),
                 "loop_type": tags.loop_type,
                 "loop_type_source": _plain_text(getattr(tags, "loop_type_source", None)),
                 "integrating": bool(tags.integrating),
@@ -195,6 +195,8 @@ class Analysis:
             "probability": st.get("probability"),
             "cause": st.get("cause"),
             "runner_up": st.get("runner_up"),
+            "cause_model": _top_cause(st.get("cause_probabilities")),
+            "p_valve_cause": (st.get("cause_probabilities") or {}).get("valve"),
             "S": st.get("S"),
             "J": st.get("J"),
             "S_lo": s_int[0],
@@ -321,6 +323,22 @@ class Analysis:
             save_png(build(), Path(folder) / self.figure_file(name), dpi=dpi)
             for name, build in self.figure_builders().items()
         ]
+
+
+def _top_cause(probs: dict | None) -> str | None:
+    """The cause model's most likely cause of the cycle (None without a reading)."""
+    if not probs:
+        return None
+    return max(probs, key=lambda c: float(probs[c]))
+
+
+def _clock_text(seconds: float | None) -> str | None:
+    """Clock time of the first sample as ISO 8601 UTC text (None without dates)."""
+    if seconds is None or not math.isfinite(float(seconds)):
+        return None
+    from datetime import UTC, datetime
+
+    return datetime.fromtimestamp(float(seconds), UTC).isoformat(timespec="seconds")
 
 
 def _plain_text(v: object) -> str | None:

@@ -8,7 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from stictiondiag.stiction.cause import CAUSES, NO_CYCLE_REASON, direct_stick_slip, find_cycle
+from stictiondiag.stiction.cause import (
+    CAUSE_WORDS,
+    CAUSES,
+    NO_CYCLE_REASON,
+    direct_stick_slip,
+    find_cycle,
+)
 from stictiondiag.stiction.probability import FEATURES
 from stictiondiag.stiction.valvefit import StictionFit
 from stictiondiag.stiction.verdict import stiction_verdict
@@ -93,43 +99,37 @@ def _constant_cause_model(probs: dict[str, float]) -> dict:
 
 
 @pytest.mark.parametrize(
-    ("probs", "status", "cause", "runner"),
+    ("p_friction", "probs", "status", "cause"),
     [
-        (
-            {"valve": 0.7, "tuning": 0.1, "external": 0.15, "other": 0.05},
-            "stiction",
-            "valve",
-            "external",
-        ),
-        (
-            {"valve": 0.2, "tuning": 0.5, "external": 0.2, "other": 0.1},
-            "no_stiction",
-            "tuning",
-            "valve",
-        ),
-        (
-            {"valve": 0.5, "tuning": 0.1, "external": 0.3, "other": 0.1},
-            "inconclusive",
-            "valve",
-            "external",
-        ),
+        # The cause model favours another cause: P(stiction) still decides.
+        (0.9, {"valve": 0.2, "tuning": 0.5, "external": 0.2, "other": 0.1}, "stiction", "valve"),
+        # P below the lower level: no stiction, the cause model's best other cause named.
+        (0.1, {"valve": 0.7, "tuning": 0.1, "external": 0.15, "other": 0.05}, "no_stiction",
+         "external"),
+        # Between the levels: undecided, whatever the cause model says.
+        (0.5, {"valve": 0.9, "tuning": 0.05, "external": 0.03, "other": 0.02}, "inconclusive",
+         None),
     ],
-)
-def test_a_cycle_goes_on_to_its_cause(probs, status, cause, runner):
-    # Stage 2 decides by P(the valve causes the cycle) against VALVE_LEVEL, whatever
-    # the friction model says (here P(friction) = 0.9).
+)  # fmt: skip
+def test_a_cycle_is_decided_by_P_with_the_cause_model_read_beside_it(
+    p_friction, probs, status, cause
+):
+    # A cycle without mv: the verdict follows P(stiction) against its levels, and the
+    # cause model's reading (top cause and runner-up) is reported as evidence.
     v = stiction_verdict(
         _fit(),
         _Osc(True, 100.0, 3.0, 12.0),
         oscillation_op=_Osc(False),
-        model=_constant_model(0.9),
+        model=_constant_model(p_friction),
         cause_model=_constant_cause_model(probs),
     )
-    assert (v.status, v.cause, v.runner_up) == (status, cause, runner)
-    assert v.probability == pytest.approx(probs["valve"], abs=1e-9)
+    assert (v.status, v.cause) == (status, cause)
+    assert v.probability == pytest.approx(p_friction, abs=1e-9)
     assert sum(v.cause_probabilities.values()) == pytest.approx(1.0, abs=1e-9)
-    assert v.evidence["p_friction"] == pytest.approx(0.9, abs=1e-9)
-    assert v.reasons[0].startswith(f"P(the valve causes the cycle) = {probs['valve']:.2f}")
+    assert v.evidence["p_friction"] == pytest.approx(p_friction, abs=1e-9)
+    top = max(probs, key=probs.get)
+    reading = next(r for r in v.reasons if r.startswith("cause model"))
+    assert f"most likely {CAUSE_WORDS[top]} ({probs[top]:.2f})" in reading
 
 
 @pytest.mark.parametrize(

@@ -81,3 +81,18 @@ def test_foreign_and_newer_documents_are_refused():
         loads(evil, schema="s")
     with pytest.raises(DataError, match="not a result file"):
         loads("{", schema="s")
+
+
+def test_summary_gives_the_clock_time_of_the_first_sample():
+    """``tags.start`` in the JSON is the export's clock time of the first sample
+    (ISO 8601, UTC), so the report can say "from <start>"; None without dates."""
+    from stictiondiag.analysis import analyze
+    from stictiondiag.io.tags import Tags, read_tags
+
+    path = next(p for p in SAMPLES if p.stem == "level_undershoot")  # stamps from 2004-03-01
+    tags = read_tags(path)
+    d = analyze(tags, config=AnalysisConfig(gap=False, replay=False)).to_dict()
+    assert d["tags"]["start"] == "2004-03-01T00:00:00+00:00"
+    bare = Tags.from_arrays(tags.pv, tags.op, mv=tags.mv, ts=tags.ts, loop_type="level")
+    d = analyze(bare, config=AnalysisConfig(gap=False, replay=False)).to_dict()
+    assert d["tags"]["start"] is None

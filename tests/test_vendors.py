@@ -94,6 +94,19 @@ def test_xlsx_workbook_is_read(tmp_path):
     assert tags.n == 300 and tags.ts == pytest.approx(1.0)
 
 
+def test_xlsx_rows_are_counted_against_the_ceiling(tmp_path, monkeypatch):
+    # The workbook is streamed and its rows counted: one row past the ceiling is one
+    # line and exit 3 (DataError), as for CSV and Parquet; at the ceiling it reads.
+    frame = _flow(300)
+    path = tmp_path / "loop.xlsx"
+    frame[["timestamp", "pv", "op", "sp"]].to_excel(path, index=False)
+    monkeypatch.setenv("STICTION_MAX_ROWS", "299")
+    with pytest.raises(DataError, match="more than 299 rows"):
+        read_tags(path)
+    monkeypatch.setenv("STICTION_MAX_ROWS", "300")
+    assert read_tags(path).n == 300
+
+
 @pytest.mark.slow
 def test_normalised_op_is_not_sized_in_percent_nor_sent_to_inspection():
     # The bundled level loop's op and mv normalised to -2.5..2.5 (a scaled export):

@@ -196,20 +196,15 @@ def param_text(st: dict, sym: str, *, unit: str = " %") -> str:
 
 
 def probability_text(st: dict) -> str:
-    """``P(stiction) = 0.55 (decision levels 0.3 and 0.7)``, or with stage 2 of the
-    verdict (a cycle and no mv) ``cause: the valve (P 0.72), runner-up: the
-    controller's tuning (P 0.15)``, or ``no limit cycle`` for a loop without one."""
+    """``P(stiction) = 0.55 (decision levels 0.3 and 0.7)``, with the cause model's
+    reading after it for a loop with a cycle and no mv (``; cause model: the valve
+    (P 0.72), runner-up: the controller's tuning (P 0.15)``), or ``no limit
+    cycle`` for a loop without one."""
     from stictiondiag.stiction.cause import CAUSE_WORDS
 
     ev = st.get("evidence") or {}
     probs = st.get("cause_probabilities")
     cause = str(st.get("cause"))
-    if probs and cause in probs and not ev.get("has_mv"):
-        runner = str(st.get("runner_up"))
-        text = f"cause: {CAUSE_WORDS[cause]} (P {float(probs[cause]):.2f})"
-        if runner in probs:
-            text += f", runner-up: {CAUSE_WORDS[runner]} (P {float(probs[runner]):.2f})"
-        return text
     if cause == "none":
         pf = ev.get("p_friction")
         return "no limit cycle" + (
@@ -219,7 +214,15 @@ def probability_text(st: dict) -> str:
     hi = ev.get("stiction_level", STICTION_LEVEL)
     p = st.get("probability")
     p_text = "n/a" if p is None else f"{float(p):.2f}"
-    return f"P(stiction) = {p_text} (decision levels {lo:g} and {hi:g})"
+    text = f"P(stiction) = {p_text} (decision levels {lo:g} and {hi:g})"
+    if probs and not ev.get("has_mv"):
+        ranked = sorted(probs, key=lambda c: -float(probs[c]))
+        top, second = ranked[0], ranked[1]
+        text += (
+            f"; cause model: {CAUSE_WORDS[top]} (P {float(probs[top]):.2f}), "
+            f"runner-up: {CAUSE_WORDS[second]} (P {float(probs[second]):.2f})"
+        )
+    return text
 
 
 # --------------------------------------------------------------------------- sentences

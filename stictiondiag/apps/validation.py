@@ -503,7 +503,7 @@ def targets(result: ValidationResult) -> list[tuple[str, str, bool | None]]:
             None if share is None else share <= 0.15,
         ),
         (
-            "area under the ROC curve of P(valve), stated labels, >= 0.85",
+            "area under the ROC curve of P, stated labels, >= 0.85",
             _f(auc := stated_auc(t)),
             _ge(auc, 0.85),
         ),
@@ -551,9 +551,10 @@ def expert_cause(stiction_published: str, other_fault: str | None) -> str | None
     return None
 
 
-def cause_table(t: pd.DataFrame) -> list[str]:
-    """Markdown rows: each published cause against the cause we name (and how many
-    of those loops our verdict left inconclusive)."""
+def cause_table(t: pd.DataFrame, column: str = "cause") -> list[str]:
+    """Markdown rows: each published cause against the cause we name in ``column``
+    (the verdict's ``cause``, or ``cause_model``, the cause model's reading), and how
+    many of those loops our verdict left inconclusive."""
     named = [
         (expert_cause(a, b), r)
         for a, b, r in zip(
@@ -572,7 +573,7 @@ def cause_table(t: pd.DataFrame) -> list[str]:
     ]
     for c in order:
         rows = [r for e, r in named if e == c]
-        ours = [str(getattr(r, "cause", None)) for r in rows]
+        ours = [str(getattr(r, column, None)) for r in rows]
         counts = [ours.count(k) for k in _CAUSE_COLUMNS]
         inc = sum(str(getattr(r, "verdict", "")) == "inconclusive" for r in rows)
         lines.append(
@@ -611,12 +612,14 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         "probability per cause of the cycle (valve, tuning, external disturbance, other),",
         "a softmax model fitted on simulated loops labelled by counterfactual twins",
         "(`stictiondiag/apps/family_causes.py`, `scripts/train_cause.py`; calibration on",
-        "held-out simulated loops in `docs/calibration.md`); `stiction` when P(the valve",
-        "causes the cycle) >= 0.6, `no_stiction` when <= 0.4, `inconclusive` between. *P*",
-        "in the tables is that probability (0 for a loop without a cycle). No threshold,",
-        "weight, feature or level is fitted or tuned on these loops: the model and the",
-        "levels are fixed first, and the ISDB is then measured. Every run is reported,",
-        'with any decision taken after one was seen (under "What the data show").',
+        "held-out simulated loops in `docs/calibration.md`), reported beside the verdict.",
+        "A loop with a cycle is decided by P(stiction) of the friction model",
+        "(`stictiondiag/stiction/probability.py`, fitted on simulated loops only):",
+        "`stiction` above 0.7, `no_stiction` below 0.3, `inconclusive` between. *P* in the",
+        "tables is that probability (0 for a loop without a cycle). No threshold, weight,",
+        "feature or level is fitted or tuned on these loops: the models and the levels are",
+        "fixed first, and the ISDB is then measured. Every run is reported, with any",
+        'decision taken after one was seen (under "What the data show").',
         "",
         "Labels are the published ISDB comments (see `stictiondiag/apps/validation.py`):",
         "*stated* (stiction stated, no stiction stated, or another diagnosis stated),",
@@ -673,9 +676,18 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
             "Each published cause (the ISDB comment, as written) against the cause our",
             "verdict names (`stictiondiag/stiction/cause.py`): the valve, the tuning, an",
             "external disturbance, quantisation or another nonlinearity (`other`), or no",
-            "limit cycle (`none`); an `inconclusive` verdict names its most likely cause.",
+            "limit cycle (`none`); an `inconclusive` verdict names none.",
             "",
             *cause_table(t),
+        ]
+    if "cause_model" in t:
+        lines += [
+            "",
+            "The cause model's reading (`stictiondiag/stiction/cause_model.py`: its most",
+            "likely cause of the cycle, for loops with a cycle; reported beside the",
+            "verdict, not decided on):",
+            "",
+            *cause_table(t, "cause_model"),
         ]
     lines += [
         "",

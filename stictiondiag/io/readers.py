@@ -155,7 +155,12 @@ def _read_parquet(file: Path, select: Select | None) -> pd.DataFrame:
 
 
 def _read_excel(file: Path, select: Select | None) -> pd.DataFrame:
-    """The first sheet of an ``.xlsx`` workbook (openpyxl), header in its first row."""
+    """The first sheet of an ``.xlsx`` workbook (openpyxl), header in its first row.
+
+    The sheet is streamed row by row (openpyxl's read-only mode) and its rows are
+    counted as they come: past :func:`max_rows` the read stops with a one-line
+    :class:`DataError`, in memory bounded by the ceiling.
+    """
     import zipfile
 
     import pandas as pd
@@ -163,12 +168,36 @@ def _read_excel(file: Path, select: Select | None) -> pd.DataFrame:
     if file.stat().st_size == 0:
         raise DataError(f"{file} is empty: export the loop data again")
     try:
-        frame = pd.read_excel(file, sheet_name=0, engine="openpyxl")
+        from openpyxl import load_workbook
     except ImportError:
         raise DataError(f"{file}: reading .xlsx needs openpyxl (pip install openpyxl)") from None
-    except (ValueError, KeyError, OSError, zipfile.BadZipFile, TypeError) as exc:
+    ceiling = max_rows()
+    try:
+        book = load_workbook(file, read_only=True, data_only=True)
+        try:
+            rows = book.worksheets[0].iter_rows(values_only=True)
+            header = next(rows, None)
+            data: list[tuple] = []
+            for row in rows:
+                if all(v is None for v in row):
+                    continue  # an empty row, as pandas leaves it out
+                if len(data) >= ceiling:
+                    raise _too_many_rows(file, ceiling)
+                data.append(row)
+        finally:
+            book.close()
+    except (ValueError, KeyError, OSError, zipfile.BadZipFile, TypeError, IndexError) as exc:
         raise DataError(f"{file} is not a readable .xlsx workbook ({_reason(exc)})") from None
-    frame.columns = [str(c).strip() for c in frame.columns]
+    if header is None:
+        raise DataError(f"{file} has no header row: export the loop data with a header row")
+    names = [
+        f"Unnamed: {i}" if name is None else str(name).strip() for i, name in enumerate(header)
+    ]
+    width = len(names)
+    frame = pd.DataFrame(
+        [tuple(r[:width]) + (None,) * (width - len(r)) for r in data], columns=names
+    )
+    frame = frame.infer_objects()
     if select is not None:
         chosen = select(frame.iloc[:0])
         if chosen is not None:
