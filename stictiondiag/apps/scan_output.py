@@ -292,7 +292,7 @@ def write_table(
                     else v
                 )
             )
-    from stictiondiag.apps.plantwide import plant_html
+    from stictiondiag.apps.plantwide_page import plant_html
 
     page = scan_html(clean, file_names)
     section = plant_html(plant)

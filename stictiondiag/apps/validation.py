@@ -189,7 +189,8 @@ def split_half(tags, period_s: float | None) -> dict | None:
 def validate_one(source, gap: bool) -> dict:
     """Analyse one ISDB loop, run the classic tests beside it and, for a record of at
     least :data:`SPLIT_MIN_CYCLES` cycles, each of its halves (for a worker process)."""
-    from stictiondiag.apps.scan import analyse_source, load_source
+    from stictiondiag.apps.scan import analyse_source
+    from stictiondiag.apps.sources import load_source
 
     res = analyse_source(source, {}, gap)
     opts = source.read_options or {}
