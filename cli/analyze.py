@@ -33,7 +33,7 @@ from .options import (
     TimeOption,
     TsOption,
     VendorOption,
-    read_options,
+    command_read_options,
 )
 
 
@@ -184,21 +184,7 @@ def analyze(
     os.environ.setdefault(THREADS_VARIABLE, str(os.cpu_count() or 1))
     with friendly_errors():
         check_outputs(out, json_path, file)
-        options = read_options(
-            pv,
-            op,
-            mv,
-            sp,
-            time,
-            ts,
-            op_units,
-            op_range,
-            loop_type,
-            integrating,
-            vendor,
-            action,
-            compression,
-        )
+        options = command_read_options(locals())
         compile_if_cold()
         info(f"analysing {file} ...")
         result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)

@@ -26,7 +26,7 @@ from .options import (
     TimeOption,
     TsOption,
     VendorOption,
-    read_options,
+    command_read_options,
 )
 
 
@@ -103,21 +103,7 @@ def gap(
             )
         check_output_file("--json", json_path, [file])
         info(f"diagnosing the gap of {file} ...")
-        options = read_options(
-            pv,
-            op,
-            mv,
-            sp,
-            time,
-            ts,
-            op_units,
-            op_range,
-            loop_type,
-            integrating,
-            vendor,
-            action,
-            compression,
-        )
+        options = command_read_options(locals())
         compile_if_cold()
         result = diagnose_gap_file(file, **options)
         d = result.to_dict()

@@ -6,9 +6,10 @@ One definition each, so every command names its columns, units and loop type ali
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from enum import Enum
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -193,3 +194,31 @@ def read_options(
         "loop_type": None if loop_type is None else LoopType(loop_type).value,
         "integrating": integrating,
     }
+
+
+#: The parameters of a command that become read options, in :func:`read_options`' order.
+READ_OPTION_NAMES = (
+    "pv",
+    "op",
+    "mv",
+    "sp",
+    "time",
+    "ts",
+    "op_units",
+    "op_range",
+    "loop_type",
+    "integrating",
+    "vendor",
+    "action",
+    "compression",
+)
+
+
+def command_read_options(params: Mapping[str, Any]) -> dict:
+    """:func:`read_options` from a command's parameters, picked by name.
+
+    The commands that read loop files (analyze, gap, report) pass ``locals()``, so the
+    read options have one list (:data:`READ_OPTION_NAMES`) instead of one call per
+    command; a command that lacks one of them is a programming error (KeyError).
+    """
+    return read_options(**{name: params[name] for name in READ_OPTION_NAMES})

@@ -45,7 +45,7 @@ from .options import (
     TimeOption,
     TsOption,
     VendorOption,
-    read_options,
+    command_read_options,
 )
 
 #: Threshold used when ``--fail-on-stiction`` is given without a value.
@@ -119,21 +119,7 @@ def report(
     with friendly_errors():
         check_output_dir("--out", out, files)
         check_output_file("--markdown", markdown, files)
-        options = read_options(
-            pv,
-            op,
-            mv,
-            sp,
-            time,
-            ts,
-            op_units,
-            op_range,
-            loop_type,
-            integrating,
-            vendor,
-            action,
-            compression,
-        )
+        options = command_read_options(locals())
         manifest = None
         if loops is not None:
             from stictiondiag.io.plant import read_manifest
