@@ -43,6 +43,7 @@ from stictiondiag.models.processes import (
     FOPTD,
     PI,
     Integrating,
+    SampledLag,
     open_loop_response,
 )
 from stictiondiag.models.valve import choudhury_model
@@ -254,13 +255,18 @@ def _frequency_grid(process, controller: PI, n: int) -> np.ndarray:
     ``1/|N|`` (which is at least about 0.75, Fig. 17).
     """
     times = [controller.integral_time]
+    top = math.inf
     if isinstance(process, FOPTD):
         times += [process.time_constant, process.dead_time]
     elif isinstance(process, Integrating):
         times += [process.dead_time, 1.0 / abs(process.gain) if process.gain else 1.0]
+    elif isinstance(process, SampledLag):
+        # A sampled loop has no frequencies above Nyquist's.
+        times += [process.time_constant, process.dead_time, process.sample_time]
+        top = math.pi / process.sample_time
     times = [t for t in times if t > 0 and math.isfinite(t)]
     t_slow, t_fast = max(times), min(times)
-    return np.logspace(math.log10(1e-6 / t_slow), math.log10(1e2 / t_fast), n)
+    return np.logspace(math.log10(1e-6 / t_slow), math.log10(min(1e2 / t_fast, top)), n)
 
 
 def _phase_crossings(
@@ -338,7 +344,7 @@ def _bracket_intersections(phase, log_mag, log_w, log_excess, target_phase, targ
 
 
 def predict_limit_cycle(
-    process: FOPTD | Integrating,
+    process: FOPTD | Integrating | SampledLag,
     controller: PI,
     S: float,
     J: float,
@@ -350,8 +356,8 @@ def predict_limit_cycle(
 
     Parameters
     ----------
-    process : FOPTD or Integrating
-        Process model (Eq. 3, Table 3).
+    process : FOPTD, Integrating or SampledLag
+        Process model (Eq. 3, Table 3; or the linear part of a Hammerstein fit).
     controller : PI
         PI controller in the paper's form.
     S, J : float
@@ -408,8 +414,9 @@ def predict_limit_cycle(
     )
 
     def residual(z):
-        wz = math.exp(z[0])
-        xz = half + math.exp(z[1])
+        # The solver may step far out; exp of a clipped exponent keeps it finite.
+        wz = math.exp(min(max(z[0], -700.0), 700.0))
+        xz = half + math.exp(min(max(z[1], -700.0), 700.0))
         f = 1.0 + describing_function(xz, S, J) * open_loop_response(process, controller, wz)
         return [float(np.real(f)), float(np.imag(f))]
 
@@ -459,3 +466,58 @@ def _loeb_stable(process, controller, S, J, w, x) -> bool:
     )
     loeb = df_dx.real * df_dw.imag - df_dw.real * df_dx.imag
     return bool(loeb > 0)
+
+
+@dataclass(frozen=True)
+class StabilityMargins:
+    """Gain and phase margins of the loop with a linear valve (``N = 1``).
+
+    Attributes
+    ----------
+    gain_margin : float
+        ``1 / |G0|`` at the lowest frequency where the phase of ``G0`` reaches
+        -180 degrees [-]; inf when it never does.  Below 1 the linear loop is
+        unstable (it cycles on its own, up to op's limits).
+    phase_margin_deg : float
+        180 degrees plus the phase of ``G0`` where ``|G0|`` last falls through 1
+        [deg]; 180 when it never reaches 1.
+    """
+
+    gain_margin: float
+    phase_margin_deg: float
+
+    def to_dict(self) -> dict:
+        return {
+            "gain_margin": plain_float(self.gain_margin),
+            "phase_margin_deg": plain_float(self.phase_margin_deg),
+        }
+
+
+def stability_margins(
+    process: FOPTD | Integrating | SampledLag, controller: PI, *, n_frequencies: int = 3000
+) -> StabilityMargins:
+    """Gain and phase margins of ``G0 = G C`` on the grid of :func:`predict_limit_cycle`
+    (linear interpolation between grid points).  For a stable linear loop the
+    Nyquist criterion leaves no self-sustained cycle: one needs the valve's
+    nonlinearity, an external source, or a margin near 1."""
+    w = _frequency_grid(process, controller, int(n_frequencies))
+    g0 = open_loop_response(process, controller, w)
+    phase = np.unwrap(np.angle(g0))
+    mag = np.abs(g0)
+    gm = math.inf
+    k = np.flatnonzero(phase <= -math.pi)
+    if k.size and k[0] > 0:
+        j = int(k[0])
+        t = (phase[j - 1] + math.pi) / (phase[j - 1] - phase[j])
+        gm = 1.0 / float(np.exp(np.log(mag[j - 1]) + t * (np.log(mag[j]) - np.log(mag[j - 1]))))
+    elif k.size:
+        gm = 1.0 / float(mag[0])
+    pm = 180.0
+    k = np.flatnonzero(mag >= 1.0)
+    if k.size and k[-1] < mag.size - 1:
+        j = int(k[-1])
+        t = math.log(mag[j]) / (math.log(mag[j]) - math.log(mag[j + 1]))
+        pm = math.degrees(math.pi + float(phase[j] + t * (phase[j + 1] - phase[j])))
+    elif k.size:
+        pm = math.degrees(math.pi + float(phase[-1]))
+    return StabilityMargins(gain_margin=gm, phase_margin_deg=pm)

@@ -8,6 +8,7 @@ Times are in seconds; gains in (units of pv) per (% of valve span).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,7 +98,68 @@ class PI:
         return {"type": "pi", "gain": self.gain, "integral_time_s": self.integral_time}
 
 
-Process = FOPTD | Integrating
+@dataclass(frozen=True)
+class SampledLag:
+    """Sampled process of a Hammerstein fit's linear part
+    (:mod:`stictiondiag.stiction.hammerstein`, "The linear part"):
+
+        G(z) = z^-d (b0 + b1 (1 - a) / (1 - a z^-1))        (self-regulating)
+        G(z) = z^-d (b0 + b1 (1 - a) / (1 - a z^-1)) / (1 - z^-1)  (integrating)
+
+    with ``a = exp(-dt / tau)``: a direct part and a first-order lag of unit gain
+    behind a dead time of ``d`` samples, and for an integrating loop a sampled
+    integrator (the fit explains pv's increments).  Evaluated at ``z = exp(i w dt)``,
+    so it holds up to the Nyquist frequency ``pi / dt``.
+
+    Attributes
+    ----------
+    direct_gain, lag_gain : float
+        b0, b1 [pv units / % of span; per sample when integrating].
+    time_constant : float
+        tau [s], >= 0 (0: no lag, its gain adds to the direct part).
+    dead_time : float
+        d dt [s], >= 0.
+    sample_time : float
+        dt [s], > 0.
+    integrating : bool
+        The sampled integrator is part of the process.
+    """
+
+    direct_gain: float
+    lag_gain: float
+    time_constant: float
+    dead_time: float
+    sample_time: float
+    integrating: bool = False
+
+    kind = "sampled_lag"
+
+    @property
+    def gain(self) -> float:
+        """Steady-state gain b0 + b1 [pv units / % of span; per sample when integrating]."""
+        return float(self.direct_gain + self.lag_gain)
+
+    def frequency_response(self, w: np.ndarray) -> np.ndarray:
+        """``G(exp(i w dt))`` at angular frequencies ``w`` [rad/s]."""
+        zi = np.exp(-1j * np.asarray(w, dtype=float) * self.sample_time)  # z^-1
+        a = math.exp(-self.sample_time / self.time_constant) if self.time_constant > 0 else 0.0
+        g = self.direct_gain + self.lag_gain * (1.0 - a) / (1.0 - a * zi)
+        g = g * zi ** round(self.dead_time / self.sample_time)
+        return g / (1.0 - zi) if self.integrating else g
+
+    def to_dict(self) -> dict:
+        return {
+            "type": "sampled_lag",
+            "direct_gain": self.direct_gain,
+            "lag_gain": self.lag_gain,
+            "time_constant_s": self.time_constant,
+            "dead_time_s": self.dead_time,
+            "sample_time_s": self.sample_time,
+            "integrating": self.integrating,
+        }
+
+
+Process = FOPTD | Integrating | SampledLag
 
 
 def open_loop_response(process: Process, controller: PI, w: np.ndarray) -> np.ndarray:

@@ -386,3 +386,27 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
         n_cycles=float(n_cycles),
         reason=None,
     )
+
+
+def fundamental_amplitude(x: np.ndarray, period_samples: float) -> float | None:
+    """Amplitude of the cycle's fundamental [units of x]: the median, over
+    consecutive windows one period long, of ``|2/P sum x[k] exp(-2 pi i k / P)|``.
+
+    This is the amplitude a describing function speaks of (the first Fourier
+    coefficient of the signal, Choudhury, Thornhill & Shah 2005, Eq. 6), not the half
+    peak-to-peak range of :func:`detect_oscillation`: a triangle's fundamental is
+    8/pi^2 of its peak, a square wave's 4/pi.  Drift is removed first by the running
+    mean over whole periods (:func:`_detrend_by_cycles`); each window's own
+    fundamental is taken, so a period that wanders a little between cycles does not
+    cancel the sum as one projection over the record would.  O(n).  None for a
+    period shorter than 4 samples or a record shorter than one period.
+    """
+    x = _interpolate_nans(np.asarray(x, dtype=float))
+    m = int(round(period_samples)) if math.isfinite(period_samples) else 0
+    if m < 4 or x.size < m:
+        return None
+    xd = _detrend_by_cycles(x, float(period_samples))
+    n_win = xd.size // m
+    w = xd[: n_win * m].reshape(n_win, m)
+    kernel = np.exp(-2j * np.pi * np.arange(m) / m)
+    return float(np.median(np.abs(w @ kernel)) * 2.0 / m)

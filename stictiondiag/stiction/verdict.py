@@ -42,6 +42,8 @@ from stictiondiag.stiction.cause import (
     direct_stick_slip,
     find_cycle,
 )
+from stictiondiag.stiction.consistency import FILL as DF_FILL
+from stictiondiag.stiction.consistency import describing_features
 from stictiondiag.stiction.probability import (
     classic_votes,
     evidence_features,
@@ -389,7 +391,9 @@ def verdict_features(
     """The probability model's features of one loop, the improvement's support
     (:func:`improvement_support`: support, improvement, interval) and the classic
     tests' votes; what :func:`stiction_verdict` decides on, and what the model is
-    trained on (``scripts/train_probability.py``)."""
+    trained on (``scripts/train_probability.py``).  A loop with a cycle and without
+    mv also gets the describing-function consistency of
+    :mod:`stictiondiag.stiction.consistency` (the others its "no prediction" values)."""
     d = fit.details or {}
     blocks = d.get("block_sse") or {}
     bs = np.asarray(blocks.get("stiction", []), dtype=float)
@@ -411,6 +415,9 @@ def verdict_features(
     else:
         classic, op = {}, fit.mv_model
     halves = split_half_estimates(fit, data)
+    cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
+    # Only a loop with a cycle has one to predict (a fit on mv gets the fill values).
+    df = describing_features(fit, data, cycle.period_s) if cycle.present else dict(DF_FILL)
     features = evidence_features(
         fit,
         oscillation,
@@ -422,6 +429,7 @@ def verdict_features(
         short_record=short_record,
         halves=halves,
     )
+    features.update(df)
     return features, (support, f, f_iv), classic
 
 

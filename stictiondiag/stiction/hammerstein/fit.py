@@ -330,14 +330,15 @@ def cycle_travel(x: np.ndarray, period: int) -> float:
     return float(np.percentile(w.max(axis=1) - w.min(axis=1), 90))
 
 
-def _integrating_target(y, period, a_hp, k_start) -> tuple[np.ndarray, float, float]:
+def _integrating_target(y, period, a_hp, k_start) -> tuple[np.ndarray, float, float, float]:
     """Target of an integrating loop: pv differenced, lagged and high-passed.
 
     The integrator is taken out of pv (its increments are driven by the valve
     directly), so an unknown inflow imbalance or a load step at the process input no
     longer leaves a lasting ramp.  Differencing amplifies white noise; a lag of a
     twentieth of a cycle on both sides of the model takes it back.  Returns the
-    target, the lag [samples] and the white-noise variance in target units.
+    target, the lag [samples], the white-noise variance in target units and the
+    standard deviation of the lagged increments (units of y per target unit).
     """
     pre_lag = max(0.0, period / 20.0)
     dy = np.diff(y, prepend=y[0])
@@ -351,7 +352,7 @@ def _integrating_target(y, period, a_hp, k_start) -> tuple[np.ndarray, float, fl
     impulse[1] = 1.0
     h = lag(np.diff(impulse, prepend=0.0), pre_lag, 0)
     noise_var = white_noise_std(y) ** 2 * float(np.sum(h**2)) / dy_std**2
-    return yf, pre_lag, noise_var
+    return yf, pre_lag, noise_var, dy_std
 
 
 def _setup(op, pv, dt, integrating, period_s, disturbance="highpass") -> FitSetup:
@@ -392,8 +393,10 @@ def _setup(op, pv, dt, integrating, period_s, disturbance="highpass") -> FitSetu
         scale = float(np.ptp(x))
     x = x / scale
     pre_lag = 0.0
+    pv_unit = float(np.std(pv))
     if integrating:
-        yf, pre_lag, noise_var = _integrating_target(y, period, a_hp, k_start)
+        yf, pre_lag, noise_var, dy_std = _integrating_target(y, period, a_hp, k_start)
+        pv_unit *= dy_std
     else:
         noise_var = white_noise_std(y) ** 2
     prob = Problem(x, yf, taus, a_hp, k_start, d_start, j0, j1, stride, coarse_delays, pre_lag)
@@ -411,6 +414,7 @@ def _setup(op, pv, dt, integrating, period_s, disturbance="highpass") -> FitSetu
         scale=scale,
         noise_var=noise_var,
         S_max=float(min(1.25, np.ptp(x))),
+        pv_unit=pv_unit,
     )
 
 
@@ -495,11 +499,14 @@ def _details(
         "linear_valve_dead_time_s": float(lin_delay) * dt,
         "time_constant_s": tau * dt,
         "process_gains": {"direct": float(theta[0]), "lag": float(theta[1])},
+        # pv units per unit of op [per sample, integrating] for one unit of the gains.
+        "gain_units": setup.pv_unit / scale,
         "highpass_corner_s": HIGHPASS_PERIODS * setup.period * dt,
         "search_limit": setup.S_max * scale,
         "start_sample": fitted[0] + prob.k_start,
         "fitted_samples": list(fitted),
         "start_offset": offset * scale,
+        "start_direction": float(prob.d_start),
         "cost_by_valve_model_coarse": start.coarse_costs,
         "determinacy": determined,
         "interval_method": INTERVAL_METHOD,

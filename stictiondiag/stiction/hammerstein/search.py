@@ -63,6 +63,9 @@ class FitSetup:
         Variance of white measurement noise on pv in the target's units [-].
     S_max : float
         Search limit of S and J [cycle travels of op].
+    pv_unit : float
+        pv units per unit of the target (pv's standard deviation; for an
+        integrating loop times that of its lagged increments) [units of pv].
     """
 
     problem: Problem
@@ -76,6 +79,7 @@ class FitSetup:
     scale: float
     noise_var: float
     S_max: float
+    pv_unit: float = 1.0
 
 
 def grid(S_lo, S_hi, J_lo, J_hi, n):
