@@ -23,6 +23,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 
 def _row(r, ts: float) -> dict:
     from stictiondiag.analysis import AnalysisConfig, analyze
@@ -58,8 +60,22 @@ def _row(r, ts: float) -> dict:
     row.update(c.to_dict())
     row["S_replay"], row["J_replay"] = float(rep.S), float(rep.J)
     row["refit"] = (rep.settings or {}).get("refit")
+    row["start_fit_pv"] = _start_fit(rep.data["pv"], rep.pv, row.get("period_data_s"), rep.dt)
     row["cpu_s"] = time.process_time() - t0
     return row
+
+
+def _start_fit(data, replayed, period_s, dt: float) -> float | None:
+    """Phase-sensitive fit of pv over the replay's first cycle [%]: ``100 (1 -
+    NRMSE)`` (the replay's ``fit`` measure), where the replay's start state decides
+    and the free drift of a limit cycle's phase has not yet set in."""
+    from stictiondiag.replay.closed_loop import nrmse
+
+    if not period_s:
+        return None
+    k = max(4, int(round(period_s / dt)))
+    e = nrmse(data[:k], replayed[:k])
+    return None if e is None else 100.0 * (1.0 - e)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
             f"({f(row.get('period_error_pct'), '+.0f')} %)  "
             f"A {f(row.get('amplitude_data'), '.3g')}->{f(row.get('amplitude_replay'), '.3g')} "
             f"({f(row.get('amplitude_error_pct'), '+.0f')} %)  "
+            f"first cycle fit {f(row.get('start_fit_pv'), '.0f')} %  "
             f"S {f(row.get('S'), '.2f')} J {f(row.get('J'), '.2f')}"
             f" -> S {f(row.get('S_replay'), '.2f')} J {f(row.get('J_replay'), '.2f')}  "
             f"{'REPRODUCED' if row.get('reproduced') else 'no: ' + str(row.get('reason'))}",
@@ -97,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
         )
     sel = [r for r in rows if r["selected"]]
     ok = sum(bool(r.get("reproduced")) for r in sel)
+    starts = [r["start_fit_pv"] for r in sel if r.get("start_fit_pv") is not None]
+    if starts:
+        print(f"pv fit over the first cycle: median {float(np.median(starts)):.0f} %")
     print(
         f"reproduced {ok} of {len(sel)} regularly cycling sticky ISDB loops "
         f"({100.0 * ok / max(1, len(sel)):.0f} %); {len(rows) - len(sel)} labelled loops "

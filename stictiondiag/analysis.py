@@ -417,6 +417,7 @@ def kpis_of(tags: Tags, osc_pv: Oscillation, rep: Replay | None) -> LoopKpis:
         tags.sp,
         float(tags.ts),
         op_in_percent=getattr(tags, "op_scale", "percent") == "percent",
+        service_factor_pct=tags.service_factor,
         dead_time_s=dead_time_s,
         oscillation_period_s=osc_pv.period_s if osc_pv.present else None,
         oscillation_amplitude=osc_pv.amplitude if osc_pv.present else None,

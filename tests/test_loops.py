@@ -420,3 +420,44 @@ def test_summary_keys_and_describing_function():
     lin = simulate_paper_loop("concentration", valve="linear").summary()
     assert lin["describing_function"]["limit_cycle"] is False
     assert lin["describing_function"]["basis"].startswith("linear")
+
+
+@pytest.mark.parametrize(
+    "stop,breaks_at",
+    [
+        (None, 55.0),  # stuck at op0 with no movement yet: breakaway needs S
+        ((49.0, 1.0), 51.0),  # stuck 1 % back, moving on upwards: J past the stop
+        # Last movement down, op now rising: a reversal, and Fig. 10 takes the stop at
+        # the input where the slope changed sign (op0), so the breakaway needs S again.
+        ((49.0, -1.0), 55.0),
+    ],
+)
+def test_initial_stop_sets_where_the_stuck_valve_breaks_away(stop, breaks_at):
+    # op ramps up at 0.1 %/s: the process barely answers (gain 1e-9), so the error,
+    # and with it the integral's slope Kc e / Ti, stays constant.  The valve (S 5,
+    # J 2) starts stuck at 50 % with op at 50 %; Fig. 10 says where it breaks away.
+    # The ramp moves 0.01 % per sample, so the breakaway op is exact to one step.
+    sim = simulate_loop(
+        FOPTD(1e-9, 10.0, 0.0),
+        PI(1.0, 100.0),
+        duration=100.0,
+        dt=0.1,
+        S=5.0,
+        J=2.0,
+        sp=10.0,
+        op_bias=50.0,
+        initial_op=50.0,
+        initial_mv=50.0,
+        initial_stop=stop,
+    )
+    first = int(np.flatnonzero(sim.mv != 50.0)[0])
+    assert sim.op[first] == pytest.approx(breaks_at, abs=0.011)
+    # On breakaway the valve jumps to op - (S - J) / 2 (Eq. 4).
+    assert sim.mv[first] == pytest.approx(sim.op[first] - 1.5, abs=1e-9)
+    assert sim.settings["initial_stop"] == (None if stop is None else list(stop))
+
+
+def test_initial_stop_is_checked():
+    for bad, match in (((1.0,), "initial_stop must be"), ((1.0, 0.5), "direction")):
+        with pytest.raises(UsageError, match=match):
+            simulate_loop(FOPTD(1.0, 10.0, 1.0), PI(0.2, 10.0), duration=1.0, initial_stop=bad)

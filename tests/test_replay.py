@@ -334,3 +334,34 @@ def test_replay_of_healthy_sample_loop_identifies_the_process():
     assert d["process"]["gain"] == pytest.approx(0.8, rel=0.3)
     assert d["controller"]["gain"] == pytest.approx(0.6, rel=0.1)
     assert d["fit"]["pv"] > 50.0
+
+
+@pytest.mark.parametrize("direction,slips", [(1.0, True), (None, False)])
+def test_replay_starts_in_the_fitted_valve_state(direction, slips):
+    # Without mv the replay takes the stiction fit's valve state at its start: here
+    # stuck since op was 3 % below the start (start_offset) and last moving up.  op
+    # at the start is thus 3 % past the stop in the same direction, more than J = 2:
+    # Fig. 10 breaks the valve away at once, to op - (S - J) / 2 (Eq. 4).  A fit
+    # that states no direction leaves the valve stuck with no history, needing S = 5
+    # to move either way, so it holds its position.  Exact to rounding (no noise).
+    S, J, start = 5.0, 2.0, 500
+    sim = loop_data("concentration", S, J)
+    mv_model = sim.mv.copy()
+    mv_model[:start] = mv_model[start]
+    # The two outcomes differ here (the valve of the record is not moving at start).
+    assert abs(mv_model[start] - (sim.op[start] - (S - J) / 2.0)) > 0.5
+    details = {"start_sample": start, "start_offset": 3.0}
+    if direction is not None:
+        details["start_direction"] = direction
+    fit = SimpleNamespace(S=S, J=J, mv_model=mv_model, details=details)
+    loop = LOOP_PARAMETERS["concentration"]
+    rep = replay(
+        Tags.from_arrays(sim.pv, sim.op, sp=sim.sp, ts=DT),
+        fit,
+        process=loop["process"],
+        controller=loop["controller"],
+    )
+    if slips:
+        assert rep.mv[0] == pytest.approx(rep.op[0] - (S - J) / 2.0, abs=1e-9)
+    else:
+        assert rep.mv[0] == pytest.approx(mv_model[start], abs=1e-9)

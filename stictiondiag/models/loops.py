@@ -114,6 +114,8 @@ def _loop_kernel(
     rangeability,
     op0,
     mv0,
+    xss0,
+    dirn0,
     integral0,
     f_pole,
     out_pv,
@@ -128,6 +130,12 @@ def _loop_kernel(
     f_bias = _characteristic(op_bias, char_kind, rangeability)
     st = valve_state(op0, True)
     st[0] = mv0
+    st[1] = xss0  # the input at which the valve last stuck
+    st[2] = dirn0  # the direction of its last movement (0: none yet)
+    st[3] = dirn0  # the input's slope sign (Fig. 10), that of the last movement
+    # The first sample repeats op0; seen as still travelling in the direction of the
+    # last movement, not as a stop of the input (which would re-arm the stick test).
+    st[5] = op0 - dirn0 * 1e-9 * max(1.0, abs(op0))
     x_stem = mv0 * stem
     v_stem = 0.0
     # Ring-buffer indices of the newest input and of u[m - delay], u[m - delay - 1].
@@ -340,6 +348,22 @@ def _initial_state(
     return op0, mv0, integral0
 
 
+def _initial_stop(value, op0: float) -> tuple[float, float]:
+    """``(stop input, direction)`` of a valve that starts stuck (``simulate_loop``'s
+    ``initial_stop``): default stuck at ``op0`` with no movement yet."""
+    if value is None:
+        return op0, 0.0
+    try:
+        xss, d = value
+    except (TypeError, ValueError):
+        raise UsageError(f"initial_stop must be (stop input, direction), got {value!r}") from None
+    xss = _number("initial_stop input", xss)
+    d = _number("initial_stop direction", d)
+    if d not in (-1.0, 0.0, 1.0):
+        raise UsageError(f"initial_stop direction must be -1, 0 or +1, got {d:g}")
+    return xss, d
+
+
 def simulate_loop(
     process: FOPTD | Integrating,
     controller: PI,
@@ -362,6 +386,7 @@ def simulate_loop(
     initial_op: float | None = None,
     initial_mv: float | None = None,
     initial_integral: float | None = None,
+    initial_stop: tuple[float, float] | None = None,
     pv_filter_time: float = 0.0,
 ) -> Simulation:
     """Simulate a PI control loop with a linear or sticky valve.
@@ -419,6 +444,14 @@ def simulate_loop(
     initial_integral : float, optional
         Initial integral of the error [pv units * s]; default: the value that gives
         ``initial_op`` at the initial error.
+    initial_stop : (float, float), optional
+        State of a data-driven valve that starts stuck: the controller output at
+        which it stuck [% of span] and the direction of its last movement (+1 or
+        -1).  Moving on in that direction it breaks away once op is ``J`` past the
+        stop, reversing once op is ``S`` back (Fig. 10).  Default: stuck at
+        ``initial_op`` with no movement yet, so any breakaway needs ``S``.  A replay
+        of recorded data passes the state the record shows
+        (:mod:`stictiondiag.replay.closed_loop`, "Start-up").
     pv_filter_time : float
         Time constant of a first-order filter on the measured pv in front of the
         controller [s] (``f = a f + (1 - a) pv`` each controller step, ``a =
@@ -486,6 +519,7 @@ def simulate_loop(
         initial_integral=initial_integral,
     )
 
+    xss0, dirn0 = _initial_stop(initial_stop, op0)
     pv_filter_time = _number("pv_filter_time", pv_filter_time, minimum=0.0)
     f_pole = math.exp(-h / pv_filter_time) if pv_filter_time > 0.0 else 0.0
     a, b_now, b_prev, delay = _process_coefficients(process, h)
@@ -517,6 +551,8 @@ def simulate_loop(
         EQUAL_PERCENTAGE_RANGEABILITY,
         op0,
         mv0,
+        xss0,
+        dirn0,
         integral0,
         f_pole,
         out_pv,
@@ -541,6 +577,7 @@ def simulate_loop(
         "kick": kick,
         "initial_op": op0,
         "initial_mv": mv0,
+        "initial_stop": None if initial_stop is None else [xss0, dirn0],
         "integral_band": _band_setting(band),
         "noise_std": noise_std,
         "seed": None if seed is None else int(seed),

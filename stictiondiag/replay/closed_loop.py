@@ -17,16 +17,30 @@ reproduces the limit cycles seen in plant data (Figs. 3-6 against Figs. 12-15).
 
 Start-up
 --------
-The replay starts from the recorded state: op and valve position of the first
-sample, the integral set so the first op is reproduced, and the process's free
-response from its identified initial state (carried by the simulator's ``load``
-input, as is any operating point the simulator cannot take directly).  Within the
-first dead time pv answers to inputs from before the record, so the replay takes
-the recorded pv there.  With the true controller and process the replay reproduces
-noise-free data from the model to rounding.  Records whose op leaves 0-100 % (scaled
-data) are replayed with op and mv shifted into the simulator's range.  Without a
-recorded mv, the replay starts where the stiction fit's valve model starts
-(``fit.details["start_sample"]``).
+The replay starts from the data's own state:
+
+- the valve: at the first clear extreme of op, where a sticky valve's state is
+  known (it slipped on the way there and is stuck when op turns, Figs. 12 and 14).
+  Without a recorded mv that is where the stiction fit's valve model starts
+  (``fit.details["start_sample"]``), and the replayed valve takes the fit's state
+  there: its position, the op at which it stuck (``start_offset`` back from the
+  extreme) and the direction of its last movement (``start_direction``), so it
+  breaks away where the fitted valve does, J on in the same direction or S back
+  (:func:`stictiondiag.models.loops.simulate_loop`, ``initial_stop``).  With mv the
+  valve is stuck at the extreme, its last movement the travel into it.  Started
+  stuck with no history instead, a valve needs S to move either way and the
+  replay's first slip comes late, setting the whole cycle out of phase;
+- the controller: op of the first sample, the integral set so it is reproduced;
+- the process: its free response from the identified initial state (carried by the
+  simulator's ``load`` input, as is any operating point the simulator cannot take
+  directly).  Within the first dead time pv answers to inputs from before the
+  record, so the replay takes the recorded pv there; where the modelled pv then
+  starts away from the record by more than the noise, the difference is carried on
+  as an initial state of the process (:func:`_anchor`).
+
+With the true controller and process the replay reproduces noise-free data from the
+model to rounding.  Records whose op leaves 0-100 % (scaled data) are replayed with
+op and mv shifted into the simulator's range.
 
 The replay is deterministic by default.  Choudhury's model re-arms its stuck band at
 every reversal of its input, so in-loop measurement noise keeps it stuck (the paper
@@ -70,6 +84,7 @@ from stictiondiag.core.errors import (
     UsageError,
 )
 from stictiondiag.core.filters import lfilter1
+from stictiondiag.core.robust import second_difference_noise_std
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.controller import (
     ControllerFit,
@@ -290,13 +305,51 @@ def _open_loop_like_simulator(
     return pv_bias + y
 
 
+#: Samples on each side of the first modelled sample whose mean recorded pv the
+#: replay starts from (noise on one sample would otherwise set the start) [-].
+ANCHOR_HALF_WIDTH = 2
+
+#: Standard deviations of the noise of that mean within which the identified initial
+#: state is kept (a two-sided test at about 0.3 %) [-].
+ANCHOR_NOISE_SIGMAS = 3.0
+
+
+def _anchor(pf: ProcessFit, pv: np.ndarray, model: np.ndarray, warm: int, dt: float) -> np.ndarray:
+    """Correction of the load that starts the modelled pv where the record is.
+
+    From the first sample the replay models (``warm``, after the first dead time) the
+    process's free response is its identified initial state, fitted over the whole
+    record; the record's own pv there can differ by the fit's error at that moment.
+    The difference is carried on as the process would carry an initial state: held
+    by an integrating process, decaying with the time constant of a FOPTD.  O(n).
+    """
+    n = pv.size
+    if warm >= n:
+        return np.zeros(n)
+    lo, hi = max(warm - ANCHOR_HALF_WIDTH, 0), min(warm + ANCHOR_HALF_WIDTH + 1, n)
+    gap = float(np.mean(pv[lo:hi]) - np.mean(model[lo:hi]))
+    out = np.zeros(n)
+    # Within the noise of the mean the identified state stands: noise on the record
+    # is no evidence that the fit starts in the wrong place.
+    if abs(gap) <= ANCHOR_NOISE_SIGMAS * second_difference_noise_std(pv) / math.sqrt(hi - lo):
+        return out
+    if pf.integrating:
+        out[warm:] = gap
+    else:
+        a = math.exp(-dt / cast(FOPTD, pf.process).time_constant)
+        out[warm:] = gap * a ** np.arange(n - warm)
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class _Record:
     """The part of the record the replay covers, from ``start`` on.
 
     ``pv`` [pv units]; ``op``, ``u`` (the valve position the process is identified
     from: ``mv``, else ``mv_model``), ``mv``, ``mv_model`` [% of span]; ``sp`` [pv
-    units] or None; ``dt`` [s]; ``start`` [samples]; ``warnings``.
+    units] or None; ``dt`` [s]; ``start`` [samples]; ``warnings``; ``stop``: the
+    valve's state at the start as the record shows it, the op at which it stuck [%
+    of span] and the direction of its last movement (None: unknown).
     """
 
     pv: np.ndarray
@@ -308,6 +361,7 @@ class _Record:
     dt: float
     start: int
     warnings: tuple[str, ...]
+    stop: tuple[float, float] | None = None
 
     @property
     def n(self) -> int:
@@ -354,21 +408,27 @@ def _replay_record(tags, fit) -> _Record:
     if u is None or u.size != n:
         raise DataError("replay needs the valve position: record mv or pass a fit with mv_model")
     warnings: list[str] = []
-    start = 0
+    start, direction, back = 0, 0.0, 0.0
     why = "where the fitted valve model starts"
     if mv_rec is None:
         details = getattr(fit, "details", None)
         if isinstance(details, dict):
             start = int(details.get("start_sample") or 0)
+            direction = float(details.get("start_direction") or 0.0)
+            back = max(float(details.get("start_offset") or 0.0), 0.0)
     elif S > 0.0:
         from stictiondiag.stiction.hammerstein import first_extreme
 
         osc_op = detect_oscillation(op, dt)
         if osc_op.present and osc_op.period_s:
-            start, _ = first_extreme(op, max(4, int(round(osc_op.period_s / dt))))
+            start, direction = first_extreme(op, max(4, int(round(osc_op.period_s / dt))))
             why = "the first extreme of op, where the sticky valve's state is known"
     if not 0 <= start <= n - MIN_REPLAY_SAMPLES:
-        start = 0
+        start, direction = 0, 0.0
+    # The valve's own state there: stuck since op was ``back`` before the extreme,
+    # its last movement in the direction of travel into it (the fit's start state,
+    # stictiondiag.stiction.valvefit.valve_run).
+    stop = (float(op[start]) - direction * back, direction) if direction else None
     if start > 0:
         pv, op, u = pv[start:], op[start:], u[start:]
         sp_rec = None if sp_rec is None else sp_rec[start:]
@@ -376,7 +436,7 @@ def _replay_record(tags, fit) -> _Record:
         mv_model = None if mv_model is None else mv_model[start:]
         if mv_rec is None:  # with mv, settings["start_sample"] records it
             warnings.append(f"replay starts at sample {start}, {why}")
-    return _Record(pv, op, u, sp_rec, mv_rec, mv_model, dt, start, tuple(warnings))
+    return _Record(pv, op, u, sp_rec, mv_rec, mv_model, dt, start, tuple(warnings), stop)
 
 
 def _replay_models(
@@ -494,6 +554,7 @@ def _replay_simulate(
     # the replay cannot know: it takes the recorded pv there.
     warm = min(pf.dead_time_samples + 1, n)
     load[:warm] = pv[:warm] - free[:warm]
+    load += _anchor(pf, pv, pf.simulate(u, dt), warm, dt)
     sp_used = rec.sp if rec.sp is not None else np.full(n, float(pv.mean()))
     ti = cf.controller.integral_time
     op0 = float(np.clip(op[0] + offset, 0.0, 100.0)) - offset
@@ -522,6 +583,7 @@ def _replay_simulate(
         initial_op=op0 + offset,
         initial_mv=float(np.clip(u[0] + offset, 0.0, 100.0)),
         initial_integral=initial_integral,
+        initial_stop=None if rec.stop is None else (rec.stop[0] + offset, rec.stop[1]),
         noise_std=noise_std,
         seed=seed,
         pv_filter_time=cf.pv_filter_time,

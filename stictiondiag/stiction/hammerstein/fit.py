@@ -506,6 +506,7 @@ def _details(
         "start_sample": fitted[0] + prob.k_start,
         "fitted_samples": list(fitted),
         "start_offset": offset * scale,
+        "start_direction": float(prob.d_start),
         "cost_by_valve_model_coarse": start.coarse_costs,
         "determinacy": determined,
         "interval_method": INTERVAL_METHOD,
