@@ -275,3 +275,49 @@ def test_gap_valve_phase_panel_is_never_empty():
     assert not any("valve phase" in ax.get_title() for ax in fig.axes)
     texts = [t.get_text() for ax in fig.axes for t in ax.texts]
     assert any("by valve phase: no replay error in mv or pv" in t for t in texts)
+
+
+def test_gap_frequency_panel_names_an_exact_replay_instead_of_empty_bars():
+    """Issue 27: with mv replayed exactly (level_undershoot) mv's frequency shares are
+    None, not zeros; the panel draws pv only and names mv in words, and with every
+    replay exact the panel is left out and the summary says why."""
+    from stictiondiag.plotting.gap import plot_gap_breakdown
+
+    shares = {"fundamental_pct_before": 60.0, "harmonics_pct_before": 30.0}
+    shares["other_pct_before"] = 10.0
+    exact = dict.fromkeys(shares)
+    stub = _gap_stub(0.0, 25.0)
+    stub.breakdown["frequency"] = {"fundamental_period_s": 100.0, "pv": shares, "mv": exact}
+    fig = plot_gap_breakdown(stub)
+    ax = next(a for a in fig.axes if a.get_title().startswith("By frequency"))
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["pv"]
+    assert "mv: replay exact" in ax.get_xlabel()
+    # The stacked bar of pv reaches 100 % (60 + 30 + 10): nothing is dropped from it.
+    tops = [p.get_y() + p.get_height() for p in ax.patches]
+    assert max(tops) == pytest.approx(100.0, abs=1e-9)
+    stub.breakdown["frequency"] = {"fundamental_period_s": 100.0, "pv": exact, "mv": exact}
+    fig = plot_gap_breakdown(stub)
+    assert not any(a.get_title().startswith("By frequency") for a in fig.axes)
+    texts = [t.get_text() for a in fig.axes for t in a.texts]
+    assert any("by frequency: every replay exact" in t for t in texts)
+
+
+def test_gap_breakdown_marks_an_exact_replay_by_frequency():
+    """The breakdown gives None shares for a replay with no error, real shares that
+    sum to 100 % (to rounding) for one with an error."""
+    from types import SimpleNamespace
+
+    from stictiondiag.gap.breakdown import _by_frequency
+
+    n = 2000
+    t = np.arange(n)
+    pv = np.sin(2 * np.pi * t / 100.0)
+    sig = SimpleNamespace(op=pv.copy(), pv=pv, mv=pv.copy(), dt=1.0)
+    meas = SimpleNamespace(w=np.ones(n))
+    preds = {"mv": pv.copy(), "pv": pv + 0.1 * np.sin(2 * np.pi * t / 50.0)}
+    fr = _by_frequency(sig, meas, preds, preds)
+    assert fr["mv"]["fundamental_pct_before"] is None
+    total = sum(fr["pv"][f"{p}_pct_before"] for p in ("fundamental", "harmonics", "other"))
+    assert total == pytest.approx(100.0, abs=1e-9)
+    # The error is the second harmonic: nearly all of it lands there (leakage < 5 %).
+    assert fr["pv"]["harmonics_pct_before"] > 95.0

@@ -102,7 +102,8 @@ def _fundamental(sig) -> float | None:
 
 def _by_frequency(sig, meas, before, after) -> dict:
     """Share of each signal's replay-error energy at the loop's fundamental, at its
-    harmonics (2nd to 10th) and elsewhere."""
+    harmonics (2nd to 10th) and elsewhere [%]; None for a signal whose replay has no
+    error (exact to rounding)."""
     period = _fundamental(sig)
     res: dict[str, Any] = {"fundamental_period_s": None if period is None else period * sig.dt}
     if period is None:
@@ -116,13 +117,20 @@ def _by_frequency(sig, meas, before, after) -> dict:
             nfft = 1 << int(math.ceil(math.log2(n)))
             spec = np.abs(np.fft.rfft(r - r.mean(), nfft)) ** 2
             f = np.arange(spec.size) / nfft
-            tot = float(spec.sum()) or 1.0
+            entry = res.setdefault(s, {})
+            tot = float(spec.sum())
+            # A replay exact to rounding has no error to split: its shares are None
+            # (not three zeros), so that a plot says so instead of drawing nothing.
+            scale = float(np.dot(meas.w * x, x))
+            if tot <= 1e-20 * max(scale, 1e-300) * nfft:
+                for part in ("fundamental", "harmonics", "other"):
+                    entry[f"{part}_pct_{when}"] = None
+                continue
             fund = np.abs(f - f0) <= 0.15 * f0
             harm = np.zeros_like(fund)
             for h in range(2, 11):
                 harm |= np.abs(f - h * f0) <= 0.15 * f0
             harm &= ~fund
-            entry = res.setdefault(s, {})
             entry[f"fundamental_pct_{when}"] = 100.0 * float(spec[fund].sum()) / tot
             entry[f"harmonics_pct_{when}"] = 100.0 * float(spec[harm].sum()) / tot
             entry[f"other_pct_{when}"] = 100.0 * float(spec[~(fund | harm)].sum()) / tot

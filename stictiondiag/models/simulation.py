@@ -160,9 +160,13 @@ class Simulation:
             source = (
                 "quasi-static equivalent of the physical valve, S=(Fs+Fc)/(c k), J=(Fs-Fc)/(c k)"
             )
-        elif valve in ("choudhury", "kano"):
+        elif valve in ("choudhury", "kano", "he"):
             S, J, gain = float(self.settings["S"]), float(self.settings["J"]), 1.0
             source = "data-driven S and J"
+        elif valve == "band":
+            S = float(self.settings["S"])
+            J, gain = S, 1.0  # the band-hold valve slips all the way to its demand
+            source = "band-hold valve: J = S"
         else:
             S, J, gain = 0.0, 0.0, 1.0
             source = "linear valve (no nonlinearity)"

@@ -58,7 +58,7 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     phase_signal = _phase_signal(b.get("phase"))
     if phase_signal is not None:
         panels.append(lambda ax: _phase_panel(ax, b.get("phase"), phase_signal))
-    if any(s in (b.get("frequency") or {}) for s in ("mv", "pv", "op")):
+    if _frequency_signals(b.get("frequency"))[0]:
         panels.append(lambda ax: _frequency_panel(ax, b.get("frequency", {})))
     if b.get("time"):
         panels.append(lambda ax: _time_panel(ax, b.get("time", {})))
@@ -138,9 +138,19 @@ def _phase_panel(ax, ph: dict, signal: str) -> None:
         )
 
 
+def _frequency_signals(fr: dict | None) -> tuple[list[str], list[str]]:
+    """The signals with a replay error to split by frequency, and those whose replay
+    is exact (no error: their shares are None, :mod:`stictiondiag.gap.breakdown`)."""
+    fr = fr or {}
+    present = [s for s in ("mv", "pv", "op") if s in fr]
+    exact = [s for s in present if fr[s].get("fundamental_pct_before") is None]
+    return [s for s in present if s not in exact], exact
+
+
 def _frequency_panel(ax, fr: dict) -> None:
-    """Error energy at the fundamental, its harmonics and elsewhere, per signal."""
-    sigs = [s for s in ("mv", "pv", "op") if s in fr]
+    """Error energy at the fundamental, its harmonics and elsewhere, per signal; a
+    signal whose replay is exact gets no bar and is named in words instead."""
+    sigs, exact = _frequency_signals(fr)
     if sigs:
         parts = ("fundamental", "harmonics", "other")
         x = np.arange(len(sigs))
@@ -158,20 +168,29 @@ def _frequency_panel(ax, fr: dict) -> None:
         )
         ax.set_ylabel("% of error energy")
         ax.legend(fontsize=8)
+        if exact:
+            ax.set_xlabel(f"{', '.join(exact)}: replay exact, no error to split", fontsize=8)
     else:
         ax.set_axis_off()
 
 
 def _time_panel(ax, tm: dict) -> None:
-    """Gap in the first and second half of the record, per signal."""
-    labels, before, after = [], [], []
+    """Gap in the first and second half of the record, per signal; a signal with no
+    gap in either half before or after gets no bars and is named in words."""
+    labels, before, after, nil = [], [], [], []
     for s, v in tm.items():
+        cells = [v.get(f"{h}_{w}") for h in ("early", "late") for w in ("before", "after")]
+        if all(c is not None and c == 0.0 for c in cells):
+            nil.append(s)
+            continue
         for half in ("early", "late"):
             labels.append(f"{s}\n{half}")
             before.append(v.get(f"{half}_before"))
             after.append(v.get(f"{half}_after"))
     if labels:
         _bars(ax, labels, before, after, "Over time (first and second half)", "gap [%]")
+        if nil:
+            ax.set_xlabel(f"{', '.join(nil)}: no gap in either half", fontsize=8)
     else:
         ax.set_axis_off()
 
@@ -223,6 +242,12 @@ def _summary(diagnosis) -> str:
         lines.append("by valve phase: no replay error in mv or pv")
     elif not b.get("phase"):
         lines.append("by valve phase: no valve phases (no stick and slip found)")
+    fr = b.get("frequency") or {}
+    with_error, exact = _frequency_signals(fr)
+    if exact and not with_error:
+        lines.append("by frequency: every replay exact, no error to split")
+    elif not with_error and fr.get("fundamental_period_s") is None:
+        lines.append("by frequency: no oscillation to split the error by")
     if diagnosis.not_assessed:
         lines.append("not assessed: " + ", ".join(diagnosis.not_assessed))
     return "\n".join(lines)

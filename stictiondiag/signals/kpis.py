@@ -161,6 +161,7 @@ def loop_kpis(
     *,
     op_in_percent: bool = True,
     mode: np.ndarray | None = None,
+    service_factor_pct: float | None = None,
     dead_time_s: float | None = None,
     oscillation_period_s: float | None = None,
     oscillation_amplitude: float | None = None,
@@ -177,6 +178,10 @@ def loop_kpis(
     mode : ndarray of bool, optional
         True where the controller was in automatic (or cascade); None when the mode
         is not recorded (no service factor).
+    service_factor_pct : float, optional
+        The service factor [% of time] already known (a record read with its mode tag
+        and cut to its longest automatic stretch,
+        :attr:`stictiondiag.io.tags.Tags.service_factor`); used when ``mode`` is None.
     dead_time_s : float, optional
         The loop's dead time [s] (identified or given); None: no Harris index.
     oscillation_period_s, oscillation_amplitude : float, optional
@@ -187,27 +192,20 @@ def loop_kpis(
     days = pv.size * float(ts) / _DAY_S
     op_unit = "% of span" if op_in_percent else "op units"
     items: list[Kpi] = []
-    if mode is None:
-        items.append(
-            Kpi(
-                "service_factor",
-                None,
-                "% of time",
-                "share of the record with the controller in automatic or cascade",
-                _DM2002,
-                "the export holds no mode tag",
-            )
+    if mode is not None:
+        service_factor_pct = 100.0 * float(np.mean(np.asarray(mode, dtype=bool)))
+    items.append(
+        Kpi(
+            "service_factor",
+            service_factor_pct,
+            "% of time",
+            "share of the record with the controller in automatic or cascade (its mode "
+            "tag); over the whole record read, where the other indicators are over the "
+            "samples analysed (the longest automatic stretch)",
+            _DM2002,
+            None if service_factor_pct is not None else "the export holds no usable mode tag",
         )
-    else:
-        items.append(
-            Kpi(
-                "service_factor",
-                100.0 * float(np.mean(np.asarray(mode, dtype=bool))),
-                "% of time",
-                "share of the record with the controller in automatic or cascade",
-                _DM2002,
-            )
-        )
+    )
     band = SATURATION_BAND_PCT
     saturated = float(np.mean((op <= band) | (op >= 100.0 - band))) if op_in_percent else None
     items.append(
