@@ -79,6 +79,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from stictiondiag.core.checks import span_offset
 from stictiondiag.core.errors import (
     DataError,
     UsageError,
@@ -533,11 +534,7 @@ def _replay_simulate(
     # range (scaled or mean-centred records) are replayed with op and mv shifted
     # into it: the valve model and the linear blocks do not care about an offset,
     # the clamp at 0 and 100 % is then out of the way.
-    op_lo = float(min(op.min(), u.min()))
-    op_hi = float(max(op.max(), u.max()))
-    offset = 0.0
-    if (op_lo < 0.0 or op_hi > 100.0) and op_hi - op_lo < 100.0:
-        offset = 50.0 - 0.5 * (op_lo + op_hi)
+    offset = span_offset(op, u)
     # The process operating point is the identification's input reference; one
     # outside the span is clipped and the difference carried by the load, which also
     # carries the free response of the recorded initial state (the simulator starts
