@@ -6,7 +6,9 @@ training of P(stiction), the scripts):
 
 1. the tags, in % of span for op and mv (Section 5.1), with the process structure
    settled when neither the user nor the tag named it
-   (:func:`~stictiondiag.identification.looptype.identify_structure`);
+   (:func:`~stictiondiag.identification.looptype.identify_structure`); a record whose
+   mode tag leaves automatic was cut on reading to its longest automatic stretch
+   (:mod:`stictiondiag.io.mode`: in manual no controller closes the loop);
 2. is there an oscillation at all (the limit cycles of Sections 4.2.2 and 5.3);
 3. S and J of the data-driven model (Section 5.1): from the stick and slip segments
    of the mv-op plot when mv is recorded, otherwise by fitting the valve model and a

@@ -175,3 +175,46 @@ def test_a_record_in_manual_throughout_is_a_one_line_data_error():
         read_frame(frame)
     assert "automatic or cascade for 0 % of the record" in str(info.value)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("names", "vendor"),
+    [
+        (("FIC7.PV", "FIC7.OP", "FIC7.MODE"), None),  # Honeywell, ISA
+        (("FIC7.PV", "FIC7.MV", "FIC7.MODE"), "yokogawa"),  # CENTUM: MV is op
+        (("FIC7/PV.CV", "FIC7/OUT.CV", "FIC7/MODE.ACTUAL"), None),  # DeltaV
+        ((r"\\SRV1\FIC7.PV", r"\\SRV1\FIC7.OP", r"\\SRV1\FIC7.MD"), None),  # PI tags
+    ],
+)
+def test_vendor_mode_tags_join_their_loop_in_a_plant_export(tmp_path, names, vendor):
+    # Two loops in one wide export, each with its mode tag in the vendor's naming; the
+    # second loop (FIC8) is in cascade throughout, FIC7 in manual for 400 samples.
+    t = np.arange(2000)
+    frame = pd.DataFrame({"Timestamp": pd.date_range("2024-03-01", periods=t.size, freq="5s")})
+    for loop in ("FIC7", "FIC8"):
+        pv_name, op_name, mode_name = (n.replace("FIC7", loop) for n in names)
+        frame[pv_name] = np.sin(t / 20.0)
+        frame[op_name] = 50 + np.cos(t / 20.0)
+        manual = (t >= 1600) if loop == "FIC7" else np.zeros(t.size, dtype=bool)
+        frame[mode_name] = np.where(manual, "MAN", "CAS")
+    path = tmp_path / "plant.csv"
+    frame.to_csv(path, index=False)
+    loops = {loop.loop.rsplit("\\", 1)[-1]: loop for loop in plant_loops(path)}
+    assert set(loops) == {"FIC7", "FIC8"}
+    fic7 = read_plant_loop(loops["FIC7"], vendor=vendor)
+    fic8 = read_plant_loop(loops["FIC8"], vendor=vendor)
+    assert fic7.names["mode"].endswith(names[2].split("FIC7")[1])
+    assert (fic7.n, fic7.service_factor) == (1600, pytest.approx(80.0, rel=1e-12))
+    assert (fic8.n, fic8.service_factor) == (2000, 100.0)
+
+
+def test_long_export_with_unknown_mode_words_warns_and_reads_the_whole_record(tmp_path):
+    t = pd.date_range("2024-03-01", periods=600, freq="5s")
+    rows = [pd.DataFrame({"timestamp": t, "tag": "PIC3.PV", "value": np.sin(np.arange(600) / 9)}),
+            pd.DataFrame({"timestamp": t, "tag": "PIC3.OP", "value": np.cos(np.arange(600) / 9)}),
+            pd.DataFrame({"timestamp": t[[0, 300]], "tag": "PIC3.MODE", "value": ["AUTO", "HAND"]})]  # fmt: skip
+    path = tmp_path / "long.csv"
+    pd.concat(rows).to_csv(path, index=False)
+    tags = read_plant_loop(plant_loops(path)[0])
+    assert tags.n == 600 and tags.service_factor is None
+    assert any("'HAND' (1 row)" in w and "mode not used" in w for w in tags.warnings)

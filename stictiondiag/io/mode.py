@@ -62,7 +62,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from stictiondiag.core.errors import DataError
-from stictiondiag.io.gaps import MIN_SAMPLES
+from stictiondiag.io.gaps import MIN_SAMPLES, longest_true_run
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -194,7 +194,7 @@ def mode_codes(
         code = _word_code(str(word))
         if code is None:
             count = int(np.sum(codes_of == i))
-            unknown.append(f"{str(word)[:20]!r} ({count} rows)")
+            unknown.append(f"{str(word)[:20]!r} ({count} row{'' if count == 1 else 's'})")
         else:
             values[i] = code
     if unknown:
@@ -213,12 +213,6 @@ def mode_labels(codes: np.ndarray) -> np.ndarray:
     out[codes == 1.0] = "AUTO"
     out[codes == 0.0] = "MAN"
     return out
-
-
-def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
-    padded = np.concatenate(([False], flags, [False])).astype(np.int8)
-    edges = np.flatnonzero(np.diff(padded))
-    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
 def automatic_stretch(
@@ -248,10 +242,9 @@ def automatic_stretch(
     factor = 100.0 * float(np.mean(closed[known]))
     if closed.all():
         return 0, n, factor
-    runs = _runs(closed)
-    start, stop = max(runs, key=lambda r: (r[1] - r[0], -r[0])) if runs else (0, 0)
+    start, stop = longest_true_run(closed)
     if stop - start < MIN_SAMPLES:
-        longest = f", at most {stop - start} samples in a row" if runs else ""
+        longest = f", at most {stop - start} samples in a row" if stop > start else ""
         raise DataError(
             f"the controller was in automatic or cascade for {factor:.3g} % of the record"
             f"{where} (mode {label!r}{longest}; need {MIN_SAMPLES}): a stiction diagnosis "
