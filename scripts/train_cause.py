@@ -2,7 +2,8 @@
 
     python scripts/train_cause.py [--n-train 400] [--n-test 200] [--seed 11] \
         [--test-seed 12] [--cache /tmp/stiction_causes] [--workers 1] \
-        [--real ../shared/data/isdb] [--doc docs/calibration.md] [--no-describing]
+        [--real ../shared/data/isdb] [--doc docs/calibration.md] [--no-describing] \
+        [--deadzone 0]
 
 1. Draws ``--n-train`` and ``--n-test`` loops of :mod:`stictiondiag.apps.family_causes`
    (seeds ``seed * 1_000_000 + i``), labels each by its counterfactual twins
@@ -21,8 +22,8 @@
    if cross-validation favours it, :func:`choose_features`; ``--no-describing`` leaves
    the describing-function features out, the model before them), then
    fits a softmax regression (L2, :data:`C`) on the training loops with a cycle and a
-   cause, leaving out every loop of the held-out generator (:data:`HELD_OUT`, the
-   Karnopp physical valve); writes ``stictiondiag/stiction/cause_model.json``.
+   cause, leaving out every loop of the held-out stick models (:data:`HELD_OUT`: the
+   Karnopp physical valve, He et al.'s model, the band-hold valve); writes ``stictiondiag/stiction/cause_model.json``.
 4. Measures, on the held-out loops: accuracy, confusion, the reliability of each
    cause's probability (bands of :data:`BAND`, each within :data:`TOLERANCE` of its
    observed frequency where it holds at least :data:`MIN_BAND` loops), the held-out
@@ -40,6 +41,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -59,9 +61,11 @@ C = 1.0
 #: Largest Kolmogorov-Smirnov distance between simulated and real loops with a cycle
 #: for a feature to enter the model [-].
 MAX_SHIFT = 0.5
-#: The stick model held out of training (its loops test the model's generality):
-#: Karnopp's physical valve, the one stick model not written as a data-driven rule.
-HELD_OUT = "physical"
+#: The stick models held out of training (their loops test the model's generality):
+#: Karnopp's physical valve, the one stick model not written as a data-driven rule,
+#: and He et al.'s and the band-hold valve, which joined the family after the model
+#: had been scored on the ISDB (held out, they leave its training loops as they were).
+HELD_OUT: tuple[str, ...] = ("physical", "he", "band")
 #: Width of the reliability bands [-], allowed gap [-], fewest loops for a band to
 #: count [-].
 BAND = 0.2
@@ -69,22 +73,22 @@ TOLERANCE = 0.1
 MIN_BAND = 10
 #: How long computing the features took from an empty cache, as measured.
 MEASURED_RUN = (
-    "measured from an empty cache on 27 Nov 2026: 750 simulated loops (with their twins)"
-    " and the 77 real records in 7.2 min of wall time with two worker processes on a"
-    " shared two-core machine (load about 4)"
+    "measured from an empty cache on 27 Nov 2026: 750 simulated loops and 60 dead-zone"
+    " loops (with their twins) and the 77 real records in 9.3 min of wall time with two"
+    " worker processes on a shared two-core machine (load about 6)"
 )
 
 #: Heading of the section this script writes in docs/calibration.md.
 HEADING = "## Why the loop oscillates: the cause model"
 
 
-def _one(seed: int) -> dict | None:
+def _one(seed: int, generator: str | None = None) -> dict | None:
     from stictiondiag.analysis import AnalysisConfig, analyze
     from stictiondiag.apps.family_causes import cause_label
     from stictiondiag.core.errors import StictionError
 
     try:
-        loop, label = cause_label(seed)
+        loop, label = cause_label(seed, generator)
         if label is None:
             return None
         a = analyze(loop.tags(), config=AnalysisConfig(gap=False, replay=False, compensation=False))
@@ -106,20 +110,24 @@ def _one(seed: int) -> dict | None:
     }
 
 
-def family_rows(seed: int, n: int, cache: Path, workers: int) -> list[dict]:
-    """Labelled, analysed loops ``seed * 1_000_000 + i``, i < n (cached)."""
+def family_rows(
+    seed: int, n: int, cache: Path, workers: int, generator: str | None = None
+) -> list[dict]:
+    """Labelled, analysed loops ``seed * 1_000_000 + i``, i < n (cached); ``generator``
+    forces the generator (:func:`~stictiondiag.apps.family_causes.cause_loop`)."""
     cache.mkdir(parents=True, exist_ok=True)
-    path = cache / f"causes_{seed}_{n}.jsonl"
+    path = cache / f"causes_{seed}_{n}{'_' + generator if generator else ''}.jsonl"
     if path.is_file():
         return [json.loads(line) for line in path.read_text().splitlines() if line]
     seeds = [seed * 1_000_000 + i for i in range(n)]
+    one = partial(_one, generator=generator)
     if workers > 1:
         with ProcessPoolExecutor(workers) as pool:
-            rows = list(pool.map(_one, seeds, chunksize=4))
+            rows = list(pool.map(one, seeds, chunksize=4))
     else:
         rows = []
         for i, s in enumerate(seeds):
-            rows.append(_one(s))
+            rows.append(one(s))
             if (i + 1) % 25 == 0:
                 print(f"  {i + 1}/{n}", file=sys.stderr, flush=True)
     rows = [r for r in rows if r is not None]
@@ -275,7 +283,7 @@ def df_separation(
     """Table of each describing-function feature: the area under the ROC curve of
     "the valve causes the cycle" (higher value, more likely the valve) on the held-out
     seeds, against every other cause and against the loops of each non-valve
-    generator; on the held-out stick model's valve loops against the same negatives;
+    generator; on the held-out stick models' valve loops against the same negatives;
     and the shift check's distance (simulated against real loops with a cycle)."""
 
     def col(rows, k):
@@ -299,7 +307,7 @@ def df_separation(
 
     head = ["all others", *(f"{g} ({len(n)})" for g, n in groups)]
     lines = [
-        f"| feature | {' | '.join(head)} | held-out stick model | shift |",
+        f"| feature | {' | '.join(head)} | held-out stick models | shift |",
         "|---" * (len(head) + 3) + "|",
     ]
     for k in DF_FEATURES:
@@ -310,7 +318,7 @@ def df_separation(
     lines += [
         "",
         f"Positives: {len(pos)} held-out loops whose cycle a linear valve stops;"
-        f" {len(held_pos)} of the held-out stick model. Share of loops with a cycle where"
+        f" {len(held_pos)} of the held-out stick models. Share of loops with a cycle where"
         f" the loop could be identified (`df_available`): simulated"
         f" {np.mean(col(sim, 'df_available')):.2f}, real {share:.2f}.",
     ]
@@ -347,7 +355,7 @@ DF_INTRO = [
     ' area under the ROC curve of each feature for "the valve causes the cycle" on the'
     " held-out seeds' loops with a cycle and a cause, against all other causes and against"
     " the non-valve loops of each generator (how many in brackets); the held-out stick"
-    " model's valve loops against the same negatives; above 0.5 a higher value means the"
+    " models' valve loops against the same negatives; above 0.5 a higher value means the"
     " valve, below 0.5 the other way round. Shift: Kolmogorov-Smirnov distance between the"
     " simulated and the real loops with a cycle (labels not read).",
     "",
@@ -364,6 +372,58 @@ GATE_SE = 2.0
 #: curve for "the valve causes the cycle" on the training loops lies at least this far
 #: from 0.5 [-] (a rule on the training seeds: the held-out seeds only measure).
 DF_SEPARATION = 0.1
+
+
+#: Seed block of the dead-zone loops (generator forced, never trained on).
+DEADZONE_SEED = 50
+
+
+def held_out_lines(model: dict, names: tuple[str, ...], held: list[dict], a) -> list[str]:
+    """Accuracy of the model on each held-out stick model's loops, and on ``--deadzone``
+    integrating loops whose controller has a dead zone (label counts and accuracy)."""
+    from collections import Counter
+
+    from stictiondiag.stiction.cause_model import apply_model
+
+    lines = [
+        "**Held-out generators one by one** (loops with a cycle and a cause, all seeds):",
+        "",
+        "| generator | loops | accuracy | called valve, of the valve's cycles |",
+        "|---|---|---|---|",
+    ]
+    groups = [(f"stick model `{m}`", [r for r in held if r["valve"] == m]) for m in HELD_OUT]
+    dz_rows: list[dict] = []
+    if a.deadzone:
+        dz_rows = family_rows(DEADZONE_SEED, a.deadzone, a.cache, a.workers, "deadzone")
+        groups.append(
+            (
+                "integrating, controller dead zone",
+                [r for r in dz_rows if r["label"] in CAUSES and r["cycle"]],
+            )
+        )
+    for name, rows in groups:
+        if not rows:
+            lines.append(f"| {name} | 0 | - | - |")
+            continue
+        X, y = _xy(rows, names)
+        called = apply_model(model, X).argmax(axis=1)
+        v = CAUSES.index("valve")
+        nv = int((y == v).sum())
+        hit_v = int(((y == v) & (called == v)).sum())
+        lines.append(
+            f"| {name} | {len(rows)} | {np.mean(called == y):.2f} | "
+            + (f"{hit_v} of {nv} |" if nv else "- |")
+        )
+    if a.deadzone:
+        counts = Counter(r["label"] for r in dz_rows)
+        lines += [
+            "",
+            f"Dead-zone loops (`--deadzone {a.deadzone}`: seeds {DEADZONE_SEED}*1e6 + i,"
+            f' `generator="deadzone"`, {len(dz_rows)} analysed), labels: '
+            + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+            + ".",
+        ]
+    return lines
 
 
 def describing_gate(
@@ -450,6 +510,12 @@ def main(argv=None) -> int:
     ap.add_argument("--real", type=Path, default=None)
     ap.add_argument("--doc", type=Path, default=None)
     ap.add_argument(
+        "--deadzone",
+        type=int,
+        default=0,
+        help="also measure the model on this many integrating loops with a controller dead zone",
+    )
+    ap.add_argument(
         "--no-describing",
         action="store_true",
         help="leave the describing-function features out (the model before them)",
@@ -467,7 +533,7 @@ def main(argv=None) -> int:
         return [
             r
             for r in rows
-            if r["label"] in CAUSES and r["cycle"] and ((r["valve"] == HELD_OUT) == held_out)
+            if r["label"] in CAUSES and r["cycle"] and ((r["valve"] in HELD_OUT) == held_out)
         ]
 
     train, test = labelled(train_all, False), labelled(test_all, False)
@@ -499,7 +565,7 @@ def main(argv=None) -> int:
         "classes": list(CAUSES),
         "features": list(kept),
         "C": cv["c"],
-        "held_out_generator": HELD_OUT,
+        "held_out_generator": list(HELD_OUT),
         "n_train": len(train),
         "trained_on": f"stictiondiag.apps.family_causes seeds {a.seed}*1e6 + i, i < {a.n_train}",
         **fitted,
@@ -514,6 +580,7 @@ def main(argv=None) -> int:
     text = render(
         a, model, train, test, held, train_all + test_all, Pt, yt, Ph, yh, shift, t_feat, cv
     )
+    text += "\n" + "\n".join(held_out_lines(model, kept, held, a)) + "\n"
     text += "\n" + "\n".join(DF_INTRO + df_separation(test, held, sim, real)) + "\n"
     print(text)
     if a.doc is not None:
@@ -561,6 +628,7 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
         f"(`--n-train {a.n_train} --n-test {a.n_test} --seed {a.seed} --test-seed {a.test_seed}"
         + (" --real $STICTION_ISDB" if a.real else "")
         + (" --no-describing" if a.no_describing else "")
+        + (f" --deadzone {a.deadzone}" if a.deadzone else "")
         + f"`; features of all loops {MEASURED_RUN}; this run {t_feat / 60:.1f} min).",
         "",
         "Stage 2 of the verdict (`stictiondiag/stiction/cause.py`, `cause_model.py`): for a"
@@ -596,8 +664,9 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
         )
     lines += [
         "",
-        f"Trained on {len(train)} loops with a cycle and a cause (the stick model"
-        f" `{HELD_OUT}` held out), softmax regression, L2 with C = {model['C']:g}, features:"
+        f"Trained on {len(train)} loops with a cycle and a cause (the stick models"
+        f" {', '.join(f'`{m}`' for m in HELD_OUT)} held out), softmax regression, L2 with"
+        f" C = {model['C']:g}, features:"
         f" {', '.join('`' + k + '`' for k in model['features'])}. Chosen by"
         f" {FOLDS}-fold cross-validation on the training loops: log loss {cv['full']:.3f}"
         f" with every feature that passed the shift check, {cv['compact']:.3f} with the"
@@ -612,9 +681,10 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
         "",
         *_confusion(Pt, yt),
         "",
-        f"**Held-out generator** (stick model `{HELD_OUT}`, {len(held)} loops with a cycle"
-        f" and a cause, never trained on): accuracy {acc_h:.2f}, area under the ROC curve"
-        f" of P(valve) {auc_h:.2f}.",
+        f"**Held-out generators** (stick models {', '.join(f'`{m}`' for m in HELD_OUT)},"
+        f" {len(held)} loops with a cycle and a cause, never trained on): accuracy"
+        f" {acc_h:.2f}, area under the ROC curve of P(valve) {auc_h:.2f}; each stick model"
+        " and the dead-zone loops after the reliability table.",
         "",
         *(_confusion(Ph, yh) if yh.size else []),
         "",

@@ -373,6 +373,52 @@ def _initial_stop(value, op0: float) -> tuple[float, float]:
     return xss, d
 
 
+def _checked_run(
+    process,
+    controller,
+    duration,
+    dt,
+    valve,
+    characteristic,
+    S,
+    J,
+    op_bias,
+    pv_bias,
+    kick,
+    noise_std,
+    seed,
+):
+    """:func:`simulate_loop`'s arguments checked, each with a one-line UsageError:
+    ``(dt, n, S, J, op_bias, pv_bias, kick, noise_std)``, ``n`` the number of samples."""
+    _check_loop(process, controller)
+    dt = _number("sample time dt", dt, positive=True)
+    duration = _number("duration", duration, positive=True)
+    if valve not in VALVES:
+        raise UsageError(f"unknown valve {valve!r}: use one of {', '.join(VALVES)}")
+    if characteristic not in _CHARACTERISTIC_CODE:
+        raise UsageError(
+            f"unknown valve characteristic {characteristic!r}: "
+            f"use one of {', '.join(_CHARACTERISTIC_CODE)}"
+        )
+    S, J = _check_sj(S, J)
+    ratio = duration / dt
+    if ratio > MAX_SAMPLES:
+        raise UsageError(
+            f"duration/dt = {ratio:.3g} samples exceeds the limit of {MAX_SAMPLES:,}: "
+            "shorten the duration or increase dt"
+        )
+    n = max(2, int(round(ratio)))
+    op_bias = _number("op_bias", op_bias)
+    if not 0.0 <= op_bias <= 100.0:
+        raise UsageError(f"op_bias must be within [0, 100] % of span, got {op_bias}")
+    pv_bias = _number("pv_bias", pv_bias)
+    kick = _number("kick", kick)
+    noise_std = _number("noise_std", noise_std, minimum=0.0)
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
+        raise UsageError(f"seed must be an integer or None, got {seed!r}")
+    return dt, n, S, J, op_bias, pv_bias, kick, noise_std
+
+
 def simulate_loop(
     process: FOPTD | Integrating,
     controller: PI,
@@ -479,33 +525,22 @@ def simulate_loop(
     UsageError
         A parameter is out of range, or the run would be too long.
     """
-    _check_loop(process, controller)
-    dt = _number("sample time dt", dt, positive=True)
-    duration = _number("duration", duration, positive=True)
-    if valve not in VALVES:
-        raise UsageError(f"unknown valve {valve!r}: use one of {', '.join(VALVES)}")
-    if characteristic not in _CHARACTERISTIC_CODE:
-        raise UsageError(
-            f"unknown valve characteristic {characteristic!r}: "
-            f"use one of {', '.join(_CHARACTERISTIC_CODE)}"
-        )
-    S, J = _check_sj(S, J)
-    ratio = duration / dt
-    if ratio > MAX_SAMPLES:
-        raise UsageError(
-            f"duration/dt = {ratio:.3g} samples exceeds the limit of {MAX_SAMPLES:,}: "
-            "shorten the duration or increase dt"
-        )
-    n = max(2, int(round(ratio)))
-    op_bias = _number("op_bias", op_bias)
-    if not 0.0 <= op_bias <= 100.0:
-        raise UsageError(f"op_bias must be within [0, 100] % of span, got {op_bias}")
-    pv_bias = _number("pv_bias", pv_bias)
-    kick = _number("kick", kick)
-    noise_std = _number("noise_std", noise_std, minimum=0.0)
+    dt, n, S, J, op_bias, pv_bias, kick, noise_std = _checked_run(
+        process,
+        controller,
+        duration,
+        dt,
+        valve,
+        characteristic,
+        S,
+        J,
+        op_bias,
+        pv_bias,
+        kick,
+        noise_std,
+        seed,
+    )
     band = _integral_band(integral_band, n)
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
-        raise UsageError(f"seed must be an integer or None, got {seed!r}")
 
     physical, n_sub, h, p, stem = _valve_integration(valve, physical, dt, n)
     # The physical valve's parameters (the nominal valve by default); None for the others.
