@@ -16,6 +16,7 @@ from .options import (
     JsonOption,
     LoopType,
     LoopTypeOption,
+    ModeOption,
     MvOption,
     OpOption,
     OpRangeOption,
@@ -82,6 +83,7 @@ def gap(
     vendor: VendorOption = None,
     action: ActionOption = None,
     compression: CompressionOption = None,
+    mode: ModeOption = None,
     json_path: JsonOption = None,
     plot: Annotated[
         Path | None,

@@ -82,6 +82,15 @@ SpOption = Annotated[str | None, typer.Option("--sp", help="Column holding sp (s
 TimeOption = Annotated[
     str | None, typer.Option("--time", help="Time column (seconds or timestamps).")
 ]
+ModeOption = Annotated[
+    str | None,
+    typer.Option(
+        "--mode",
+        help="Column holding the controller's mode (MAN/AUTO/CAS ...). Default: found by "
+        "name (.MODE, .MD, MODE.ACTUAL, STATUS). The service factor is taken from it and "
+        "the longest stretch in automatic or cascade is analysed.",
+    ),
+]
 
 
 def positive_seconds(value: float | None) -> float | None:
@@ -144,7 +153,7 @@ LoopsOption = Annotated[
     typer.Option(
         "--loops",
         help="Loops manifest CSV: one row per loop (column file or loop) with any of "
-        "loop_type, ts, op_units, op_range, pv, op, mv, sp, time.",
+        "loop_type, ts, op_units, op_range, pv, op, mv, sp, time, mode.",
     ),
 ]
 IntegratingOption = Annotated[
@@ -170,6 +179,7 @@ def read_options(
     vendor: Vendor | None = None,
     action: Action | None = None,
     compression: Compression | None = None,
+    mode: str | None = None,
 ) -> dict:
     """Keyword arguments for :func:`stictiondiag.io.tags.read_tags` from CLI options.
 
@@ -193,6 +203,7 @@ def read_options(
         "op_range": op_range,
         "loop_type": None if loop_type is None else LoopType(loop_type).value,
         "integrating": integrating,
+        "mode": mode,
     }
 
 
@@ -211,6 +222,7 @@ READ_OPTION_NAMES = (
     "vendor",
     "action",
     "compression",
+    "mode",
 )
 
 

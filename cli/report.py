@@ -35,6 +35,7 @@ from .options import (
     LoopsOption,
     LoopType,
     LoopTypeOption,
+    ModeOption,
     MvOption,
     OpOption,
     OpRangeOption,
@@ -95,6 +96,7 @@ def report(
     vendor: VendorOption = None,
     action: ActionOption = None,
     compression: CompressionOption = None,
+    mode: ModeOption = None,
     loops: LoopsOption = None,
 ) -> None:
     """Write a self-contained HTML report per loop, an index page, summary.md and JSON.

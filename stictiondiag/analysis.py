@@ -6,7 +6,9 @@ training of P(stiction), the scripts):
 
 1. the tags, in % of span for op and mv (Section 5.1), with the process structure
    settled when neither the user nor the tag named it
-   (:func:`~stictiondiag.identification.looptype.identify_structure`);
+   (:func:`~stictiondiag.identification.looptype.identify_structure`); a record whose
+   mode tag leaves automatic was cut on reading to its longest automatic stretch
+   (:mod:`stictiondiag.io.mode`: in manual no controller closes the loop);
 2. is there an oscillation at all (the limit cycles of Sections 4.2.2 and 5.3);
 3. S and J of the data-driven model (Section 5.1): from the stick and slip segments
    of the mv-op plot when mv is recorded, otherwise by fitting the valve model and a
@@ -417,6 +419,7 @@ def kpis_of(tags: Tags, osc_pv: Oscillation, rep: Replay | None) -> LoopKpis:
         tags.sp,
         float(tags.ts),
         op_in_percent=getattr(tags, "op_scale", "percent") == "percent",
+        service_factor_pct=tags.service_factor,
         dead_time_s=dead_time_s,
         oscillation_period_s=osc_pv.period_s if osc_pv.present else None,
         oscillation_amplitude=osc_pv.amplitude if osc_pv.present else None,

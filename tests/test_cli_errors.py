@@ -67,6 +67,7 @@ FREE_TEXT = {
     "--mv",
     "--sp",
     "--time",
+    "--mode",
     "--loop-column",
     "--isdb",
     "--loop",

@@ -26,6 +26,7 @@ ARGV = [
     "--pv", "A.PV", "--op", "A.OP", "--sp", "A.SP", "--ts", "2", "--op-units", "mA",
     "--op-range", "4", "20", "--loop-type", "level", "--self-regulating",
     "--vendor", "honeywell", "--action", "reverse", "--compression", "linear",
+    "--mode", "A.MODE",
 ]  # fmt: skip
 
 EXPECTED = {
@@ -42,6 +43,7 @@ EXPECTED = {
     "vendor": "honeywell",
     "action": "reverse",
     "compression": "linear",
+    "mode": "A.MODE",
 }
 
 

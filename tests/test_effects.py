@@ -10,13 +10,7 @@ import pytest
 from stictiondiag.gap.context import LoopSignals, SlowLoad, build_context, measure_slips
 from stictiondiag.gap.effects import EFFECTS, assessable_effects
 from stictiondiag.gap.effects.base import BaseFit, fit_base, fit_process
-from stictiondiag.gap.effects.kernels import (
-    PHASE_MOVING,
-    PHASE_REVERSAL,
-    PHASE_SLIP,
-    PHASE_STUCK,
-    valve_replay,
-)
+from stictiondiag.gap.effects.kernels import valve_replay
 from stictiondiag.gap.effects.miscalibration import slip_slope_test
 from stictiondiag.gap.effects.quantization import detect_quantization, fit_quantization, quantize
 from stictiondiag.gap.effects.search import needle_search
@@ -28,6 +22,10 @@ from stictiondiag.identification.controller import filtered_pv, fit_controller_r
 from stictiondiag.identification.numerics import fractional_delay_wls, wls
 from stictiondiag.identification.predictor import prediction_variance_ratio
 from stictiondiag.models.valve import (
+    PHASE_MOVING,
+    PHASE_REVERSAL,
+    PHASE_SLIP,
+    PHASE_STUCK,
     choudhury_model,
     kano_model,
 )

@@ -133,6 +133,27 @@ def test_pv_scale_does_not_change_the_diagnosis():
     assert g2.before == pytest.approx(g1.before, rel=1e-6)
 
 
+def test_mean_centred_op_and_mv_give_the_same_diagnosis():
+    # Plant exports often hold op and mv as deviations from their mean (the ISDB's
+    # CHEM10: -1 to 1).  The valve kernels work in 0-100 % and clip there, so the
+    # record is shifted into the span (core.checks.span_offset): the gap must be that
+    # of the record in % of span (before: to the conditioning of the fits, 1e-6), and
+    # the series handed back in the record's own units.  Clipped at 0, as before the
+    # shift, the replay of op lost every negative half-cycle.
+    case = generate_case("external_disturbance", 4, n_samples=N)
+    effects = ("external_disturbance",)
+    t = _tags(case)
+    m = float(np.mean(t.op))
+    centred = Tags.from_arrays(t.pv, t.op - m, mv=t.mv - m, sp=t.sp, ts=t.ts)
+    g1 = diagnose_gap(t, effects=effects)
+    g2 = diagnose_gap(centred, effects=effects)
+    assert g1.effect == g2.effect == "external_disturbance"
+    assert g2.before == pytest.approx(g1.before, rel=1e-6)
+    assert g2.after == pytest.approx(g1.after, rel=1e-6)
+    np.testing.assert_allclose(g2.series["op"], t.op - m, atol=1e-9)
+    np.testing.assert_allclose(g2.series["op_before"], g1.series["op_before"] - m, atol=1e-6)
+
+
 def test_without_mv_valve_effects_are_not_assessed():
     case = generate_case("external_disturbance", 4, n_samples=N)
     g = diagnose_gap(_tags(case, with_mv=False), effects=("external_disturbance", "actuator_lag"))

@@ -16,9 +16,10 @@ from stictiondiag.gap.context import build_context, signals_of
 from stictiondiag.gap.diagnose import _starting_point, diagnose_gap, mv_within_noise
 from stictiondiag.gap.effects import external_disturbance as ed
 from stictiondiag.gap.effects.base import fit_base
-from stictiondiag.gap.effects.kernels import PHASE_MOVING, PHASE_SLIP, valve_replay
+from stictiondiag.gap.effects.kernels import valve_replay
 from stictiondiag.io.tags import Tags
 from stictiondiag.models.synthetic import generate_case
+from stictiondiag.models.valve import PHASE_MOVING, PHASE_SLIP
 
 N = 2000  # short records keep the file fast; the hidden effects are strong enough
 

@@ -11,8 +11,10 @@ from one of several **generators**, each a plausible source of a plant oscillati
     A sticky valve (S log-uniform over 1-8 % of span, ``J/S`` uniform over 0.2-1,
     pure dead band ``J = 0`` in a tenth of them) under normal or aggressive SIMC
     tuning, with random non-periodic loads.  The stick model itself is drawn:
-    Choudhury's data-driven model, Kano et al.'s, or Karnopp's physical valve
-    (Section 4 of Choudhury, Thornhill & Shah 2005).
+    Choudhury's data-driven model, Kano et al.'s, Karnopp's physical valve (Section 4
+    of Choudhury, Thornhill & Shah 2005), He et al.'s two-parameter model or a valve
+    that holds until its demand moves more than a band
+    (:mod:`stictiondiag.models.stick_models`).
 ``tuning``
     A linear valve and a PI controller tuned tight, at a gain margin of 1.1 to 1.8
     (:func:`ultimate_gain`): a lightly damped loop rung by its noise and loads.
@@ -21,6 +23,13 @@ from one of several **generators**, each a plausible source of a plant oscillati
     load that is not a sinusoid in most loops: a triangle (an upstream sticky valve's
     cycle through a lag), a square wave, two tones, intermittent bursts, or a sine;
     for cascade slaves the master's set point carries the oscillation.
+``deadzone`` (only on request, ``generator="deadzone"``: not in the draw of
+:data:`GENERATORS`, so the training family stays the one the shipped cause model was
+fitted on; ``scripts/train_cause.py --deadzone`` measures the model on it)
+    An integrating loop (a level) with a linear valve whose controller ignores errors
+    inside a dead zone of half-width 1-4 times the spread of its noise-free pv without
+    it (``e - clip(e, -dz, dz)``, a gap action), little measurement noise: the level
+    drifts across the zone and the controller pushes it back, a cycle no valve causes.
 ``quantiser``
     A linear valve and a controller that sees pv through a quantiser (a coarse
     transmitter or A/D converter; a step of 1-4 times the spread of the loop's
@@ -36,7 +45,7 @@ time, with every other draw (noise sequence included) the same,
 
 1. a linear valve (``valve``),
 2. without the external oscillation (``external``),
-3. without the quantiser (``other``),
+3. without the quantiser or the dead zone (``other``),
 4. with conservative tuning, a quarter of the ultimate gain and twice the
    integral time (``tuning``; tried last, because slowing the controller down
    slows, and so can hide within the record, a cycle it does not cause),
@@ -74,8 +83,17 @@ from stictiondiag.models.processes import FOPTD, PI
 #: The generators and their shares of the family.
 GENERATORS: dict[str, float] = {"valve": 0.5, "tuning": 0.15, "external": 0.2, "quantiser": 0.15}
 
-#: The stick models of the ``valve`` generator and their shares.
-STICK_MODELS: dict[str, float] = {"choudhury": 0.4, "kano": 0.4, "physical": 0.2}
+#: The stick models of the ``valve`` generator and their shares.  He's model and the
+#: band-hold valve (:mod:`stictiondiag.models.stick_models`) take half of the physical
+#: valve's former fifth; being last in the draw, they leave the loops of the other
+#: models exactly as they were.
+STICK_MODELS: dict[str, float] = {
+    "choudhury": 0.4,
+    "kano": 0.4,
+    "physical": 0.1,
+    "he": 0.05,
+    "band": 0.05,
+}
 
 #: External oscillation shapes and their shares.
 EXTERNAL_SHAPES: dict[str, float] = {
@@ -91,6 +109,7 @@ CHANGES: tuple[tuple[str, str], ...] = (
     ("linear_valve", "valve"),
     ("no_external", "external"),
     ("no_quantiser", "other"),
+    ("no_deadzone", "other"),
     ("conservative", "tuning"),
 )
 
@@ -140,10 +159,12 @@ def _wave(rng, shape: str, n: int, period: float) -> np.ndarray:
     return np.sin(2 * math.pi * t)
 
 
-def _quantised_loop(process, controller, n, sp, load, noise, q, op_bias, seed):
+def _quantised_loop(process, controller, n, sp, load, noise, q, op_bias, seed, dz=0.0):
     """PI loop whose controller sees pv through a quantiser of step ``q`` [pv units]
-    (``q = 0``: no quantiser); a linear valve, one step per sample.  Returns pv
-    (unquantised, with noise), op, sp."""
+    (``q = 0``: no quantiser) and its error through a dead zone of half-width ``dz``
+    [pv units] (``e - clip(e, -dz, dz)``: the controller ignores errors inside it);
+    a linear valve, one step per sample.  Returns pv (unquantised, with noise), op,
+    sp."""
     rng = np.random.default_rng(seed)
     e_noise = rng.normal(0.0, 1.0, n) * noise
     d = int(round(process.dead_time))
@@ -160,6 +181,7 @@ def _quantised_loop(process, controller, n, sp, load, noise, q, op_bias, seed):
         pv[k] = x + load[k] + e_noise[k]
         meas = np.round(pv[k] / q) * q if q > 0 else pv[k]
         e = sp[k] - meas
+        e = e - min(max(e, -dz), dz)
         u = Kc * (e + integ + e / Ti)
         if 0.0 < u + op_bias < 100.0:  # conditional integration against windup
             integ += e / Ti
@@ -183,6 +205,8 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     gen = _pick(rng, GENERATORS)
     gen = generator or gen
     kind = _pick(rng, {"flow": 0.25, "self": 0.3, "integrating": 0.25, "slave": 0.2})
+    if gen == "deadzone":
+        kind = "integrating"
     record = _pick(rng, {"plain": 0.6, "quantised": 0.1, "deadband": 0.15, "swinging_door": 0.15})
     stick = _pick(rng, STICK_MODELS)
     shape = _pick(rng, EXTERNAL_SHAPES)
@@ -238,7 +262,7 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
         sp = sp + ext
     dominant = bool(rng.random() < NOISE_DOMINANT_SHARE)
     noise_ratio = _loguniform(rng, *(NOISE_DOMINANT if dominant else NOISE_RANGE))
-    if gen == "quantiser":
+    if gen in ("quantiser", "deadzone"):
         noise_ratio = _loguniform(rng, 0.001, 0.03)
     op_bias = float(rng.uniform(30.0, 70.0))
     sim_seed = int(rng.integers(2**31))
@@ -251,9 +275,11 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
             Fs=k * 0.01 * (S + J) / 2, Fc=k * 0.01 * (S - J) / 2, time_step=5e-4
         )
 
-    def run(ctrl, lin: bool, load_, sp_, noise_std: float, q: float = 0.0):
-        if gen == "quantiser":
-            return _quantised_loop(process, ctrl, n, sp_, load_, noise_std, q, op_bias, sim_seed)
+    def run(ctrl, lin: bool, load_, sp_, noise_std: float, q: float = 0.0, dz: float = 0.0):
+        if gen in ("quantiser", "deadzone"):
+            return _quantised_loop(
+                process, ctrl, n, sp_, load_, noise_std, q, op_bias, sim_seed, dz
+            )
         sim = simulate_loop(
             process,
             ctrl,
@@ -281,7 +307,11 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     q_step = q_ratio * max(spread, 0.05 * scale) if gen == "quantiser" else 0.0
     if change == "no_quantiser":
         q_step = 0.0
-    pv, op, spv = run(controller, linear, load, sp, noise_ratio * spread, q_step)
+    # The dead zone: a half-width of 1-4 times the same spread (the quantiser's draw).
+    dz = q_ratio * max(spread, 0.05 * scale) if gen == "deadzone" else 0.0
+    if change == "no_deadzone":
+        dz = 0.0
+    pv, op, spv = run(controller, linear, load, sp, noise_ratio * spread, q_step, dz)
     mv = op
     sl = slice(WARMUP, n, decim)
     pv, op, mv, spv = pv[sl].copy(), op[sl].copy(), mv[sl].copy(), spv[sl].copy()
@@ -296,6 +326,7 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
         "kind": kind,
         "shape": shape if gen == "external" else None,
         "record": record,
+        "deadzone": dz,
         "gain_margin": float(ku / Kc) if math.isfinite(ku) else None,
         "noise_ratio": noise_ratio,
         "decimation": decim,
@@ -324,6 +355,7 @@ def _applies(change: str, loop: FamilyLoop) -> bool:
         "no_external": t["generator"] == "external",
         "conservative": True,
         "no_quantiser": t["generator"] == "quantiser",
+        "no_deadzone": t["generator"] == "deadzone",
     }[change]
 
 

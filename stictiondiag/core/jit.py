@@ -31,6 +31,10 @@ from numba.core.dispatcher import Dispatcher
 #: Decorator for a compiled, cached, GIL-free kernel.
 jit = numba.njit(cache=True, nogil=True)
 
+#: Decorator for a per-sample helper compiled into each of its callers: a call per
+#: sample would cost more than the helper itself (a state machine's step).
+inline = numba.njit(inline="always", cache=True, nogil=True)
+
 #: Printed once on stderr before the first compilation (see the module docstring).
 FIRST_COMPILE_NOTE = (
     "stiction: compiling numba kernels (first run only; 'stiction warm-up' does it ahead)..."

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from stictiondiag.gap.effects.kernels import PHASE_MOVING, PHASE_NAMES, PHASE_SLIP
+from stictiondiag.models.valve import PHASE_MOVING, PHASE_NAMES, PHASE_SLIP
 
 
 def dominant_period_samples(x: np.ndarray) -> float | None:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stictiondiag.core.checks import span_offset
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.robust import robust_std
 
@@ -63,7 +64,13 @@ def signals_of(tags) -> LoopSignals:
         raise DataError("op or pv is constant: there is no movement to replay")
     if mv is not None and np.ptp(mv) == 0.0:
         mv = None
-    return LoopSignals(op=op, pv=pv, dt=ts, mv=mv, sp=sp)
+    # The valve kernels work in 0-100 % of span and clip there; mean-centred or
+    # normalised exports are shifted into it, and back for output.
+    offset = span_offset(op, mv)
+    if offset:
+        op = op + offset
+        mv = None if mv is None else mv + offset
+    return LoopSignals(op=op, pv=pv, dt=ts, mv=mv, sp=sp, offset=offset)
 
 
 class SlowLoad:
@@ -147,6 +154,10 @@ class LoopSignals:
         Valve position [% of span], None when not recorded.
     sp : ndarray or None
         Set point [pv units], None when not recorded.
+    offset : float
+        Shift added to the recorded op and mv to bring them into 0-100 %
+        (:func:`stictiondiag.core.checks.span_offset`) [% of span]; 0 for a record
+        in % of span.
     """
 
     op: np.ndarray
@@ -154,6 +165,7 @@ class LoopSignals:
     dt: float
     mv: np.ndarray | None = None
     sp: np.ndarray | None = None
+    offset: float = 0.0
 
     @property
     def n(self) -> int:
@@ -275,6 +287,10 @@ def build_context(
     spacing = max(n / 16.0, 40.0) if load_spacing is None else float(load_spacing)
     load = SlowLoad(n, min(spacing, max(n - 1, 2)))
     slips = measure_slips(sig.op, sig.mv, sig.dt, segments) if sig.mv is not None else None
+    if slips is not None and sig.offset and segments is not None:
+        # Segments measured on the record as read: positions into the shifted span.
+        slips["op_break"] = slips["op_break"] + sig.offset
+        slips["mv_after"] = slips["mv_after"] + sig.offset
     warm = max(n // 50, 20)
     if slips is not None and slips["time"].size:
         warm = max(warm, min(int(slips["time"][0]) + 10, n // 5))

@@ -464,7 +464,7 @@ def _starting_point(fit, sig: LoopSignals) -> dict:
         if S is not None and J is not None and math.isfinite(S) and math.isfinite(J):
             start = (float(S), float(J))
         if sig.mv is None and getattr(fit, "mv_model", None) is not None:
-            mv_model = np.asarray(fit.mv_model, dtype=float)
+            mv_model = np.asarray(fit.mv_model, dtype=float) + sig.offset
             if mv_model.size != sig.n:
                 mv_model = None
     return {"start": start, "mv_model": mv_model}
@@ -504,7 +504,12 @@ def _series(sig: LoopSignals, before: dict, after: dict) -> dict:
     """Recorded signals and the replays before and after, for plots."""
     series: dict[str, np.ndarray | None] = {"time": np.arange(sig.n) * sig.dt}
     for s in SIGNALS:
-        series[s] = getattr(sig, s)
-        series[f"{s}_before"] = before.get(s)
-        series[f"{s}_after"] = after.get(s)
+        # op and mv back in the units of the record (signals_of shifted them).
+        shift = sig.offset if s in ("op", "mv") else 0.0
+        for key, x in (
+            (s, getattr(sig, s)),
+            (f"{s}_before", before.get(s)),
+            (f"{s}_after", after.get(s)),
+        ):
+            series[key] = None if x is None else np.asarray(x) - shift
     return series

@@ -67,6 +67,8 @@ def _refuse_duplicates(frame: pd.DataFrame, overrides: Mapping[str, str | None],
     written = [str(n) for n in frame.attrs.get("written_names", frame.columns)]
     named = {str(n).strip().lower() for n in overrides.values() if n is not None}
     for name, where in duplicate_names(written).items():
+        # A repeated mode-like name (a "Status" quality column after every tag) is
+        # not refused: the mode is optional, and such a column is only noted.
         if name in ROLES or roles_of(name) or is_time_name(name) or name in named:
             shown = written[where[0] - 1]
             numbers = " and ".join(str(i) for i in where)
@@ -102,6 +104,46 @@ def yokogawa_note(column: str, given: bool) -> str:
         f"op: {column!r} read as the controller output ({why}); if MV is the valve "
         "position, give vendor=generic (CLI --vendor generic) and name op"
     )
+
+
+#: Last words of a mode tag, first preferred (:func:`mode_rank`); DeltaV's actual mode
+#: ``MODE.ACTUAL``, ISA ``.MODE``, ``.MD``, ``MAN/AUTO``, ``STATUS``.
+_MODE_ENDINGS = (("mode", "actual"), ("mode", "act"), ("mode",), ("md",), ("man", "auto"),
+                 ("auto", "man"), ("status",))  # fmt: skip
+_MODE_NAMES = {"controllermode", "loopmode", "pidmode"}
+
+
+def mode_rank(name: str) -> int | None:
+    """Rank of a column name as the controller's mode tag (0 best), None when it is not
+    one (rules in :mod:`stictiondiag.io.mode`)."""
+    tokens = _tokens(name)
+    if not tokens or is_time_name(name):
+        return None
+    if "".join(tokens) in _MODE_NAMES:
+        return 2
+    for rank, ending in enumerate(_MODE_ENDINGS):
+        if tuple(tokens[-len(ending) :]) == ending:
+            return rank
+    return None
+
+
+def mode_prefix(name: str) -> str:
+    """The loop prefix of a mode tag (``FIC101/MODE.ACTUAL`` -> ``FIC101``), or ``""``."""
+    tokens = _tokens(name)
+    rank = mode_rank(name)
+    if rank is None or not tokens or "".join(tokens) in _MODE_NAMES:
+        return ""
+    cut = len(_MODE_ENDINGS[rank])
+    words = re.split(r"([\s._\-:/\\]+)", str(name).strip())
+    kept = [w for w in words if w]
+    # Drop the ending's words and the separators before them.
+    while cut and kept:
+        word = kept.pop()
+        if not _SEPARATORS.fullmatch(word):
+            cut -= 1
+    while kept and _SEPARATORS.fullmatch(kept[-1]):
+        kept.pop()
+    return "".join(kept)
 
 
 def is_time_name(name: str) -> bool:
@@ -215,6 +257,8 @@ def match_columns(
                 f"no {role} column found in {file} (columns: {column_list(frame)}): "
                 f"name it with {role}=<column> (CLI --{role} <column>){hint}"
             )
+    if "mode" not in chosen:
+        _match_mode(free, chosen, file, notes)
     if "time" not in chosen:
         by_name = [column for column in free if is_time_name(column)]
         # The types from one pass over the header: frame[column] for every column
@@ -240,6 +284,26 @@ def match_columns(
         if candidates:
             chosen["time"] = candidates[0]
     return chosen
+
+
+def _match_mode(
+    free: list[str], chosen: dict[str, str], file: str, notes: list[str] | None
+) -> None:
+    """The controller's mode column among ``free``, by :func:`mode_rank`; two of one rank
+    are noted and neither is used (the mode is optional, the loop is still read)."""
+    ranked = sorted((rank, column) for column in free if (rank := mode_rank(column)) is not None)
+    if not ranked:
+        return
+    best = [column for rank, column in ranked if rank == ranked[0][0]]
+    if len(best) == 1:
+        chosen["mode"] = best[0]
+        free.remove(best[0])
+    elif notes is not None:
+        listed = ", ".join(repr(column) for column in best)
+        notes.append(
+            f"{len(best)} columns in {file} look like the controller mode ({listed}): none "
+            "used, no service factor; name one with mode=<column> (CLI --mode <column>)"
+        )
 
 
 def numeric_column(

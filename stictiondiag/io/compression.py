@@ -177,21 +177,24 @@ def reconstruct(
     for role, (t, _) in series.items():
         if t.size < 2 and role in ("pv", "op"):
             raise DataError(f"{label}: {role} has {t.size} archived values: export more of it")
-    steps = {r: tag_step(t) for r, (t, _) in series.items() if t.size >= 2}
+    # The controller's mode is a step signal that changes rarely and off the scan
+    # grid: it is held and takes no part in the grid or the record's span.
+    signals = {r: tv for r, tv in series.items() if r != "mode"}
+    steps = {r: tag_step(t) for r, (t, _) in signals.items() if t.size >= 2}
     step = min(steps.values()) if steps else math.inf
     if not (math.isfinite(step) and step > 0):
         raise DataError(f"{label}: the tags have no usable time step")
     kinds: dict[str, str | None] = {}
-    for role, (t, v) in series.items():
+    for role, (t, v) in signals.items():
         if is_compressed(t, step):
             kinds[role] = compression or archive_kind(v)
         else:
             kinds[role] = None
-    start = max(t[0] for t, _ in series.values())
+    start = max(t[0] for t, _ in signals.values())
     # A held tag keeps its last archived value until the record ends: the export's
     # end is where its other tags stop.
-    ends = [t[-1] for r, (t, _) in series.items() if kinds[r] != "hold"]
-    stop = min(ends) if ends else max(t[-1] for t, _ in series.values())
+    ends = [t[-1] for r, (t, _) in signals.items() if kinds[r] != "hold"]
+    stop = min(ends) if ends else max(t[-1] for t, _ in signals.values())
     if not stop > start:
         raise DataError(f"{label}: the tags of the loop do not overlap in time")
     n_grid = int(math.floor((stop - start) / step + 1e-9)) + 1
@@ -199,7 +202,11 @@ def reconstruct(
     grid = start + step * np.arange(n_grid)
     tol = 1e-6 * (1.0 + step)
     out: dict[str, np.ndarray] = {}
-    for role, (t, v) in series.items():
+    if "mode" in series:
+        t, v = series["mode"]
+        # Before its first archived value the mode is not known.
+        out["mode"] = np.where(grid + tol >= t[0], _held(t, v, grid, tol), np.nan)
+    for role, (t, v) in signals.items():
         kind = kinds[role]
         if kind == "hold":
             out[role] = _held(t, v, grid, tol)

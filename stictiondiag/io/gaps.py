@@ -10,7 +10,7 @@ import numpy as np
 from stictiondiag.core.errors import DataError
 from stictiondiag.io.timebase import MAX_GAP_SAMPLES
 
-__all__ = ["MIN_SAMPLES", "fill_gaps"]
+__all__ = ["MIN_SAMPLES", "fill_gaps", "longest_true_run", "true_runs"]
 
 #: Fewest samples a loop record must keep after gap handling. Stiction shows as
 #: stick-slip cycles; 100 samples hold only a few cycles at typical sampling, which
@@ -18,15 +18,16 @@ __all__ = ["MIN_SAMPLES", "fill_gaps"]
 MIN_SAMPLES = 100
 
 
-def _nan_runs(missing: np.ndarray) -> list[tuple[int, int]]:
-    """(start, stop) index pairs of runs of True."""
+def true_runs(missing: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) index pairs of the runs of True in a boolean array."""
     padded = np.concatenate(([False], missing, [False])).astype(np.int8)
     edges = np.flatnonzero(np.diff(padded))
     return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
-def _longest_true_run(good: np.ndarray) -> tuple[int, int]:
-    runs = _nan_runs(good)
+def longest_true_run(good: np.ndarray) -> tuple[int, int]:
+    """(start, stop) of the longest run of True, the earliest of equals; (0, 0) if none."""
+    runs = true_runs(good)
     if not runs:
         return 0, 0
     return max(runs, key=lambda run: (run[1] - run[0], -run[0]))
@@ -45,12 +46,12 @@ def fill_gaps(
     unusable = np.zeros(n, dtype=bool)
     long_gaps: dict[str, int] = {}
     for role, values in arrays.items():
-        for start, stop in _nan_runs(np.isnan(values)):
+        for start, stop in true_runs(np.isnan(values)):
             if stop - start > MAX_GAP_SAMPLES or start == 0 or stop == n:
                 unusable[start:stop] = True
                 if stop - start > MAX_GAP_SAMPLES:
                     long_gaps[role] = max(long_gaps.get(role, 0), stop - start)
-    start, stop = _longest_true_run(~unusable)
+    start, stop = longest_true_run(~unusable)
     # Cutting can leave a short gap of one signal at the new edge; edges cannot be
     # interpolated, so trim until every signal is present at both ends.
     while start < stop and any(np.isnan(values[start]) for values in arrays.values()):
@@ -82,7 +83,7 @@ def fill_gaps(
         missing = np.isnan(part)
         if missing.any():
             part[missing] = np.interp(index[missing], index[~missing], part[~missing])
-            runs = _nan_runs(missing)
+            runs = true_runs(missing)
             interpolated.append(
                 f"{labels.get(role, role)} ({len(runs)} gaps, {int(missing.sum())} samples)"
             )

@@ -26,7 +26,7 @@ column ``file`` or ``loop`` and any of ``loop_type``, ``ts``, ``op_units``,
 ``op_range`` (``LO HI``) or ``op_lo``/``op_hi``, ``integrating``, ``vendor``
 (``yokogawa`` reads ``.MV`` as op), ``action`` (``direct``/``reverse``),
 ``compression`` (``hold``/``linear``) and the tag names ``pv``, ``op``, ``mv``,
-``sp``, ``time``.
+``sp``, ``time`` and ``mode`` (the controller's mode, :mod:`stictiondiag.io.mode`).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from stictiondiag.core.errors import DataError, UsageError
-from stictiondiag.io.columns import ROLES, is_time_name, roles_of
+from stictiondiag.io.columns import ROLES, is_time_name, mode_prefix, mode_rank, roles_of
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -108,16 +108,31 @@ def _prefix(name: str) -> str:
 
 
 def group_tags(names: list[str]) -> dict[str, dict[str, list[str]]]:
-    """Prefix -> role -> tag names, for names with a role suffix and a prefix."""
+    """Prefix -> role -> tag names, for names with a role suffix and a prefix.
+
+    A loop's mode tags (``FIC101.MODE``, ``FIC101/MODE.ACTUAL``, :mod:`stictiondiag.io.mode`)
+    join its group under ``"mode"``, the best-named first; a prefix with nothing but
+    a mode tag (an on/off valve's status) is no group.
+    """
     groups: dict[str, dict[str, list[str]]] = {}
+    modes: dict[str, list[tuple[int, str]]] = {}
     for name in names:
         if is_time_name(name):
+            continue
+        rank = mode_rank(name)
+        if rank is not None:
+            prefix = mode_prefix(_FIELD.sub("", _SERVER.sub("", str(name).strip())))
+            if prefix:
+                modes.setdefault(prefix, []).append((rank, name))
             continue
         prefix = _prefix(name)
         roles = roles_of(name)
         if not prefix or len(roles) != 1:
             continue
         groups.setdefault(prefix, {}).setdefault(next(iter(roles)), []).append(name)
+    for prefix, ranked in modes.items():
+        if prefix in groups:
+            groups[prefix]["mode"] = [name for _, name in sorted(ranked)]
     return groups
 
 
@@ -145,7 +160,9 @@ def _loops_of_groups(
     for prefix, roles in sorted(groups.items()):
         problem = None
         twice = [
-            f"{r} ({', '.join(repr(n) for n in roles[r])})" for r in roles if len(roles[r]) > 1
+            f"{r} ({', '.join(repr(n) for n in roles[r])})"
+            for r in roles
+            if len(roles[r]) > 1 and r != "mode"
         ]
         missing = [r for r in ("pv", "op") if r not in roles]
         if twice:
@@ -156,7 +173,10 @@ def _loops_of_groups(
         columns = {r: names[0] for r, names in roles.items()}
         if time is not None:
             columns["time"] = time
-        note = (promoted[prefix],) if prefix in promoted else ()
+        note: tuple[str, ...] = (promoted[prefix],) if prefix in promoted else ()
+        if len(roles.get("mode", [])) > 1:
+            others = ", ".join(repr(n) for n in roles["mode"][1:])
+            note += (f"mode: read {columns['mode']!r}; {others} also looked like the mode",)
         loops.append(PlantLoop(prefix, path, layout, columns, problem, note))
     return loops
 
@@ -272,15 +292,19 @@ def _resample_long(
     tags: dict[str, str],
     label: str,
     compression: str | None = None,
+    notes: list[str] | None = None,
 ) -> tuple[pd.DataFrame, str]:
     """Role columns on one grid (time [s] from the first grid point) and a note.
 
     The grid and the reconstruction of compressed tags are those of
-    :func:`stictiondiag.io.compression.reconstruct`.
+    :func:`stictiondiag.io.compression.reconstruct`.  A mode tag's words are read by
+    :func:`stictiondiag.io.mode.mode_codes` (a tag that holds no modes is left out,
+    said in ``notes``), held on the grid and written back as words.
     """
     import pandas as pd
 
     from stictiondiag.io.compression import reconstruct
+    from stictiondiag.io.mode import mode_codes, mode_labels
     from stictiondiag.io.timebase import time_seconds
 
     seconds = time_seconds(frame[long["time"]], long["time"], label)
@@ -291,6 +315,19 @@ def _resample_long(
         if role == "time":
             continue
         keep = (frame[long["tag"]].astype(str) == tag).to_numpy() & np.isfinite(seconds)
+        if role == "mode":
+            codes = mode_codes(
+                frame[long["value"]][keep], tag, label, [] if notes is None else notes
+            )
+            if codes is None:
+                continue
+            mode_values = np.full(values.size, np.nan)
+            mode_values[keep] = codes
+            keep &= np.isfinite(mode_values)
+            t, v = _in_time_order(seconds[keep], mode_values[keep])
+            if t.size:
+                series[role] = t, v
+            continue
         keep &= np.isfinite(values)
         t, v = seconds[keep], values[keep]
         order = np.argsort(t, kind="stable")
@@ -303,12 +340,14 @@ def _resample_long(
             raise DataError(f"{label}: tag {tag!r} has {t.size} samples: export more of it")
         series[role] = (t, v)
     arrays, grid, step, compressed = reconstruct(series, label, compression)
+    if "mode" in arrays:
+        arrays["mode"] = mode_labels(arrays["mode"])
     # Absolute time kept (epoch seconds where the export has dates): the clock of the record.
     out = {"time": grid, **arrays}
     if compressed is not None:
         note = f"long export: {compressed}"
     else:
-        tagged = ", ".join(f"{tags[r]} {series[r][0].size} rows" for r in series)
+        tagged = ", ".join(f"{tags[r]} {series[r][0].size} rows" for r in series if r != "mode")
         note = (
             f"long export: tags resampled to a common grid of {grid.size} points every "
             f"{step:g} s (the fastest tag's step: {tagged})"
@@ -323,6 +362,14 @@ def _resample_long(
             "export in UTC to keep them all"
         )
     return pd.DataFrame(out), note
+
+
+def _in_time_order(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps and values sorted by time, the first value of a repeated stamp kept."""
+    order = np.argsort(t, kind="stable")
+    t, v = t[order], v[order]
+    unique = np.concatenate(([True], np.diff(t) > 0)) if t.size else np.ones(0, bool)
+    return t[unique], v[unique]
 
 
 def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
@@ -361,13 +408,15 @@ def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
     long = _long_columns([str(c) for c in header.columns])
     if long is None:
         raise DataError(f"{file} is no longer a long export (timestamp, tag, value)")
-    wanted = {r: options[r] for r in ROLES if options.get(r)}
+    wanted = {r: options[r] for r in (*ROLES, "mode") if options.get(r)}
     frame = _read_long(file, long, list(wanted.values()))
-    grid, note = _resample_long(frame, long, wanted, label, options.get("compression"))
-    given = {k: v for k, v in options.items() if k not in (*ROLES, "time", "compression")}
+    notes: list[str] = []
+    grid, note = _resample_long(frame, long, wanted, label, options.get("compression"), notes)
+    wanted = {r: tag for r, tag in wanted.items() if r in grid.columns}
+    given = {k: v for k, v in options.items() if k not in (*ROLES, "time", "compression", "mode")}
     # Columns named by their tags, so the ISA tag decides the loop type as in a wide file.
     tags = read_frame(grid.rename(columns=wanted), source=label, time="time", **given, **wanted)
-    return replace(tags, warnings=(*loop.notes, note, *tags.warnings))
+    return replace(tags, warnings=(*loop.notes, note, *notes, *tags.warnings))
 
 
 def _read_wide(file: Path, options: dict, label: str) -> Tags:
@@ -379,7 +428,7 @@ def _read_wide(file: Path, options: dict, label: str) -> Tags:
     from stictiondiag.io.readers import read_table
     from stictiondiag.io.tags import read_frame
 
-    columns = [options[r] for r in (*ROLES, "time") if options.get(r)]
+    columns = [options[r] for r in (*ROLES, "time", "mode") if options.get(r)]
     frame = read_table(file, lambda header: columns)
     missing = [c for c in columns if c not in frame.columns]
     if missing:
@@ -406,6 +455,7 @@ _MANIFEST_KEYS = (
     "compression",
     *ROLES,
     "time",
+    "mode",
 )
 
 #: Manifest columns with a fixed set of values -> the values (lower case).
@@ -465,7 +515,7 @@ def read_manifest(path: str | os.PathLike) -> dict[str, dict]:
         if key is None:
             raise UsageError(f"{where}: no file or loop named")
         options: dict = {}
-        for role in (*ROLES, "time"):
+        for role in (*ROLES, "time", "mode"):
             if _cell(row.get(role)):
                 options[role] = _cell(row[role])
         lt = _cell(row.get("loop_type"))

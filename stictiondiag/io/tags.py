@@ -96,12 +96,14 @@ from stictiondiag.io.columns import ROLES, match_columns, numeric_column
 from stictiondiag.io.compression import from_archive, sparse_roles
 from stictiondiag.io.gaps import MIN_SAMPLES, fill_gaps
 from stictiondiag.io.looptype import resolve_loop_type
+from stictiondiag.io.mode import automatic_stretch, mode_array, mode_codes
 from stictiondiag.io.opunits import check_op_travel, check_op_units
 from stictiondiag.io.readers import read_table
 from stictiondiag.io.timebase import (
     # Longest run of missing samples [samples] that is linearly interpolated; longer
     # runs would invent whole stick or slip phases, so the record is cut instead.
     MAX_GAP_SAMPLES,
+    note_ts_mismatch,
     time_seconds,
     uniform,
 )
@@ -134,10 +136,6 @@ ACTIONS = ("direct", "reverse")
 
 
 LoopType = Literal["flow", "pressure", "level", "temperature", "composition", "other"]
-
-# Relative mismatch between an explicit ts and a time column's median step that
-# is worth a note.
-_TS_MISMATCH_TOLERANCE = 0.01
 
 #: Largest magnitude of a signal value [signal units]: fourth powers (kurtosis) of
 #: 1e7 samples stay below the float maximum (1.8e308): (1e75)^4 x 1e7 = 1e307.
@@ -212,6 +210,10 @@ class Tags:
     start_time : float or None
         Clock time of the first sample [s since 1970-01-01 UTC] where the export has
         dates, else None.
+    service_factor : float or None
+        Share of the record read with the controller in automatic or cascade [% of
+        time], where a mode tag was read (:mod:`stictiondiag.io.mode`; the samples kept
+        are then the longest automatic stretch), else None.
     """
 
     time: np.ndarray
@@ -229,6 +231,7 @@ class Tags:
     action: str | None = None
     op_scale: str = "percent"
     start_time: float | None = None
+    service_factor: float | None = None
 
     @property
     def n(self) -> int:
@@ -305,6 +308,7 @@ class Tags:
             "op_scale": self.op_scale,
             "action": self.action,
             "start_time_s": self.start_time,
+            "service_factor_pct": self.service_factor,
             "warnings": list(self.warnings),
         }
 
@@ -322,6 +326,7 @@ class Tags:
             "action",
             "op_scale",
             "start_time",
+            "service_factor",
         )
         if any(getattr(self, name) != getattr(other, name) for name in scalars):
             return False
@@ -350,6 +355,7 @@ class Tags:
         integrating: bool | None = None,
         source: str = "<memory>",
         names: Mapping[str, str] | None = None,
+        mode: Sequence | np.ndarray | None = None,
     ) -> Tags:
         """Tags from in-memory arrays (simulations, benchmarks, notebooks).
 
@@ -370,6 +376,10 @@ class Tags:
             Label stored in :attr:`Tags.source`.
         names : mapping, optional
             Role -> name to record in :attr:`Tags.names` (default: the role names).
+        mode : array_like, optional
+            Controller mode per sample: True (automatic or cascade) or False, or the
+            words of :mod:`stictiondiag.io.mode` (``"MAN"``, ``"AUTO"``, ``"CAS"`` ...);
+            the record is cut to its longest automatic stretch (:attr:`Tags.service_factor`).
 
         Raises
         ------
@@ -399,6 +409,8 @@ class Tags:
         if len(set(lengths.values())) > 1:
             listed = ", ".join(f"{role} {size}" for role, size in lengths.items())
             raise DataError(f"signals differ in length ({listed}): pass equally long arrays")
+        if mode is not None:
+            arrays["mode"] = mode_array(mode, arrays["pv"].size)
         labels = {role: role for role in arrays}
         if names:
             labels.update({role: str(name) for role, name in names.items()})
@@ -431,6 +443,7 @@ def read_tags(
     compression: str | None = None,
     vendor: str | None = None,
     action: str | None = None,
+    mode: str | None = None,
 ) -> Tags:
     """Read one control loop from a CSV or Parquet file.
 
@@ -474,6 +487,9 @@ def read_tags(
         whether ``.MV`` is the controller output (Yokogawa) or the valve position.
     action : {"direct", "reverse"}, optional
         Controller action (:attr:`Tags.action`), used by the replay and compensation.
+    mode : str, optional
+        The controller's mode column (default: found by name, :mod:`stictiondiag.io.mode`);
+        the record is cut to its longest stretch in automatic or cascade.
 
     Returns
     -------
@@ -496,7 +512,7 @@ def read_tags(
     if not isinstance(path, str | os.PathLike):
         raise TypeError(f"path must be a file path (str or Path), not {type(path).__name__}")
     file = Path(path)
-    overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time}
+    overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time, "mode": mode}
 
     def select(header: pd.DataFrame) -> list[str]:
         # The columns of this loop, matched on the header alone (same rules, same
@@ -521,6 +537,7 @@ def read_tags(
         compression=compression,
         vendor=vendor,
         action=action,
+        mode=mode,
     )
     if header_notes:
         # Notes about columns that were not read (another candidate for a role).
@@ -545,6 +562,7 @@ def read_frame(
     compression: str | None = None,
     vendor: str | None = None,
     action: str | None = None,
+    mode: str | None = None,
 ) -> Tags:
     """Tags from a DataFrame already in memory, with the rules of :func:`read_tags`.
 
@@ -556,7 +574,7 @@ def read_frame(
     source : str
         Label for messages and :attr:`Tags.source`.
     pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating, compression,
-    vendor, action
+    vendor, action, mode
         As for :func:`read_tags`.
     """
     import pandas as pd
@@ -574,14 +592,20 @@ def read_frame(
     frame = frame.rename(columns=lambda column: str(column).strip())
     if frame.shape[1] == 0 or frame.shape[0] == 0:
         raise DataError(f"{source} has no data rows: export the loop data with a header row")
-    overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time}
+    overrides = {"pv": pv, "op": op, "mv": mv, "sp": sp, "time": time, "mode": mode}
     notes: list[str] = []
     columns = match_columns(frame, overrides, source, notes, vendor)
     arrays = {
         role: numeric_column(frame[column], role, column, source, notes)
         for role, column in columns.items()
-        if role != "time"
+        if role not in ("time", "mode")
     }
+    if "mode" in columns:
+        codes = mode_codes(frame[columns["mode"]], columns["mode"], source, notes, vendor)
+        if codes is None:
+            del columns["mode"]
+        else:
+            arrays["mode"] = codes
     start_time: float | None = None
     if ts is None and "time" in columns:
         seconds = time_seconds(frame[columns["time"]], columns["time"], source, notes)
@@ -601,7 +625,7 @@ def read_frame(
                 "(CLI --ts) if the sample time differs"
             )
         elif "time" in columns:
-            _note_ts_mismatch(frame[columns["time"]], columns["time"], ts, notes)
+            note_ts_mismatch(frame[columns["time"]], columns["time"], ts, notes)
     return _assemble(
         arrays,
         ts=ts,
@@ -654,20 +678,6 @@ def _check_options(
     return low, high
 
 
-def _note_ts_mismatch(series: pd.Series, column: str, ts: float, notes: list[str]) -> None:
-    try:
-        seconds = time_seconds(series, column, "")
-    except DataError:
-        return
-    steps = np.diff(seconds[np.isfinite(seconds)])
-    steps = steps[steps > 0]
-    if steps.size and abs(np.median(steps) - ts) > _TS_MISMATCH_TOLERANCE * ts:
-        notes.append(
-            f"time column {column!r} steps by {np.median(steps):.6g} s (median) but ts = "
-            f"{ts:g} s was given: used ts, the time column is ignored"
-        )
-
-
 # --------------------------------------------------------------------------- assembly
 
 
@@ -709,6 +719,7 @@ def _assemble(
     where = "" if source == "<memory>" else f" in {source}"
     # Private copies: the caller's arrays are neither modified nor frozen.
     arrays = {role: np.array(values, dtype=float) for role, values in arrays.items()}
+    mode = arrays.pop("mode", None)  # a step signal: no gap rule of its own
     for role in ("pv", "op"):
         if not np.isfinite(arrays[role]).any():
             raise DataError(
@@ -725,6 +736,13 @@ def _assemble(
             values[np.isinf(values)] = np.nan
         _check_magnitude(values, role, labels.get(role, role), where)
     arrays, first = fill_gaps(arrays, labels, notes)
+    service_factor = None
+    if mode is not None:
+        cut, stop, service_factor = automatic_stretch(
+            mode[first : first + arrays["pv"].size], labels.get("mode", "mode"), where, notes
+        )
+        arrays = {role: values[cut:stop] for role, values in arrays.items()}
+        first += cut
     n = arrays["pv"].size
     if n < MIN_SAMPLES:
         raise DataError(
@@ -752,8 +770,8 @@ def _assemble(
         values.setflags(write=False)
     time = ts * np.arange(n, dtype=float)
     time.setflags(write=False)
-    names = {role: str(labels[role]) for role in (*ROLES, "time") if role in labels}
-    names = {role: name for role, name in names.items() if role in arrays or role == "time"}
+    names = {role: str(labels[role]) for role in (*ROLES, "time", "mode") if role in labels}
+    names = {r: name for r, name in names.items() if r in arrays or r == "time" or r == "mode"}
     return Tags(
         time=time,
         pv=arrays["pv"],
@@ -770,4 +788,5 @@ def _assemble(
         action=action,
         op_scale=op_scale,
         start_time=None if start_time is None else start_time + first * ts,
+        service_factor=service_factor,
     )

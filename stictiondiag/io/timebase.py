@@ -43,7 +43,7 @@ from stictiondiag.core.errors import DataError
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["MAX_GRID_SAMPLES", "NAME_UNITS", "time_seconds", "uniform"]
+__all__ = ["MAX_GRID_SAMPLES", "NAME_UNITS", "note_ts_mismatch", "time_seconds", "uniform"]
 
 #: Longest run of missing samples [samples] interpolated later (see io.tags).
 MAX_GAP_SAMPLES = 10
@@ -55,6 +55,10 @@ MAX_GRID_SAMPLES = 20_000_000
 #: A whole-span grid up to this many times the number of rows is built as is; a
 #: longer one (a clock that jumps) is split at its gaps.
 _GRID_PER_ROW = 4
+
+# Relative mismatch between an explicit ts and a time column's median step that
+# is worth a note.
+_TS_MISMATCH_TOLERANCE = 0.01
 
 # Relative spread of time steps still treated as uniform sampling (historian
 # clocks jitter by a fraction of a percent).
@@ -359,3 +363,18 @@ def uniform(
     resampled = _split_at_gaps(arrays, seconds, ts, column, notes)
     notes.append(irregular)
     return resampled, ts
+
+
+def note_ts_mismatch(series: pd.Series, column: str, ts: float, notes: list[str]) -> None:
+    """Note when an explicit ``ts`` disagrees with the time column's median step."""
+    try:
+        seconds = time_seconds(series, column, "")
+    except DataError:
+        return
+    steps = np.diff(seconds[np.isfinite(seconds)])
+    steps = steps[steps > 0]
+    if steps.size and abs(np.median(steps) - ts) > _TS_MISMATCH_TOLERANCE * ts:
+        notes.append(
+            f"time column {column!r} steps by {np.median(steps):.6g} s (median) but ts = "
+            f"{ts:g} s was given: used ts, the time column is ignored"
+        )

@@ -54,6 +54,7 @@ from stictiondiag.models.processes import (
     Integrating,
 )
 from stictiondiag.models.simulation import Simulation
+from stictiondiag.models.stick_models import band_step, he_step
 from stictiondiag.models.valve import (
     EQUAL_PERCENTAGE_RANGEABILITY,
     _check_sj,
@@ -63,8 +64,10 @@ from stictiondiag.models.valve import (
 )
 
 #: Valve models :func:`simulate_loop` accepts.
-VALVES = ("linear", "choudhury", "kano", "physical")
-_VALVE_CODE = {"linear": 0, "choudhury": 1, "kano": 2, "physical": 3}
+VALVES = ("linear", "choudhury", "kano", "physical", "he", "band")
+_VALVE_CODE = {"linear": 0, "choudhury": 1, "kano": 2, "physical": 3, "he": 4, "band": 5}
+#: The valves whose S and J are parameters (the physical valve has forces instead).
+_SJ_VALVES = ("choudhury", "kano", "he", "band")
 _CHARACTERISTIC_CODE = {"linear": 0, "equal_percentage": 1, "quick_opening": 2}
 
 #: Largest number of recorded samples ``duration / dt`` (5 arrays of float64: 2 GB).
@@ -136,6 +139,8 @@ def _loop_kernel(
     # The first sample repeats op0; seen as still travelling in the direction of the
     # last movement, not as a stop of the input (which would re-arm the stick test).
     st[5] = op0 - dirn0 * 1e-9 * max(1.0, abs(op0))
+    if valve_kind == 4:
+        st[1] = 0.0  # He's residual force: none at rest
     x_stem = mv0 * stem
     v_stem = 0.0
     # Ring-buffer indices of the newest input and of u[m - delay], u[m - delay - 1].
@@ -171,6 +176,10 @@ def _loop_kernel(
                 mv = choudhury_step(op, st, S, J)
             elif valve_kind == 2:
                 mv = kano_step(op, st, S, J)
+            elif valve_kind == 4:
+                mv = he_step(op, st, S, J)
+            elif valve_kind == 5:
+                mv = band_step(op, st, S)
             else:
                 mv = op
             if j == 0:
@@ -364,6 +373,52 @@ def _initial_stop(value, op0: float) -> tuple[float, float]:
     return xss, d
 
 
+def _checked_run(
+    process,
+    controller,
+    duration,
+    dt,
+    valve,
+    characteristic,
+    S,
+    J,
+    op_bias,
+    pv_bias,
+    kick,
+    noise_std,
+    seed,
+):
+    """:func:`simulate_loop`'s arguments checked, each with a one-line UsageError:
+    ``(dt, n, S, J, op_bias, pv_bias, kick, noise_std)``, ``n`` the number of samples."""
+    _check_loop(process, controller)
+    dt = _number("sample time dt", dt, positive=True)
+    duration = _number("duration", duration, positive=True)
+    if valve not in VALVES:
+        raise UsageError(f"unknown valve {valve!r}: use one of {', '.join(VALVES)}")
+    if characteristic not in _CHARACTERISTIC_CODE:
+        raise UsageError(
+            f"unknown valve characteristic {characteristic!r}: "
+            f"use one of {', '.join(_CHARACTERISTIC_CODE)}"
+        )
+    S, J = _check_sj(S, J)
+    ratio = duration / dt
+    if ratio > MAX_SAMPLES:
+        raise UsageError(
+            f"duration/dt = {ratio:.3g} samples exceeds the limit of {MAX_SAMPLES:,}: "
+            "shorten the duration or increase dt"
+        )
+    n = max(2, int(round(ratio)))
+    op_bias = _number("op_bias", op_bias)
+    if not 0.0 <= op_bias <= 100.0:
+        raise UsageError(f"op_bias must be within [0, 100] % of span, got {op_bias}")
+    pv_bias = _number("pv_bias", pv_bias)
+    kick = _number("kick", kick)
+    noise_std = _number("noise_std", noise_std, minimum=0.0)
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
+        raise UsageError(f"seed must be an integer or None, got {seed!r}")
+    return dt, n, S, J, op_bias, pv_bias, kick, noise_std
+
+
 def simulate_loop(
     process: FOPTD | Integrating,
     controller: PI,
@@ -406,9 +461,11 @@ def simulate_loop(
     dt : float
         Sample time of the records and, except for the physical valve, the
         simulation step [s].
-    valve : {"linear", "choudhury", "kano", "physical"}
+    valve : {"linear", "choudhury", "kano", "physical", "he", "band"}
         Valve model: ``mv = op``; the data-driven models of Section 5 (Choudhury) or
-        Kano et al. (2004) with ``S`` and ``J``; the physical model of Section 4.
+        Kano et al. (2004) with ``S`` and ``J``; the physical model of Section 4; He
+        et al.'s two-parameter model or the band-hold valve
+        (:mod:`stictiondiag.models.stick_models`).
     S, J : float
         Deadband plus stickband [% of op span] and slip jump [% of mv span], >= 0,
         for the data-driven valves.
@@ -468,33 +525,22 @@ def simulate_loop(
     UsageError
         A parameter is out of range, or the run would be too long.
     """
-    _check_loop(process, controller)
-    dt = _number("sample time dt", dt, positive=True)
-    duration = _number("duration", duration, positive=True)
-    if valve not in VALVES:
-        raise UsageError(f"unknown valve {valve!r}: use one of {', '.join(VALVES)}")
-    if characteristic not in _CHARACTERISTIC_CODE:
-        raise UsageError(
-            f"unknown valve characteristic {characteristic!r}: "
-            f"use one of {', '.join(_CHARACTERISTIC_CODE)}"
-        )
-    S, J = _check_sj(S, J)
-    ratio = duration / dt
-    if ratio > MAX_SAMPLES:
-        raise UsageError(
-            f"duration/dt = {ratio:.3g} samples exceeds the limit of {MAX_SAMPLES:,}: "
-            "shorten the duration or increase dt"
-        )
-    n = max(2, int(round(ratio)))
-    op_bias = _number("op_bias", op_bias)
-    if not 0.0 <= op_bias <= 100.0:
-        raise UsageError(f"op_bias must be within [0, 100] % of span, got {op_bias}")
-    pv_bias = _number("pv_bias", pv_bias)
-    kick = _number("kick", kick)
-    noise_std = _number("noise_std", noise_std, minimum=0.0)
+    dt, n, S, J, op_bias, pv_bias, kick, noise_std = _checked_run(
+        process,
+        controller,
+        duration,
+        dt,
+        valve,
+        characteristic,
+        S,
+        J,
+        op_bias,
+        pv_bias,
+        kick,
+        noise_std,
+        seed,
+    )
     band = _integral_band(integral_band, n)
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
-        raise UsageError(f"seed must be an integer or None, got {seed!r}")
 
     physical, n_sub, h, p, stem = _valve_integration(valve, physical, dt, n)
     # The physical valve's parameters (the nominal valve by default); None for the others.
@@ -563,8 +609,8 @@ def simulate_loop(
         "process": process.to_dict(),
         "controller": controller.to_dict(),
         "valve": valve,
-        "S": S if valve in ("choudhury", "kano") else None,
-        "J": J if valve in ("choudhury", "kano") else None,
+        "S": S if valve in _SJ_VALVES else None,
+        "J": J if valve in _SJ_VALVES else None,
         "physical": None if physical_used is None else physical_used.to_dict(),
         "data_driven_equivalent": (
             None if physical_used is None else physical_used.data_driven_equivalent()

@@ -14,8 +14,10 @@ import numpy as np
 
 from stictiondiag.core.errors import UsageError
 from stictiondiag.core.serialize import plain_float
+from stictiondiag.models.describing import predict_limit_cycle
 from stictiondiag.models.physical import PhysicalValve
 from stictiondiag.models.processes import FOPTD, PI, Integrating
+from stictiondiag.signals.oscillation import detect_oscillation
 
 
 @dataclass(frozen=True)
@@ -145,8 +147,6 @@ class Simulation:
         """
         import dataclasses
 
-        from stictiondiag.models.describing import predict_limit_cycle
-
         if self.process is None or self.controller is None:
             raise UsageError("this simulation does not carry its process and controller")
         valve = self.settings.get("valve")
@@ -160,9 +160,13 @@ class Simulation:
             source = (
                 "quasi-static equivalent of the physical valve, S=(Fs+Fc)/(c k), J=(Fs-Fc)/(c k)"
             )
-        elif valve in ("choudhury", "kano"):
+        elif valve in ("choudhury", "kano", "he"):
             S, J, gain = float(self.settings["S"]), float(self.settings["J"]), 1.0
             source = "data-driven S and J"
+        elif valve == "band":
+            S = float(self.settings["S"])
+            J, gain = S, 1.0  # the band-hold valve slips all the way to its demand
+            source = "band-hold valve: J = S"
         else:
             S, J, gain = 0.0, 0.0, 1.0
             source = "linear valve (no nonlinearity)"
@@ -209,7 +213,6 @@ class Simulation:
         LimitCycle
             Uses :func:`stictiondiag.signals.oscillation.detect_oscillation` on each signal.
         """
-        from stictiondiag.signals.oscillation import detect_oscillation
 
         duration = self.n * self.dt
         if transient is None:

@@ -13,9 +13,14 @@ Eq. 4, ``mv = op - sign(slope) (S - J) / 2``, which yields the four cases of
 Section 5.1 and Fig. 11: deadband (``J = 0``), undershoot (``J < S``), no offset
 (``J = S``) and overshoot (``J > S``).
 
-The per-sample state machine is a compiled function (:func:`choudhury_step`,
-:func:`kano_step`) so the closed-loop simulators in :mod:`stictiondiag.models.loops` call
-exactly the same code as the open-loop models here.
+The package has one data-driven valve: the per-sample state machine
+:func:`valve_step` (Choudhury's flowchart or Kano's variant, S and J per direction of
+travel).  The open-loop models here, the closed-loop simulators of
+:mod:`stictiondiag.models.loops` (through :func:`choudhury_step`, :func:`kano_step`),
+the stiction fit (:mod:`stictiondiag.stiction.valvefit`) and the gap's effect
+catalogue (:mod:`stictiondiag.gap.effects.kernels`) all run it.  The withheld-effect
+benchmark's oracle (:mod:`stictiondiag.models.synthetic_loop`) is written apart on
+purpose and imports nothing from here.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from typing import Literal
 import numpy as np
 
 from stictiondiag.core.errors import UsageError
-from stictiondiag.core.jit import jit
+from stictiondiag.core.jit import inline, jit
 
 Characteristic = Literal["linear", "equal_percentage", "quick_opening"]
 OpUnits = Literal["percent", "mA"]
@@ -66,7 +71,7 @@ def valve_state(x0, stuck):
     return st
 
 
-@jit
+@inline
 def _sign(v):
     if v > 0.0:
         return 1.0
@@ -75,66 +80,138 @@ def _sign(v):
     return 0.0
 
 
-@jit
-def _breakaway(x, S, J, y, xss, dirn):
-    """A stuck valve at input ``x``, stuck since input ``xss``: ``(y, dirn, stuck)``.
+# Phase of a valve step (the gap diagnosis breaks its error down by phase).
+PHASE_MOVING = 0
+PHASE_STUCK = 1
+PHASE_SLIP = 2
+PHASE_REVERSAL = 3
+PHASE_NAMES = {
+    PHASE_STUCK: "stuck",
+    PHASE_SLIP: "slip",
+    PHASE_MOVING: "moving",
+    PHASE_REVERSAL: "reversal",
+}
 
-    Shared by both data-driven models.  A reversal against the last movement must
-    overcome deadband + stickband (S); the same direction after a stop, the
-    stickband only (J); before the first movement the valve is treated as
-    reversing (S).  On breakaway the output jumps to ``x - d (S - J)/2`` (Eq. 4).
+
+@inline
+def rest_state(x0, y0, d0, s_up, s_down, j_up, j_down):  # pragma: no cover - compiled
+    """State ``(y, xss, dirn, v_old, stuck)`` of a valve at rest at ``y0`` after moving
+    in direction ``d0``.
+
+    By Eq. 4 the demand was ``y0 + d0 (S - J)/2`` when the valve stopped; with
+    ``d0 = 0`` (unknown) the stop point is the first demand ``x0`` and the first
+    breakaway needs S.
     """
-    dx = x - xss
-    d = _sign(dx)
-    if d != 0.0:
-        thr = S if (dirn == 0.0 or d != dirn) else J
-        if abs(dx) > thr:
-            return x - d * (S - J) / 2.0, d, False
-    return y, dirn, True
+    if d0 > 0.0:
+        xss = y0 + (s_up - j_up) / 2.0
+    elif d0 < 0.0:
+        xss = y0 - (s_down - j_down) / 2.0
+    else:
+        xss = x0
+    return y0, xss, d0, 0.0, 1.0
 
 
-@jit
+@inline
+def valve_step(
+    x, v_new, x_prev, y, xss, dirn, v_old, stuck, s_up, s_down, j_up, j_down, kano
+):  # pragma: no cover - compiled
+    """One sample of the data-driven valve family: the one state machine of this
+    package (Section 5.1, Fig. 10, Eq. 4; Kano et al. 2004 with ``kano``).
+
+    Choudhury's flowchart: the valve sticks when the input's slope changes sign or
+    stays zero for two samples, ``xss`` being the input one sample before.  Kano's:
+    a moving valve sticks when its input stops or reverses, and a stuck one keeps
+    ``xss`` whatever the input does.  A stuck valve breaks away once the input is
+    more than S from ``xss`` against its last movement (deadband plus stickband),
+    or J along it (stickband; before any movement it counts as reversing), and
+    jumps to ``x - d (S - J)/2``; moving, the output is Eq. 4.  S and J may differ
+    by direction of travel (``s_up``, ``j_up`` opening; ``s_down``, ``j_down``
+    closing): the gap's asymmetric valve; the paper's valve has them equal.
+
+    Parameters are scalars: ``v_new`` the sign of ``x - x_prev``, ``v_old`` that of
+    the previous step, ``stuck`` 1.0 or 0.0 (kept in registers by the compiler: an
+    array state costs a memory round trip per field and sample).
+
+    Returns
+    -------
+    (y, xss, dirn, stuck, phase)
+        The new state, ``y`` unclipped, and the phase code (``PHASE_*``); the next
+        sample's ``v_old`` is this ``v_new``.
+    """
+    if kano:
+        if stuck == 0.0:
+            if v_new == 0.0 or (dirn != 0.0 and v_new != dirn):
+                stuck = 1.0
+                xss = x_prev
+            else:
+                dirn = v_new
+                if v_new > 0.0:
+                    y = x - (s_up - j_up) / 2.0
+                else:
+                    y = x + (s_down - j_down) / 2.0
+    else:
+        if v_new != v_old and v_new != 0.0 and v_old != 0.0:
+            stuck = 1.0
+            xss = x_prev
+        elif v_new == 0.0 and v_old == 0.0:
+            if stuck == 0.0:
+                stuck = 1.0
+                xss = x_prev
+    phase = PHASE_MOVING
+    if stuck == 1.0:
+        dx = x - xss
+        d = _sign(dx)
+        # Selections, not branches: while stuck the input wanders about x_ss with
+        # the noise, and a branch on its side would be mispredicted half the time.
+        s_d = s_up if d > 0.0 else s_down
+        j_d = j_up if d > 0.0 else j_down
+        reversal = (dirn == 0.0) | (d != dirn) | (d == 0.0)
+        thr = s_d if reversal else j_d
+        if d != 0.0 and abs(dx) > thr:
+            stuck = 0.0
+            dirn = d
+            y = x - d * (s_d - j_d) / 2.0
+            phase = PHASE_SLIP
+        elif reversal and abs(dx) <= 0.5 * max(s_up, s_down):
+            phase = PHASE_REVERSAL
+        else:
+            phase = PHASE_STUCK
+    elif not kano and v_new != 0.0:
+        dirn = v_new
+        if v_new > 0.0:
+            y = x - (s_up - j_up) / 2.0
+        else:
+            y = x + (s_down - j_down) / 2.0
+    return y, xss, dirn, stuck, phase
+
+
+@inline
 def _choudhury_next(x, S, J, y, xss, dirn, v_old, stuck, x_prev):
-    """One sample of the Fig. 10 flowchart on scalar state (Section 5.1).
+    """One sample of the Fig. 10 flowchart on scalar state (Section 5.1):
+    :func:`valve_step` with one S and J for both directions.
 
     Returns ``(y, xss, dirn, v_new, stuck)``: output, stuck input, direction of the
     last movement, input slope sign, stuck flag.  Shared by :func:`choudhury_step`
-    and the open-loop kernel, where the state lives in local variables.
+    and the open-loop kernels, where the state lives in local variables.
     """
     v_new = _sign(x - x_prev)
-    # Fig. 10: the valve sticks when the slope changes sign or stays zero for two
-    # consecutive samples.  x_ss is the input one sample before the change.
-    if (v_new != v_old and v_new != 0.0 and v_old != 0.0) or (
-        v_new == 0.0 and v_old == 0.0 and not stuck
-    ):
-        stuck = True
-        xss = x_prev
-    if stuck:
-        y, dirn, stuck = _breakaway(x, S, J, y, xss, dirn)
-    elif v_new != 0.0:
-        dirn = v_new
-        y = x - v_new * (S - J) / 2.0  # Eq. 4
-    return y, xss, dirn, v_new, stuck
+    y, xss, dirn, st, _ = valve_step(
+        x, v_new, x_prev, y, xss, dirn, v_old, 1.0 if stuck else 0.0, S, S, J, J, False
+    )
+    return y, xss, dirn, v_new, st == 1.0
 
 
-@jit
+@inline
 def _kano_next(x, S, J, y, xss, dirn, stuck, x_prev):
     """One sample of Kano et al. (2004) on scalar state; see :func:`kano_step`.
 
     Returns ``(y, xss, dirn, v_new, stuck)`` as :func:`_choudhury_next`.
     """
     v_new = _sign(x - x_prev)
-    if not stuck:
-        # Moving: the valve stops when the input reverses or stops changing.
-        if v_new == 0.0 or (dirn != 0.0 and v_new != dirn):
-            stuck = True
-            xss = x_prev
-        else:
-            dirn = v_new
-            y = x - v_new * (S - J) / 2.0
-    if stuck:
-        y, dirn, stuck = _breakaway(x, S, J, y, xss, dirn)
-    return y, xss, dirn, v_new, stuck
+    y, xss, dirn, st, _ = valve_step(
+        x, v_new, x_prev, y, xss, dirn, 0.0, 1.0 if stuck else 0.0, S, S, J, J, True
+    )
+    return y, xss, dirn, v_new, st == 1.0
 
 
 @jit

@@ -79,6 +79,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from stictiondiag.core.checks import span_offset
 from stictiondiag.core.errors import (
     DataError,
     UsageError,
@@ -98,12 +99,16 @@ from stictiondiag.identification.process import (
     identify_process,
     process_fit,
 )
+from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import (
     FOPTD,
     PI,
     Integrating,
 )
 from stictiondiag.replay.cycles import waveform_similarity
+from stictiondiag.replay.refit import refine_loop
+from stictiondiag.signals.oscillation import detect_oscillation
+from stictiondiag.stiction.hammerstein import first_extreme
 
 #: Integral time standing in for "no integral action" in the simulator [x record].
 P_ONLY_INTEGRAL_FACTOR = 1.0e6
@@ -391,7 +396,6 @@ def _replay_record(tags, fit) -> _Record:
     op had already travelled towards the next slip.  O(n log n) (the oscillation of
     op, with mv).
     """
-    from stictiondiag.signals.oscillation import detect_oscillation
 
     dt = float(tags.ts)
     pv = np.asarray(tags.pv, dtype=float)
@@ -417,8 +421,6 @@ def _replay_record(tags, fit) -> _Record:
             direction = float(details.get("start_direction") or 0.0)
             back = max(float(details.get("start_offset") or 0.0), 0.0)
     elif S > 0.0:
-        from stictiondiag.stiction.hammerstein import first_extreme
-
         osc_op = detect_oscillation(op, dt)
         if osc_op.present and osc_op.period_s:
             start, direction = first_extreme(op, max(4, int(round(osc_op.period_s / dt))))
@@ -525,7 +527,6 @@ def _replay_simulate(
 ) -> _Simulated:
     """Step 3: the closed loop with the data-driven valve from the recorded state
     (see "Start-up" in the module docstring).  O(n)."""
-    from stictiondiag.models.loops import simulate_loop
 
     pv, op, u, dt, n = rec.pv, rec.op, rec.u, rec.dt, rec.n
     kc, gain = cf.controller.gain, pf.process.gain
@@ -533,11 +534,7 @@ def _replay_simulate(
     # range (scaled or mean-centred records) are replayed with op and mv shifted
     # into it: the valve model and the linear blocks do not care about an offset,
     # the clamp at 0 and 100 % is then out of the way.
-    op_lo = float(min(op.min(), u.min()))
-    op_hi = float(max(op.max(), u.max()))
-    offset = 0.0
-    if (op_lo < 0.0 or op_hi > 100.0) and op_hi - op_lo < 100.0:
-        offset = 50.0 - 0.5 * (op_lo + op_hi)
+    offset = span_offset(op, u)
     # The process operating point is the identification's input reference; one
     # outside the span is clipped and the difference carried by the load, which also
     # carries the free response of the recorded initial state (the simulator starts
@@ -607,7 +604,6 @@ def _replay_simulate(
 def _replay_compare(rec: _Record, sim: _Simulated) -> dict[str, Any]:
     """Step 4: fit, NRMSE, waveform, amplitude per signal and the period of pv (of
     op when the recorded pv does not oscillate).  O(n log n) (the autocorrelations)."""
-    from stictiondiag.signals.oscillation import detect_oscillation
 
     pairs = {"pv": (rec.pv, sim.pv), "op": (rec.op, sim.op)}
     if rec.mv is not None:
@@ -719,8 +715,6 @@ def replay(
     cf, pf, model_warnings = _replay_models(rec, controller, process, integrating, action, known)
     refit_result = None
     if refit and valve == "choudhury" and noise_std == 0.0 and process is None:
-        from stictiondiag.replay.refit import refine_loop
-
         refit_result, pf = refine_loop(
             rec,
             pf,

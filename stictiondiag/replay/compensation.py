@@ -50,11 +50,12 @@ import numpy as np
 
 from stictiondiag.core.errors import UsageError
 from stictiondiag.core.serialize import plain_float
+from stictiondiag.models.loops import simulate_loop
+from stictiondiag.models.processes import FOPTD, PI, Integrating
 
 if TYPE_CHECKING:
     import pandas as pd
 
-    from stictiondiag.models.processes import FOPTD, PI, Integrating
 
 #: Periods of the limit cycle run with the normal PI before the band is switched on.
 WARM_CYCLES = 8
@@ -249,7 +250,6 @@ def compensate(
     UsageError
         Bad arguments, or a run longer than :data:`MAX_TRIAL_SAMPLES` samples.
     """
-    from stictiondiag.models.loops import simulate_loop
 
     if not (math.isfinite(period_s) and period_s > 0 and dt > 0):
         raise UsageError(f"compensation needs a positive period and dt, got {period_s}, {dt}")

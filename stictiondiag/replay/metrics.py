@@ -32,6 +32,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from stictiondiag.core.serialize import plain_float
+from stictiondiag.signals.oscillation import (
+    REGULARITY_THRESHOLD,
+    detect_oscillation,
+    dominant_period,
+)
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -263,11 +268,6 @@ def _cycle_period(x: np.ndarray, dt: float) -> tuple[float | None, str]:
     autocorrelation is regular (five zero crossings at least, regularity >= 1,
     Thornhill et al. 2003): the period is then the autocorrelation's.
     """
-    from stictiondiag.signals.oscillation import (
-        REGULARITY_THRESHOLD,
-        detect_oscillation,
-        dominant_period,
-    )
 
     osc = detect_oscillation(x, dt)
     if osc.present:

@@ -65,7 +65,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from stictiondiag.core.errors import StictionError
+from stictiondiag.core.serialize import to_plain
+from stictiondiag.identification.numerics import r_squared
+from stictiondiag.models.describing import predict_limit_cycle
 from stictiondiag.models.processes import FOPTD, PI, Integrating
+from stictiondiag.replay.cycles import _up_crossings, waveform_similarity
+from stictiondiag.replay.metrics import _cycle_period
+from stictiondiag.signals.oscillation import _detrend_by_cycles
 
 if TYPE_CHECKING:
     from stictiondiag.identification.process import ProcessFit
@@ -113,7 +120,6 @@ def cycle_stats(x: np.ndarray, dt: float) -> CycleStats:
     signal cycles when it has three crossings at least and its last third's
     swing is at least :data:`SUSTAIN_RATIO` of its first third's.
     """
-    from stictiondiag.replay.cycles import _up_crossings
 
     y = np.asarray(x, dtype=float)
     lo, hi = np.percentile(y, (5.0, 95.0))
@@ -139,7 +145,6 @@ def recorded_cycle(x: np.ndarray, dt: float) -> CycleStats:
     in length, and the median spacing of their crossings can differ from the
     autocorrelation's period by several per cent; data and replay are measured
     alike.  O(n log n) (the FFT)."""
-    from stictiondiag.replay.metrics import _cycle_period
 
     st = cycle_stats(x, dt)
     period, _ = _cycle_period(x, dt)
@@ -193,7 +198,6 @@ class ClosedLoopRefit:
 
     def to_dict(self) -> dict:
         """JSON-able dict."""
-        from stictiondiag.core.serialize import to_plain
 
         return {
             "S_open_loop": to_plain(self.S_open_loop),
@@ -216,7 +220,6 @@ def cycle_spread(x: np.ndarray, period_s: float | None, dt: float) -> float:
     (a drift or a load that is slow against the cycle is left out; measurement
     noise weighs as it does in the spread of the data) [units of x]; O(n) besides
     the percentiles.  Without a period, of ``x`` less its mean."""
-    from stictiondiag.signals.oscillation import _detrend_by_cycles
 
     y = np.asarray(x, dtype=float)
     if y.size < 4:
@@ -238,7 +241,6 @@ def cycle_cost(
 ) -> tuple[float, dict]:
     """Cycle mismatch of a replay (module docstring) and its terms; ``mv`` (recorded,
     replayed) adds the amplitude term of a recorded valve position.  O(n log n)."""
-    from stictiondiag.replay.cycles import waveform_similarity
 
     d_pv = data[0] if data is not None else recorded_cycle(pv, dt)
     r_pv = recorded_cycle(pv_r, dt)
@@ -413,8 +415,6 @@ def df_start(
     [% of span].  None when no ratio predicts a stable cycle.  Cost independent of
     the record length (a few describing-function solutions on coarse grids).
     """
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.models.describing import predict_limit_cycle
 
     if not (math.isfinite(controller.integral_time) and op_amplitude > 0 and period_s > 0):
         return None
@@ -454,7 +454,6 @@ def refine_loop(
     (O(n)) returning pv and op.  Returns the refit and the process fit to replay
     with (the refitted one, its R^2 against the record recomputed, when accepted).
     """
-    from stictiondiag.identification.numerics import r_squared
 
     dt = float(rec.dt)
     data = (recorded_cycle(rec.pv, dt), recorded_cycle(rec.op, dt))
@@ -504,7 +503,6 @@ def refine_loop(
     new = with_process(pf, _refitted_process(result, pf.process), dt)
     # The search measures cycles by their crossings; the refit must also cycle by
     # the autocorrelation (Thornhill et al. 2003) wherever the open-loop fit did.
-    from stictiondiag.replay.metrics import _cycle_period
 
     before = _cycle_period(simulate(pf, S, J).pv, dt)[0]
     after = _cycle_period(simulate(new, result.S, result.J).pv, dt)[0]

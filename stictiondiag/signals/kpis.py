@@ -161,6 +161,7 @@ def loop_kpis(
     *,
     op_in_percent: bool = True,
     mode: np.ndarray | None = None,
+    service_factor_pct: float | None = None,
     dead_time_s: float | None = None,
     oscillation_period_s: float | None = None,
     oscillation_amplitude: float | None = None,
@@ -177,6 +178,10 @@ def loop_kpis(
     mode : ndarray of bool, optional
         True where the controller was in automatic (or cascade); None when the mode
         is not recorded (no service factor).
+    service_factor_pct : float, optional
+        The service factor [% of time] already known (a record read with its mode tag
+        and cut to its longest automatic stretch,
+        :attr:`stictiondiag.io.tags.Tags.service_factor`); used when ``mode`` is None.
     dead_time_s : float, optional
         The loop's dead time [s] (identified or given); None: no Harris index.
     oscillation_period_s, oscillation_amplitude : float, optional
@@ -187,27 +192,20 @@ def loop_kpis(
     days = pv.size * float(ts) / _DAY_S
     op_unit = "% of span" if op_in_percent else "op units"
     items: list[Kpi] = []
-    if mode is None:
-        items.append(
-            Kpi(
-                "service_factor",
-                None,
-                "% of time",
-                "share of the record with the controller in automatic or cascade",
-                _DM2002,
-                "the export holds no mode tag",
-            )
+    if mode is not None:
+        service_factor_pct = 100.0 * float(np.mean(np.asarray(mode, dtype=bool)))
+    items.append(
+        Kpi(
+            "service_factor",
+            service_factor_pct,
+            "% of time",
+            "share of the record with the controller in automatic or cascade (its mode "
+            "tag); over the whole record read, where the other indicators are over the "
+            "samples analysed (the longest automatic stretch)",
+            _DM2002,
+            None if service_factor_pct is not None else "the export holds no usable mode tag",
         )
-    else:
-        items.append(
-            Kpi(
-                "service_factor",
-                100.0 * float(np.mean(np.asarray(mode, dtype=bool))),
-                "% of time",
-                "share of the record with the controller in automatic or cascade",
-                _DM2002,
-            )
-        )
+    )
     band = SATURATION_BAND_PCT
     saturated = float(np.mean((op <= band) | (op >= 100.0 - band))) if op_in_percent else None
     items.append(
@@ -243,6 +241,40 @@ def loop_kpis(
             _DM2002,
         )
     )
+    error, error_items = _error_kpis(pv, sp)
+    items.extend(error_items)
+    items.append(
+        Kpi(
+            "pv_std", float(pv.std()), "pv units", "standard deviation of pv (variability)", _DM2002
+        )
+    )
+    items.append(
+        Kpi(
+            "oscillation_period",
+            oscillation_period_s,
+            "s",
+            "period of pv's oscillation (ACF zero crossings)",
+            "Thornhill, Huang & Zhang (2003)",
+            None if oscillation_period_s is not None else "pv does not oscillate",
+        )
+    )
+    items.append(
+        Kpi(
+            "oscillation_amplitude",
+            oscillation_amplitude,
+            "pv units",
+            "half the typical peak-to-peak range of pv's cycles",
+            "Thornhill, Huang & Zhang (2003)",
+            None if oscillation_amplitude is not None else "pv does not oscillate",
+        )
+    )
+    items.append(_harris_kpi(error, float(ts), dead_time_s))
+    return LoopKpis(tuple(items))
+
+
+def _error_kpis(pv: np.ndarray, sp: np.ndarray | None) -> tuple[np.ndarray, list[Kpi]]:
+    """The control error (sp - pv; pv about its mean without sp) and its two indicators."""
+    items: list[Kpi] = []
     if sp is not None:
         error = np.asarray(sp, dtype=float) - pv
         items.append(
@@ -271,54 +303,28 @@ def loop_kpis(
                 _DM2002,
             )
         )
-    items.append(
-        Kpi(
-            "pv_std", float(pv.std()), "pv units", "standard deviation of pv (variability)", _DM2002
-        )
-    )
-    items.append(
-        Kpi(
-            "oscillation_period",
-            oscillation_period_s,
-            "s",
-            "period of pv's oscillation (ACF zero crossings)",
-            "Thornhill, Huang & Zhang (2003)",
-            None if oscillation_period_s is not None else "pv does not oscillate",
-        )
-    )
-    items.append(
-        Kpi(
-            "oscillation_amplitude",
-            oscillation_amplitude,
-            "pv units",
-            "half the typical peak-to-peak range of pv's cycles",
-            "Thornhill, Huang & Zhang (2003)",
-            None if oscillation_amplitude is not None else "pv does not oscillate",
-        )
-    )
+    return error, items
+
+
+def _harris_kpi(error: np.ndarray, ts: float, dead_time_s: float | None) -> Kpi:
+    """The Harris index of the control error, given the loop's dead time [s]."""
     if dead_time_s is not None and math.isfinite(dead_time_s):
         d = max(int(round(dead_time_s / ts)), 1)
         eta = harris_index(error, d)
-        items.append(
-            Kpi(
-                "harris_index",
-                None if math.isnan(eta) else eta,
-                "-",
-                f"minimum variance over actual variance of the control error, dead time "
-                f"{d} samples (1 = minimum-variance control)",
-                "Harris (1989); Desborough & Harris (1992)",
-                None if not math.isnan(eta) else "record too short for the AR model",
-            )
+        return Kpi(
+            "harris_index",
+            None if math.isnan(eta) else eta,
+            "-",
+            f"minimum variance over actual variance of the control error, dead time "
+            f"{d} samples (1 = minimum-variance control)",
+            "Harris (1989); Desborough & Harris (1992)",
+            None if not math.isnan(eta) else "record too short for the AR model",
         )
-    else:
-        items.append(
-            Kpi(
-                "harris_index",
-                None,
-                "-",
-                "minimum variance over actual variance of the control error",
-                "Harris (1989); Desborough & Harris (1992)",
-                "the loop's dead time is not known",
-            )
-        )
-    return LoopKpis(tuple(items))
+    return Kpi(
+        "harris_index",
+        None,
+        "-",
+        "minimum variance over actual variance of the control error",
+        "Harris (1989); Desborough & Harris (1992)",
+        "the loop's dead time is not known",
+    )

@@ -1,7 +1,8 @@
 """Compiled valve kernels of the effect catalogue.
 
 The data-driven valve of Choudhury, Thornhill & Shah (2005) (Section 5.1, Fig. 10,
-Eq. 4) generalised for the effects: S and J per direction of travel and per sample,
+Eq. 4), the family's one state machine :func:`stictiondiag.models.valve.valve_step`,
+run for the effects: S and J per direction of travel and per sample,
 an actuator lag after the friction element, an installed characteristic, and the
 batch evaluation of many parameter sets per compiled call (:func:`valve_sse_batch`).
 A parameter row holds, in this order: S opening at the start and end of the time
@@ -13,126 +14,16 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from stictiondiag.core.errors import UsageError
-from stictiondiag.core.jit import jit
-
-# Phase codes written by the valve kernel (used by the gap breakdown).
-PHASE_MOVING = 0
-PHASE_STUCK = 1
-PHASE_SLIP = 2
-PHASE_REVERSAL = 3
-PHASE_NAMES = {
-    PHASE_STUCK: "stuck",
-    PHASE_SLIP: "slip",
-    PHASE_MOVING: "moving",
-    PHASE_REVERSAL: "reversal",
-}
-
-
-# Per-sample helpers are inlined into the compiled loops: a call per sample would
-# cost more than the state machine itself.
-_inline = numba.njit(inline="always", cache=True, nogil=True)
-
+from stictiondiag.core.jit import inline, jit
+from stictiondiag.models.valve import PHASE_STUCK
+from stictiondiag.models.valve import _sign as _sgn
+from stictiondiag.models.valve import rest_state as _valve_init
+from stictiondiag.models.valve import valve_step as _valve_step
 
 FAMILY_CODES = {"linear": 0, "exponential": 1, "power": 2}
-
-
-@_inline
-def _sgn(v):
-    if v > 0.0:
-        return 1.0
-    if v < 0.0:
-        return -1.0
-    return 0.0
-
-
-@_inline
-def _valve_init(x0, y0, d0, s_u, s_d, j_u, j_d):  # pragma: no cover - compiled
-    """State ``(y, xss, dir, vold, stuck)`` of a valve at rest at ``y0`` after moving
-    in direction ``d0``.
-
-    By Eq. 4 the demand was ``y0 + d0 (S - J)/2`` when the valve stopped; with
-    ``d0 = 0`` (unknown) the stop point is the first demand and the first breakaway
-    needs S.
-    """
-    if d0 > 0.0:
-        xss = y0 + (s_u - j_u) / 2.0
-    elif d0 < 0.0:
-        xss = y0 - (s_d - j_d) / 2.0
-    else:
-        xss = x0
-    return y0, xss, d0, 0.0, 1.0
-
-
-@_inline
-def _valve_step(
-    x, vnew, xprev, y, xss, dr, vold, stuck, s_u, s_d, j_u, j_d, kano
-):  # pragma: no cover - compiled
-    """One sample of the data-driven valve with direction-dependent S and J.
-
-    The state machine of :func:`stictiondiag.models.valve.choudhury_step` (Fig. 10) or,
-    with ``kano``, of :func:`stictiondiag.models.valve.kano_step`; the breakaway threshold
-    and the moving-phase offset of Eq. 4 use the values of the direction of travel.
-    ``vnew`` is the sign of ``x - xprev``; the state is held in scalars (kept in
-    registers by the compiler: an array state costs a memory round trip per field and
-    sample).  Returns the new state ``(y, xss, dir, stuck)``, ``y`` unclipped, and
-    the phase code; ``vold`` of the next sample is this ``vnew``.
-    """
-    if kano:
-        if stuck == 0.0:
-            if vnew == 0.0 or (dr != 0.0 and vnew != dr):
-                stuck = 1.0
-                xss = xprev
-            else:
-                dr = vnew
-                if vnew > 0.0:
-                    y = x - (s_u - j_u) / 2.0
-                else:
-                    y = x + (s_d - j_d) / 2.0
-    else:
-        if vnew != vold and vnew != 0.0 and vold != 0.0:
-            stuck = 1.0
-            xss = xprev
-        elif vnew == 0.0 and vold == 0.0:
-            if stuck == 0.0:
-                stuck = 1.0
-                xss = xprev
-    phase = PHASE_MOVING
-    if stuck == 1.0:
-        dx = x - xss
-        d = _sgn(dx)
-        reversal = True
-        slipped = False
-        if d != 0.0:
-            if d > 0.0:
-                s_dd = s_u
-                j_dd = j_u
-            else:
-                s_dd = s_d
-                j_dd = j_d
-            reversal = dr == 0.0 or d != dr
-            thr = s_dd if reversal else j_dd
-            if abs(dx) > thr:
-                stuck = 0.0
-                slipped = True
-                dr = d
-                y = x - d * (s_dd - j_dd) / 2.0
-        if slipped:
-            phase = PHASE_SLIP
-        elif reversal and abs(dx) <= 0.5 * max(s_u, s_d):
-            phase = PHASE_REVERSAL
-        else:
-            phase = PHASE_STUCK
-    elif not kano and vnew != 0.0:
-        dr = vnew
-        if vnew > 0.0:
-            y = x - (s_u - j_u) / 2.0
-        else:
-            y = x + (s_d - j_d) / 2.0
-    return y, xss, dr, stuck, phase
 
 
 @jit
@@ -147,7 +38,7 @@ def _clipped_moves(op):  # pragma: no cover - compiled
     return xs, vs
 
 
-@_inline
+@inline
 def _characteristic(z, curvature, family):  # pragma: no cover - compiled
     if family == 0:
         return z
@@ -238,7 +129,7 @@ def _affine_prefix(mv, w):  # pragma: no cover - compiled
     return pre
 
 
-@_inline
+@inline
 def _valve_sse_row(
     xs, vs, mv, w, P, r, h, kano, y0, d0, affine, curvature, family, limit, tv, pre, check
 ):  # pragma: no cover - compiled

@@ -1,0 +1,92 @@
+"""Why a held deadband archive of op biases S, and why joining op's steps is no cure.
+
+    python scripts/compressed_op.py
+
+Each bundled sample with mv has its op and mv put through exception (deadband)
+compression at 0.05 to 0.5 % of span and rebuilt on the scan grid held, as the reader
+does (:func:`stictiondiag.io.compression.reconstruct`).  The experiment beside it: op's
+small steps (at most two deadbands, lasting at most twice the step before) joined
+linearly, mv held.  S and J come from the mv-op estimator
+(:func:`stictiondiag.stiction.segments.estimate_from_mv`); one line per sample and
+deadband.  Then the healthy loop (linear valve) is analysed whole (``analyze``, no
+gap) for both readings and for op and mv archived with different deadbands: its
+verdict is what decides against the join (docs/historian_exports.md).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from stictiondiag.io.compression import exception_compress, reconstruct  # noqa: E402
+from stictiondiag.io.tags import read_tags  # noqa: E402
+from stictiondiag.stiction.segments import estimate_from_mv  # noqa: E402
+
+SAMPLES = ("level_undershoot", "flow_mixed", "slave_flow_stickslip", "temperature_quantised",
+           "healthy_flow")  # fmt: skip
+DEADBANDS = (0.05, 0.1, 0.2, 0.5)
+
+
+def _joined(t: np.ndarray, v: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """A held archive with its small steps joined linearly (the experiment)."""
+    held = v[np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 1)]
+    changes = np.abs(np.diff(v))
+    inner = changes[1:-1][changes[1:-1] > 0]
+    if inner.size < 8:
+        return held
+    steps = np.diff(t)
+    before = np.concatenate(([np.inf], steps[:-1]))
+    join = (changes <= 2.0 * inner.min()) & (steps <= 2.0 * before)
+    interval = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 2)
+    return np.where(join[interval], np.interp(grid, t, v), held)
+
+
+def _rebuilt(t, op, mv, deadband_op, deadband_mv, join):
+    i, j = exception_compress(op, deadband_op), exception_compress(mv, deadband_mv)
+    series = {"pv": (t, np.zeros(t.size)), "op": (t[i], op[i]), "mv": (t[j], mv[j])}
+    arrays, *_ = reconstruct(series, "x", "hold")
+    return (_joined(t[i], op[i], t) if join else arrays["op"]), arrays["mv"]
+
+
+def _verdicts() -> None:
+    from stictiondiag import AnalysisConfig, analyze
+    from stictiondiag.io.tags import Tags
+
+    tags = read_tags(ROOT / "sample_data" / "healthy_flow.csv")
+    t = np.arange(tags.n) * tags.ts
+    print("healthy_flow, whole analysis (no gap): op / mv deadband, reading, verdict, S, J")
+    for deadbands in ((0.1, 0.1), (0.05, 0.2), (0.2, 0.05)):
+        for join in (False, True):
+            op, mv = _rebuilt(t, tags.op, tags.mv, *deadbands, join)
+            rebuilt = Tags.from_arrays(tags.pv, op, mv=mv, sp=tags.sp, ts=tags.ts,
+                                       loop_type="flow")  # fmt: skip
+            result = analyze(rebuilt, config=AnalysisConfig(gap=False))
+            print(f"  {deadbands[0]:.2f} / {deadbands[1]:.2f}  {'op joined' if join else 'held':9s}"
+                  f"  {result.verdict.status:12s} S {result.fit.S:.3f}  J {result.fit.J:.3f}",
+                  flush=True)  # fmt: skip
+
+
+def main() -> None:
+    print("sample                 deadband  plain S / J    op held S / J   op joined S / J")
+    for name in SAMPLES:
+        tags = read_tags(ROOT / "sample_data" / f"{name}.csv")
+        op, mv, ts = np.asarray(tags.op), np.asarray(tags.mv), tags.ts
+        t = np.arange(op.size) * ts
+        plain = estimate_from_mv(op, mv, ts)
+        for deadband in DEADBANDS:
+            cells = []
+            for join in (False, True):
+                fit = estimate_from_mv(*_rebuilt(t, op, mv, deadband, deadband, join), ts)
+                cells.append(f"{fit.S:5.2f} / {fit.J:4.2f}")
+            print(f"{name:22s} {deadband:8.2f}  {plain.S:5.2f} / {plain.J:4.2f}  "
+                  f"{cells[0]:>14s}  {cells[1]:>14s}", flush=True)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
+    _verdicts()
