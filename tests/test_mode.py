@@ -65,6 +65,10 @@ def test_unknown_words_and_plain_numbers_leave_the_mode_unused_with_one_line():
     assert mode_codes(pd.Series(["AUTO", "SOMETHING"] * 3), "X.MODE", "f", notes) is None
     assert len(notes) == 1 and "'SOMETHING' (3 rows)" in notes[0] and "\n" not in notes[0]
     notes.clear()
+    # A "Status" column of data quality beside a value is said to be that.
+    assert mode_codes(pd.Series(["Good", "Bad", "Good"]), "Status", "f", notes) is None
+    assert notes[0].startswith("column 'Status' in f holds data quality flags ('Good' (2 rows))")
+    notes.clear()
     assert mode_codes(pd.Series([0, 1, 1]), "X.MODE", "f", notes) is None
     assert "numbers" in notes[0] and "--vendor deltav" in notes[0]
     # DeltaV's actual mode holds the Foundation Fieldbus bit: 8 AUTO, 16 MAN, 4 CAS.

@@ -67,13 +67,9 @@ def _refuse_duplicates(frame: pd.DataFrame, overrides: Mapping[str, str | None],
     written = [str(n) for n in frame.attrs.get("written_names", frame.columns)]
     named = {str(n).strip().lower() for n in overrides.values() if n is not None}
     for name, where in duplicate_names(written).items():
-        if (
-            name in ROLES
-            or roles_of(name)
-            or is_time_name(name)
-            or name in named
-            or (mode_rank(name) is not None)
-        ):
+        # A repeated mode-like name (a "Status" quality column after every tag) is
+        # not refused: the mode is optional, and such a column is only noted.
+        if name in ROLES or roles_of(name) or is_time_name(name) or name in named:
             shown = written[where[0] - 1]
             numbers = " and ".join(str(i) for i in where)
             raise DataError(

@@ -34,6 +34,9 @@ Text, case-insensitive, in the forms of ISA-88 and the vendors:
 * missing: an empty cell, and the system states an OSIsoft PI archive writes in
   place of a value (``Bad Input``, ``I/O Timeout``, ``Shutdown``, ``No Data`` ...).
 
+A ``Status`` column of data-quality flags (``Good``, ``Uncertain`` ...) is noted as
+such and not used.
+
 Numbers have no meaning common to the control systems, so they are read only where
 the code is a standard: DeltaV's ``MODE.ACTUAL`` (or ``vendor=deltav``) holds the
 Foundation Fieldbus mode bit (1 ROUT, 2 RCAS, 4 CAS, 8 AUTO, 16 MAN, 32 LO, 64 IMAN,
@@ -120,6 +123,9 @@ _SYSTEM_STATES = frozenset(
     }
 )
 
+# Data-quality words of a "Status" column written beside each value: not modes.
+_QUALITY = frozenset({"GOOD", "UNCERTAIN", "QUESTIONABLE", "SUBSTITUTED", "ANNOTATED"})
+
 #: Foundation Fieldbus actual-mode bits (DeltaV ``MODE.ACTUAL``) -> 1.0 closed, 0.0 open.
 FIELDBUS_MODES = {1: 0.0, 2: 1.0, 4: 1.0, 8: 1.0, 16: 0.0, 32: 0.0, 64: 0.0, 128: 0.0}
 
@@ -190,13 +196,21 @@ def mode_codes(
     codes_of, text = pd.factorize(series.astype("string").fillna(""))
     values = np.full(len(text) + 1, np.nan)  # the last slot: factorize's -1 (missing)
     unknown: list[str] = []
+    quality = True
     for i, word in enumerate(text):
         code = _word_code(str(word))
         if code is None:
+            quality &= _WORDS.sub("", str(word).upper()) in _QUALITY
             count = int(np.sum(codes_of == i))
             unknown.append(f"{str(word)[:20]!r} ({count} row{'' if count == 1 else 's'})")
         else:
             values[i] = code
+    if unknown and quality:
+        notes.append(
+            f"column {column!r}{where} holds data quality flags ({', '.join(unknown[:2])}), "
+            "not the controller mode: not used as the mode, no service factor"
+        )
+        return None
     if unknown:
         notes.append(
             f"mode column {column!r}{where} holds {', '.join(unknown[:3])}, not a controller "

@@ -241,6 +241,40 @@ def loop_kpis(
             _DM2002,
         )
     )
+    error, error_items = _error_kpis(pv, sp)
+    items.extend(error_items)
+    items.append(
+        Kpi(
+            "pv_std", float(pv.std()), "pv units", "standard deviation of pv (variability)", _DM2002
+        )
+    )
+    items.append(
+        Kpi(
+            "oscillation_period",
+            oscillation_period_s,
+            "s",
+            "period of pv's oscillation (ACF zero crossings)",
+            "Thornhill, Huang & Zhang (2003)",
+            None if oscillation_period_s is not None else "pv does not oscillate",
+        )
+    )
+    items.append(
+        Kpi(
+            "oscillation_amplitude",
+            oscillation_amplitude,
+            "pv units",
+            "half the typical peak-to-peak range of pv's cycles",
+            "Thornhill, Huang & Zhang (2003)",
+            None if oscillation_amplitude is not None else "pv does not oscillate",
+        )
+    )
+    items.append(_harris_kpi(error, float(ts), dead_time_s))
+    return LoopKpis(tuple(items))
+
+
+def _error_kpis(pv: np.ndarray, sp: np.ndarray | None) -> tuple[np.ndarray, list[Kpi]]:
+    """The control error (sp - pv; pv about its mean without sp) and its two indicators."""
+    items: list[Kpi] = []
     if sp is not None:
         error = np.asarray(sp, dtype=float) - pv
         items.append(
@@ -269,54 +303,28 @@ def loop_kpis(
                 _DM2002,
             )
         )
-    items.append(
-        Kpi(
-            "pv_std", float(pv.std()), "pv units", "standard deviation of pv (variability)", _DM2002
-        )
-    )
-    items.append(
-        Kpi(
-            "oscillation_period",
-            oscillation_period_s,
-            "s",
-            "period of pv's oscillation (ACF zero crossings)",
-            "Thornhill, Huang & Zhang (2003)",
-            None if oscillation_period_s is not None else "pv does not oscillate",
-        )
-    )
-    items.append(
-        Kpi(
-            "oscillation_amplitude",
-            oscillation_amplitude,
-            "pv units",
-            "half the typical peak-to-peak range of pv's cycles",
-            "Thornhill, Huang & Zhang (2003)",
-            None if oscillation_amplitude is not None else "pv does not oscillate",
-        )
-    )
+    return error, items
+
+
+def _harris_kpi(error: np.ndarray, ts: float, dead_time_s: float | None) -> Kpi:
+    """The Harris index of the control error, given the loop's dead time [s]."""
     if dead_time_s is not None and math.isfinite(dead_time_s):
         d = max(int(round(dead_time_s / ts)), 1)
         eta = harris_index(error, d)
-        items.append(
-            Kpi(
-                "harris_index",
-                None if math.isnan(eta) else eta,
-                "-",
-                f"minimum variance over actual variance of the control error, dead time "
-                f"{d} samples (1 = minimum-variance control)",
-                "Harris (1989); Desborough & Harris (1992)",
-                None if not math.isnan(eta) else "record too short for the AR model",
-            )
+        return Kpi(
+            "harris_index",
+            None if math.isnan(eta) else eta,
+            "-",
+            f"minimum variance over actual variance of the control error, dead time "
+            f"{d} samples (1 = minimum-variance control)",
+            "Harris (1989); Desborough & Harris (1992)",
+            None if not math.isnan(eta) else "record too short for the AR model",
         )
-    else:
-        items.append(
-            Kpi(
-                "harris_index",
-                None,
-                "-",
-                "minimum variance over actual variance of the control error",
-                "Harris (1989); Desborough & Harris (1992)",
-                "the loop's dead time is not known",
-            )
-        )
-    return LoopKpis(tuple(items))
+    return Kpi(
+        "harris_index",
+        None,
+        "-",
+        "minimum variance over actual variance of the control error",
+        "Harris (1989); Desborough & Harris (1992)",
+        "the loop's dead time is not known",
+    )
