@@ -35,7 +35,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize
 
 from stictiondiag.core.errors import UsageError
 from stictiondiag.core.serialize import plain_float
@@ -420,9 +419,13 @@ def predict_limit_cycle(
         f = 1.0 + describing_function(xz, S, J) * open_loop_response(process, controller, wz)
         return [float(np.real(f)), float(np.imag(f))]
 
+    # scipy.optimize only here: the analysis imports this module for the consistency
+    # of Section 6, and a loop without a cycle never needs the solver.
+    from scipy.optimize import root
+
     solutions: list[LimitCycleSolution] = []
     for lw, lx in brackets:
-        sol = optimize.root(residual, [lw, lx], method="hybr", tol=1e-12)
+        sol = root(residual, [lw, lx], method="hybr", tol=1e-12)
         # Judge by the residual: hybr may report slow progress at an exact root.
         if not np.all(np.isfinite(sol.x)) or np.hypot(*residual(sol.x)) > 1e-8:
             continue
