@@ -434,3 +434,47 @@ def test_change_sides_never_leave_a_side_without_slips():
     # A drift over the whole record: its two halves.
     early, late = change_sides(times, 0.0, 999.0, 1000)
     assert early.sum() == 50 and late.sum() == 50
+
+
+def test_slip_rate_differs_sees_slips_that_stop_and_keeps_a_steady_rate_quiet():
+    """Issue 27: a change of stiction can leave slips after it too small to measure
+    one by one; their number still tests it."""
+    from stictiondiag.gap.effects.signatures import slip_rate_differs
+
+    times = np.arange(5.0, 1000.0, 10.0)
+    # A steady rate (40 before sample 400, 60 after it, the sides' share of the
+    # record): no difference, p = 1 to rounding.
+    assert slip_rate_differs(times, 400.0, 400.0, 1000) == pytest.approx(1.0, abs=1e-9)
+    # Slips only before 400: 40 of 40 where 40 % are expected, p = 2 * 0.4004^40.
+    p = slip_rate_differs(times[times < 400], 400.0, 400.0, 1000)
+    assert p == pytest.approx(2.0 * (400.0 / 999.0) ** 40, rel=1e-6)
+    # A change placed at the start of the record leaves that side no time: no test.
+    assert slip_rate_differs(times, 0.0, 900.0, 1000) == 1.0
+
+
+def test_time_varying_slips_test_counts_slips_when_one_side_has_too_few():
+    from stictiondiag.gap.effects.time_varying_stiction import _slips_test
+
+    rng = np.random.default_rng(2)
+    n = 6000
+    before = np.arange(20.0, 2000.0, 30.0)  # 66 slips before the change at 2000
+    size = 2.0 + 0.2 * rng.standard_normal(before.size)
+    slips = {
+        "time": before,
+        "travel": size,
+        "J": size,
+        "reversal": np.ones(before.size, dtype=bool),
+    }
+    # No slip measured after the step: the sizes cannot be compared, the rate can
+    # (66 of 66 in a third of the record): p far below the 1 % the effect needs.
+    assert _slips_test(slips, 2000.0, 2000.0, n) < 1e-10
+    # The same slips, and as many after the step at the same rate and size: neither
+    # test sees a change (p well above 1 %).
+    after = before + 2000.0
+    both = {
+        "time": np.concatenate([before, after, after + 2000.0]),
+        "travel": np.tile(size, 3),
+        "J": np.tile(size, 3),
+        "reversal": np.ones(3 * before.size, dtype=bool),
+    }
+    assert _slips_test(both, 2000.0, 2000.0, n) > 0.05

@@ -186,3 +186,20 @@ def test_shared_segments_give_the_same_diagnosis():
     assert [(c.effect, c.after) for c in shared.candidates] == [
         (c.effect, c.after) for c in own.candidates
     ]
+
+
+def test_a_refitted_process_is_judged_at_the_base_horizon(disturbed):
+    """A candidate that searches the process structure afresh is judged at the base
+    replay's prediction horizon: a nearer prediction has a smaller error whatever
+    the effect (a healthy loop was named external_disturbance for it)."""
+    from stictiondiag.gap.effects.base import fit_process
+
+    sig = signals_of(_tags(disturbed))
+    ctx = build_context(sig, **_starting_point(None, sig))
+    base = fit_base(ctx, ctx.w_eval)
+    h = base.process.model.horizon
+    for target in (max(h - 3, 1), h + 3):
+        f = fit_process(sig.mv, ctx, ctx.w_eval, horizon=target)
+        assert f.model.horizon == target
+    # Without a horizon the structure search sets its own (the base's here).
+    assert fit_process(sig.mv, ctx, ctx.w_eval).model.horizon == h

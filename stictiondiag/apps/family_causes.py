@@ -192,6 +192,15 @@ def _quantised_loop(process, controller, n, sp, load, noise, q, op_bias, seed, d
     return pv, op, np.asarray(sp, dtype=float)
 
 
+def _measurement_nonlinearity(gen: str, change: str | None, size: float) -> tuple[float, float]:
+    """The quantiser's step and the dead zone's half-width [pv units] of a loop: ``size``
+    (1-4 times the spread of the loop's noise-free pv) for its generator's own, 0 for
+    the other and when the twin's change removes it."""
+    q_step = size if gen == "quantiser" and change != "no_quantiser" else 0.0
+    dz = size if gen == "deadzone" and change != "no_deadzone" else 0.0
+    return q_step, dz
+
+
 def cause_loop(seed: int, *, change: str | None = None, generator: str | None = None) -> FamilyLoop:
     """One loop of the cause family, a deterministic function of ``seed``.
 
@@ -304,13 +313,7 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     sp_0 = sp + (ext if gen == "external" and kind == "slave" else 0.0)
     clean = run(base_controller, False, load_0, sp_0, 0.0)[0]
     spread = float(np.std(clean[WARMUP:])) or scale * 0.01
-    q_step = q_ratio * max(spread, 0.05 * scale) if gen == "quantiser" else 0.0
-    if change == "no_quantiser":
-        q_step = 0.0
-    # The dead zone: a half-width of 1-4 times the same spread (the quantiser's draw).
-    dz = q_ratio * max(spread, 0.05 * scale) if gen == "deadzone" else 0.0
-    if change == "no_deadzone":
-        dz = 0.0
+    q_step, dz = _measurement_nonlinearity(gen, change, q_ratio * max(spread, 0.05 * scale))
     pv, op, spv = run(controller, linear, load, sp, noise_ratio * spread, q_step, dz)
     mv = op
     sl = slice(WARMUP, n, decim)

@@ -17,7 +17,7 @@ departure is located in the element that causes it (Choudhury, Thornhill & Shah 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -159,13 +159,33 @@ def fit_process(
     extra: np.ndarray | None = None,
     model: ProcessModel | None = None,
     retune: bool = False,
+    horizon: int | None = None,
 ) -> PredictorFit:
     """The process replay of ``ctx``'s pv from the input ``u`` on the weights ``w``
     (:func:`stictiondiag.identification.predictor.fit_predictor`, sharing the
-    context's cache of structure terms)."""
-    return fit_predictor(
+    context's cache of structure terms).
+
+    ``horizon`` (with ``model`` None): the structure is searched afresh but pv is
+    predicted this many samples ahead (the load tracking retuned for it).  A
+    candidate that refits the process must be judged at the base replay's horizon:
+    a structure with a shorter dead time plus time constant predicts fewer samples
+    ahead, and a nearer prediction has a smaller error whatever the effect.
+    """
+    fit = fit_predictor(
         u, ctx.sig.pv, ctx.sig.dt, w, extra=extra, model=model, retune=retune, cache=ctx.cache
     )
+    if model is None and horizon is not None and fit.model.horizon != horizon:
+        fit = fit_predictor(
+            u,
+            ctx.sig.pv,
+            ctx.sig.dt,
+            w,
+            extra=extra,
+            model=replace(fit.model, horizon=int(horizon)),
+            retune=True,
+            cache=ctx.cache,
+        )
+    return fit
 
 
 def pv_noise_floor(

@@ -111,7 +111,15 @@ def fit_external_disturbance(
     model = base.process.model
 
     def cost(om, harmonics, model=model, retune=False):
-        f = fit_process(u, ctx, w, extra=_sinusoids(n, om, harmonics), model=model, retune=retune)
+        f = fit_process(
+            u,
+            ctx,
+            w,
+            extra=_sinusoids(n, om, harmonics),
+            model=model,
+            retune=retune,
+            horizon=base.process.model.horizon,
+        )
         return float(np.dot(w, (f.pv - pv) ** 2)) / var_pv, f
 
     if init is not None:
@@ -144,18 +152,32 @@ def fit_external_disturbance(
         pvc = (pv - np.sum(pv * w) / max(np.sum(w), 1.0)) * w
         spec_pv = np.abs(np.fft.rfft(pvc, nfft)) ** 2
         peaks = list(dict.fromkeys(top_peaks(spec, 3) + top_peaks(spec_pv, 3)))
-        peaks = _screen_peaks(peaks, lambda i: cost(omega[i], 1)[0], REFINED_PEAKS)
+        # Each peak is screened with the process dynamics refitted together with the
+        # sinusoid: in closed loop the controller answers the disturbance, so a
+        # process fitted without it has taken part of the disturbance for the
+        # valve's effect (pv correlates with mv through the controller), and the
+        # residual of that fit hides the disturbance's own peak.
+        screened = {i: cost(omega[i], 1, model=None) for i in peaks}
+        peaks = _screen_peaks(peaks, lambda i: screened[i][0], REFINED_PEAKS)
         best: tuple[float, float, int, PredictorFit] | None = None
         width = 2.0 * math.pi / nfft * 4.0
         for i in peaks:
             om0 = omega[i]
+            m_i = screened[i][1].model
+
+            def cost_at(o: float, m_i=m_i) -> float:
+                return cost(o, 1, model=m_i)[0]
+
             om = golden_section(
-                lambda o: cost(o, 1)[0], max(om0 - width, 1e-6), om0 + width, n_iter=14
+                cost_at,
+                max(om0 - width, 1e-6),
+                om0 + width,
+                n_iter=14,
             )
             for harmonics in (1, 2):
                 # Judged with the load tracking retuned: with the oscillation in the
                 # model there is less load to follow.
-                c, f = cost(om, harmonics, retune=True)
+                c, f = cost(om, harmonics, model=m_i, retune=True)
                 if best is None or c < best[0]:
                     best = (c, om, harmonics, f)
         # top_peaks returns at least one peak, and the screen keeps some of them.

@@ -124,3 +124,29 @@ def slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
             tested = True
             p = min(p, float(mannwhitneyu(x, y, alternative="two-sided").pvalue))
     return p if tested else 0.0
+
+
+def slip_rate_differs(times: np.ndarray, t1: float, t2: float, n: int) -> float:
+    """Two-sided p-value that slips are measured at a different rate before sample
+    ``t1`` than after sample ``t2`` (of ``n``): the count before, of all counted on
+    both sides, against the binomial whose share is the side's share of their
+    duration; 1 when a side has no duration or no slip is counted on either side.
+
+    When stiction changes, the slips after the change may be too small or too
+    frequent for the segmentation to measure one by one, so their sizes cannot be
+    compared (:func:`slips_differ` needs three on a side); their number can.  A
+    change placed at an end of the record leaves that side no duration and so no
+    test.
+    """
+    from scipy.special import bdtr, bdtrc
+
+    t = np.asarray(times, dtype=float)
+    d_early, d_late = max(float(t1), 0.0), max(float(n - 1) - float(t2), 0.0)
+    k, m = int(np.sum(t < t1)), int(np.sum(t > t2))
+    total = k + m
+    if d_early <= 0.0 or d_late <= 0.0 or total == 0:
+        return 1.0
+    share = d_early / (d_early + d_late)
+    lower = float(bdtr(k, total, share))  # P(X <= k)
+    upper = float(bdtrc(k - 1, total, share)) if k > 0 else 1.0  # P(X >= k)
+    return min(1.0, 2.0 * min(lower, upper))

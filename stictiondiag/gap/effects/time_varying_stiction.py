@@ -3,7 +3,9 @@
 Acts on mv: a step, a ramp between two instants or a drift over the record of the
 thresholds of Fig. 10 and Eq. 4 (Choudhury, Thornhill & Shah 2005).  Parameters: the
 end values and the instants.  Signature: the slips measured before and after the
-change differ (rank test, :func:`stictiondiag.gap.effects.signatures.slips_differ`).
+change differ (rank test, :func:`stictiondiag.gap.effects.signatures.slips_differ`),
+or, where too few are measured on one side to compare, their rate does
+(:func:`stictiondiag.gap.effects.signatures.slip_rate_differs`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from stictiondiag.gap.effects.base import (
 from stictiondiag.gap.effects.search import TVS_STAGES, grid_search_nd, needle_search
 from stictiondiag.gap.effects.signatures import (
     SLIP_TEST_P,
+    slip_rate_differs,
     slips_differ,
 )
 from stictiondiag.gap.effects.valve import (
@@ -51,6 +54,21 @@ def change_sides(times: np.ndarray, t1: float, t2: float, n: int) -> tuple:
         mid = 0.5 * (t1 + t2)
         early, late = times < mid, times >= mid
     return early, late
+
+
+def _slips_test(slips: dict, t1: float, t2: float, n: int) -> float:
+    """p-value that the slips differ across a change of stiction between samples t1
+    and t2: their sizes by rank (:func:`slips_differ` on :func:`change_sides`); when
+    fewer than three are measured before t1 or after t2, also their rate
+    (:func:`slip_rate_differs`), the smaller of the two p-values doubled
+    (Bonferroni: either test may carry the change)."""
+    times = slips["time"]
+    early, late = change_sides(times, t1, t2, n)
+    p = slips_differ(slips, early, late)
+    drift = t1 <= 0.0 and t2 >= n - 1
+    if drift or min(int(np.sum(times < t1)), int(np.sum(times > t2))) >= 3:
+        return p
+    return min(1.0, 2.0 * min(p, slip_rate_differs(times, t1, t2, n)))
 
 
 def _profile(n: int, t1: float, t2: float) -> np.ndarray:
@@ -235,8 +253,7 @@ def fit_time_varying_stiction(
     )[0]
     mv_hat, _ = prob.series(row, h)
     if ctx.slips is not None:
-        early, late = change_sides(ctx.slips["time"], t1, t2, n)
-        p_slips = slips_differ(ctx.slips, early, late)
+        p_slips = _slips_test(ctx.slips, t1, t2, n)
     else:
         p_slips = 0.0
     if t1 <= 0.0 and t2 >= n - 1:
