@@ -50,7 +50,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from stictiondiag.core.errors import DataError, StictionError
+from stictiondiag.core.errors import DataError, StictionError, require_bool
 from stictiondiag.gap.diagnose import GapDiagnosis, diagnose_gap
 from stictiondiag.identification.looptype import (
     StructureEvidence,
@@ -118,8 +118,6 @@ class AnalysisConfig:
 
     def __post_init__(self) -> None:
         # AnalysisConfig(gap="no") must not run the gap diagnosis: booleans only.
-        from stictiondiag.core.errors import require_bool
-
         for name in ("gap", "replay", "compensation"):
             flag = require_bool(f"AnalysisConfig.{name}", getattr(self, name))
             object.__setattr__(self, name, flag)

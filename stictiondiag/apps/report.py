@@ -309,6 +309,40 @@ def default_workers(n_files: int) -> int:
     return min(n_files, cores - 1)
 
 
+def _loop_sources(
+    paths: list[str], manifest: dict[str, dict]
+) -> tuple[list[tuple], dict[str, str], list[str], list[str]]:
+    """The loops of ``paths`` and their names.
+
+    Returns one ``(file, name, plant loop or None, manifest options, display name)``
+    per loop, the files whose loop got another name than its stem, the loops' keys in
+    file order (``file#loop`` for a plant file's loop), and a note for each manifest
+    row that names no loop.
+    """
+    entries = _expand(paths)
+    names = unique_names([loop for _, loop, _ in entries], [f for f, _, _ in entries])
+    renamed = {
+        f: n
+        for (f, loop, plant), n in zip(entries, names, strict=True)
+        if plant is None and n != safe_name(loop)
+    }
+    sources = [
+        (
+            f,
+            n,
+            plant,
+            manifest_options(manifest, plant.loop if plant else loop, f) or {},
+            loop if plant is not None else _display_name(f, n),
+        )
+        for (f, loop, plant), n in zip(entries, names, strict=True)
+    ]
+    order = [f"{f}#{plant.loop}" if plant is not None else f for f, _, plant in entries]
+    notes = unmatched_manifest_rows(
+        manifest, [(plant.loop if plant else loop, f) for f, loop, plant in entries]
+    )
+    return sources, renamed, order, notes
+
+
 def build_report(
     files: Sequence[str | os.PathLike],
     out: str | os.PathLike,
@@ -345,10 +379,6 @@ def build_report(
     manifest : dict, optional
         Per-loop read options (:func:`stictiondiag.io.plant.read_manifest`) by loop
         name or file; they win over ``read_options``.
-
-    A file holding many loops (wide or long plant export, :mod:`stictiondiag.io.plant`)
-    gives one page per loop, named by its tag prefix; an incomplete or ambiguous loop
-    is listed as failed with the reason.
     progress : callable, optional
         ``progress(done, n, loop)`` after each loop is finished (in completion order
         when ``workers`` > 1).
@@ -364,6 +394,12 @@ def build_report(
         an input, or ``workers`` < 1.
     DataError
         No input could be analysed (the index is written all the same).
+
+    Notes
+    -----
+    A file holding many loops (wide or long plant export, :mod:`stictiondiag.io.plant`)
+    gives one page per loop, named by its tag prefix; an incomplete or ambiguous loop
+    is listed as failed with the reason.
     """
     gap = bool(require_bool("gap", gap))
     clean = bool(require_bool("clean", clean))
@@ -374,27 +410,7 @@ def build_report(
     workers = default_workers(len(paths)) if workers is None else int(workers)
     if workers < 1:
         raise UsageError(f"workers must be at least 1, got {workers}")
-    entries = _expand(paths)
-    names = unique_names([loop for _, loop, _ in entries], [f for f, _, _ in entries])
-    renamed = {
-        f: n
-        for (f, loop, plant), n in zip(entries, names, strict=True)
-        if plant is None and n != safe_name(loop)
-    }
-    sources = [
-        (
-            f,
-            n,
-            plant,
-            manifest_options(manifest or {}, plant.loop if plant else loop, f) or {},
-            loop if plant is not None else _display_name(f, n),
-        )
-        for (f, loop, plant), n in zip(entries, names, strict=True)
-    ]
-    order = [f"{f}#{plant.loop}" if plant is not None else f for f, _, plant in entries]
-    notes = unmatched_manifest_rows(
-        manifest or {}, [(plant.loop if plant else loop, f) for f, loop, plant in entries]
-    )
+    sources, renamed, order, notes = _loop_sources(paths, manifest or {})
     for note in notes:
         if on_note:
             on_note(f"warning: {note}")

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stictiondiag.core.errors import StictionError
 from stictiondiag.core.serialize import to_plain as _plain
 from stictiondiag.stiction.cause import (
     CAUSE_WORDS,
@@ -42,8 +43,10 @@ from stictiondiag.stiction.cause import (
     direct_stick_slip,
     find_cycle,
 )
+from stictiondiag.stiction.cause_model import cause_probabilities
 from stictiondiag.stiction.consistency import FILL as DF_FILL
 from stictiondiag.stiction.consistency import describing_features
+from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.probability import (
     classic_votes,
     evidence_features,
@@ -346,9 +349,6 @@ def split_half_estimates(fit: StictionFit, data) -> tuple[float, float, float, f
     half holds fewer than :data:`HALF_MIN_CYCLES` cycles, or when a half cannot be
     fitted.
     """
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction.hammerstein import fit_hammerstein
-
     if data is None or getattr(data, "mv", None) is not None or fit.method != "hammerstein":
         return None
     op = np.asarray(data.op, dtype=float)
@@ -443,9 +443,6 @@ VALVE_LEVEL = 0.6
 
 def _cause_probabilities(features: dict, cause_model: dict | None) -> dict[str, float] | None:
     """Stage 2's P of each cause, None when the cause model is not installed."""
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction.cause_model import cause_probabilities
-
     try:
         return cause_probabilities(features, cause_model)
     except StictionError:
