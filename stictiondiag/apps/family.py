@@ -56,6 +56,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from stictiondiag.core.errors import StictionError
+from stictiondiag.io.tags import read_frame
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.physical import PhysicalValve
 from stictiondiag.models.processes import FOPTD, PI, Integrating
@@ -145,8 +146,6 @@ class FamilyLoop:
     def tags(self):
         """The record as :class:`stictiondiag.io.tags.Tags`, read from :meth:`frame`
         by the reader of plant files (:func:`stictiondiag.io.tags.read_frame`)."""
-        from stictiondiag.io.tags import read_frame
-
         return read_frame(self.frame(), source=f"family-{self.truth.get('seed')}")
 
 

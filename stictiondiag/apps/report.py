@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from stictiondiag.apps.findings import with_findings
 from stictiondiag.apps.outdir import OutputFolder
 from stictiondiag.apps.pages import safe_name, unique_names
 from stictiondiag.apps.report_html import (
@@ -37,13 +38,20 @@ from stictiondiag.apps.report_html import (
     render_markdown,
     sort_key,
 )
+from stictiondiag.apps.workers import run_local
 from stictiondiag.core.errors import (
     DataError,
     StictionError,
     UsageError,
     require_bool,
 )
-from stictiondiag.io.plant import PlantLoop, manifest_options, unmatched_manifest_rows
+from stictiondiag.io.plant import (
+    PlantLoop,
+    manifest_options,
+    plant_loops,
+    read_plant_loop,
+    unmatched_manifest_rows,
+)
 
 __all__ = [
     "ReportResult",
@@ -215,7 +223,6 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
         AnalysisConfig,
         analyze_file,
     )
-    from stictiondiag.apps.findings import with_findings
 
     path, name = source[0], source[1]
     plant = source[2] if len(source) > 2 else None
@@ -225,7 +232,6 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
     try:
         if plant is not None:
             from stictiondiag.analysis import analyze
-            from stictiondiag.io.plant import read_plant_loop
 
             result = analyze(read_plant_loop(plant, **options), config=AnalysisConfig(gap=gap))
         else:
@@ -272,8 +278,6 @@ def _expand(files: Sequence[str]) -> list[tuple[str, str, PlantLoop | None]]:
     by ``<stem>:<prefix>`` when another loop has that name.  A file that cannot be
     read is one loop that fails with the reason.
     """
-    from stictiondiag.io.plant import plant_loops
-
     found: list[tuple[str, str, PlantLoop | None]] = []
     for f in files:
         try:
@@ -468,8 +472,6 @@ def _run_loops(
     its own row (when no page at all could be written, the run: UsageError); the index rows are written after every loop, so an interrupted
     report keeps what it did, and a full disk stops the report at the index.
     """
-    from stictiondiag.apps.workers import run_local
-
     failed: list[tuple[str, str]] = []
     unwritten: set[str] = set()
     outcomes = run_local(

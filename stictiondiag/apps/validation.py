@@ -36,7 +36,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stictiondiag.core.errors import DataError
+from stictiondiag.apps.sources import load_source
+from stictiondiag.core.errors import DataError, StictionError
+from stictiondiag.gap.attribution import attribute_gap
 
 #: ISDB loop types that behave as the paper's loop types.
 LOOP_TYPE_MAP = {
@@ -101,6 +103,7 @@ _CALL_TEXT = {1.0: "stiction", -1.0: "no_stiction", 0.0: "inconclusive"}
 def _baselines(path: str, ts: float, integrating: bool, loop_type: str | None = None) -> dict:
     """Each classic test's own call on the raw record (``stiction``, ``no_stiction``,
     ``inconclusive``, or ``n/a`` where the test does not apply or could not run)."""
+    # Imported here, as Tags below: they bring numba, which only the analysing process needs.
     from stictiondiag.stiction.probability import classic_votes
 
     frame = pd.read_csv(path)
@@ -131,7 +134,6 @@ SPLIT_MIN_CYCLES = 6.0
 def _half_summary(tags) -> dict:
     """Verdict, P(stiction) and S interval of one half-record (no replay, no gap)."""
     from stictiondiag.analysis import AnalysisConfig, analyze
-    from stictiondiag.core.errors import StictionError
 
     try:
         a = analyze(tags, config=AnalysisConfig(gap=False, replay=False))
@@ -190,7 +192,6 @@ def validate_one(source, gap: bool) -> dict:
     """Analyse one ISDB loop, run the classic tests beside it and, for a record of at
     least :data:`SPLIT_MIN_CYCLES` cycles, each of its halves (for a worker process)."""
     from stictiondiag.apps.scan import analyse_source
-    from stictiondiag.apps.sources import load_source
 
     res = analyse_source(source, {}, gap)
     opts = source.read_options or {}
@@ -311,8 +312,6 @@ def validate_isdb(
         row["reasons"] = "; ".join(str(x) for x in reasons)
         full = res.get("analysis") or {}
         if full.get("gap") is not None:
-            from stictiondiag.gap.attribution import attribute_gap
-
             row["gap_cause"] = attribute_gap(full.get("replay"), full.get("gap"))["cause"]
             row["gap_before"] = full["gap"].get("before")
         row.update(_split_columns(res.get("split")))
