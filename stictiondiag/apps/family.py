@@ -30,7 +30,7 @@ What varies (each loop draws one option of each line):
 * **measurement noise**: white, with a standard deviation 1 % to 50 % of the
   noise-free pv's in most loops and 50 % to 150 % (dominant) in a tenth of them
   (:data:`NOISE_RANGE`; the range follows the noise real records carry, see
-  ``docs/calibration.md``, "Why real loops came out inconclusive").
+  ``docs/history.md``, "Why real loops came out inconclusive").
 * **recording**: 40 to 400 times the loop's time scale long (600 to 5000 samples),
   sampled every 1-3 simulation steps; in some loops pv (and op)
   quantised to a resolution of 5-40 % of their spread, or compressed by a
