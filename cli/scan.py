@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from stictiondiag.core.errors import EXIT_PARTIAL
+from stictiondiag.core.errors import EXIT_PARTIAL, UsageError
 
 from .app import app
 from .common import check_output_dir, compile_if_cold, friendly_errors, info, write_stdout
@@ -81,7 +81,6 @@ def scan(
     The loop type comes from --loops, else --loop-type, else the ISA tag, else the data.
     """
     from stictiondiag.apps.scan import scan as run_scan
-    from stictiondiag.core.errors import UsageError
 
     with friendly_errors():
         check_output_dir("--out", out, [path])

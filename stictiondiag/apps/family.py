@@ -454,6 +454,7 @@ def loop_features(loop: FamilyLoop, *, with_classic: bool = False):
     shape statistics); None for a loop the analysis refuses (a record too short for
     its cycle, or data it cannot use), as it would refuse a plant record.
     """
+    # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import estimate_loop
 
     try:

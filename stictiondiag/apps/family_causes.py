@@ -386,6 +386,7 @@ def has_cycle(loop: FamilyLoop) -> bool | None:
     (:func:`stictiondiag.analysis.find_oscillations`,
     :func:`stictiondiag.analysis.check_record_length`); None when the analysis
     refuses the record (too short for the cycle it shows)."""
+    # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import check_record_length, find_oscillations
 
     try:

@@ -219,6 +219,7 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
     "loop", "error"}`` when the loop could not be analysed (one line: the data error,
     or the internal error and where it arose).
     """
+    # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import (
         AnalysisConfig,
         analyze_file,
@@ -231,6 +232,7 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
     label = f"{path}#{plant.loop}" if plant is not None else str(path)
     try:
         if plant is not None:
+            # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
             from stictiondiag.analysis import analyze
 
             result = analyze(read_plant_loop(plant, **options), config=AnalysisConfig(gap=gap))
@@ -239,6 +241,7 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
         plain = result.to_dict()
         row = result.summary_row(plain)
         d = with_findings({**plain, "loop": loop})
+        # Upward (plotting sits above apps): imported only when figures are drawn.
         from stictiondiag.plotting import figure_png
 
         images = {k: figure_png(fig) for k, fig in result.figures().items()}

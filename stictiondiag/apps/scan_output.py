@@ -174,6 +174,7 @@ def loop_extras(result, plots: bool, plant: bool) -> tuple[dict[str, bytes], dic
     from, else the folder of its file)."""
     images: dict[str, bytes] = {}
     if plots:
+        # Upward (plotting sits above apps): imported only when figures are drawn.
         from stictiondiag.plotting import figure_png
 
         builders = result.figure_builders()

@@ -133,6 +133,7 @@ SPLIT_MIN_CYCLES = 6.0
 
 def _half_summary(tags) -> dict:
     """Verdict, P(stiction) and S interval of one half-record (no replay, no gap)."""
+    # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import AnalysisConfig, analyze
 
     try:
