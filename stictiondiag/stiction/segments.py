@@ -30,6 +30,7 @@ off both (the expected overshoot for a ramp).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -62,6 +63,14 @@ MIN_EVENTS_FOR_INTERVAL = 3
 #: Longest slip transition [samples]: a recorded slip may take a few samples
 #: (positioner, sampling), a longer change is a moving phase.
 MAX_SLIP_SAMPLES = 5
+
+#: Largest held step [% of span] read as an archive's compression deadband.  Historians
+#: archive valve signals with exception deviations of fractions of a percent of span
+#: (0.05-0.5 % in the exports of docs/historian_exports.md); an archive whose smallest
+#: step is larger holds a valve that moves only by slips (a stick-slip valve without
+#: moving phases, as sample ``slave_flow_stickslip``: every step a 3 % slip), and its
+#: steps are the valve's.
+MAX_ARCHIVE_DEADBAND_PCT = 1.0
 
 # Sample labels of :class:`Segments`.
 LABEL_REST = 0
@@ -98,6 +107,52 @@ def quantum(x: np.ndarray) -> float:
     if np.all(np.abs(ratio - np.round(ratio)) <= 0.1):
         return q
     return 0.0
+
+
+def resolution(mv: np.ndarray, deadband: float = 0.0) -> float:
+    """Resolution of a recorded valve position [units of mv]: the larger of its
+    quantisation step (:func:`quantum`) and the deadband of the exception archive it
+    was rebuilt from (``deadband``, :attr:`stictiondiag.io.tags.Tags.archive_deadband`).
+
+    Both make a staircase whose steps are not the valve's: mv counts as still within
+    it (:func:`segment_valve`), and stick-slip within what it can hide is not told
+    from it (:func:`hidden_by_resolution`).  The deadband is not read from mv itself:
+    a stick-slip valve without moving phases (sample ``slave_flow_stickslip``, every
+    change a slip of 3 %) is a staircase just like a 3 % deadband archive; for the same
+    reason a deadband above :data:`MAX_ARCHIVE_DEADBAND_PCT` is taken as the valve's.
+    """
+    return max(quantum(mv), _archive_deadband(deadband))
+
+
+def _archive_deadband(deadband: float) -> float:
+    """A held archive's deadband [% of span]; 0 above :data:`MAX_ARCHIVE_DEADBAND_PCT`."""
+    d = float(deadband)
+    return d if d <= MAX_ARCHIVE_DEADBAND_PCT else 0.0
+
+
+def hidden_by_resolution(mv: np.ndarray, deadband: Mapping[str, float] | None) -> dict:
+    """How large a stick-slip the recording of op and mv can make of a healthy valve.
+
+    ``deadband``: role -> archive deadband [% of span] (``Tags.archive_deadband``).
+    With ``r`` = :func:`resolution` of mv plus op's archive deadband: a smoothly moving
+    valve archived with deadband ``d`` is held at each reversal until it has moved
+    back past the last archived value by ``d``, so up to ``2 d`` of op travel with a
+    still mv (an apparent ``S``), then steps by about ``d`` (an apparent ``J``); op's
+    own archive shifts op against mv by up to its deadband.  ``S <= 2 r`` with
+    ``J <= r`` is therefore within what the record can hide (a quantiser of step ``q``
+    hides less: ``S`` and ``J`` up to ``q``).  Returns the parts, ``S_hidden`` and
+    ``J_hidden`` [% of span].
+    """
+    d_mv = _archive_deadband((deadband or {}).get("mv", 0.0))
+    d_op = _archive_deadband((deadband or {}).get("op", 0.0))
+    r = resolution(mv, d_mv) + d_op
+    return {
+        "mv_quantum": quantum(mv),
+        "mv_deadband": d_mv,
+        "op_deadband": d_op,
+        "S_hidden": 2.0 * r,
+        "J_hidden": r,
+    }
 
 
 # --------------------------------------------------------------------------------------
@@ -184,7 +239,8 @@ class Segments:
     noise_mv, noise_op : float
         Robust noise standard deviations [units of mv, op].
     quantum_mv : float
-        Resolution step of mv (0 when not quantised) [units of mv].
+        Resolution of mv: its quantisation step or its archive's deadband
+        (:func:`resolution`; 0 when neither) [units of mv].
     dt : float
         Sampling time [s].
     """
@@ -376,7 +432,7 @@ def _mark_moving(op, mv, h, op_tol, runs, labels) -> None:
     labels[moving_mask] = LABEL_MOVING
 
 
-def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
+def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float, deadband: float = 0.0) -> Segments:
     """Find the stuck, slip and moving phases of a valve and measure every slip.
 
     Parameters
@@ -387,9 +443,12 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
         Valve position [% of span], same length as ``op``.  Noise and a quantised
         signal are tolerated: mv counts as still within a band of
         ``max(4 sigma_mv, 1.01 q)`` around its mean, with ``sigma_mv`` the robust noise
-        level and ``q`` the resolution step.
+        level and ``q`` the resolution (:func:`resolution`).
     dt : float
         Sampling time [s].
+    deadband : float
+        Deadband of the exception archive mv was rebuilt from [units of mv], 0 for a
+        record of every sample.
 
     Returns
     -------
@@ -407,7 +466,7 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
     span = float(max(np.ptp(op), np.ptp(mv)))
     sig_mv = noise_std(mv)
     sig_op = noise_std(op)
-    q_mv = quantum(mv)
+    q_mv = resolution(mv, deadband)
     h = max(STILL_BAND_SIGMAS * sig_mv, 1.01 * q_mv, 1e-9 * span)
     op_tol = max(4.0 * h, 6.0 * sig_op, 1e-9 * span)
     pull_tol = max(6.0 * sig_op, 1e-9 * span)
@@ -640,8 +699,22 @@ def _mv_fit_details(
     }
 
 
+def _resolution_details(mv, deadband, S: float, J: float) -> dict:
+    """``details["resolution"]`` (:func:`hidden_by_resolution`, and whether S and J lie
+    within it): given when the record is an archive or S and J are within it."""
+    hidden = hidden_by_resolution(mv, deadband)
+    within = hidden["J_hidden"] > 0 and S <= hidden["S_hidden"] and J <= hidden["J_hidden"]
+    if not (within or hidden["mv_deadband"] or hidden["op_deadband"]):
+        return {}  # a record of every sample, S and J resolved: details as before
+    return {"resolution": {**hidden, "within": bool(within)}}
+
+
 def estimate_from_mv(
-    op: np.ndarray, mv: np.ndarray, dt: float, segments: Segments | None = None
+    op: np.ndarray,
+    mv: np.ndarray,
+    dt: float,
+    segments: Segments | None = None,
+    deadband: Mapping[str, float] | None = None,
 ) -> StictionFit:
     """S and J from the valve's recorded position (Sections 2.3 and 3, Fig. 2).
 
@@ -676,8 +749,13 @@ def estimate_from_mv(
     dt : float
         Sampling time [s].
     segments : Segments, optional
-        ``segment_valve(op, mv, dt)`` when the caller has it already (it is then
-        not computed again; the result is the same).
+        ``segment_valve(op, mv, dt, deadband["mv"])`` when the caller has it already
+        (it is then not computed again; the result is the same).
+    deadband : mapping, optional
+        Role -> deadband of the exception archive op and mv were rebuilt from [% of
+        span] (:attr:`stictiondiag.io.tags.Tags.archive_deadband`).  S and J within
+        what it can hide are marked in ``details["resolution"]``
+        (:func:`hidden_by_resolution`), and the verdict does not call them stiction.
 
     Returns
     -------
@@ -687,7 +765,8 @@ def estimate_from_mv(
     """
     op, mv, dt = _check_pair(op, mv, dt)
     n = op.size
-    segs = segment_valve(op, mv, dt) if segments is None else segments
+    d_mv = float((deadband or {}).get("mv", 0.0))
+    segs = segment_valve(op, mv, dt, d_mv) if segments is None else segments
     op_std = float(np.std(op))
     lo, hi = np.percentile(op, [0.5, 99.5])
     S_max = float(max(hi - lo, 1e-12))
@@ -748,6 +827,7 @@ def estimate_from_mv(
         "n_parameters": {"stiction": 3, "linear": 1},
         "effective_samples": n_eff,
         "n_samples": n - k0,
+        **_resolution_details(mv, deadband, S_ls, J_ls),
     }
     return StictionFit(
         S=S_ls,
