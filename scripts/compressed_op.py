@@ -10,7 +10,7 @@ linearly, mv held.  S and J come from the mv-op estimator
 (:func:`stictiondiag.stiction.segments.estimate_from_mv`); one line per sample and
 deadband, with the deadbands the reader finds in the archives
 (:func:`stictiondiag.io.compression.archive_deadbands`); ``*`` marks S and J within
-what they can hide (:func:`stictiondiag.stiction.segments.hidden_by_resolution`).
+what they can hide (:func:`stictiondiag.stiction.resolution.hidden_by_resolution`).
 Then the healthy loop (linear valve) is analysed whole (``analyze``, no gap) for both
 readings and for op and mv archived with different deadbands, with the deadbands
 carried as the reader carries them and without (docs/historian_exports.md).

@@ -27,7 +27,7 @@ from stictiondiag.io.compression import (
 )
 from stictiondiag.io.plant import plant_loops, read_plant_loop
 from stictiondiag.io.tags import Tags, read_frame
-from stictiondiag.stiction.segments import MAX_ARCHIVE_DEADBAND_PCT, hidden_by_resolution
+from stictiondiag.stiction.resolution import MAX_ARCHIVE_DEADBAND_PCT, hidden_by_resolution
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_data"
 

@@ -184,7 +184,7 @@ def archive_deadbands(
 
     A held archive is a staircase: a value that moves by less than its deadband is
     not recorded, so a valve's stick and slip smaller than it cannot be told from the
-    archive's own steps (:func:`stictiondiag.stiction.segments.resolution`).
+    archive's own steps (:func:`stictiondiag.stiction.resolution.resolution`).
     """
     _, _, _, kinds = _kinds(series, label, compression)
     found = {r: held_deadband(series[r][1]) for r, k in kinds.items() if k == "hold"}

@@ -39,6 +39,7 @@ from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.core.stats import bootstrap_median_ci, median_small
+from stictiondiag.stiction.resolution import resolution, resolution_details
 from stictiondiag.stiction.valvefit import (
     StictionFit,
     block_sse,
@@ -64,95 +65,11 @@ MIN_EVENTS_FOR_INTERVAL = 3
 #: (positioner, sampling), a longer change is a moving phase.
 MAX_SLIP_SAMPLES = 5
 
-#: Largest held step [% of span] read as an archive's compression deadband.  Historians
-#: archive valve signals with exception deviations of fractions of a percent of span
-#: (0.05-0.5 % in the exports of docs/historian_exports.md); an archive whose smallest
-#: step is larger holds a valve that moves only by slips (a stick-slip valve without
-#: moving phases, as sample ``slave_flow_stickslip``: every step a 3 % slip), and its
-#: steps are the valve's.
-MAX_ARCHIVE_DEADBAND_PCT = 1.0
-
 # Sample labels of :class:`Segments`.
 LABEL_REST = 0
 LABEL_STUCK = 1
 LABEL_SLIP = 2
 LABEL_MOVING = 3
-
-
-# --------------------------------------------------------------------------------------
-# Noise and resolution of a signal
-# --------------------------------------------------------------------------------------
-
-
-def quantum(x: np.ndarray) -> float:
-    """Resolution step of a quantised signal [units of x], 0 when not quantised.
-
-    The signal is taken as quantised when it has few distinct levels and every gap
-    between neighbouring levels is (within 10 %) a whole multiple of the smallest
-    gap; the smallest gap is then the step (e.g. Fig. 6, the dryer's quantised flow).
-    """
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    if x.size < 10:
-        return 0.0
-    levels = np.unique(x)
-    span = float(levels[-1] - levels[0])
-    if levels.size < 2 or levels.size > x.size / 3 or span <= 0:
-        return 0.0
-    gaps = np.diff(levels)
-    q = float(gaps.min())
-    if q <= 1e-9 * span or q > span / 4:
-        return 0.0
-    ratio = gaps / q
-    if np.all(np.abs(ratio - np.round(ratio)) <= 0.1):
-        return q
-    return 0.0
-
-
-def resolution(mv: np.ndarray, deadband: float = 0.0) -> float:
-    """Resolution of a recorded valve position [units of mv]: the larger of its
-    quantisation step (:func:`quantum`) and the deadband of the exception archive it
-    was rebuilt from (``deadband``, :attr:`stictiondiag.io.tags.Tags.archive_deadband`).
-
-    Both make a staircase whose steps are not the valve's: mv counts as still within
-    it (:func:`segment_valve`), and stick-slip within what it can hide is not told
-    from it (:func:`hidden_by_resolution`).  The deadband is not read from mv itself:
-    a stick-slip valve without moving phases (sample ``slave_flow_stickslip``, every
-    change a slip of 3 %) is a staircase just like a 3 % deadband archive; for the same
-    reason a deadband above :data:`MAX_ARCHIVE_DEADBAND_PCT` is taken as the valve's.
-    """
-    return max(quantum(mv), _archive_deadband(deadband))
-
-
-def _archive_deadband(deadband: float) -> float:
-    """A held archive's deadband [% of span]; 0 above :data:`MAX_ARCHIVE_DEADBAND_PCT`."""
-    d = float(deadband)
-    return d if d <= MAX_ARCHIVE_DEADBAND_PCT else 0.0
-
-
-def hidden_by_resolution(mv: np.ndarray, deadband: Mapping[str, float] | None) -> dict:
-    """How large a stick-slip the recording of op and mv can make of a healthy valve.
-
-    ``deadband``: role -> archive deadband [% of span] (``Tags.archive_deadband``).
-    With ``r`` = :func:`resolution` of mv plus op's archive deadband: a smoothly moving
-    valve archived with deadband ``d`` is held at each reversal until it has moved
-    back past the last archived value by ``d``, so up to ``2 d`` of op travel with a
-    still mv (an apparent ``S``), then steps by about ``d`` (an apparent ``J``); op's
-    own archive shifts op against mv by up to its deadband.  ``S <= 2 r`` with
-    ``J <= r`` is therefore within what the record can hide (a quantiser of step ``q``
-    hides less: ``S`` and ``J`` up to ``q``).  Returns the parts, ``S_hidden`` and
-    ``J_hidden`` [% of span].
-    """
-    d_mv = _archive_deadband((deadband or {}).get("mv", 0.0))
-    d_op = _archive_deadband((deadband or {}).get("op", 0.0))
-    r = resolution(mv, d_mv) + d_op
-    return {
-        "mv_quantum": quantum(mv),
-        "mv_deadband": d_mv,
-        "op_deadband": d_op,
-        "S_hidden": 2.0 * r,
-        "J_hidden": r,
-    }
 
 
 # --------------------------------------------------------------------------------------
@@ -240,7 +157,7 @@ class Segments:
         Robust noise standard deviations [units of mv, op].
     quantum_mv : float
         Resolution of mv: its quantisation step or its archive's deadband
-        (:func:`resolution`; 0 when neither) [units of mv].
+        (:func:`~stictiondiag.stiction.resolution.resolution`; 0 when neither) [units of mv].
     dt : float
         Sampling time [s].
     """
@@ -443,7 +360,8 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float, deadband: float = 0
         Valve position [% of span], same length as ``op``.  Noise and a quantised
         signal are tolerated: mv counts as still within a band of
         ``max(4 sigma_mv, 1.01 q)`` around its mean, with ``sigma_mv`` the robust noise
-        level and ``q`` the resolution (:func:`resolution`).
+        level and ``q`` the resolution
+        (:func:`~stictiondiag.stiction.resolution.resolution`).
     dt : float
         Sampling time [s].
     deadband : float
@@ -699,16 +617,6 @@ def _mv_fit_details(
     }
 
 
-def _resolution_details(mv, deadband, S: float, J: float) -> dict:
-    """``details["resolution"]`` (:func:`hidden_by_resolution`, and whether S and J lie
-    within it): given when the record is an archive or S and J are within it."""
-    hidden = hidden_by_resolution(mv, deadband)
-    within = hidden["J_hidden"] > 0 and S <= hidden["S_hidden"] and J <= hidden["J_hidden"]
-    if not (within or hidden["mv_deadband"] or hidden["op_deadband"]):
-        return {}  # a record of every sample, S and J resolved: details as before
-    return {"resolution": {**hidden, "within": bool(within)}}
-
-
 def estimate_from_mv(
     op: np.ndarray,
     mv: np.ndarray,
@@ -755,7 +663,8 @@ def estimate_from_mv(
         Role -> deadband of the exception archive op and mv were rebuilt from [% of
         span] (:attr:`stictiondiag.io.tags.Tags.archive_deadband`).  S and J within
         what it can hide are marked in ``details["resolution"]``
-        (:func:`hidden_by_resolution`), and the verdict does not call them stiction.
+        (:func:`~stictiondiag.stiction.resolution.hidden_by_resolution`), and the verdict
+        does not call them stiction.
 
     Returns
     -------
@@ -827,7 +736,7 @@ def estimate_from_mv(
         "n_parameters": {"stiction": 3, "linear": 1},
         "effective_samples": n_eff,
         "n_samples": n - k0,
-        **_resolution_details(mv, deadband, S_ls, J_ls),
+        **resolution_details(mv, deadband, S_ls, J_ls),
     }
     return StictionFit(
         S=S_ls,
