@@ -69,6 +69,8 @@ def test_the_reader_carries_each_tags_deadband_in_percent_of_span():
     assert tags.archive_deadband["op"] == pytest.approx(0.05, rel=0.01)
     assert tags.archive_deadband["mv"] == pytest.approx(0.2, rel=0.01)
     assert set(tags.archive_deadband) == {"op", "mv"}  # pv and sp: every sample
+    note = next(w for w in tags.warnings if "compressed archive" in w)
+    assert "mv 418 values held (deadband 0.2)" in note  # the output says what it read
     assert tags.to_dict()["archive_deadband"] == dict(tags.archive_deadband)
     milliamps = frame.copy()
     for column in ("op", "mv"):

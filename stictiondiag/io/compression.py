@@ -260,9 +260,15 @@ def reconstruct(
     if not compressed:
         return out, grid, step, None
     told = "as given" if compression else "told from the archived values"
+
+    def how(role: str, kind: str) -> str:
+        if kind != "hold":
+            return "linear"
+        deadband = held_deadband(series[role][1])
+        return f"held (deadband {deadband:.3g})" if deadband > 0 else "held"
+
     rebuilt = ", ".join(
-        f"{r} {series[r][0].size} values {'held' if k == 'hold' else 'linear'}"
-        for r, k in compressed.items()
+        f"{r} {series[r][0].size} values {how(r, k)}" for r, k in compressed.items()
     )
     note = (
         f"compressed archive (recorded values): rebuilt on a {step:g} s grid of {grid.size} "
