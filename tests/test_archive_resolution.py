@@ -19,6 +19,7 @@ import pandas as pd
 import pytest
 
 from stictiondiag import AnalysisConfig, analyze
+from stictiondiag.analysis import Analysis
 from stictiondiag.io.compression import (
     archive_deadbands,
     exception_compress,
@@ -105,6 +106,10 @@ def test_healthy_valve_from_a_held_archive_is_not_called_sticky(deadbands):
     # 1 %: the estimated deadbands are just above the true ones (test above).
     assert res["S_hidden"] == pytest.approx(2 * r, rel=0.01)
     assert result.fit.S <= res["S_hidden"] and result.fit.J <= res["J_hidden"]
+    # The deadbands and the verdict survive the JSON round trip of the whole analysis.
+    back = Analysis.from_json(result.to_json())
+    assert back.tags.archive_deadband == tags.archive_deadband
+    assert back.verdict.reasons == result.verdict.reasons
     if deadbands["mv"] == 0.2:  # the case called stiction before: the verdict says why
         assert "within what the record can hide" in result.verdict.reasons[0]
         assert "mv archived with a 0.2 % deadband" in result.verdict.reasons[0]
