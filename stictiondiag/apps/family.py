@@ -301,6 +301,47 @@ def _pick(rng, options: dict) -> str:
     return str(keys[int(rng.choice(len(keys), p=p / p.sum()))])
 
 
+@dataclass(frozen=True)
+class LoopSetup:
+    """What every simulation of one family loop (the loop and its twins) shares.
+
+    ``n`` is the record's length [samples of 1 s, warm-up included]; ``valve`` the
+    stiction model and ``S``, ``J`` [% of span] (``physical`` the Karnopp valve
+    where ``valve`` is ``"physical"``); ``op_bias`` [% of span]; ``seed`` the noise
+    sequence's, the same for a loop and its twins.
+    """
+
+    process: FOPTD | Integrating
+    n: int
+    valve: str
+    S: float
+    J: float
+    physical: PhysicalValve | None
+    op_bias: float
+    characteristic: str
+    seed: int
+
+    def simulate(self, controller: PI, *, sp, load, noise_std: float, linear: bool = False):
+        """The closed loop under ``controller`` (:func:`simulate_loop`); with
+        ``linear`` the twin whose valve is linear."""
+        return simulate_loop(
+            self.process,
+            controller,
+            duration=float(self.n),
+            dt=1.0,
+            valve="linear" if linear else self.valve,
+            S=0.0 if linear else self.S,
+            J=0.0 if linear else self.J,
+            physical=None if linear else self.physical,
+            sp=sp,
+            load=load,
+            noise_std=noise_std,
+            seed=self.seed,
+            op_bias=self.op_bias,
+            characteristic=self.characteristic,
+        )
+
+
 def _controller(rng, tuning: str, Kc: float, Ti: float) -> PI:
     """The PI controller of a tuning class: the process's SIMC gain and integral
     time scaled by drawn factors (all six drawn whatever the class, so the draws
@@ -378,23 +419,10 @@ def family_loop(seed: int, *, twin: bool = False) -> FamilyLoop:
     op_bias = float(rng.uniform(30.0, 70.0))
     sim_seed = int(rng.integers(2**31))
 
+    setup = LoopSetup(process, n, valve, S, J, physical, op_bias, characteristic, sim_seed)
+
     def run(noise_std: float, linear: bool = False):
-        return simulate_loop(
-            process,
-            controller,
-            duration=float(n),
-            dt=1.0,
-            valve="linear" if linear else valve,
-            S=0.0 if linear else S,
-            J=0.0 if linear else J,
-            physical=None if linear else physical,
-            sp=sp,
-            load=load,
-            noise_std=noise_std,
-            seed=sim_seed,
-            op_bias=op_bias,
-            characteristic=characteristic,
-        )
+        return setup.simulate(controller, sp=sp, load=load, noise_std=noise_std, linear=linear)
 
     clean = run(0.0)
     spread = float(np.std(clean.pv[WARMUP:])) or scale * 0.01

@@ -70,6 +70,7 @@ from stictiondiag.apps.family import (
     NOISE_RANGE,
     WARMUP,
     FamilyLoop,
+    LoopSetup,
     _filtered_walk,
     _loguniform,
     _pick,
@@ -79,7 +80,6 @@ from stictiondiag.apps.family import (
     physical_valve,
 )
 from stictiondiag.core.errors import StictionError
-from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import FOPTD, PI
 from stictiondiag.stiction.cause import find_cycle
 
@@ -305,28 +305,14 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     q_ratio = float(rng.uniform(1.0, 4.0))
     linear = change == "linear_valve"
     physical = physical_valve(S, J) if valve == "physical" else None
+    setup = LoopSetup(process, n, valve, S, J, physical, op_bias, characteristic, sim_seed)
 
     def run(ctrl, lin: bool, load_, sp_, noise_std: float, q: float = 0.0, dz: float = 0.0):
         if gen in ("quantiser", "deadzone"):
             return _quantised_loop(
                 process, ctrl, n, sp_, load_, noise_std, q, op_bias, sim_seed, dz
             )
-        sim = simulate_loop(
-            process,
-            ctrl,
-            duration=float(n),
-            dt=1.0,
-            valve="linear" if lin else valve,
-            S=0.0 if lin else S,
-            J=0.0 if lin else J,
-            physical=None if lin else physical,
-            sp=sp_,
-            load=load_,
-            noise_std=noise_std,
-            seed=sim_seed,
-            op_bias=op_bias,
-            characteristic=characteristic,
-        )
+        sim = setup.simulate(ctrl, sp=sp_, load=load_, noise_std=noise_std, linear=lin)
         return sim.pv, sim.op, sim.sp
 
     # The noise level is the loop's own (noise-free pv of the loop itself, not of a
