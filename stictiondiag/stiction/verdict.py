@@ -410,13 +410,16 @@ def verdict_features(
     data=None,
     min_improvement: float = MIN_IMPROVEMENT,
     seed: int = 0,
+    cycle: Cycle | None = None,
 ) -> tuple[dict, tuple[float, float, tuple[float, float]], dict]:
     """The probability model's features of one loop, the improvement's support
     (:func:`improvement_support`: support, improvement, interval) and the classic
     tests' votes; what :func:`stiction_verdict` decides on, and what the model is
     trained on (``scripts/train_probability.py``).  A loop with a cycle and without
     mv also gets the describing-function consistency of
-    :mod:`stictiondiag.stiction.consistency` (the others its "no prediction" values)."""
+    :mod:`stictiondiag.stiction.consistency` (the others its "no prediction" values).
+    ``cycle`` is :func:`~stictiondiag.stiction.cause.find_cycle`'s, found here if not
+    given."""
     d = fit.details or {}
     blocks = d.get("block_sse") or {}
     bs = np.asarray(blocks.get("stiction", []), dtype=float)
@@ -438,7 +441,8 @@ def verdict_features(
     else:
         classic, op = {}, fit.mv_model
     halves = split_half_estimates(fit, data)
-    cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
+    if cycle is None:
+        cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
     # Only a loop with a cycle has one to predict (a fit on mv gets the fill values).
     df = describing_features(fit, data, cycle.period_s) if cycle.present else dict(DF_FILL)
     features = evidence_features(
@@ -625,6 +629,8 @@ def stiction_verdict(
         has_mv = fit.method == "mv_segments"
     has_mv = bool(has_mv)
     model = model or load_model()
+    # Stage 1: is there a limit cycle?  Stage 2 (its cause) only where there is one.
+    cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
     features, (support, f, f_iv), classic = verdict_features(
         fit,
         oscillation,
@@ -633,13 +639,11 @@ def stiction_verdict(
         data=data,
         min_improvement=min_improvement,
         seed=seed,
+        cycle=cycle,
     )
     P = stiction_probability(features, has_mv, model)
     contrib = _contributions(features, has_mv, model)
     n_blocks = len(((fit.details or {}).get("block_sse") or {}).get("stiction", [])) or 1
-
-    # Stage 1: is there a limit cycle?  Stage 2 (its cause) only where there is one.
-    cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
     stage2 = _cause_probabilities(features, cause_model) if cycle.present else None
     direct = None
     if not cycle.present:
