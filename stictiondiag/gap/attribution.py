@@ -82,10 +82,12 @@ def _why_rejected(c: dict, heldout_before: float | None) -> str:
             f"on held-out blocks it does no better than the two-parameter replay "
             f"({_f(held)} % against {_f(heldout_before)} %)"
         )
+    k = c.get("n_params")
+    what = "extra parameter" if k == 1 else "extra parameters"
     return (
-        f"its gain on held-out blocks does not pay for its {c.get('n_params', '?')} extra "
-        "parameters, or the blocks do not bear it out"
-    )
+        f"its gain on held-out blocks does not pay for its {k if k is not None else ''} "
+        f"{what}, or the blocks do not bear it out"
+    ).replace("its  ", "its ")
 
 
 def _why_none(gap: dict) -> str:
