@@ -362,6 +362,7 @@ def run_from_estimate(est: LoopEstimate, *, config: AnalysisConfig | None = None
             lambda: replay(
                 tags,
                 fit,
+                valve=fit.valve_family,
                 integrating=tags.integrating,
                 action=tags.action,
                 known=est.structure,

@@ -302,6 +302,49 @@ def _pick(rng, options: dict) -> str:
     return str(keys[int(rng.choice(len(keys), p=p / p.sum()))])
 
 
+def _controller(rng, tuning: str, Kc: float, Ti: float) -> PI:
+    """The PI controller of a tuning class: the process's SIMC gain and integral
+    time scaled by drawn factors (all six drawn whatever the class, so the draws
+    that follow do not depend on it)."""
+    fk, fi = {
+        "aggressive": (rng.uniform(1.4, 2.0), rng.uniform(0.5, 1.0)),
+        "normal": (rng.uniform(0.7, 1.3), rng.uniform(0.8, 1.2)),
+        "sluggish": (rng.uniform(0.15, 0.5), rng.uniform(1.5, 3.0)),
+    }[tuning]
+    return PI(gain=float(Kc * fk), integral_time=float(Ti * fi))
+
+
+def _valve_draw(rng, sticky: bool) -> tuple[float, float, str]:
+    """S and J [% of span] and the stiction model of a sticky valve (a linear valve
+    draws nothing)."""
+    if not sticky:
+        return 0.0, 0.0, "linear"
+    S = _loguniform(rng, 0.3, 6.0)
+    J = S * float(rng.uniform(0.0, 1.0))
+    shares = {
+        "choudhury": (1 - PHYSICAL_SHARE) / 2,
+        "kano": (1 - PHYSICAL_SHARE) / 2,
+        "physical": PHYSICAL_SHARE,
+    }
+    return S, J, _pick(rng, shares)
+
+
+def physical_valve(S: float, J: float) -> PhysicalValve:
+    """The physical valve whose friction gives the band S and jump J [% of span] of a
+    family loop: ``Fs = k (S + J) / 2`` and ``Fc = k (S - J) / 2`` with Table 1's
+    spring constant ``k`` [N/m] and 1 % of span = 0.01 m of stem travel."""
+    k = 52_500.0
+    return PhysicalValve(Fs=k * 0.01 * (S + J) / 2, Fc=k * 0.01 * (S - J) / 2, time_step=5e-4)
+
+
+def loop_type_of(kind: str, t_loop: float) -> str:
+    """The loop type a family loop of ``kind`` and time scale ``t_loop`` [s] stands
+    for (flow, level, pressure or temperature)."""
+    return {"flow": "flow", "slave": "flow", "integrating": "level"}.get(
+        kind, "pressure" if t_loop < 40 else "temperature"
+    )
+
+
 def family_loop(seed: int, *, twin: bool = False) -> FamilyLoop:
     """One loop of the family, a deterministic function of ``seed``.
 
@@ -323,31 +366,11 @@ def family_loop(seed: int, *, twin: bool = False) -> FamilyLoop:
 
     process, Kc, Ti, t_loop, scale = _process(rng, kind)
     n_rec = int(np.clip(span * t_loop / decim, *N_RANGE))
-    fk, fi = {
-        "aggressive": (rng.uniform(1.4, 2.0), rng.uniform(0.5, 1.0)),
-        "normal": (rng.uniform(0.7, 1.3), rng.uniform(0.8, 1.2)),
-        "sluggish": (rng.uniform(0.15, 0.5), rng.uniform(1.5, 3.0)),
-    }[tuning]
-    controller = PI(gain=float(Kc * fk), integral_time=float(Ti * fi))
-
-    S = _loguniform(rng, 0.3, 6.0) if sticky else 0.0
-    J = S * float(rng.uniform(0.0, 1.0)) if sticky else 0.0
-    valve, physical = "linear", None
-    if sticky:
-        valve = _pick(
-            rng,
-            {
-                "choudhury": (1 - PHYSICAL_SHARE) / 2,
-                "kano": (1 - PHYSICAL_SHARE) / 2,
-                "physical": PHYSICAL_SHARE,
-            },
-        )
-        if valve == "physical":
-            k = 52_500.0
-            physical = PhysicalValve(
-                Fs=k * 0.01 * (S + J) / 2, Fc=k * 0.01 * (S - J) / 2, time_step=5e-4
-            )
-            n_rec = min(n_rec, 2000)
+    controller = _controller(rng, tuning, Kc, Ti)
+    S, J, valve = _valve_draw(rng, sticky)
+    physical = physical_valve(S, J) if valve == "physical" else None
+    if physical is not None:
+        n_rec = min(n_rec, 2000)  # the physical valve's fine time step is slow
     n = WARMUP + n_rec * decim
     load = _load(rng, load_kind, n, scale, t_loop)
     sp = _setpoint(rng, kind, sp_moves, n, scale, t_loop)
@@ -407,9 +430,6 @@ def family_loop(seed: int, *, twin: bool = False) -> FamilyLoop:
         "saturated": float(np.mean((op <= 0.0) | (op >= 100.0))),
         "stiction_share": share,
     }
-    loop_type = {"flow": "flow", "slave": "flow", "integrating": "level"}.get(
-        kind, "pressure" if t_loop < 40 else "temperature"
-    )
     return FamilyLoop(
         pv=pv,
         op=op,
@@ -417,7 +437,7 @@ def family_loop(seed: int, *, twin: bool = False) -> FamilyLoop:
         mv=mv if has_mv else None,
         ts=float(decim),
         integrating=kind == "integrating",
-        loop_type=loop_type,
+        loop_type=loop_type_of(kind, t_loop),
         sticky=label,
         truth=truth,
     )

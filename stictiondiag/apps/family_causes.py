@@ -75,9 +75,10 @@ from stictiondiag.apps.family import (
     _pick,
     _process,
     _record,
+    loop_type_of,
+    physical_valve,
 )
 from stictiondiag.models.loops import simulate_loop
-from stictiondiag.models.physical import PhysicalValve
 from stictiondiag.models.processes import FOPTD, PI
 
 #: The generators and their shares of the family.
@@ -201,6 +202,61 @@ def _measurement_nonlinearity(gen: str, change: str | None, size: float) -> tupl
     return q_step, dz
 
 
+def _tuning(
+    process, Kc: float, Ti: float, gen: str, change: str | None, u_gen: np.ndarray
+) -> tuple[PI, PI, float, float]:
+    """The loop's PI controller and, for the ``conservative`` twin, its replacement.
+
+    SIMC normal or aggressive; tight (a gain margin of 1.1-1.8) for the ``tuning``
+    generator.  Returns the loop's own controller, the one simulated (the twin's
+    where ``change`` asks for it), the loop's gain and the ultimate gain.
+    """
+    Ti = float(Ti * (0.6 + 0.6 * u_gen[1]))
+    Kc = float(Kc * (0.7 + 1.1 * u_gen[0]))
+    ku = ultimate_gain(process, Ti)
+    gm = 1.1 + 0.7 * u_gen[2]
+    if gen == "tuning" and math.isfinite(ku):
+        Kc = ku / gm
+    elif math.isfinite(ku):
+        Kc = min(Kc, ku / 2.0)  # the other generators are not tight-tuned
+    controller = PI(gain=float(Kc), integral_time=float(Ti))
+    if change != "conservative":
+        return controller, controller, Kc, ku
+    ku2 = ultimate_gain(process, 2.0 * Ti)
+    twin = PI(gain=float(ku2 / 4.0 if math.isfinite(ku2) else Kc / 4.0), integral_time=2.0 * Ti)
+    return controller, twin, Kc, ku
+
+
+def _valve_friction(rng, gen: str, u_gen: np.ndarray) -> tuple[bool, float, float]:
+    """Whether the valve sticks, and its S and J [% of span]: large for the ``valve``
+    generator, small for a quarter of the ``external`` ones, none otherwise."""
+    sticky = gen == "valve" or (gen == "external" and u_gen[3] < 0.25)
+    S = (
+        (_loguniform(rng, 1.0, 8.0) if gen == "valve" else _loguniform(rng, 0.2, 1.0))
+        if sticky
+        else 0.0
+    )
+    J = S * (0.0 if u_gen[4] < 0.1 else float(rng.uniform(0.2, 1.0))) if sticky else 0.0
+    return sticky, S, J
+
+
+def _loads(
+    rng, kind: str, shape: str, n: int, t_loop: float, scale: float, u_gen: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The non-periodic load every loop gets, the periodic external disturbance (used
+    by the ``external`` generator only) and the set point [pv units]; all drawn for
+    every loop, so that a twin draws the same numbers as its loop."""
+    base = 0.05 * scale * _filtered_walk(rng, n, max(2.0, t_loop / 4))
+    slow = scale * _loguniform(rng, 0.3, 3.0) * _filtered_walk(rng, n, rng.uniform(20, 60) * t_loop)
+    base = base + (slow if u_gen[5] < 0.4 else 0.0)
+    period = t_loop * _loguniform(rng, 2.0, 25.0)
+    ext = scale * _loguniform(rng, 0.5, 4.0) * _wave(rng, shape, n, period)
+    sp = np.zeros(n)
+    if kind == "slave":
+        sp += scale * _loguniform(rng, 0.5, 3.0) * _filtered_walk(rng, n, 30.0 * t_loop)
+    return base, ext, sp
+
+
 def cause_loop(seed: int, *, change: str | None = None, generator: str | None = None) -> FamilyLoop:
     """One loop of the cause family, a deterministic function of ``seed``.
 
@@ -225,46 +281,15 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     process, Kc, Ti, t_loop, scale = _process(rng, kind)
     u_gen = rng.random(8)  # uniform draws each generator maps to its own ranges
 
-    # Tuning: SIMC normal or aggressive; tight at a gain margin of 1.1-1.8.
-    Ti = float(Ti * (0.6 + 0.6 * u_gen[1]))
-    Kc = float(Kc * (0.7 + 1.1 * u_gen[0]))
-    ku = ultimate_gain(process, Ti)
-    gm = 1.1 + 0.7 * u_gen[2]
-    if gen == "tuning" and math.isfinite(ku):
-        Kc = ku / gm
-    elif math.isfinite(ku):
-        Kc = min(Kc, ku / 2.0)  # the other generators are not tight-tuned
-    controller = PI(gain=float(Kc), integral_time=float(Ti))
-    base_controller = controller
-    if change == "conservative":
-        ku2 = ultimate_gain(process, 2.0 * Ti)
-        controller = PI(
-            gain=float(ku2 / 4.0 if math.isfinite(ku2) else Kc / 4.0), integral_time=2.0 * Ti
-        )
-
-    # Valve.
-    sticky = gen == "valve" or (gen == "external" and u_gen[3] < 0.25)
-    S = (
-        (_loguniform(rng, 1.0, 8.0) if gen == "valve" else _loguniform(rng, 0.2, 1.0))
-        if sticky
-        else 0.0
-    )
-    J = S * (0.0 if u_gen[4] < 0.1 else float(rng.uniform(0.2, 1.0))) if sticky else 0.0
+    base_controller, controller, Kc, ku = _tuning(process, Kc, Ti, gen, change, u_gen)
+    sticky, S, J = _valve_friction(rng, gen, u_gen)
     valve = stick if sticky else "linear"
     n_rec = int(np.clip(span * t_loop / decim, *N_RANGE))
     if valve == "physical":
         n_rec = min(n_rec, 2000)
     n = WARMUP + n_rec * decim
 
-    # Loads: random non-periodic ones for every loop; the periodic one for ``external``.
-    base = 0.05 * scale * _filtered_walk(rng, n, max(2.0, t_loop / 4))
-    slow = scale * _loguniform(rng, 0.3, 3.0) * _filtered_walk(rng, n, rng.uniform(20, 60) * t_loop)
-    base = base + (slow if u_gen[5] < 0.4 else 0.0)
-    period = t_loop * _loguniform(rng, 2.0, 25.0)
-    ext = scale * _loguniform(rng, 0.5, 4.0) * _wave(rng, shape, n, period)
-    sp = np.zeros(n)
-    if kind == "slave":
-        sp += scale * _loguniform(rng, 0.5, 3.0) * _filtered_walk(rng, n, 30.0 * t_loop)
+    base, ext, sp = _loads(rng, kind, shape, n, t_loop, scale, u_gen)
     external_on = gen == "external" and change != "no_external"
     load = base + (ext if external_on and kind != "slave" else 0.0)
     if external_on and kind == "slave":
@@ -277,12 +302,7 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     sim_seed = int(rng.integers(2**31))
     q_ratio = float(rng.uniform(1.0, 4.0))
     linear = change == "linear_valve"
-    physical = None
-    if valve == "physical":
-        k = 52_500.0
-        physical = PhysicalValve(
-            Fs=k * 0.01 * (S + J) / 2, Fc=k * 0.01 * (S - J) / 2, time_step=5e-4
-        )
+    physical = physical_valve(S, J) if valve == "physical" else None
 
     def run(ctrl, lin: bool, load_, sp_, noise_std: float, q: float = 0.0, dz: float = 0.0):
         if gen in ("quantiser", "deadzone"):
@@ -319,7 +339,7 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     sl = slice(WARMUP, n, decim)
     pv, op, mv, spv = pv[sl].copy(), op[sl].copy(), mv[sl].copy(), spv[sl].copy()
     pv, op = _record(rng, pv, op, record)
-    truth = {
+    truth = {  # the draws
         "seed": int(seed),
         "generator": gen,
         "change": change,
@@ -335,9 +355,6 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
         "decimation": decim,
         "n": int(pv.size),
     }
-    loop_type = {"flow": "flow", "slave": "flow", "integrating": "level"}.get(
-        kind, "pressure" if t_loop < 40 else "temperature"
-    )
     return FamilyLoop(
         pv=pv,
         op=op,
@@ -345,7 +362,7 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
         mv=None,
         ts=float(decim),
         integrating=kind == "integrating",
-        loop_type=loop_type,
+        loop_type=loop_type_of(kind, t_loop),
         sticky=bool(sticky and not linear),
         truth=truth,
     )

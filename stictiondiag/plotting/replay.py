@@ -152,12 +152,17 @@ def plot_replay(
     return fig
 
 
+#: The replayed valve's flowchart in words (``Replay.settings["valve"]``).
+_FLOWCHARTS = {"choudhury": "Choudhury, Fig. 10", "kano": "Kano et al."}
+
+
 def _summary(replay, metrics: dict | None = None) -> str:
     """The text of the last panel: valve, controller, process, periods, amplitudes
     (by the one measure of ``metrics`` for data and replay, when given)."""
     proc, ctrl = replay.process, replay.controller
     lines = [
-        f"valve: S = {replay.S:.3g} %, J = {replay.J:.3g} %",
+        f"valve: S = {replay.S:.3g} %, J = {replay.J:.3g} %"
+        f" ({_FLOWCHARTS.get(str((replay.settings or {}).get('valve')), 'data-driven')})",
         f"controller: Kc = {_fmt(ctrl.get('gain'))}, Ti = {_fmt(ctrl.get('integral_time_s'))} s"
         f" (R2 {_fmt(ctrl.get('fit_r2'), '.3f')})",
     ]

@@ -714,7 +714,7 @@ def replay(
     S, J = float(fit.S), float(fit.J)
     cf, pf, model_warnings = _replay_models(rec, controller, process, integrating, action, known)
     refit_result = None
-    if refit and valve == "choudhury" and noise_std == 0.0 and process is None:
+    if refit and noise_std == 0.0 and process is None:
         refit_result, pf = refine_loop(
             rec,
             pf,

@@ -147,6 +147,15 @@ class StictionFit:
         )
 
     @property
+    def valve_family(self) -> str:
+        """The flowchart of the fitted valve, ``"choudhury"`` (Fig. 10) or ``"kano"``
+        (Kano et al. 2004), with or without the play operator against op's noise
+        (``details["valve_model"]``); ``"choudhury"`` when the fit does not say.  The
+        replay runs the valve that was fitted."""
+        name = str((self.details or {}).get("valve_model", "choudhury"))
+        return "kano" if name.startswith("kano") else "choudhury"
+
+    @property
     def improvement(self) -> float | None:
         """Fraction of the linear valve's residual removed by the stiction model [-]."""
         if not (self.linear_cost > 0 and math.isfinite(self.linear_cost)):

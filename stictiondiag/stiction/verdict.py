@@ -477,6 +477,74 @@ def _cause_reading(probs: dict[str, float]) -> str:
     )
 
 
+#: How the verdict's confidence follows from P, as the evidence states it.
+CONFIDENCE_FORMULA = (
+    "P = calibrated logistic model of the features (stictiondiag.stiction."
+    "probability, fitted on simulated loops); confidence = P (stiction, "
+    "inconclusive) or 1 - P (no stiction); without a limit cycle, "
+    "max(1 - P, 0.5) for no stiction (stage 1 answers the question of the "
+    "cycle, P only whether the valve has friction)"
+)
+
+
+def _decide(
+    P: float, cycle, direct: str | None, stage2: dict[str, float] | None, contrib
+) -> tuple[str, bool | None, float, str | None, str]:
+    """The decision: status, detected, confidence, cause and the headline reason.
+
+    Without a limit cycle, stick-slip seen directly (``direct``) calls stiction and
+    anything else no stiction; with one, P(stiction) against the two levels.
+    """
+    for_text = _evidence_words(contrib, +1)
+    against_text = _evidence_words(contrib, -1)
+    if not cycle.present and direct:
+        head = f"stick-slip without a limit cycle: {direct} (P(stiction) = {P:.2f})"
+        return "stiction", True, P, "valve", head
+    if not cycle.present:
+        head = f"{NO_CYCLE_REASON} (P that the valve has friction = {P:.2f})"
+        return "no_stiction", False, 1.0 - min(P, 0.5), "none", head
+    if P > STICTION_LEVEL:
+        head = f"P(stiction) = {P:.2f} (above {STICTION_LEVEL:g}): {for_text}"
+        return "stiction", True, P, "valve", head
+    if P < NO_STICTION_LEVEL:
+        cause = _runner_up(stage2, "valve")[0] if stage2 is not None else None
+        head = f"P(stiction) = {P:.2f} (below {NO_STICTION_LEVEL:g}): {against_text}"
+        return "no_stiction", False, 1.0 - P, cause, head
+    levels = f"levels {NO_STICTION_LEVEL:g} and {STICTION_LEVEL:g}"
+    head = (
+        f"P(stiction) = {P:.2f}, between the {levels}: the evidence is split "
+        f"(for: {for_text}; against: {against_text})"
+    )
+    return "inconclusive", None, P, None, head
+
+
+def _improvement_text(
+    f: float, f_iv: tuple[float, float], support: float, min_improvement: float, n_blocks: int
+) -> str:
+    """The stiction model's improvement over a linear valve, and its support, in words."""
+    return (
+        f"the stiction model removes {100 * f:.0f} % of the linear valve's residual "
+        f"(95 % interval over cycles {100 * f_iv[0]:.0f} to {100 * f_iv[1]:.0f} %; "
+        f"support {support:.2f} for more than {100 * min_improvement:.0f} %"
+        + (
+            f"; only {n_blocks} cycle block(s), too few to measure consistency"
+            if n_blocks < 3
+            else ""
+        )
+        + ")"
+    )
+
+
+def _unbounded_s_notes(status: str, fit: StictionFit) -> tuple[str, ...]:
+    """A no-stiction verdict's caveat when the record does not bound S from above."""
+    if status == "no_stiction" and fit.S_interval is not None and fit.S_interval[1] >= RULE_OUT_S:
+        return (
+            f"the record does not bound S: stiction up to {fit.S_interval[1]:.3g} % of span "
+            "cannot be excluded from these data alone",
+        )
+    return ()
+
+
 def stiction_verdict(
     fit: StictionFit,
     oscillation,
@@ -535,6 +603,7 @@ def stiction_verdict(
     """
     if has_mv is None:
         has_mv = fit.method == "mv_segments"
+    has_mv = bool(has_mv)
     model = model or load_model()
     features, (support, f, f_iv), classic = verdict_features(
         fit,
@@ -545,54 +614,18 @@ def stiction_verdict(
         min_improvement=min_improvement,
         seed=seed,
     )
-    P = stiction_probability(features, bool(has_mv), model)
-    contrib = _contributions(features, bool(has_mv), model)
+    P = stiction_probability(features, has_mv, model)
+    contrib = _contributions(features, has_mv, model)
     n_blocks = len(((fit.details or {}).get("block_sse") or {}).get("stiction", [])) or 1
 
-    improve_text = (
-        f"the stiction model removes {100 * f:.0f} % of the linear valve's residual "
-        f"(95 % interval over cycles {100 * f_iv[0]:.0f} to {100 * f_iv[1]:.0f} %; "
-        f"support {support:.2f} for more than {100 * min_improvement:.0f} %"
-        + (
-            f"; only {n_blocks} cycle block(s), too few to measure consistency"
-            if n_blocks < 3
-            else ""
-        )
-        + ")"
-    )
-    osc_texts = [_osc_text("pv", oscillation)]
-    if oscillation_op is not None:
-        osc_texts.append(_osc_text("op", oscillation_op))
-    levels = f"levels {NO_STICTION_LEVEL:g} and {STICTION_LEVEL:g}"
-    for_text = _evidence_words(contrib, +1)
-    against_text = _evidence_words(contrib, -1)
+    # Stage 1: is there a limit cycle?  Stage 2 (its cause) only where there is one.
     cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
     stage2 = _cause_probabilities(features, cause_model) if cycle.present else None
     direct = None
     if not cycle.present:
-        direct = direct_stick_slip(features, bool(has_mv), P, min_improvement=min_improvement)
-    cause: str | None = None
-    detected: bool | None
-    if not cycle.present and direct:
-        status, detected, confidence, cause = "stiction", True, P, "valve"
-        head = f"stick-slip without a limit cycle: {direct} (P(stiction) = {P:.2f})"
-    elif not cycle.present:
-        status, detected, confidence, cause = "no_stiction", False, 1.0 - min(P, 0.5), "none"
-        head = f"{NO_CYCLE_REASON} (P that the valve has friction = {P:.2f})"
-    elif P > STICTION_LEVEL:
-        status, detected, confidence, cause = "stiction", True, P, "valve"
-        head = f"P(stiction) = {P:.2f} (above {STICTION_LEVEL:g}): {for_text}"
-    elif P < NO_STICTION_LEVEL:
-        status, detected, confidence = "no_stiction", False, 1.0 - P
-        cause = _runner_up(stage2, "valve")[0] if stage2 is not None else None
-        head = f"P(stiction) = {P:.2f} (below {NO_STICTION_LEVEL:g}): {against_text}"
-    else:
-        status, detected, confidence = "inconclusive", None, P
-        head = (
-            f"P(stiction) = {P:.2f}, between the {levels}: the evidence is split "
-            f"(for: {for_text}; against: {against_text})"
-        )
-    reading = _cause_reading(stage2) if stage2 is not None and not has_mv else None
+        direct = direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
+    status, detected, confidence, cause, head = _decide(P, cycle, direct, stage2, contrib)
+
     evidence = {
         "probability": P,
         "p_friction": P,
@@ -607,47 +640,33 @@ def stiction_verdict(
         "support": support,
         "min_improvement": min_improvement,
         "n_blocks": int(n_blocks),
-        "has_mv": bool(has_mv),
+        "has_mv": has_mv,
         "short_record": bool(short_record),
         "cycle": cycle.to_dict(),
         "direct_stick_slip": direct,
         "classic": classic,
-        "confidence_formula": (
-            "P = calibrated logistic model of the features (stictiondiag.stiction."
-            "probability, fitted on simulated loops); confidence = P (stiction, "
-            "inconclusive) or 1 - P (no stiction); without a limit cycle, "
-            "max(1 - P, 0.5) for no stiction (stage 1 answers the question of the "
-            "cycle, P only whether the valve has friction)"
-        ),
+        "confidence_formula": CONFIDENCE_FORMULA,
     }
-    notes: tuple[str, ...] = ()
-    if status == "no_stiction" and fit.S_interval is not None and fit.S_interval[1] >= RULE_OUT_S:
-        notes = (
-            f"the record does not bound S: stiction up to {fit.S_interval[1]:.3g} % of span "
-            "cannot be excluded from these data alone",
-        )
     reasons = (
         head,
-        *notes,
-        *((reading,) if reading else ()),
+        *_unbounded_s_notes(status, fit),
+        *((_cause_reading(stage2),) if stage2 is not None and not has_mv else ()),
         cycle_text(cycle),
-        improve_text,
-        _fit_text(fit, bool(has_mv)),
-        *osc_texts,
+        _improvement_text(f, f_iv, support, min_improvement, n_blocks),
+        _fit_text(fit, has_mv),
+        _osc_text("pv", oscillation),
+        *((_osc_text("op", oscillation_op),) if oscillation_op is not None else ()),
     )
-    p_out = P
-    if not cycle.present and not direct:
-        p_out = 0.0  # no cycle: the valve causes none (P(friction) is in the evidence)
-    runner = _runner_up(stage2, cause)[0] if stage2 is not None else None
     return Verdict(
         status,
         detected,
         float(confidence),
         reasons,
         evidence,
-        probability=p_out,
+        # No cycle and no stick-slip: the valve causes none (P(friction) is in the evidence).
+        probability=P if cycle.present or direct else 0.0,
         cause=cause,
         cycle=cycle,
         cause_probabilities=stage2,
-        runner_up=runner,
+        runner_up=_runner_up(stage2, cause)[0] if stage2 is not None else None,
     )

@@ -254,6 +254,118 @@ def _segments_count(n: int, nfft: int, overlap: float) -> int:
     return 0 if n < nfft else 1 + (n - nfft) // step
 
 
+def _check_options(
+    overlap: float,
+    alpha: float,
+    correction: str,
+    nfft: int,
+    decimation: int,
+    conditioning_percentile: float | None,
+) -> tuple[int, int]:
+    """Check :func:`bicoherence_indices`' options; ``nfft`` and ``decimation`` as ints."""
+    if not 0.0 <= overlap <= 0.9:
+        raise UsageError(f"overlap must be a fraction in [0, 0.9], got {overlap}")
+    if not 0.0 < alpha < 1.0:
+        raise UsageError(f"alpha must be in (0, 1), got {alpha}")
+    if correction not in CORRECTIONS:
+        raise UsageError(f"correction must be one of {', '.join(CORRECTIONS)}, got {correction!r}")
+    try:
+        nfft = int(nfft)
+        decimation = int(decimation)
+    except (TypeError, ValueError):
+        raise UsageError("nfft and decimation must be integers") from None
+    if nfft < MIN_NFFT or nfft & (nfft - 1):
+        raise UsageError(f"nfft must be a power of two >= {MIN_NFFT}, got {nfft}")
+    if decimation < 1:
+        raise UsageError(f"decimation must be an integer >= 1, got {decimation}")
+    if conditioning_percentile is not None and not 0.0 <= conditioning_percentile <= 100.0:
+        raise UsageError(
+            f"conditioning_percentile must be in [0, 100] or None, got {conditioning_percentile}"
+        )
+    return nfft, decimation
+
+
+def _segment_spectra(
+    x: np.ndarray, nfft: int, overlap: float, window: str, decimation: int
+) -> tuple[np.ndarray, int, int]:
+    """The spectra ``X_k(f)`` of the detrended, decimated record's tapered segments.
+
+    Returns the (K, nfft/2 + 1) spectra, the segment length used (``nfft`` halved
+    while the record gives fewer than :data:`MIN_SEGMENTS` segments) and K.
+    """
+    from scipy import signal as sps  # imported here: scipy.signal is slow to import
+
+    x = detrend_linear(x)
+    if decimation > 1:
+        if x.size // decimation < MIN_NFFT * 2:
+            raise DataError(
+                f"decimating {x.size} samples by {decimation} leaves too few samples; "
+                f"use a smaller decimation"
+            )
+        x = sps.decimate(x, decimation, ftype="fir", zero_phase=True)
+    while nfft > MIN_NFFT and _segments_count(x.size, nfft, overlap) < MIN_SEGMENTS:
+        nfft //= 2
+    k_seg = _segments_count(x.size, nfft, overlap)
+    if k_seg < MIN_SEGMENTS:
+        raise DataError(
+            f"{x.size} samples give {k_seg} segments of {nfft}; the bicoherence needs at "
+            f"least {MIN_SEGMENTS} (a longer record or less decimation)"
+        )
+    step = max(1, int(round(nfft * (1.0 - overlap))))
+    segs = sliding_window_view(x, nfft)[::step][:k_seg]
+    segs = segs - segs.mean(axis=1, keepdims=True)
+    try:
+        taper = sps.get_window(window, nfft)
+    except ValueError as exc:
+        raise UsageError(f"unknown window {window!r}: {exc}") from None
+    return np.fft.rfft(segs * taper, axis=1), nfft, k_seg
+
+
+def _squared_bicoherence(
+    spec: np.ndarray, nfft: int, conditioning_percentile: float | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``bic^2`` over the principal domain, with the bin indices ``i1 >= i2`` of each
+    bifrequency (see the Notes of :func:`bicoherence_indices`)."""
+    half = nfft // 2
+    i1, i2 = np.tril_indices(half + 1)
+    keep = (i2 >= 1) & (i1 + i2 <= half)
+    i1, i2 = i1[keep], i2[keep]
+    x1x2 = spec[:, i1] * spec[:, i2]
+    x3 = spec[:, i1 + i2]
+    bispec = np.mean(x1x2 * np.conj(x3), axis=0)
+    denom = np.mean(np.abs(x1x2) ** 2, axis=0) * np.mean(np.abs(x3) ** 2, axis=0)
+    eps = 0.0
+    if conditioning_percentile is not None:
+        eps = float(np.percentile(denom, conditioning_percentile))
+    scale = float(np.max(denom)) if denom.size else 0.0
+    if scale <= 0.0:
+        raise DataError("the signal has no power at any bifrequency; nothing to test")
+    bic2 = np.abs(bispec) ** 2 / (denom + eps + 1e-300 * scale)
+    return np.clip(bic2, 0.0, 1.0), i1, i2  # Cauchy-Schwarz bound, guards round-off
+
+
+def _gaussianity_indices(
+    bic2: np.ndarray, k_seg: int, alpha: float, correction: str
+) -> tuple[float, int, float, float, float]:
+    """The test of zero bicoherence and the indices: threshold, number of significant
+    bifrequencies, NGI, NLI and TNLI (see the Notes of :func:`bicoherence_indices`)."""
+    from scipy.special import chdtri
+
+    n_bif = int(bic2.size)
+    alpha_point = _point_level(bic2, k_seg, alpha, correction)
+    threshold = float(chdtri(2, alpha_point) / (2.0 * k_seg))  # = scipy.stats.chi2.isf
+    significant = bic2 > threshold
+    n_sig = int(np.count_nonzero(significant))
+    mean_sig = float(bic2[significant].mean()) if n_sig else 0.0
+    ngi = mean_sig - threshold
+    tnli = float(bic2[significant].sum())
+    ordered = np.sort(bic2)
+    cut = int(NLI_TRIM * n_bif)
+    core = ordered[cut : n_bif - cut] if n_bif - 2 * cut >= 2 else ordered
+    nli = abs(float(ordered[-1]) - (float(core.mean()) + 2.0 * float(core.std())))
+    return threshold, n_sig, ngi, nli, tnli
+
+
 def bicoherence_indices(
     x: np.ndarray,
     *,
@@ -340,90 +452,17 @@ def bicoherence_indices(
     """
     dt = check_dt(dt)
     x = signal(x, "signal")
-    if not 0.0 <= overlap <= 0.9:
-        raise UsageError(f"overlap must be a fraction in [0, 0.9], got {overlap}")
-    if not 0.0 < alpha < 1.0:
-        raise UsageError(f"alpha must be in (0, 1), got {alpha}")
-    if correction not in CORRECTIONS:
-        raise UsageError(f"correction must be one of {', '.join(CORRECTIONS)}, got {correction!r}")
-    try:
-        nfft = int(nfft)
-        decimation = int(decimation)
-    except (TypeError, ValueError):
-        raise UsageError("nfft and decimation must be integers") from None
-    if nfft < MIN_NFFT or nfft & (nfft - 1):
-        raise UsageError(f"nfft must be a power of two >= {MIN_NFFT}, got {nfft}")
-    if decimation < 1:
-        raise UsageError(f"decimation must be an integer >= 1, got {decimation}")
-    if conditioning_percentile is not None and not 0.0 <= conditioning_percentile <= 100.0:
-        raise UsageError(
-            f"conditioning_percentile must be in [0, 100] or None, got {conditioning_percentile}"
-        )
-
-    from scipy import signal as sps  # imported here: scipy.signal is slow to import
-    from scipy.special import chdtri
-
-    x = detrend_linear(x)
-    if decimation > 1:
-        if x.size // decimation < MIN_NFFT * 2:
-            raise DataError(
-                f"decimating {x.size} samples by {decimation} leaves too few samples; "
-                f"use a smaller decimation"
-            )
-        x = sps.decimate(x, decimation, ftype="fir", zero_phase=True)
-    while nfft > MIN_NFFT and _segments_count(x.size, nfft, overlap) < MIN_SEGMENTS:
-        nfft //= 2
-    k_seg = _segments_count(x.size, nfft, overlap)
-    if k_seg < MIN_SEGMENTS:
-        raise DataError(
-            f"{x.size} samples give {k_seg} segments of {nfft}; the bicoherence needs at "
-            f"least {MIN_SEGMENTS} (a longer record or less decimation)"
-        )
-    step = max(1, int(round(nfft * (1.0 - overlap))))
-    segs = sliding_window_view(x, nfft)[::step][:k_seg]
-    segs = segs - segs.mean(axis=1, keepdims=True)
-    try:
-        taper = sps.get_window(window, nfft)
-    except ValueError as exc:
-        raise UsageError(f"unknown window {window!r}: {exc}") from None
-    spec = np.fft.rfft(segs * taper, axis=1)
-
-    half = nfft // 2
-    i1, i2 = np.tril_indices(half + 1)
-    keep = (i2 >= 1) & (i1 + i2 <= half)
-    i1, i2 = i1[keep], i2[keep]
-    x1x2 = spec[:, i1] * spec[:, i2]
-    x3 = spec[:, i1 + i2]
-    bispec = np.mean(x1x2 * np.conj(x3), axis=0)
-    denom = np.mean(np.abs(x1x2) ** 2, axis=0) * np.mean(np.abs(x3) ** 2, axis=0)
-    eps = 0.0
-    if conditioning_percentile is not None:
-        eps = float(np.percentile(denom, conditioning_percentile))
-    scale = float(np.max(denom)) if denom.size else 0.0
-    if scale <= 0.0:
-        raise DataError("the signal has no power at any bifrequency; nothing to test")
-    bic2 = np.abs(bispec) ** 2 / (denom + eps + 1e-300 * scale)
-    bic2 = np.clip(bic2, 0.0, 1.0)  # Cauchy-Schwarz bound, guards round-off
-
-    n_bif = int(bic2.size)
-    alpha_point = _point_level(bic2, k_seg, alpha, correction)
-    threshold = float(chdtri(2, alpha_point) / (2.0 * k_seg))  # = scipy.stats.chi2.isf
-    significant = bic2 > threshold
-    n_sig = int(np.count_nonzero(significant))
-    mean_sig = float(bic2[significant].mean()) if n_sig else 0.0
-    ngi = mean_sig - threshold
-    tnli = float(bic2[significant].sum())
-    ordered = np.sort(bic2)
-    cut = int(NLI_TRIM * n_bif)
-    core = ordered[cut : n_bif - cut] if n_bif - 2 * cut >= 2 else ordered
-    nli = abs(float(ordered[-1]) - (float(core.mean()) + 2.0 * float(core.std())))
+    nfft, decimation = _check_options(
+        overlap, alpha, correction, nfft, decimation, conditioning_percentile
+    )
+    spec, nfft, k_seg = _segment_spectra(x, nfft, overlap, window, decimation)
+    bic2, i1, i2 = _squared_bicoherence(spec, nfft, conditioning_percentile)
+    threshold, n_sig, ngi, nli, tnli = _gaussianity_indices(bic2, k_seg, alpha, correction)
     non_gaussian = ngi > NGI_THRESHOLD
     nonlinear = bool(non_gaussian and nli > NLI_THRESHOLD)
 
-    dt_eff = dt * decimation
-    df = 1.0 / (nfft * dt_eff)
-    f1 = i1 * df
-    f2 = i2 * df
+    df = 1.0 / (nfft * (dt * decimation))  # bin width after decimation [Hz]
+    f1, f2 = i1 * df, i2 * df
     kmax = int(np.argmax(bic2))
     return BicoherenceResult(
         ngi=ngi,
@@ -437,7 +476,7 @@ def bicoherence_indices(
         n_segments=int(k_seg),
         nfft=int(nfft),
         decimation=int(decimation),
-        n_bifrequencies=n_bif,
+        n_bifrequencies=int(bic2.size),
         n_significant=n_sig,
         max_bicoherence=float(bic2[kmax]),
         peak_f1_hz=float(f1[kmax]),
