@@ -83,11 +83,10 @@ def _why_rejected(c: dict, heldout_before: float | None) -> str:
             f"({_f(held)} % against {_f(heldout_before)} %)"
         )
     k = c.get("n_params")
-    what = "extra parameter" if k == 1 else "extra parameters"
+    what = "extra parameters" if k is None else f"{k} extra parameter{'' if k == 1 else 's'}"
     return (
-        f"its gain on held-out blocks does not pay for its {k if k is not None else ''} "
-        f"{what}, or the blocks do not bear it out"
-    ).replace("its  ", "its ")
+        f"its gain on held-out blocks does not pay for its {what}, or the blocks do not bear it out"
+    )
 
 
 def _why_none(gap: dict) -> str:
