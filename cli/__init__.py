@@ -1,4 +1,10 @@
-"""The ``stiction`` command (Typer app). No numerics here: parse, call, render."""
+"""The ``stiction`` command (Typer app). No numerics here: parse, call, render.
+
+Each command imports the library's layers inside its function, so that ``stiction
+--help`` and one command's start pay only for what that command runs (the analysis
+brings numpy and numba, about a second); only ``stictiondiag.core``'s errors and
+atomic writes, which load no numpy, are imported at module level.
+"""
 
 import os as _os
 import signal as _signal

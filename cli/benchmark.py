@@ -8,6 +8,8 @@ from typing import Annotated
 
 import typer
 
+from stictiondiag.core.errors import UsageError
+
 from .app import app
 from .common import friendly_errors, info, write_stdout
 
@@ -50,7 +52,6 @@ def benchmark(
     first, and of propagated loops called stiction.
     """
     from stictiondiag.apps.benchmark import run_benchmark
-    from stictiondiag.core.errors import UsageError
 
     with friendly_errors():
         if out.exists() and not out.is_dir():

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import typer
 
-from stictiondiag.core.errors import StictionError
+from stictiondiag.core.atomic import write_atomic
+from stictiondiag.core.errors import StictionError, UsageError
 
 
 def fail(message: str, code: int) -> None:
@@ -90,8 +91,6 @@ def write_stdout(text: str) -> None:
     UsageError
         stdout is full (``/dev/full``), closed or otherwise unwritable.
     """
-    from stictiondiag.core.errors import UsageError
-
     try:
         sys.stdout.write(text)
         sys.stdout.flush()
@@ -118,8 +117,6 @@ def probe_writable(target: Path, option: str, shown: Path | None = None) -> None
     """
     import os
     import tempfile
-
-    from stictiondiag.core.errors import UsageError
 
     existing = target
     while not existing.exists() and existing != existing.parent:
@@ -153,8 +150,6 @@ def emit(d: dict, summary: str, json_path: str | None) -> None:
         return
     write_stdout(summary + "\n")
     if json_path:
-        from stictiondiag.core.atomic import write_atomic
-
         write_atomic(json_path, text)
         info(f"wrote {json_path}")
 
@@ -199,8 +194,6 @@ def check_output_file(
         ``path`` is a directory, lies below a file, is an input file, or (``figure``)
         has an extension no figure can be written in.
     """
-    from stictiondiag.core.errors import UsageError
-
     if path in (None, "-"):
         return
     target = Path(path)
@@ -238,8 +231,6 @@ def check_output_dir(
     UsageError
         As described.
     """
-    from stictiondiag.core.errors import UsageError
-
     if path is None:
         return
     target = Path(path)

@@ -7,6 +7,8 @@ from typing import Annotated
 
 import typer
 
+from stictiondiag.core.atomic import atomic_path
+
 from .app import app
 from .common import check_output_file, compile_if_cold, emit, friendly_errors, info
 from .options import (
@@ -95,7 +97,6 @@ def gap(
 ) -> None:
     """Sim-to-real gap: measure and locate it, and name the unmodelled effect that explains it."""
     from stictiondiag.analysis import diagnose_gap_file
-    from stictiondiag.core.atomic import atomic_path
 
     with friendly_errors():
         check_output_file("--plot", plot, [file], figure=True)

@@ -13,6 +13,7 @@ from typing import Annotated
 
 import typer
 
+from stictiondiag.core.atomic import write_atomic
 from stictiondiag.core.errors import (
     EXIT_FINDING,
     EXIT_PARTIAL,
@@ -114,7 +115,6 @@ def report(
         build_report,
         render_markdown,
     )
-    from stictiondiag.core.atomic import write_atomic
 
     if fail_on_stiction is not None and not 0.0 <= fail_on_stiction <= 1.0:
         fail(f"--fail-on-stiction threshold must be in [0, 1], got {fail_on_stiction}", 2)

@@ -14,6 +14,10 @@ from typing import Annotated
 
 import typer
 
+from stictiondiag.core.atomic import (
+    atomic_path,
+    write_atomic,
+)
 from stictiondiag.core.errors import UsageError
 
 from .app import app
@@ -280,10 +284,6 @@ def simulate(
 
     The summary goes to stderr; JSON, CSV and the plot go to the files asked for (JSON to stdout with --json -). --S/--J apply to the data-driven valves only: with --valve physical or linear they are refused. Exit codes: 0 done, 2 bad option value, contradicting options or unwritable output.
     """
-    from stictiondiag.core.atomic import (
-        atomic_path,
-        write_atomic,
-    )
     from stictiondiag.models import loops, processes
 
     with friendly_errors():

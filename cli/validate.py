@@ -9,6 +9,7 @@ from typing import Annotated
 
 import typer
 
+from stictiondiag.core.atomic import write_atomic
 from stictiondiag.core.errors import UsageError
 
 from .app import app
@@ -67,7 +68,6 @@ def validate(
         render_markdown,
         validate_isdb,
     )
-    from stictiondiag.core.atomic import write_atomic
 
     with friendly_errors():
         check_output_file("--out", out)

@@ -8,14 +8,18 @@ does (:func:`stictiondiag.io.compression.reconstruct`).  The experiment beside i
 small steps (at most two deadbands, lasting at most twice the step before) joined
 linearly, mv held.  S and J come from the mv-op estimator
 (:func:`stictiondiag.stiction.segments.estimate_from_mv`); one line per sample and
-deadband.  Then the healthy loop (linear valve) is analysed whole (``analyze``, no
-gap) for both readings and for op and mv archived with different deadbands: its
-verdict is what decides against the join (docs/historian_exports.md).
+deadband, with the deadbands the reader finds in the archives
+(:func:`stictiondiag.io.compression.archive_deadbands`); ``*`` marks S and J within
+what they can hide (:func:`stictiondiag.stiction.resolution.hidden_by_resolution`).
+Then the healthy loop (linear valve) is analysed whole (``analyze``, no gap) for both
+readings and for op and mv archived with different deadbands, with the deadbands
+carried as the reader carries them and without (docs/historian_exports.md).
 """
 
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +27,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from stictiondiag.io.compression import exception_compress, reconstruct  # noqa: E402
+from stictiondiag.io.compression import (  # noqa: E402
+    archive_deadbands,
+    exception_compress,
+    reconstruct,
+)
 from stictiondiag.io.tags import read_tags  # noqa: E402
 from stictiondiag.stiction.segments import estimate_from_mv  # noqa: E402
 
@@ -47,10 +55,12 @@ def _joined(t: np.ndarray, v: np.ndarray, grid: np.ndarray) -> np.ndarray:
 
 
 def _rebuilt(t, op, mv, deadband_op, deadband_mv, join):
+    """op and mv rebuilt from their archives, and the deadbands the reader finds in them."""
     i, j = exception_compress(op, deadband_op), exception_compress(mv, deadband_mv)
     series = {"pv": (t, np.zeros(t.size)), "op": (t[i], op[i]), "mv": (t[j], mv[j])}
     arrays, *_ = reconstruct(series, "x", "hold")
-    return (_joined(t[i], op[i], t) if join else arrays["op"]), arrays["mv"]
+    found = archive_deadbands(series, "x", "hold")
+    return (_joined(t[i], op[i], t) if join else arrays["op"]), arrays["mv"], found
 
 
 def _verdicts() -> None:
@@ -62,17 +72,24 @@ def _verdicts() -> None:
     print("healthy_flow, whole analysis (no gap): op / mv deadband, reading, verdict, S, J")
     for deadbands in ((0.1, 0.1), (0.05, 0.2), (0.2, 0.05)):
         for join in (False, True):
-            op, mv = _rebuilt(t, tags.op, tags.mv, *deadbands, join)
+            op, mv, found = _rebuilt(t, tags.op, tags.mv, *deadbands, join)
             rebuilt = Tags.from_arrays(tags.pv, op, mv=mv, sp=tags.sp, ts=tags.ts,
                                        loop_type="flow")  # fmt: skip
-            result = analyze(rebuilt, config=AnalysisConfig(gap=False))
+            # As the reader carries them (io.tags.Tags.archive_deadband) ...
+            result = analyze(replace(rebuilt, archive_deadband=found),
+                             config=AnalysisConfig(gap=False))  # fmt: skip
+            # ... and without them, as before the valve fit knew the archive.
+            blind = analyze(rebuilt, config=AnalysisConfig(gap=False))
             print(f"  {deadbands[0]:.2f} / {deadbands[1]:.2f}  {'op joined' if join else 'held':9s}"
-                  f"  {result.verdict.status:12s} S {result.fit.S:.3f}  J {result.fit.J:.3f}",
+                  f"  {result.verdict.status:12s} S {result.fit.S:.3f}  J {result.fit.J:.3f}"
+                  f"  P {result.verdict.evidence['probability']:.2f}"
+                  f"  (deadbands not known: {blind.verdict.status}, S {blind.fit.S:.3f})",
                   flush=True)  # fmt: skip
 
 
 def main() -> None:
-    print("sample                 deadband  plain S / J    op held S / J   op joined S / J")
+    print("sample                 deadband  plain S / J    op held S / J   op joined S / J"
+          "   (* within what the archive can hide)")  # fmt: skip
     for name in SAMPLES:
         tags = read_tags(ROOT / "sample_data" / f"{name}.csv")
         op, mv, ts = np.asarray(tags.op), np.asarray(tags.mv), tags.ts
@@ -81,8 +98,10 @@ def main() -> None:
         for deadband in DEADBANDS:
             cells = []
             for join in (False, True):
-                fit = estimate_from_mv(*_rebuilt(t, op, mv, deadband, deadband, join), ts)
-                cells.append(f"{fit.S:5.2f} / {fit.J:4.2f}")
+                op_r, mv_r, found = _rebuilt(t, op, mv, deadband, deadband, join)
+                fit = estimate_from_mv(op_r, mv_r, ts, deadband=found)
+                hidden = (fit.details.get("resolution") or {}).get("within")
+                cells.append(f"{fit.S:5.2f} / {fit.J:4.2f}{'*' if hidden else ' '}")
             print(f"{name:22s} {deadband:8.2f}  {plain.S:5.2f} / {plain.J:4.2f}  "
                   f"{cells[0]:>14s}  {cells[1]:>14s}", flush=True)  # fmt: skip
 

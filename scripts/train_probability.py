@@ -369,24 +369,33 @@ def main(argv=None) -> int:
         cv,
         (aucs, boosted, gate, (choice, same_folds), mismatch),
     )
-    a.doc.write_text(doc + kept_sections(a.doc))
+    head, tail = kept_parts(a.doc)
+    a.doc.write_text(head + doc + tail)
     print(doc)
     return 2 if mismatch else (0 if ok else 1)
 
 
-#: Heading from which the written-by-hand part of the calibration doc starts; the
-#: script rewrites what comes before it and keeps the rest.
-KEPT_HEADING = "## Why real loops came out inconclusive"
+#: The part of the calibration doc this script writes runs from this heading to
+#: :data:`KEPT_HEADING`; what stands before it (the title and the figures table) and
+#: from :data:`KEPT_HEADING` on (written by hand and by ``train_cause.py``) is kept.
+GENERATED_HEADING = "## How P(stiction) is trained"
+KEPT_HEADING = "## Which feature set ships"
+
+#: The head of a calibration doc written from scratch.
+DEFAULT_HEAD = "# Calibration of the stiction probability\n\n"
 
 
-def kept_sections(doc: Path) -> str:
-    """The hand-written part of ``doc`` (from :data:`KEPT_HEADING` on), or ''."""
+def kept_parts(doc: Path) -> tuple[str, str]:
+    """The parts of ``doc`` this script keeps: the text before
+    :data:`GENERATED_HEADING` (default :data:`DEFAULT_HEAD`) and from
+    :data:`KEPT_HEADING` on (default '')."""
     try:
         text = doc.read_text()
     except OSError:
-        return ""
-    i = text.find(KEPT_HEADING)
-    return "\n" + text[i:] if i >= 0 else ""
+        return DEFAULT_HEAD, ""
+    i = text.find(GENERATED_HEADING)
+    j = text.find(KEPT_HEADING)
+    return (text[:i] if i >= 0 else DEFAULT_HEAD), ("\n" + text[j:] if j >= 0 else "")
 
 
 def _table_lines(table) -> list[str]:
@@ -697,7 +706,7 @@ def render(a, model, table, ok, p, y, subsets, n_train, n_test, seconds, t_feat,
     called = p > STICTION_LEVEL
     cleared = p < NO_STICTION_LEVEL
     lines = [
-        "# Calibration of the stiction probability",
+        GENERATED_HEADING,
         "",
         "`P(stiction)` (`stictiondiag/stiction/probability.py`) is a regularised logistic",
         "regression of the evidence of the fit, the oscillation, the classic tests' calls",

@@ -50,7 +50,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from stictiondiag.core.errors import DataError, StictionError
+from stictiondiag.core.errors import DataError, StictionError, require_bool
 from stictiondiag.gap.diagnose import GapDiagnosis, diagnose_gap
 from stictiondiag.identification.looptype import (
     StructureEvidence,
@@ -118,8 +118,6 @@ class AnalysisConfig:
 
     def __post_init__(self) -> None:
         # AnalysisConfig(gap="no") must not run the gap diagnosis: booleans only.
-        from stictiondiag.core.errors import require_bool
-
         for name in ("gap", "replay", "compensation"):
             flag = require_bool(f"AnalysisConfig.{name}", getattr(self, name))
             object.__setattr__(self, name, flag)
@@ -278,7 +276,10 @@ def estimate_loop(tags: Tags) -> LoopEstimate:
 
     # 3. S and J: from the valve's own signal when recorded, else the Hammerstein fit.
     # The stick and slip segments of the mv-op plot serve the gap diagnosis too.
-    segments = segment_valve(tags.op, tags.mv, float(tags.ts)) if tags.mv is not None else None
+    segments = None
+    if tags.mv is not None:
+        deadband = tags.archive_deadband.get("mv", 0.0)
+        segments = segment_valve(tags.op, tags.mv, float(tags.ts), deadband)
     fit = estimate_stiction(tags, segments=segments)
     return LoopEstimate(tags, structure, osc_pv, osc_op, short, segments, fit, tuple(warnings))
 
@@ -476,7 +477,9 @@ def estimate_stiction(tags: Tags, segments: Segments | None = None) -> StictionF
     ts when the caller has it already.
     """
     if tags.mv is not None:
-        return estimate_from_mv(tags.op, tags.mv, float(tags.ts), segments=segments)
+        return estimate_from_mv(
+            tags.op, tags.mv, float(tags.ts), segments=segments, deadband=tags.archive_deadband
+        )
     return fit_hammerstein(
         tags.op,
         tags.pv,

@@ -11,9 +11,9 @@ from stictiondiag.core.errors import DataError
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import LOOP_PARAMETERS
 from stictiondiag.models.valve import choudhury_model
+from stictiondiag.stiction.resolution import quantum
 from stictiondiag.stiction.segments import (
     estimate_from_mv,
-    quantum,
     segment_valve,
 )
 

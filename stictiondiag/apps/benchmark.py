@@ -222,6 +222,7 @@ class BenchmarkResult:
 
 def _diagnose_path(path: Path):
     """Diagnose one file the way ``stiction analyze FILE`` does; returns (gap, how)."""
+    # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import AnalysisConfig, analyze_file
 
     analysis = analyze_file(path, config=AnalysisConfig())

@@ -30,7 +30,7 @@ What varies (each loop draws one option of each line):
 * **measurement noise**: white, with a standard deviation 1 % to 50 % of the
   noise-free pv's in most loops and 50 % to 150 % (dominant) in a tenth of them
   (:data:`NOISE_RANGE`; the range follows the noise real records carry, see
-  ``docs/calibration.md``, "Why real loops came out inconclusive").
+  ``docs/history.md``, "Why real loops came out inconclusive").
 * **recording**: 40 to 400 times the loop's time scale long (600 to 5000 samples),
   sampled every 1-3 simulation steps; in some loops pv (and op)
   quantised to a resolution of 5-40 % of their spread, or compressed by a
@@ -56,6 +56,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from stictiondiag.core.errors import StictionError
+from stictiondiag.io.tags import read_frame
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.physical import PhysicalValve
 from stictiondiag.models.processes import FOPTD, PI, Integrating
@@ -145,8 +146,6 @@ class FamilyLoop:
     def tags(self):
         """The record as :class:`stictiondiag.io.tags.Tags`, read from :meth:`frame`
         by the reader of plant files (:func:`stictiondiag.io.tags.read_frame`)."""
-        from stictiondiag.io.tags import read_frame
-
         return read_frame(self.frame(), source=f"family-{self.truth.get('seed')}")
 
 
@@ -455,6 +454,7 @@ def loop_features(loop: FamilyLoop, *, with_classic: bool = False):
     shape statistics); None for a loop the analysis refuses (a record too short for
     its cycle, or data it cannot use), as it would refuse a plant record.
     """
+    # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import estimate_loop
 
     try:

@@ -78,8 +78,10 @@ from stictiondiag.apps.family import (
     loop_type_of,
     physical_valve,
 )
+from stictiondiag.core.errors import StictionError
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import FOPTD, PI
+from stictiondiag.stiction.cause import find_cycle
 
 #: The generators and their shares of the family.
 GENERATORS: dict[str, float] = {"valve": 0.5, "tuning": 0.15, "external": 0.2, "quantiser": 0.15}
@@ -384,9 +386,8 @@ def has_cycle(loop: FamilyLoop) -> bool | None:
     (:func:`stictiondiag.analysis.find_oscillations`,
     :func:`stictiondiag.analysis.check_record_length`); None when the analysis
     refuses the record (too short for the cycle it shows)."""
+    # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import check_record_length, find_oscillations
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction.cause import find_cycle
 
     try:
         tags = loop.tags()

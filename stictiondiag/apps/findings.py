@@ -23,6 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from stictiondiag.gap.attribution import attribute_gap
+from stictiondiag.stiction.cause import ACTIONS, CAUSE_WORDS
 from stictiondiag.stiction.valvefit import Determinacy, poorly_determined
 from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL
 
@@ -200,8 +202,6 @@ def probability_text(st: dict) -> str:
     reading after it for a loop with a cycle and no mv (``; cause model: the valve
     (P 0.72), runner-up: the controller's tuning (P 0.15)``), or ``no limit
     cycle`` for a loop without one."""
-    from stictiondiag.stiction.cause import CAUSE_WORDS
-
     ev = st.get("evidence") or {}
     probs = st.get("cause_probabilities")
     cause = str(st.get("cause"))
@@ -255,8 +255,6 @@ def _meaning(status: str, st: dict, oscillating: bool) -> str:
     if status == "no_stiction":
         cause = st.get("cause")
         if cause in ("tuning", "external", "other"):
-            from stictiondiag.stiction.cause import CAUSE_WORDS
-
             return (
                 f"the loop cycles, and the cause is most likely {CAUSE_WORDS[cause]}, not the valve"
             )
@@ -281,8 +279,6 @@ OWN_UNITS = " in op's own units (scale unknown, not % of span)"
 
 
 def _action(status: str, st: dict, oscillating: bool, unknown_scale: bool = False) -> str:
-    from stictiondiag.stiction.cause import ACTIONS
-
     if status == "stiction" and unknown_scale:
         # A size in unknown units cannot schedule work: S of 0.002 may be 0.2 % of span
         # or nothing at all.
@@ -339,8 +335,6 @@ def _gap(d: dict) -> str:
     """The gap in words: how much of the departure is the fitted loop's (the
     closed-loop refit) and how much an unmodelled effect's
     (:func:`stictiondiag.gap.attribution.attribute_gap`)."""
-    from stictiondiag.gap.attribution import attribute_gap
-
     gap = d.get("gap")
     why = attribute_gap(d.get("replay"), gap)
     if not gap:

@@ -29,7 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
+from stictiondiag.apps.sources import load_source
+from stictiondiag.core.atomic import write_atomic
 from stictiondiag.core.errors import StictionError
+from stictiondiag.io.plant import long_tag_series
+from stictiondiag.io.readers import read_table
+from stictiondiag.io.timebase import time_seconds
 
 __all__ = ["MIN_OVERLAP", "TS_TOLERANCE", "plantwide_step", "write_plantwide"]
 
@@ -43,8 +48,6 @@ MIN_LOOPS = 2
 
 def _stamped_pv(source, read_options: dict) -> tuple[np.ndarray, np.ndarray, float] | str:
     """(time [s], pv, ts [s]) of one loop file with its own stamps, or why not."""
-    from stictiondiag.apps.sources import load_source
-
     if source.loop_column is not None:
         return "a loop of a Parquet dataset"
     tags = load_source(source, **{**read_options, **(source.read_options or {})})
@@ -57,9 +60,6 @@ def _stamped_pv(source, read_options: dict) -> tuple[np.ndarray, np.ndarray, flo
 
 def _read_stamped(path: str, tcol: str, pcols: list[str]) -> dict | str:
     """Column -> (time [s], values) of ``pcols`` in one read of ``path``, or why not."""
-    from stictiondiag.io.readers import read_table
-    from stictiondiag.io.timebase import time_seconds
-
     frame = read_table(Path(path), lambda header: [tcol, *dict.fromkeys(pcols)])
     missing = [c for c in (tcol, *pcols) if c not in frame.columns]
     if missing:
@@ -113,8 +113,6 @@ def _stamped_long(sources: list, read_options: dict) -> dict | str:
     on the coarsest of their steps (:mod:`stictiondiag.io.plant`), so the grid
     gives no tag detail it does not have.
     """
-    from stictiondiag.io.plant import long_tag_series
-
     tags = {
         s.loop: {**s.plant.columns, **_named(read_options), **_named(s.read_options)}["pv"]
         for s in sources
@@ -201,6 +199,7 @@ def plantwide_step(sources, rows: list[dict], read_options: dict) -> dict:
         ``{"status": "on", ...}`` with the :class:`PlantDiagnosis` as a dict and the
         object under ``"diagnosis"``, or ``{"status": "off", "reason": ...}``.
     """
+    # Imported here: it brings numba (about 0.4 s), needed only once loops are analysed.
     from stictiondiag.stiction.plantwide import diagnose_plant
 
     analysed = {r["loop"] for r in rows if r.get("verdict") not in (None, "error")}
@@ -254,8 +253,6 @@ def _off(rows: list[dict], reason: str) -> dict:
 def write_plantwide(plant: dict, out: Path) -> str:
     """Write the plant-wide result to ``out/plantwide.json`` (atomically); its path."""
     import json
-
-    from stictiondiag.core.atomic import write_atomic
 
     path = Path(out) / "plantwide.json"
     record = {k: v for k, v in plant.items() if k != "diagnosis"}

@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from stictiondiag.apps.findings import with_findings
 from stictiondiag.apps.outdir import OutputFolder
 from stictiondiag.apps.pages import safe_name, unique_names
 from stictiondiag.apps.report_html import (
@@ -37,13 +38,20 @@ from stictiondiag.apps.report_html import (
     render_markdown,
     sort_key,
 )
+from stictiondiag.apps.workers import run_local
 from stictiondiag.core.errors import (
     DataError,
     StictionError,
     UsageError,
     require_bool,
 )
-from stictiondiag.io.plant import PlantLoop, manifest_options, unmatched_manifest_rows
+from stictiondiag.io.plant import (
+    PlantLoop,
+    manifest_options,
+    plant_loops,
+    read_plant_loop,
+    unmatched_manifest_rows,
+)
 
 __all__ = [
     "ReportResult",
@@ -211,11 +219,11 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
     "loop", "error"}`` when the loop could not be analysed (one line: the data error,
     or the internal error and where it arose).
     """
+    # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import (
         AnalysisConfig,
         analyze_file,
     )
-    from stictiondiag.apps.findings import with_findings
 
     path, name = source[0], source[1]
     plant = source[2] if len(source) > 2 else None
@@ -224,8 +232,8 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
     label = f"{path}#{plant.loop}" if plant is not None else str(path)
     try:
         if plant is not None:
+            # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
             from stictiondiag.analysis import analyze
-            from stictiondiag.io.plant import read_plant_loop
 
             result = analyze(read_plant_loop(plant, **options), config=AnalysisConfig(gap=gap))
         else:
@@ -233,6 +241,7 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
         plain = result.to_dict()
         row = result.summary_row(plain)
         d = with_findings({**plain, "loop": loop})
+        # Upward (plotting sits above apps): imported only when figures are drawn.
         from stictiondiag.plotting import figure_png
 
         images = {k: figure_png(fig) for k, fig in result.figures().items()}
@@ -272,8 +281,6 @@ def _expand(files: Sequence[str]) -> list[tuple[str, str, PlantLoop | None]]:
     by ``<stem>:<prefix>`` when another loop has that name.  A file that cannot be
     read is one loop that fails with the reason.
     """
-    from stictiondiag.io.plant import plant_loops
-
     found: list[tuple[str, str, PlantLoop | None]] = []
     for f in files:
         try:
@@ -307,6 +314,40 @@ def default_workers(n_files: int) -> int:
     if cores < 4 or n_files < 2:
         return 1
     return min(n_files, cores - 1)
+
+
+def _loop_sources(
+    paths: list[str], manifest: dict[str, dict]
+) -> tuple[list[tuple], dict[str, str], list[str], list[str]]:
+    """The loops of ``paths`` and their names.
+
+    Returns one ``(file, name, plant loop or None, manifest options, display name)``
+    per loop, the files whose loop got another name than its stem, the loops' keys in
+    file order (``file#loop`` for a plant file's loop), and a note for each manifest
+    row that names no loop.
+    """
+    entries = _expand(paths)
+    names = unique_names([loop for _, loop, _ in entries], [f for f, _, _ in entries])
+    renamed = {
+        f: n
+        for (f, loop, plant), n in zip(entries, names, strict=True)
+        if plant is None and n != safe_name(loop)
+    }
+    sources = [
+        (
+            f,
+            n,
+            plant,
+            manifest_options(manifest, plant.loop if plant else loop, f) or {},
+            loop if plant is not None else _display_name(f, n),
+        )
+        for (f, loop, plant), n in zip(entries, names, strict=True)
+    ]
+    order = [f"{f}#{plant.loop}" if plant is not None else f for f, _, plant in entries]
+    notes = unmatched_manifest_rows(
+        manifest, [(plant.loop if plant else loop, f) for f, loop, plant in entries]
+    )
+    return sources, renamed, order, notes
 
 
 def build_report(
@@ -345,10 +386,6 @@ def build_report(
     manifest : dict, optional
         Per-loop read options (:func:`stictiondiag.io.plant.read_manifest`) by loop
         name or file; they win over ``read_options``.
-
-    A file holding many loops (wide or long plant export, :mod:`stictiondiag.io.plant`)
-    gives one page per loop, named by its tag prefix; an incomplete or ambiguous loop
-    is listed as failed with the reason.
     progress : callable, optional
         ``progress(done, n, loop)`` after each loop is finished (in completion order
         when ``workers`` > 1).
@@ -364,6 +401,12 @@ def build_report(
         an input, or ``workers`` < 1.
     DataError
         No input could be analysed (the index is written all the same).
+
+    Notes
+    -----
+    A file holding many loops (wide or long plant export, :mod:`stictiondiag.io.plant`)
+    gives one page per loop, named by its tag prefix; an incomplete or ambiguous loop
+    is listed as failed with the reason.
     """
     gap = bool(require_bool("gap", gap))
     clean = bool(require_bool("clean", clean))
@@ -374,27 +417,7 @@ def build_report(
     workers = default_workers(len(paths)) if workers is None else int(workers)
     if workers < 1:
         raise UsageError(f"workers must be at least 1, got {workers}")
-    entries = _expand(paths)
-    names = unique_names([loop for _, loop, _ in entries], [f for f, _, _ in entries])
-    renamed = {
-        f: n
-        for (f, loop, plant), n in zip(entries, names, strict=True)
-        if plant is None and n != safe_name(loop)
-    }
-    sources = [
-        (
-            f,
-            n,
-            plant,
-            manifest_options(manifest or {}, plant.loop if plant else loop, f) or {},
-            loop if plant is not None else _display_name(f, n),
-        )
-        for (f, loop, plant), n in zip(entries, names, strict=True)
-    ]
-    order = [f"{f}#{plant.loop}" if plant is not None else f for f, _, plant in entries]
-    notes = unmatched_manifest_rows(
-        manifest or {}, [(plant.loop if plant else loop, f) for f, loop, plant in entries]
-    )
+    sources, renamed, order, notes = _loop_sources(paths, manifest or {})
     for note in notes:
         if on_note:
             on_note(f"warning: {note}")
@@ -452,8 +475,6 @@ def _run_loops(
     its own row (when no page at all could be written, the run: UsageError); the index rows are written after every loop, so an interrupted
     report keeps what it did, and a full disk stops the report at the index.
     """
-    from stictiondiag.apps.workers import run_local
-
     failed: list[tuple[str, str]] = []
     unwritten: set[str] = set()
     outcomes = run_local(

@@ -25,7 +25,10 @@ from stictiondiag.apps.history import (
 )
 from stictiondiag.apps.outdir import OutputFolder
 from stictiondiag.apps.pages import html_page, safe_name
+from stictiondiag.apps.plantwide_page import plant_html
 from stictiondiag.apps.scan_page import scan_html
+from stictiondiag.core.atomic import atomic_path
+from stictiondiag.core.csvsafe import safe_frame
 from stictiondiag.core.errors import UsageError
 
 if TYPE_CHECKING:
@@ -171,6 +174,7 @@ def loop_extras(result, plots: bool, plant: bool) -> tuple[dict[str, bytes], dic
     from, else the folder of its file)."""
     images: dict[str, bytes] = {}
     if plots:
+        # Upward (plotting sits above apps): imported only when figures are drawn.
         from stictiondiag.plotting import figure_png
 
         builders = result.figure_builders()
@@ -230,6 +234,8 @@ def loop_html(
     figures (drawn by the worker) and the loop's history across scans."""
     from html import escape
 
+    # Imported here: the page's findings bring the verdict and numba (about 0.5 s),
+    # which a scan's own process does not otherwise load.
     from stictiondiag.apps.report_html import render_loop_html
 
     name = name or safe_name(row["loop"])
@@ -275,9 +281,6 @@ def write_table(
     that a spreadsheet would run as a formula are escaped
     (:func:`stictiondiag.core.csvsafe.safe_frame`).
     """
-    from stictiondiag.core.atomic import atomic_path
-    from stictiondiag.core.csvsafe import safe_frame
-
     folder = scan_folder(out) if folder is None else folder
     paths = {"parquet": out / "scan.parquet", "csv": out / "scan.csv", "html": out / "index.html"}
     clean = table.copy()
@@ -292,7 +295,6 @@ def write_table(
                     else v
                 )
             )
-    from stictiondiag.apps.plantwide_page import plant_html
 
     page = scan_html(clean, file_names)
     section = plant_html(plant)

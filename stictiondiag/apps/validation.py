@@ -36,7 +36,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stictiondiag.core.errors import DataError
+from stictiondiag.apps.sources import load_source
+from stictiondiag.core.errors import DataError, StictionError
+from stictiondiag.gap.attribution import attribute_gap
 
 #: ISDB loop types that behave as the paper's loop types.
 LOOP_TYPE_MAP = {
@@ -101,6 +103,7 @@ _CALL_TEXT = {1.0: "stiction", -1.0: "no_stiction", 0.0: "inconclusive"}
 def _baselines(path: str, ts: float, integrating: bool, loop_type: str | None = None) -> dict:
     """Each classic test's own call on the raw record (``stiction``, ``no_stiction``,
     ``inconclusive``, or ``n/a`` where the test does not apply or could not run)."""
+    # Imported here, as Tags below: they bring numba, which only the analysing process needs.
     from stictiondiag.stiction.probability import classic_votes
 
     frame = pd.read_csv(path)
@@ -130,8 +133,8 @@ SPLIT_MIN_CYCLES = 6.0
 
 def _half_summary(tags) -> dict:
     """Verdict, P(stiction) and S interval of one half-record (no replay, no gap)."""
+    # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import AnalysisConfig, analyze
-    from stictiondiag.core.errors import StictionError
 
     try:
         a = analyze(tags, config=AnalysisConfig(gap=False, replay=False))
@@ -190,7 +193,6 @@ def validate_one(source, gap: bool) -> dict:
     """Analyse one ISDB loop, run the classic tests beside it and, for a record of at
     least :data:`SPLIT_MIN_CYCLES` cycles, each of its halves (for a worker process)."""
     from stictiondiag.apps.scan import analyse_source
-    from stictiondiag.apps.sources import load_source
 
     res = analyse_source(source, {}, gap)
     opts = source.read_options or {}
@@ -311,8 +313,6 @@ def validate_isdb(
         row["reasons"] = "; ".join(str(x) for x in reasons)
         full = res.get("analysis") or {}
         if full.get("gap") is not None:
-            from stictiondiag.gap.attribution import attribute_gap
-
             row["gap_cause"] = attribute_gap(full.get("replay"), full.get("gap"))["cause"]
             row["gap_before"] = full["gap"].get("before")
         row.update(_split_columns(res.get("split")))
@@ -595,10 +595,9 @@ def _ge(v, level) -> bool | None:
     return None if v is None else bool(v >= level)
 
 
-def render_markdown(result: ValidationResult, *, command: str) -> str:
-    """The results page (``docs/isdb_validation.md``)."""
-    t, sc, sp = result.table, result.scores, result.split
-    lines = [
+def _intro_lines(command: str) -> list[str]:
+    """The page's head: where the data come from, the command, and how to read it."""
+    return [
         "# Validation on the International Stiction Database",
         "",
         "Real industrial loops (pv, op, sp; no mv) from Jelali & Huang (2010), read from",
@@ -629,17 +628,22 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         "`inconclusive` counts as not called. Each classic test is run on its own, with",
         "its own published decision rule (`stictiondiag/stiction/classic/`), on the same",
         "loops; *n/a* is a test that does not apply to the loop or could not run.",
-        "",
-        "## Targets",
-        "",
-        "| target | measured | met |",
-        "|---|---|---|",
     ]
+
+
+def _target_lines(result: ValidationResult) -> list[str]:
+    """The targets section: each target, the measured figure and whether it is met."""
+    lines = ["", "## Targets", "", "| target | measured | met |", "|---|---|---|"]
     for name, measured, met in targets(result):
         lines.append(
             f"| {name} | {measured} | {'-' if met is None else ('yes' if met else 'no')} |"
         )
-    lines += [
+    return lines
+
+
+def _score_lines(sc: dict) -> list[str]:
+    """The scores section: each method's counts and accuracy per label group."""
+    lines = [
         "",
         "## Scores",
         "",
@@ -657,7 +661,12 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
             f"| {method} | none | {groups['none']['n']} | called stiction: "
             f"{groups['none']['called_stiction']} | | | | | |"
         )
-    lines += [
+    return lines
+
+
+def _confusion_section(t: pd.DataFrame) -> list[str]:
+    """The confusion matrices of our verdict and of each classic test."""
+    lines = [
         "",
         "## Confusion matrices",
         "",
@@ -669,6 +678,13 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         col = f"baseline_{test}"
         if col in t:
             lines += _confusion_lines(t, col, test)
+    return lines
+
+
+def _cause_sections(t: pd.DataFrame) -> list[str]:
+    """Each published cause against the cause our verdict names and, where present,
+    against the cause model's reading."""
+    lines: list[str] = []
     if "cause" in t:
         lines += [
             "",
@@ -690,7 +706,12 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
             "",
             *cause_table(t, "cause_model"),
         ]
-    lines += [
+    return lines
+
+
+def _split_half_lines(sp: dict) -> list[str]:
+    """The split-half repeatability section (no labels needed)."""
+    return [
         "",
         "## Split-half repeatability (no labels needed)",
         "",
@@ -703,18 +724,14 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         f"* each half's S inside the other half's S interval: {sp.get('S_within', 0)} of"
         f" {sp.get('n_S', 0)} ({_f(sp.get('S_within_share'))})",
     ]
-    if result.causes:
-        lines += ["", "## Gap causes against the experts", "", *render_causes(result.causes)]
-    stated = t[t["label_group"] == "stated"]
-    lines.append("")
-    lines.append(
-        "Loops counted (stated labels): "
-        + ", ".join(f"{r.loop} ({r.label.replace('_', ' ')})" for r in stated.itertuples())
-    )
+
+
+def _wrong_loop_lines(t: pd.DataFrame) -> list[str]:
+    """The labelled loops whose verdict disagrees with the expert's, with the reasons."""
     wrong = t[
         (t["label_group"] != "none") & ((t["label"] == "stiction") != (t["verdict"] == "stiction"))
     ]
-    lines += [
+    lines = [
         "",
         "## Loops we get wrong or leave inconclusive",
         "",
@@ -728,8 +745,14 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
             f"{' (' + str(r.other_fault_published) + ')' if isinstance(r.other_fault_published, str) else ''}"
             f" | {_with_cause(r)} | {_f(getattr(r, 'probability', None))} | {str(why).replace('|', '/')} |"
         )
+    return lines
+
+
+def _every_loop_lines(t: pd.DataFrame) -> list[str]:
+    """One row per loop: the expert's label, our verdict, S and J, each classic test's
+    call and the split halves' verdicts."""
     cols = " | ".join(CLASSIC_COLUMNS)
-    lines += [
+    lines = [
         "",
         "## Every loop",
         "",
@@ -747,4 +770,27 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
             f"{_f(getattr(r, 'confidence', None))} | {_f(getattr(r, 'S', None))} | "
             f"{_f(getattr(r, 'J', None))} | {classic} | {halves} |"
         )
+    return lines
+
+
+def render_markdown(result: ValidationResult, *, command: str) -> str:
+    """The results page (``docs/isdb_validation.md``)."""
+    t = result.table
+    lines = [
+        *_intro_lines(command),
+        *_target_lines(result),
+        *_score_lines(result.scores),
+        *_confusion_section(t),
+        *_cause_sections(t),
+        *_split_half_lines(result.split),
+    ]
+    if result.causes:
+        lines += ["", "## Gap causes against the experts", "", *render_causes(result.causes)]
+    stated = t[t["label_group"] == "stated"]
+    lines.append("")
+    lines.append(
+        "Loops counted (stated labels): "
+        + ", ".join(f"{r.loop} ({r.label.replace('_', ' ')})" for r in stated.itertuples())
+    )
+    lines += [*_wrong_loop_lines(t), *_every_loop_lines(t)]
     return "\n".join(lines) + "\n"

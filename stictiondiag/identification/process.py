@@ -66,6 +66,7 @@ from stictiondiag.identification.output_error import (
     powers,
 )
 from stictiondiag.models.processes import FOPTD, Integrating
+from stictiondiag.signals.oscillation import dominant_period
 
 #: Integrating model chosen when its simulation R^2 is at most this much below the FOPTD's.
 INTEGRATING_R2_MARGIN = 0.01
@@ -201,8 +202,6 @@ class ProcessFit:
 
 def _period_s(pv: np.ndarray, dt: float) -> float | None:
     """pv's dominant period [s], or None.  O(n log n) (the autocorrelation by FFT)."""
-    from stictiondiag.signals.oscillation import dominant_period
-
     return dominant_period(pv, dt)
 
 

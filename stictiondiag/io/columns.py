@@ -21,8 +21,10 @@ if TYPE_CHECKING:
     import pandas as pd
 
 __all__ = [
+    "MAX_MAGNITUDE",
     "ROLES",
     "VENDORS",
+    "check_magnitude",
     "column_list",
     "is_time_name",
     "match_columns",
@@ -338,3 +340,25 @@ def numeric_column(
             f"{role}: {n_bad} non-numeric entries (e.g. {example[:30]!r}) treated as missing"
         )
     return values.to_numpy(dtype=float, na_value=np.nan)
+
+
+#: Largest magnitude of a signal value [signal units]: fourth powers (kurtosis) of
+#: 1e7 samples stay below the float maximum (1.8e308): (1e75)^4 x 1e7 = 1e307.
+MAX_MAGNITUDE = 1e75
+
+
+def check_magnitude(values: np.ndarray, role: str, label: str, where: str) -> None:
+    """Refuse values so large that the statistics of later steps would overflow.
+
+    Raises
+    ------
+    DataError
+        A finite value beyond :data:`MAX_MAGNITUDE`.
+    """
+    with np.errstate(invalid="ignore"):
+        largest = float(np.nanmax(np.abs(values))) if np.isfinite(values).any() else 0.0
+    if largest > MAX_MAGNITUDE:
+        raise DataError(
+            f"{role} {label!r}{where} reaches {largest:.3g}, beyond +-{MAX_MAGNITUDE:.0e}: "
+            "no plant signal is that large; check the export's units or scaling"
+        )

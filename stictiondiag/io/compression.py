@@ -47,7 +47,9 @@ from stictiondiag.core.errors import DataError, UsageError
 
 __all__ = [
     "COMPRESSIONS",
+    "archive_deadbands",
     "archive_kind",
+    "held_deadband",
     "from_archive",
     "sparse_roles",
     "exception_compress",
@@ -133,9 +135,60 @@ def archive_kind(v: np.ndarray) -> str:
     return "hold" if smallest > 0 and smallest >= _DEADBAND_FLOOR * quartile else "linear"
 
 
+def held_deadband(v: np.ndarray) -> float:
+    """The deadband an exception archive was written with, from its archived values
+    [units of v]; 0 when there are too few changes to tell (a set point).
+
+    Every archived change passed the deadband, so the smallest change (the first and
+    last left out, as in :func:`archive_kind`) is just above it: with a few hundred
+    archived changes of a moving signal, within a scan's movement of it.
+    """
+    changes = np.abs(np.diff(np.asarray(v, dtype=float)))[1:-1]
+    changes = changes[np.isfinite(changes) & (changes > 0)]
+    return float(changes.min()) if changes.size >= _FEW_CHANGES else 0.0
+
+
 def _held(t: np.ndarray, v: np.ndarray, grid: np.ndarray, tol: float) -> np.ndarray:
     index = np.searchsorted(t, grid + tol, side="right") - 1
     return v[np.clip(index, 0, t.size - 1)]
+
+
+def _kinds(
+    series: dict[str, tuple[np.ndarray, np.ndarray]], label: str, compression: str | None
+) -> tuple[dict, dict[str, float], float, dict[str, str | None]]:
+    """The signal tags, their scan steps, the grid step and each tag's reconstruction
+    (``"hold"``, ``"linear"``, or None for a regularly sampled tag)."""
+    # The controller's mode is a step signal that changes rarely and off the scan
+    # grid: it is held and takes no part in the grid or the record's span.
+    signals = {r: tv for r, tv in series.items() if r != "mode"}
+    steps = {r: tag_step(t) for r, (t, _) in signals.items() if t.size >= 2}
+    step = min(steps.values()) if steps else math.inf
+    if not (math.isfinite(step) and step > 0):
+        raise DataError(f"{label}: the tags have no usable time step")
+    kinds: dict[str, str | None] = {}
+    for role, (t, v) in signals.items():
+        if is_compressed(t, step):
+            kinds[role] = compression or archive_kind(v)
+        else:
+            kinds[role] = None
+    return signals, steps, step, kinds
+
+
+def archive_deadbands(
+    series: dict[str, tuple[np.ndarray, np.ndarray]],
+    label: str,
+    compression: str | None = None,
+) -> dict[str, float]:
+    """Role -> the deadband of each tag :func:`reconstruct` holds (exception archive)
+    [units of the tag] (:func:`held_deadband`; tags without one are left out).
+
+    A held archive is a staircase: a value that moves by less than its deadband is
+    not recorded, so a valve's stick and slip smaller than it cannot be told from the
+    archive's own steps (:func:`stictiondiag.stiction.resolution.resolution`).
+    """
+    _, _, _, kinds = _kinds(series, label, compression)
+    found = {r: held_deadband(series[r][1]) for r, k in kinds.items() if k == "hold"}
+    return {r: d for r, d in found.items() if d > 0}
 
 
 def reconstruct(
@@ -177,19 +230,7 @@ def reconstruct(
     for role, (t, _) in series.items():
         if t.size < 2 and role in ("pv", "op"):
             raise DataError(f"{label}: {role} has {t.size} archived values: export more of it")
-    # The controller's mode is a step signal that changes rarely and off the scan
-    # grid: it is held and takes no part in the grid or the record's span.
-    signals = {r: tv for r, tv in series.items() if r != "mode"}
-    steps = {r: tag_step(t) for r, (t, _) in signals.items() if t.size >= 2}
-    step = min(steps.values()) if steps else math.inf
-    if not (math.isfinite(step) and step > 0):
-        raise DataError(f"{label}: the tags have no usable time step")
-    kinds: dict[str, str | None] = {}
-    for role, (t, v) in signals.items():
-        if is_compressed(t, step):
-            kinds[role] = compression or archive_kind(v)
-        else:
-            kinds[role] = None
+    signals, steps, step, kinds = _kinds(series, label, compression)
     start = max(t[0] for t, _ in signals.values())
     # A held tag keeps its last archived value until the record ends: the export's
     # end is where its other tags stop.
@@ -219,9 +260,15 @@ def reconstruct(
     if not compressed:
         return out, grid, step, None
     told = "as given" if compression else "told from the archived values"
+
+    def how(role: str, kind: str) -> str:
+        if kind != "hold":
+            return "linear"
+        deadband = held_deadband(series[role][1])
+        return f"held (deadband {deadband:.3g})" if deadband > 0 else "held"
+
     rebuilt = ", ".join(
-        f"{r} {series[r][0].size} values {'held' if k == 'hold' else 'linear'}"
-        for r, k in compressed.items()
+        f"{r} {series[r][0].size} values {how(r, k)}" for r, k in compressed.items()
     )
     note = (
         f"compressed archive (recorded values): rebuilt on a {step:g} s grid of {grid.size} "
@@ -311,10 +358,11 @@ def from_archive(
     label: str,
     compression: str | None,
     notes: list[str],
-) -> tuple[dict[str, np.ndarray], float, float]:
+) -> tuple[dict[str, np.ndarray], float, float, dict[str, float]]:
     """A wide file's columns, each read as its own archive, on one grid (:func:`reconstruct`).
 
-    Returns (role -> values on the grid, grid step [s], the grid's first time [s]); the
+    Returns (role -> values on the grid, grid step [s], the grid's first time [s],
+    role -> deadband of a held tag [units of the tag], :func:`archive_deadbands`); the
     reconstruction is noted.
     """
     series = {}
@@ -333,4 +381,4 @@ def from_archive(
     out, grid, step, note = reconstruct(series, label, compression)
     if note is not None:
         notes.append(note)
-    return out, step, float(grid[0])
+    return out, step, float(grid[0]), archive_deadbands(series, label, compression)

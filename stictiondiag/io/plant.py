@@ -293,8 +293,10 @@ def _resample_long(
     label: str,
     compression: str | None = None,
     notes: list[str] | None = None,
-) -> tuple[pd.DataFrame, str]:
-    """Role columns on one grid (time [s] from the first grid point) and a note.
+) -> tuple[pd.DataFrame, str, dict[str, float]]:
+    """Role columns on one grid (time [s] from the first grid point), a note and the
+    deadband of each held tag by role
+    (:func:`stictiondiag.io.compression.archive_deadbands`).
 
     The grid and the reconstruction of compressed tags are those of
     :func:`stictiondiag.io.compression.reconstruct`.  A mode tag's words are read by
@@ -303,7 +305,7 @@ def _resample_long(
     """
     import pandas as pd
 
-    from stictiondiag.io.compression import reconstruct
+    from stictiondiag.io.compression import archive_deadbands, reconstruct
     from stictiondiag.io.mode import mode_codes, mode_labels
     from stictiondiag.io.timebase import time_seconds
 
@@ -361,7 +363,7 @@ def _resample_long(
             "daylight-saving fall-back hour in local time?): kept the first value of each, "
             "export in UTC to keep them all"
         )
-    return pd.DataFrame(out), note
+    return pd.DataFrame(out), note, archive_deadbands(series, label, compression)
 
 
 def _in_time_order(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -411,11 +413,20 @@ def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
     wanted = {r: options[r] for r in (*ROLES, "mode") if options.get(r)}
     frame = _read_long(file, long, list(wanted.values()))
     notes: list[str] = []
-    grid, note = _resample_long(frame, long, wanted, label, options.get("compression"), notes)
+    grid, note, deadband = _resample_long(
+        frame, long, wanted, label, options.get("compression"), notes
+    )
     wanted = {r: tag for r, tag in wanted.items() if r in grid.columns}
     given = {k: v for k, v in options.items() if k not in (*ROLES, "time", "compression", "mode")}
     # Columns named by their tags, so the ISA tag decides the loop type as in a wide file.
-    tags = read_frame(grid.rename(columns=wanted), source=label, time="time", **given, **wanted)
+    tags = read_frame(
+        grid.rename(columns=wanted),
+        source=label,
+        time="time",
+        archive_deadband=deadband,
+        **given,
+        **wanted,
+    )
     return replace(tags, warnings=(*loop.notes, note, *notes, *tags.warnings))
 
 

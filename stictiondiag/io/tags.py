@@ -65,8 +65,9 @@ cannot be filled honestly: the longest contiguous stretch without them is kept.
 Both are reported in :attr:`Tags.warnings`. Fewer than :data:`MIN_SAMPLES`
 remaining samples raise :class:`~stictiondiag.core.errors.DataError`.
 
-Values beyond +-:data:`MAX_MAGNITUDE` are a :class:`~stictiondiag.core.errors.DataError`
-(the statistics of later steps would overflow); infinite values are missing values.
+Values beyond +-:data:`~stictiondiag.io.columns.MAX_MAGNITUDE` are a
+:class:`~stictiondiag.core.errors.DataError` (the statistics of later steps would
+overflow); infinite values are missing values.
 Files are read by :mod:`stictiondiag.io.readers`: only the loop's columns, large CSVs in
 chunks; column matching lives in :mod:`stictiondiag.io.columns`.
 
@@ -92,7 +93,12 @@ from stictiondiag.core.errors import (
     UsageError,
     require_bool,
 )
-from stictiondiag.io.columns import ROLES, match_columns, numeric_column
+from stictiondiag.io.columns import (
+    ROLES,
+    check_magnitude,
+    match_columns,
+    numeric_column,
+)
 from stictiondiag.io.compression import from_archive, sparse_roles
 from stictiondiag.io.gaps import MIN_SAMPLES, fill_gaps
 from stictiondiag.io.looptype import resolve_loop_type
@@ -136,10 +142,6 @@ ACTIONS = ("direct", "reverse")
 
 
 LoopType = Literal["flow", "pressure", "level", "temperature", "composition", "other"]
-
-#: Largest magnitude of a signal value [signal units]: fourth powers (kurtosis) of
-#: 1e7 samples stay below the float maximum (1.8e308): (1e75)^4 x 1e7 = 1e307.
-MAX_MAGNITUDE = 1e75
 
 
 def scale(x: np.ndarray) -> np.ndarray:
@@ -214,6 +216,10 @@ class Tags:
         Share of the record read with the controller in automatic or cascade [% of
         time], where a mode tag was read (:mod:`stictiondiag.io.mode`; the samples kept
         are then the longest automatic stretch), else None.
+    archive_deadband : dict
+        Role -> the deadband its held (exception) archive was written with [% of span
+        for op and mv, pv units for pv and sp] (:func:`~stictiondiag.io.compression.
+        archive_deadbands`); empty for a record of every sample.
     """
 
     time: np.ndarray
@@ -232,6 +238,7 @@ class Tags:
     op_scale: str = "percent"
     start_time: float | None = None
     service_factor: float | None = None
+    archive_deadband: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -310,24 +317,16 @@ class Tags:
             "start_time_s": self.start_time,
             "service_factor_pct": self.service_factor,
             "warnings": list(self.warnings),
+            # Only for a held archive: a record of every sample reads as before.
+            **({"archive_deadband": dict(self.archive_deadband)} if self.archive_deadband else {}),
         }
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Tags):
             return NotImplemented
-        scalars = (
-            "ts",
-            "names",
-            "source",
-            "loop_type",
-            "integrating",
-            "warnings",
-            "loop_type_source",
-            "action",
-            "op_scale",
-            "start_time",
-            "service_factor",
-        )
+        scalars = ("ts", "names", "source", "loop_type", "integrating", "warnings",
+                   "loop_type_source", "action", "op_scale", "start_time", "service_factor",
+                   "archive_deadband")  # fmt: skip
         if any(getattr(self, name) != getattr(other, name) for name in scalars):
             return False
         for name in ("time", "pv", "op", "mv", "sp"):
@@ -563,6 +562,7 @@ def read_frame(
     vendor: str | None = None,
     action: str | None = None,
     mode: str | None = None,
+    archive_deadband: Mapping[str, float] | None = None,
 ) -> Tags:
     """Tags from a DataFrame already in memory, with the rules of :func:`read_tags`.
 
@@ -576,6 +576,9 @@ def read_frame(
     pv, op, mv, sp, time, ts, op_units, op_range, loop_type, integrating, compression,
     vendor, action, mode
         As for :func:`read_tags`.
+    archive_deadband : mapping, optional
+        Role -> deadband [units of the frame] of a held archive the frame was rebuilt
+        from (:attr:`Tags.archive_deadband`); a sparse frame's own is read.
     """
     import pandas as pd
 
@@ -607,11 +610,12 @@ def read_frame(
         else:
             arrays["mode"] = codes
     start_time: float | None = None
+    deadband = dict(archive_deadband or {})
     if ts is None and "time" in columns:
         seconds = time_seconds(frame[columns["time"]], columns["time"], source, notes)
         first: float | None
         if sparse_roles(arrays, seconds):
-            arrays, ts, first = from_archive(arrays, seconds, source, compression, notes)
+            arrays, ts, first, deadband = from_archive(arrays, seconds, source, compression, notes)
         else:
             arrays, ts = uniform(arrays, seconds, columns["time"], notes)
             first = float(np.nanmin(seconds)) if np.isfinite(seconds).any() else None
@@ -638,6 +642,7 @@ def read_frame(
         notes=notes,
         action=action,
         start_time=start_time,
+        archive_deadband=deadband,
     )
 
 
@@ -681,23 +686,6 @@ def _check_options(
 # --------------------------------------------------------------------------- assembly
 
 
-def _check_magnitude(values: np.ndarray, role: str, label: str, where: str) -> None:
-    """Refuse values so large that the statistics of later steps would overflow.
-
-    Raises
-    ------
-    DataError
-        A finite value beyond :data:`MAX_MAGNITUDE`.
-    """
-    with np.errstate(invalid="ignore"):
-        largest = float(np.nanmax(np.abs(values))) if np.isfinite(values).any() else 0.0
-    if largest > MAX_MAGNITUDE:
-        raise DataError(
-            f"{role} {label!r}{where} reaches {largest:.3g}, beyond +-{MAX_MAGNITUDE:.0e}: "
-            "no plant signal is that large; check the export's units or scaling"
-        )
-
-
 def _assemble(
     arrays: dict[str, np.ndarray],
     *,
@@ -711,6 +699,7 @@ def _assemble(
     notes: list[str],
     action: str | None = None,
     start_time: float | None = None,
+    archive_deadband: Mapping[str, float] | None = None,
 ) -> Tags:
     """Validate, convert op/mv to % of span, handle gaps and build :class:`Tags`."""
     if action is not None and action not in ACTIONS:
@@ -734,7 +723,7 @@ def _assemble(
         if np.isinf(values).any():
             notes.append(f"{role}: infinite values treated as missing")
             values[np.isinf(values)] = np.nan
-        _check_magnitude(values, role, labels.get(role, role), where)
+        check_magnitude(values, role, labels.get(role, role), where)
     arrays, first = fill_gaps(arrays, labels, notes)
     service_factor = None
     if mode is not None:
@@ -761,6 +750,8 @@ def _assemble(
     for role in ("op", "mv"):
         if role in arrays and (low, high) != (0.0, 100.0):
             arrays[role] = (arrays[role] - low) / (high - low) * 100.0
+    deadband = {r: d * (100.0 / (high - low) if r in ("op", "mv") else 1.0)
+                for r, d in (archive_deadband or {}).items() if r in arrays}  # fmt: skip
     if op_range is not None:
         check_op_travel(arrays["op"], (low, high), labels.get("op", "op"), notes)
     loop_type, integrating, decided_by = resolve_loop_type(
@@ -789,4 +780,5 @@ def _assemble(
         op_scale=op_scale,
         start_time=None if start_time is None else start_time + first * ts,
         service_factor=service_factor,
+        archive_deadband=deadband,
     )

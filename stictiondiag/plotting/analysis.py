@@ -21,6 +21,7 @@ from stictiondiag.plotting.canvas import (
     new_figure,
     pin_decorations,
 )
+from stictiondiag.plotting.valve import sj_label
 
 #: Cycles shown in the trend window when the loop oscillates.
 WINDOW_CYCLES = 8
@@ -179,8 +180,6 @@ def plot_phase(
         ax_p.set_aspect("equal", adjustable="datalim")
         label = "mv-op" if has_mv else "mv-op of the model (no mv recorded)"
         if fit is not None and np.isfinite(getattr(fit, "S", np.nan)):
-            from stictiondiag.plotting.valve import sj_label
-
             label += f"\n{sj_label(fit.S, fit.J, poorly)} of span"
         ax_p.set_title(label, fontsize=9)
         if has_mv and has_model:

@@ -18,6 +18,7 @@ from stictiondiag.models.describing import (
     predict_limit_cycle,
 )
 from stictiondiag.models.processes import open_loop_response
+from stictiondiag.plotting import pyplot
 
 
 def _cases(cases) -> list[tuple[str, float, float]]:
@@ -61,8 +62,6 @@ def plot_nyquist_df(
         Each predicted limit cycle is marked with its period [s] and controller-output
         amplitude ``X_m`` [% of span].
     """
-    from stictiondiag.plotting import pyplot
-
     plt = pyplot()
     if ax is None:
         fig, ax = plt.subplots(figsize=(6, 6))

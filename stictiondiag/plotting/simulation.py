@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
+from stictiondiag.plotting import pyplot
+
 
 def _title(settings: dict) -> str:
     valve = settings.get("valve", "?")
@@ -50,8 +52,6 @@ def plot_simulation(sim, *, last: float | None = None, title: str | None = None)
     start = max(0, sim.n - max(2, int(round(last / sim.dt))))
     t = sim.time[start:]
     sp, pv, op, mv = sim.sp[start:], sim.pv[start:], sim.op[start:], sim.mv[start:]
-
-    from stictiondiag.plotting import pyplot
 
     fig, axes = pyplot().subplots(2, 2, figsize=(11, 6), gridspec_kw={"width_ratios": [2.2, 1]})
     ax = axes[0, 0]

@@ -66,6 +66,7 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError, UsageError
 from stictiondiag.core.filters import detrend_linear
+from stictiondiag.signals.oscillation import detect_oscillation
 
 __all__ = [
     "BAND_WIDTH",
@@ -468,8 +469,6 @@ def _acf_groups(signals: Mapping[str, np.ndarray], spec: LoopSpectra) -> list[Os
     loops share an oscillation when their periods differ by less than the sum of
     their period spreads (``std Tp = Tp / (3 r)``), at most :data:`PEAK_TOLERANCE`.
     """
-    from stictiondiag.signals.oscillation import detect_oscillation
-
     found = []
     for i, name in enumerate(spec.loops):
         osc = detect_oscillation(np.asarray(signals[name], float), spec.dt)

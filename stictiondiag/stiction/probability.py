@@ -82,6 +82,7 @@ from pathlib import Path
 import numpy as np
 
 from stictiondiag.core.errors import StictionError
+from stictiondiag.stiction.classic import classic_features
 from stictiondiag.stiction.probability_evidence import (
     CONTINUOUS,
     continuous_features,
@@ -152,8 +153,6 @@ def classic_votes(
     returned too, under their own names, with the oscillation's shape in pv and op
     (:func:`~stictiondiag.stiction.probability_evidence.shape_statistics`).
     """
-    from stictiondiag.stiction.classic import classic_features
-
     try:
         feats = classic_features(pv, op, sp, ts, loop_type, integrating=integrating, mv=mv)
     except (StictionError, ValueError, FloatingPointError, np.linalg.LinAlgError):

@@ -30,6 +30,7 @@ off both (the expected overshoot for a ramp).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +39,7 @@ from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.core.stats import bootstrap_median_ci, median_small
+from stictiondiag.stiction.resolution import resolution, resolution_details
 from stictiondiag.stiction.valvefit import (
     StictionFit,
     block_sse,
@@ -68,36 +70,6 @@ LABEL_REST = 0
 LABEL_STUCK = 1
 LABEL_SLIP = 2
 LABEL_MOVING = 3
-
-
-# --------------------------------------------------------------------------------------
-# Noise and resolution of a signal
-# --------------------------------------------------------------------------------------
-
-
-def quantum(x: np.ndarray) -> float:
-    """Resolution step of a quantised signal [units of x], 0 when not quantised.
-
-    The signal is taken as quantised when it has few distinct levels and every gap
-    between neighbouring levels is (within 10 %) a whole multiple of the smallest
-    gap; the smallest gap is then the step (e.g. Fig. 6, the dryer's quantised flow).
-    """
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    if x.size < 10:
-        return 0.0
-    levels = np.unique(x)
-    span = float(levels[-1] - levels[0])
-    if levels.size < 2 or levels.size > x.size / 3 or span <= 0:
-        return 0.0
-    gaps = np.diff(levels)
-    q = float(gaps.min())
-    if q <= 1e-9 * span or q > span / 4:
-        return 0.0
-    ratio = gaps / q
-    if np.all(np.abs(ratio - np.round(ratio)) <= 0.1):
-        return q
-    return 0.0
 
 
 # --------------------------------------------------------------------------------------
@@ -184,7 +156,8 @@ class Segments:
     noise_mv, noise_op : float
         Robust noise standard deviations [units of mv, op].
     quantum_mv : float
-        Resolution step of mv (0 when not quantised) [units of mv].
+        Resolution of mv: its quantisation step or its archive's deadband
+        (:func:`~stictiondiag.stiction.resolution.resolution`; 0 when neither) [units of mv].
     dt : float
         Sampling time [s].
     """
@@ -376,7 +349,7 @@ def _mark_moving(op, mv, h, op_tol, runs, labels) -> None:
     labels[moving_mask] = LABEL_MOVING
 
 
-def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
+def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float, deadband: float = 0.0) -> Segments:
     """Find the stuck, slip and moving phases of a valve and measure every slip.
 
     Parameters
@@ -387,9 +360,13 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
         Valve position [% of span], same length as ``op``.  Noise and a quantised
         signal are tolerated: mv counts as still within a band of
         ``max(4 sigma_mv, 1.01 q)`` around its mean, with ``sigma_mv`` the robust noise
-        level and ``q`` the resolution step.
+        level and ``q`` the resolution
+        (:func:`~stictiondiag.stiction.resolution.resolution`).
     dt : float
         Sampling time [s].
+    deadband : float
+        Deadband of the exception archive mv was rebuilt from [units of mv], 0 for a
+        record of every sample.
 
     Returns
     -------
@@ -407,7 +384,7 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float) -> Segments:
     span = float(max(np.ptp(op), np.ptp(mv)))
     sig_mv = noise_std(mv)
     sig_op = noise_std(op)
-    q_mv = quantum(mv)
+    q_mv = resolution(mv, deadband)
     h = max(STILL_BAND_SIGMAS * sig_mv, 1.01 * q_mv, 1e-9 * span)
     op_tol = max(4.0 * h, 6.0 * sig_op, 1e-9 * span)
     pull_tol = max(6.0 * sig_op, 1e-9 * span)
@@ -641,7 +618,11 @@ def _mv_fit_details(
 
 
 def estimate_from_mv(
-    op: np.ndarray, mv: np.ndarray, dt: float, segments: Segments | None = None
+    op: np.ndarray,
+    mv: np.ndarray,
+    dt: float,
+    segments: Segments | None = None,
+    deadband: Mapping[str, float] | None = None,
 ) -> StictionFit:
     """S and J from the valve's recorded position (Sections 2.3 and 3, Fig. 2).
 
@@ -676,8 +657,14 @@ def estimate_from_mv(
     dt : float
         Sampling time [s].
     segments : Segments, optional
-        ``segment_valve(op, mv, dt)`` when the caller has it already (it is then
-        not computed again; the result is the same).
+        ``segment_valve(op, mv, dt, deadband["mv"])`` when the caller has it already
+        (it is then not computed again; the result is the same).
+    deadband : mapping, optional
+        Role -> deadband of the exception archive op and mv were rebuilt from [% of
+        span] (:attr:`stictiondiag.io.tags.Tags.archive_deadband`).  S and J within
+        what it can hide are marked in ``details["resolution"]``
+        (:func:`~stictiondiag.stiction.resolution.hidden_by_resolution`), and the verdict
+        does not call them stiction.
 
     Returns
     -------
@@ -687,7 +674,8 @@ def estimate_from_mv(
     """
     op, mv, dt = _check_pair(op, mv, dt)
     n = op.size
-    segs = segment_valve(op, mv, dt) if segments is None else segments
+    d_mv = float((deadband or {}).get("mv", 0.0))
+    segs = segment_valve(op, mv, dt, d_mv) if segments is None else segments
     op_std = float(np.std(op))
     lo, hi = np.percentile(op, [0.5, 99.5])
     S_max = float(max(hi - lo, 1e-12))
@@ -748,6 +736,7 @@ def estimate_from_mv(
         "n_parameters": {"stiction": 3, "linear": 1},
         "effective_samples": n_eff,
         "n_samples": n - k0,
+        **resolution_details(mv, deadband, S_ls, J_ls),
     }
     return StictionFit(
         S=S_ls,

@@ -29,6 +29,7 @@ from enum import StrEnum
 
 import numpy as np
 
+from stictiondiag.core.filters import median_filter_nearest
 from stictiondiag.core.jit import jit
 from stictiondiag.core.robust import MAD_TO_STD, robust_std, second_difference_noise_std
 from stictiondiag.core.serialize import to_plain as _plain
@@ -518,8 +519,6 @@ def cycle_samples(x: np.ndarray) -> int:
     (:func:`stictiondiag.core.filters.median_filter_nearest`; the first window is a
     quarter of the record) and O(n) crossings.
     """
-    from stictiondiag.core.filters import median_filter_nearest
-
     x = np.asarray(x, dtype=float)
     n = x.size
     fallback = max(2, n // 10)

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stictiondiag.core.errors import StictionError
 from stictiondiag.core.serialize import to_plain as _plain
 from stictiondiag.stiction.cause import (
     CAUSE_WORDS,
@@ -42,8 +43,10 @@ from stictiondiag.stiction.cause import (
     direct_stick_slip,
     find_cycle,
 )
+from stictiondiag.stiction.cause_model import cause_probabilities
 from stictiondiag.stiction.consistency import FILL as DF_FILL
 from stictiondiag.stiction.consistency import describing_features
+from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.probability import (
     classic_votes,
     evidence_features,
@@ -214,6 +217,29 @@ def _fit_text(fit: StictionFit, has_mv: bool) -> str:
     )
 
 
+def hidden_text(fit: StictionFit) -> str | None:
+    """Why S and J cannot be told from the record: they lie within what its resolution
+    (a quantised mv, the deadband of a compressed archive) makes of a healthy valve
+    (:func:`stictiondiag.stiction.resolution.hidden_by_resolution`); None otherwise."""
+    res = (fit.details or {}).get("resolution")
+    if not res or not res.get("within"):
+        return None
+    # The quantum is named where it, not the archive, sets mv's resolution.
+    quantised = res["mv_quantum"] > res["mv_deadband"]
+    parts = [f"mv quantised in steps of {res['mv_quantum']:.3g} %"] if quantised else []
+    parts += [
+        f"{role} archived with a {res[role + '_deadband']:.3g} % deadband"
+        for role in ("mv", "op")
+        if res[role + "_deadband"]
+    ]
+    return (
+        f"S = {fit.S:.2g} % and J = {fit.J:.2g} % of span are within what the record can "
+        f"hide ({', '.join(parts)}: a healthy valve recorded so shows stick-slip up to "
+        f"S = {res['S_hidden']:.2g} % and J = {res['J_hidden']:.2g} %); stiction this small "
+        "cannot be told from these data: export every sample (no compression) to decide"
+    )
+
+
 #: Words for each feature's state: (high or 1, low or 0); for the classic tests' calls
 #: (stiction, undecided, no stiction).
 _FEATURE_WORDS = {
@@ -346,9 +372,6 @@ def split_half_estimates(fit: StictionFit, data) -> tuple[float, float, float, f
     half holds fewer than :data:`HALF_MIN_CYCLES` cycles, or when a half cannot be
     fitted.
     """
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction.hammerstein import fit_hammerstein
-
     if data is None or getattr(data, "mv", None) is not None or fit.method != "hammerstein":
         return None
     op = np.asarray(data.op, dtype=float)
@@ -443,9 +466,6 @@ VALVE_LEVEL = 0.6
 
 def _cause_probabilities(features: dict, cause_model: dict | None) -> dict[str, float] | None:
     """Stage 2's P of each cause, None when the cause model is not installed."""
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction.cause_model import cause_probabilities
-
     try:
         return cause_probabilities(features, cause_model)
     except StictionError:
@@ -625,6 +645,11 @@ def stiction_verdict(
     if not cycle.present:
         direct = direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
     status, detected, confidence, cause, head = _decide(P, cycle, direct, stage2, contrib)
+    hidden = hidden_text(fit) if status == "stiction" else None
+    if hidden:
+        # Below the record's resolution: not called stiction, said why (P kept).
+        status, detected, confidence, cause = "inconclusive", None, P, None
+        head = f"{hidden}; {head}"
 
     evidence = {
         "probability": P,

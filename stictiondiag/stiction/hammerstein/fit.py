@@ -156,6 +156,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from stictiondiag.core.errors import DataError
+from stictiondiag.core.filters import median_filter_nearest
 from stictiondiag.stiction.hammerstein.columns import NCOL, highpass, lag
 from stictiondiag.stiction.hammerstein.kernels import Problem
 from stictiondiag.stiction.hammerstein.search import (
@@ -319,8 +320,6 @@ def cycle_travel(x: np.ndarray, period: int) -> float:
     that slips every cycle, without the load moves of op that a range of the whole
     record would include.
     """
-    from stictiondiag.core.filters import median_filter_nearest
-
     xd = x - median_filter_nearest(x, max(3, int(3 * period) | 1))
     m = max(2, int(2 * period))
     nw = xd.size // m
