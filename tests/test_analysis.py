@@ -13,6 +13,7 @@ the one test about it: it is the slowest step and has its own tests.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -30,6 +31,7 @@ from stictiondiag.core.errors import DataError
 from stictiondiag.io.tags import Tags
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import LOOP_PARAMETERS
+from stictiondiag.stiction.verdict import stiction_verdict
 
 SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
 NO_GAP = AnalysisConfig(gap=False)
@@ -468,3 +470,17 @@ def test_replay_warnings_reach_the_user(name):
     for note in a.replay.warnings:
         assert f"replay: {note}" in a.warnings
     assert a.to_dict()["warnings"] == list(a.warnings)
+
+
+def test_evidence_states_s_and_j_in_ops_own_units_when_its_scale_is_unknown(conc_mv):
+    # op in other units than % of span (Tags.op_scale "unknown", as read_tags sets for a
+    # normalised export): the verdict's evidence line must not call S and J "% of
+    # span".  The same loop as conc_mv, only the scale flag differs.
+    tags = dataclasses.replace(conc_mv.tags, op_scale="unknown")
+    v = stiction_verdict(
+        conc_mv.fit, conc_mv.oscillation, oscillation_op=conc_mv.oscillation_op, data=tags
+    )
+    line = next(r for r in v.reasons if r.startswith("S = "))
+    assert "in op's own units (scale unknown)" in line and "%" not in line
+    known = next(r for r in conc_mv.verdict.reasons if r.startswith("S = "))
+    assert " % [" in known and "of span (valve position)" in known

@@ -54,3 +54,32 @@ def test_large_gap_without_effect_says_why_and_what_is_left_open():
     assert "quantization" in a["text"]  # the closest candidate, and why it is not named
     assert a["open_gap_pct"] == LARGE_GAP_PCT + 30.0
     assert "asymmetry" in a["text"] and "open to them" in a["text"]
+
+
+def test_large_gap_without_effect_names_the_failed_test_and_where_it_lies():
+    """Issue 27: a gap over 50 % left with 'none' says why in words: where the gap
+    lies, the closest candidate and which of its tests failed."""
+    sig = {"op": {"before": 5.0}, "pv": {"before": 70.0}, "mv": {"before": 1.0}}
+    c = {
+        "effect": "valve_characteristic",
+        "after": 20.0,
+        "heldout": 60.0,
+        "n_params": 1,
+        "params": {"gain_change_p": 0.2},
+    }
+    gap = _gap("none", 80.0, 80.0, candidates=[c])
+    gap["breakdown"] = {"signal": sig}
+    gap["heldout_before"] = 65.0
+    text = attribute_gap(None, gap)["text"]
+    assert "most of it is in pv" in text
+    assert "gain_change: p = 0.2" in text
+    # Signature passes, held-out worse than the base: that is the reason given.
+    c["params"] = {"gain_change_p": 0.001}
+    c["heldout"] = 70.0
+    text = attribute_gap(None, gap)["text"]
+    assert "does no better than the two-parameter replay (70 % against 65 %)" in text
+    # No candidate lowers the record's gap, and the gap is in the controller's replay.
+    sig["op"]["before"] = 90.0
+    c["after"] = 85.0
+    text = attribute_gap(None, gap)["text"]
+    assert "in op, the controller's replay" in text and "no candidate lowers it" in text

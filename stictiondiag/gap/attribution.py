@@ -23,6 +23,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from stictiondiag.gap.effects.signatures import SIGNATURE_P
+
 #: A gap above this, left without an effect, is explained in words [%].
 LARGE_GAP_PCT = 50.0
 #: Share of the closed-loop cycle mismatch a refit must remove to call the fitted
@@ -54,16 +56,65 @@ def _identification(replay: dict | None) -> dict:
     return out
 
 
-def _why_none(gap: dict) -> str:
-    """Why no effect is named on a large gap, from the candidates' results."""
-    cands = [c for c in gap.get("candidates") or [] if c.get("after") is not None]
-    if not cands:
-        return "no effect of the catalogue could be fitted to this record"
-    best = min(cands, key=lambda c: c["after"])
+def _largest_signal(gap: dict) -> str | None:
+    """The signal that holds most of the gap before, from the breakdown."""
+    per = ((gap.get("breakdown") or {}).get("signal")) or {}
+    vals = {s: v.get("before") for s, v in per.items() if v.get("before") is not None}
+    return max(vals, key=lambda s: vals[s]) if vals else None
+
+
+def _why_rejected(c: dict, heldout_before: float | None) -> str:
+    """Which test a candidate failed, in words, from its reported results."""
+    failed_sig = [
+        (k, v)
+        for k, v in (c.get("params") or {}).items()
+        if k.endswith("_p") and v is not None and float(v) >= SIGNATURE_P
+    ]
+    if failed_sig:
+        k, v = failed_sig[0]
+        return (
+            f"its own signature is not in the data ({k.removesuffix('_p')}: p = "
+            f"{_f(v, '.2g')}, above {SIGNATURE_P:g})"
+        )
+    held = c.get("heldout")
+    if held is not None and heldout_before is not None and held >= heldout_before:
+        return (
+            f"on held-out blocks it does no better than the two-parameter replay "
+            f"({_f(held)} % against {_f(heldout_before)} %)"
+        )
+    k = c.get("n_params")
+    what = "extra parameters" if k is None else f"{k} extra parameter{'' if k == 1 else 's'}"
     return (
-        f"the closest candidate, {best.get('effect')}, lowers it to {_f(best.get('after'))} % "
-        "on the record but does not pass the held-out and signature tests, so it is "
-        "not named"
+        f"its gain on held-out blocks does not pay for its {what}, or the blocks do not bear it out"
+    )
+
+
+def _why_none(gap: dict) -> str:
+    """Why no effect is named on a large gap, from the candidates' results: where
+    the gap lies, the closest candidate and the test it failed."""
+    cands = [c for c in gap.get("candidates") or [] if c.get("after") is not None]
+    where = _largest_signal(gap)
+    lead = ""
+    if where == "op":
+        lead = (
+            "most of it is in op, the controller's replay, which no effect of the "
+            "catalogue changes; "
+        )
+    elif where is not None:
+        lead = f"most of it is in {where}; "
+    if not cands:
+        return lead + "no effect of the catalogue could be fitted to this record"
+    best = min(cands, key=lambda c: c["after"])
+    before = gap.get("before")
+    if before is not None and best["after"] >= before:
+        return lead + (
+            f"no candidate lowers it on the record (the closest, {best.get('effect')}, "
+            f"leaves {_f(best['after'])} %)"
+        )
+    return lead + (
+        f"the closest candidate, {best.get('effect')}, lowers it to "
+        f"{_f(best.get('after'))} % on the record but is not named: "
+        + _why_rejected(best, gap.get("heldout_before"))
     )
 
 

@@ -206,14 +206,18 @@ NO_STICTION_LEVEL = 0.3
 # evidence is too even to send a technician or to strike the valve off the list.
 
 
-def _fit_text(fit: StictionFit, has_mv: bool) -> str:
+def _fit_text(fit: StictionFit, has_mv: bool, op_scale: str = "percent") -> str:
+    """S and J with their intervals, in % of span, or in op's own units where op's
+    scale is unknown (``Tags.op_scale``)."""
     S_iv = fit.S_interval
+    unit = " %" if op_scale == "percent" else ""
+    where = "of span" if op_scale == "percent" else "in op's own units (scale unknown)"
     return (
-        f"S = {fit.S:.3g} %"
+        f"S = {fit.S:.3g}{unit}"
         + (f" [{S_iv[0]:.3g}, {S_iv[1]:.3g}]" if S_iv else "")
-        + f", J = {fit.J:.3g} %"
+        + f", J = {fit.J:.3g}{unit}"
         + (f" [{fit.J_interval[0]:.3g}, {fit.J_interval[1]:.3g}]" if fit.J_interval else "")
-        + f" of span ({'valve position' if has_mv else 'op and pv'})"
+        + f" {where} ({'valve position' if has_mv else 'op and pv'})"
     )
 
 
@@ -682,7 +686,7 @@ def stiction_verdict(
         *((_cause_reading(stage2),) if stage2 is not None and not has_mv else ()),
         cycle_text(cycle),
         _improvement_text(f, f_iv, support, min_improvement, n_blocks),
-        _fit_text(fit, has_mv),
+        _fit_text(fit, has_mv, str(getattr(data, "op_scale", "percent"))),
         _osc_text("pv", oscillation),
         *((_osc_text("op", oscillation_op),) if oscillation_op is not None else ()),
     )
