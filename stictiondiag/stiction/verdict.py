@@ -516,13 +516,26 @@ CONFIDENCE_FORMULA = (
 
 
 def _decide(
-    P: float, cycle, direct: str | None, stage2: dict[str, float] | None, contrib
+    P: float, cycle, direct: str | None, stage2: dict[str, float] | None, contrib, fit
 ) -> tuple[str, bool | None, float, str | None, str]:
     """The decision: status, detected, confidence, cause and the headline reason.
 
     Without a limit cycle, stick-slip seen directly (``direct``) calls stiction and
-    anything else no stiction; with one, P(stiction) against the two levels.
+    anything else no stiction; with one, P(stiction) against the two levels.  A
+    stiction call whose S and J lie within what the record's resolution can hide
+    (:func:`hidden_text`) becomes inconclusive, saying why (P kept).
     """
+    status, detected, confidence, cause, head = _call(P, cycle, direct, stage2, contrib)
+    hidden = hidden_text(fit) if status == "stiction" else None
+    if hidden:
+        return "inconclusive", None, P, None, f"{hidden}; {head}"
+    return status, detected, confidence, cause, head
+
+
+def _call(
+    P: float, cycle, direct: str | None, stage2: dict[str, float] | None, contrib
+) -> tuple[str, bool | None, float, str | None, str]:
+    """:func:`_decide` on the evidence alone, before the record's resolution."""
     for_text = _evidence_words(contrib, +1)
     against_text = _evidence_words(contrib, -1)
     if not cycle.present and direct:
@@ -629,9 +642,7 @@ def stiction_verdict(
         confidence in the verdict: ``P`` for stiction, ``1 - P`` for no stiction,
         ``P`` (between the levels, so never near 1) for inconclusive.
     """
-    if has_mv is None:
-        has_mv = fit.method == "mv_segments"
-    has_mv = bool(has_mv)
+    has_mv = fit.method == "mv_segments" if has_mv is None else bool(has_mv)
     model = model or load_model()
     # Stage 1: is there a limit cycle?  Stage 2 (its cause) only where there is one.
     cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
@@ -652,13 +663,7 @@ def stiction_verdict(
     direct = None
     if not cycle.present:
         direct = direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
-    status, detected, confidence, cause, head = _decide(P, cycle, direct, stage2, contrib)
-    hidden = hidden_text(fit) if status == "stiction" else None
-    if hidden:
-        # Below the record's resolution: not called stiction, said why (P kept).
-        status, detected, confidence, cause = "inconclusive", None, P, None
-        head = f"{hidden}; {head}"
-
+    status, detected, confidence, cause, head = _decide(P, cycle, direct, stage2, contrib, fit)
     evidence = {
         "probability": P,
         "p_friction": P,
