@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from stictiondiag.gap.attribution import attribute_gap
 from stictiondiag.stiction.cause import ACTIONS, CAUSE_WORDS
 from stictiondiag.stiction.valvefit import Determinacy, poorly_determined
 from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL
@@ -335,6 +334,9 @@ def _gap(d: dict) -> str:
     """The gap in words: how much of the departure is the fitted loop's (the
     closed-loop refit) and how much an unmodelled effect's
     (:func:`stictiondiag.gap.attribution.attribute_gap`)."""
+    # Imported here: the gap's effects bring numba, which reading a result does not need.
+    from stictiondiag.gap.attribution import attribute_gap
+
     gap = d.get("gap")
     why = attribute_gap(d.get("replay"), gap)
     if not gap:

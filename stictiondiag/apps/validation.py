@@ -38,7 +38,6 @@ import pandas as pd
 
 from stictiondiag.apps.sources import load_source
 from stictiondiag.core.errors import DataError, StictionError
-from stictiondiag.gap.attribution import attribute_gap
 
 #: ISDB loop types that behave as the paper's loop types.
 LOOP_TYPE_MAP = {
@@ -313,6 +312,9 @@ def validate_isdb(
         row["reasons"] = "; ".join(str(x) for x in reasons)
         full = res.get("analysis") or {}
         if full.get("gap") is not None:
+            # Imported here: the gap's effects bring numba, which the table does not need.
+            from stictiondiag.gap.attribution import attribute_gap
+
             row["gap_cause"] = attribute_gap(full.get("replay"), full.get("gap"))["cause"]
             row["gap_before"] = full["gap"].get("before")
         row.update(_split_columns(res.get("split")))
