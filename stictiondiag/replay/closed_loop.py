@@ -546,12 +546,13 @@ def _replay_simulate(
     else:
         pv_bias_sim = pf.pv_bias + gain * (ref - pf.u_bias)
     free = _open_loop_like_simulator(pf, u, dt, ref, pv_bias_sim)
-    load = pf.simulate(u, dt) - free
+    modelled = pf.simulate(u, dt)
+    load = modelled - free
     # Within the first dead time pv answers to inputs from before the record, which
     # the replay cannot know: it takes the recorded pv there.
     warm = min(pf.dead_time_samples + 1, n)
     load[:warm] = pv[:warm] - free[:warm]
-    load += _anchor(pf, pv, pf.simulate(u, dt), warm, dt)
+    load += _anchor(pf, pv, modelled, warm, dt)
     sp_used = rec.sp if rec.sp is not None else np.full(n, float(pv.mean()))
     ti = cf.controller.integral_time
     op0 = float(np.clip(op[0] + offset, 0.0, 100.0)) - offset
