@@ -19,6 +19,7 @@ import pandas as pd
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from typed_results import make_analysis
 from typer.testing import CliRunner
 
 import stictiondiag.apps.report as report_module
@@ -327,7 +328,8 @@ def _fake_scan_loop(source, read_options, gap, plots=True):
         "verdict": "no_stiction",
         "S": -1.5,
     }
-    return {"row": row, "analysis": {"loop": source.loop}}
+    analysis = make_analysis(source.loop, status="no_stiction", p=0.0, S=-1.5)
+    return {"row": row, "analysis": analysis}
 
 
 def test_scan_csv_escapes_formulas_and_parquet_stays_raw(tmp_path, monkeypatch):

@@ -13,7 +13,10 @@ from __future__ import annotations
 import json
 import math
 from html import escape
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from stictiondiag.result import Analysis
 
 __all__ = ["HISTORY_FOLDER", "entry_of", "history_html", "merge_entry", "trend_sentence"]
 
@@ -31,11 +34,11 @@ def _finite(v: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def cause_of(row: dict, analysis: dict | None) -> str | None:
+def cause_of(row: dict, analysis: Analysis | None) -> str | None:
     """The cause of the loop's trouble as the analysis names it: the verdict's cause of
     the cycle when it gives one, else the sim-to-real gap's effect."""
-    st = (analysis or {}).get("stiction") or {}
-    for value in (row.get("cause"), st.get("cause"), row.get("gap_effect")):
+    verdict_cause = None if analysis is None else analysis.verdict.cause
+    for value in (row.get("cause"), verdict_cause, row.get("gap_effect")):
         if isinstance(value, str) and value:
             return value
         if isinstance(value, dict) and value.get("name"):
@@ -43,7 +46,7 @@ def cause_of(row: dict, analysis: dict | None) -> str | None:
     return None
 
 
-def entry_of(row: dict, analysis: dict | None, source_sha: str | None) -> dict:
+def entry_of(row: dict, analysis: Analysis | None, source_sha: str | None) -> dict:
     """One history entry of a finished loop: its record period, key and results."""
     start = _finite(row.get("start_time_s"))
     duration = _finite(row.get("duration_s"))
@@ -53,7 +56,7 @@ def entry_of(row: dict, analysis: dict | None, source_sha: str | None) -> dict:
         "key": key,
         "record_start_s": start,
         "record_end_s": end,
-        "analysed_at": (analysis or {}).get("analysed_at"),
+        "analysed_at": None if analysis is None else (analysis.analysed_at or None),
         "source": row.get("source"),
         "cause": cause_of(row, analysis),
     }

@@ -28,13 +28,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from stictiondiag.apps.findings import with_findings
+from stictiondiag.apps.findings import analysis_json
+from stictiondiag.apps.loop_page import render_loop_html
 from stictiondiag.apps.outdir import OutputFolder
 from stictiondiag.apps.pages import safe_name, unique_names
 from stictiondiag.apps.report_html import (
     md_escape,
     render_index_html,
-    render_loop_html,
     render_markdown,
     sort_key,
 )
@@ -238,9 +238,8 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
             result = analyze(read_plant_loop(plant, **options), config=AnalysisConfig(gap=gap))
         else:
             result = analyze_file(path, config=AnalysisConfig(gap=gap), **options)
-        plain = result.to_dict()
-        row = result.summary_row(plain)
-        d = with_findings({**plain, "loop": loop})
+        d = analysis_json(result, loop=loop)
+        row = result.summary_row()
         # Upward (plotting sits above apps): imported only when figures are drawn.
         from stictiondiag.plotting import figure_png
 
@@ -252,7 +251,7 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
             "file": label,
             "loop": loop,
             "name": name,
-            "page": render_loop_html(d, images, json_name=f"{name}.json"),
+            "page": render_loop_html(result, images, loop=loop, json_name=f"{name}.json"),
             "json": json.dumps(d, indent=2) + "\n",
             "row": row,
         }

@@ -34,6 +34,8 @@ from stictiondiag.core.errors import UsageError
 if TYPE_CHECKING:
     import pandas as pd
 
+    from stictiondiag.result import Analysis
+
 __all__ = [
     "OUTPUT_TABLES",
     "SCAN_MANIFEST",
@@ -113,8 +115,9 @@ def _save_loop(
     try:
         # Named together in the manifest before either is written (one manifest write).
         folder.claim(f"loops/{name}.html", f"loops/{name}.json")
-        if res["analysis"] is not None:
-            entries = _update_history(folder, name, row, res["analysis"], keys.get(row["loop"]))
+        analysis = res["analysis"]
+        if analysis is not None:
+            entries = _update_history(folder, name, row, analysis, keys.get(row["loop"]))
             trend = trend_sentence(entries)
             if trend:
                 row = {**row, "trend": trend}
@@ -122,9 +125,9 @@ def _save_loop(
             "row": row,
             "settings": settings,
             "source_key": keys.get(row["loop"]),
-            "analysis": res["analysis"],
+            "analysis": None if analysis is None else {**analysis.to_dict(), "loop": row["loop"]},
         }
-        page = loop_html(row, res["analysis"], name, res.get("images") or {}, entries)
+        page = loop_html(row, analysis, name, res.get("images") or {}, entries)
         # The JSON record marks the loop as done, so it is written last.
         folder.write({f"loops/{name}.html": page})
         folder.write({f"loops/{name}.json": json.dumps(record, indent=1, default=_json_default)})
@@ -134,7 +137,7 @@ def _save_loop(
 
 
 def _update_history(
-    folder: OutputFolder, name: str, row: dict, analysis: dict, key: dict | None
+    folder: OutputFolder, name: str, row: dict, analysis: Analysis, key: dict | None
 ) -> list[dict]:
     """The loop's history with this result merged in, written back (only a history file
     the scan wrote is read; anything else there is refused by the write)."""
@@ -225,7 +228,7 @@ def _check_out(out: Path) -> None:
 
 def loop_html(
     row: dict,
-    analysis: dict | None,
+    analysis: Analysis | None,
     name: str | None = None,
     images: dict[str, bytes] | None = None,
     history: list[dict] | None = None,
@@ -236,12 +239,16 @@ def loop_html(
 
     # Imported here: the page's findings bring the verdict and numba (about 0.5 s),
     # which a scan's own process does not otherwise load.
-    from stictiondiag.apps.report_html import render_loop_html
+    from stictiondiag.apps.loop_page import render_loop_html
 
     name = name or safe_name(row["loop"])
     if analysis is not None:
         page = render_loop_html(
-            analysis, images or {}, json_name=f"{name}.json", index_href="../index.html"
+            analysis,
+            images or {},
+            loop=row["loop"],
+            json_name=f"{name}.json",
+            index_href="../index.html",
         )
         section = history_html(history or [])
         return page.replace("\n<script>", section + "\n<script>", 1) if section else page
