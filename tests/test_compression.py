@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from stictiondiag.io.compression import (
+    archive_deadbands,
     archive_kind,
     exception_compress,
     reconstruct,
@@ -67,6 +68,34 @@ def test_deadband_archive_held_is_within_the_deadband_and_swinging_door_linear()
         # 1e-9: rounding of the line through two archived points.
         assert np.max(np.abs(arrays["pv"] - v)) <= deviation + 1e-9
         assert np.max(np.abs(arrays["pv"] - v)) > 0.4 * deviation  # not the raw data
+
+
+def test_op_of_an_exception_archive_is_read_banded_and_follows_its_drift():
+    # op under integral action drifts; its exception archive (deadband 0.1) keeps a
+    # value each time it has moved 0.1.  Held, it is a sawtooth about the drift (RMS
+    # error d / sqrt(3) = 0.058); banded it follows the ramp (the error is the 0.002
+    # noise and the scan the archive fired on), and never leaves the band the archive
+    # guarantees (2 d: the signal and the reading both within d of the archived value).
+    # The valve's position, a staircase of 1 % steps, stays held and exact.
+    rng = np.random.default_rng(5)
+    t = np.arange(3000) * 1.0
+    op = 40 + 0.01 * t + rng.normal(0, 0.002, t.size)
+    mv = np.floor(op)
+    i, j = exception_compress(op, 0.1), exception_compress(mv, 0.1)
+    series = {"pv": (t, np.zeros(t.size)), "op": (t[i], op[i]), "mv": (t[j], mv[j])}
+    arrays, _, _, note = reconstruct(series, "x")
+    held, *_ = reconstruct(series, "x", "hold")
+
+    def rms(e):
+        return float(np.sqrt(np.mean(e**2)))
+
+    assert np.max(np.abs(arrays["op"] - op)) <= 0.2
+    assert rms(arrays["op"] - op) < 0.1 * rms(held["op"] - op)
+    assert rms(held["op"] - op) == pytest.approx(0.1 / np.sqrt(3), rel=0.1)
+    np.testing.assert_array_equal(arrays["mv"], mv)
+    assert "op 285 values linear within its deadband 0.1" in note and "mv 32 values held" in note
+    # Asked for, every tag is held, and the deadbands are carried either way.
+    assert archive_deadbands(series, "x") == archive_deadbands(series, "x", "hold")
 
 
 def test_constant_set_point_of_two_rows_is_held_not_two_samples(tmp_path):
