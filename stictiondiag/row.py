@@ -142,9 +142,22 @@ class LoopRow:
     spark_op: str | None = None
     trend: str | None = None
 
+    @classmethod
+    def failed(cls, loop: str, source: str | None, error: str) -> LoopRow:
+        """The row of a loop that could not be analysed: verdict ``error`` and why."""
+        return cls(loop=loop, source=source, verdict="error", error=error)
+
     def to_dict(self) -> dict[str, Any]:
         """The row as the tables hold it: the analysis's columns in the order of the
-        fields, ``kpi_<name>`` after them, then the context fields that are set."""
+        fields, ``kpi_<name>`` after them, then the context fields that are set; a
+        failed loop's row holds ``loop``, ``source``, ``verdict`` and ``error`` only."""
+        if self.verdict == "error":
+            return {
+                "loop": self.loop,
+                "source": self.source,
+                "verdict": self.verdict,
+                "error": self.error,
+            }
         out: dict[str, Any] = {}
         for spec in fields(self):
             if spec.name == "kpis":

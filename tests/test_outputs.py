@@ -30,6 +30,7 @@ from stictiondiag.apps.pages import MAX_NAME_BYTES, safe_name
 from stictiondiag.apps.report import build_report, clean_report
 from stictiondiag.apps.scan import scan
 from stictiondiag.core.errors import EXIT_USAGE, UsageError
+from stictiondiag.row import LoopRow
 
 ROOT = Path(__file__).resolve().parents[1]
 HEALTHY = ROOT / "sample_data" / "healthy_flow.csv"
@@ -46,12 +47,9 @@ def _fake_report_loop(source, read_options, gap):
         "name": name,
         "page": f"<!DOCTYPE html><p>{name}</p>\n",
         "json": json.dumps({"loop": loop}) + "\n",
-        "row": {
-            "loop": loop,
-            "source": str(path),
-            "verdict": "no_stiction",
-            "page": f"loops/{name}.html",
-        },
+        "row": LoopRow(
+            loop=loop, source=str(path), verdict="no_stiction", page=f"loops/{name}.html"
+        ),
     }
 
 

@@ -25,7 +25,7 @@ import os
 import time
 import traceback
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from stictiondiag.apps.findings import analysis_json
@@ -52,6 +52,7 @@ from stictiondiag.io.plant import (
     read_plant_loop,
     unmatched_manifest_rows,
 )
+from stictiondiag.row import LoopRow
 
 __all__ = [
     "ReportResult",
@@ -81,8 +82,8 @@ class ReportResult:
 
     Attributes
     ----------
-    rows : list of dict
-        One summary row per loop in the index (this run's and earlier runs'), in the
+    rows : list of LoopRow
+        One row per loop in the index (this run's and earlier runs'), in the
         index's order; failed loops have ``verdict == "error"`` and an ``error``.
     failed : list of (str, str)
         Inputs of this run that could not be analysed: (file, one-line message).
@@ -95,7 +96,7 @@ class ReportResult:
         Warnings of the run (manifest rows that match no loop), one line each.
     """
 
-    rows: list
+    rows: list[LoopRow]
     failed: list = field(default_factory=list)
     outputs: dict = field(default_factory=dict)
     renamed: dict = field(default_factory=dict)
@@ -103,9 +104,7 @@ class ReportResult:
 
     def max_stiction_confidence(self) -> float | None:
         """Highest confidence among loops called stiction; None when there is none."""
-        vals = [
-            float(r.get("confidence") or 0.0) for r in self.rows if r.get("verdict") == "stiction"
-        ]
+        vals = [float(r.confidence or 0.0) for r in self.rows if r.verdict == "stiction"]
         return max(vals) if vals else None
 
 
@@ -172,10 +171,11 @@ def _inside(path: Path, folder: Path) -> bool:
         return False
 
 
-def _read_rows(out: Path) -> dict[str, dict]:
+def _read_rows(out: Path) -> dict[str, LoopRow]:
     try:
-        return {str(r["loop"]): r for r in json.loads((out / ROWS_FILE).read_text())}
-    except (OSError, ValueError, KeyError, TypeError):
+        rows = [LoopRow.from_dict(r) for r in json.loads((out / ROWS_FILE).read_text())]
+        return {row.loop: row for row in rows}
+    except (OSError, ValueError, AttributeError, TypeError):
         # No earlier report, or an unreadable index: start the index afresh (the loop
         # pages on disk are left alone).
         return {}
@@ -215,7 +215,8 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
 
     Module-level so that it runs in worker processes. ``source`` is (file, name):
     the name is the loop's file name in the report (distinct for every input).
-    Returns ``{"file", "loop", "page", "json", "row"}`` on success, ``{"file",
+    Returns ``{"file", "loop", "page", "json", "row"}`` on success (``row`` a
+    :class:`~stictiondiag.row.LoopRow`), ``{"file",
     "loop", "error"}`` when the loop could not be analysed (one line: the data error,
     or the internal error and where it arose).
     """
@@ -239,14 +240,11 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
         else:
             result = analyze_file(path, config=AnalysisConfig(gap=gap), **options)
         d = analysis_json(result, loop=loop)
-        row = result.summary_row()
         # Upward (plotting sits above apps): imported only when figures are drawn.
         from stictiondiag.plotting import figure_png
 
         images = {k: figure_png(fig) for k, fig in result.figures().items()}
-        row["loop"] = loop
-        row["source"] = label
-        row["page"] = f"{LOOPS_DIR}/{name}.html"
+        row = replace(result.row(), loop=loop, source=label, page=f"{LOOPS_DIR}/{name}.html")
         return {
             "file": label,
             "loop": loop,
@@ -461,7 +459,7 @@ def build_report(
 def _run_loops(
     folder: OutputFolder,
     sources: list,
-    rows: dict[str, dict],
+    rows: dict[str, LoopRow],
     read_options: dict,
     gap: bool,
     workers: int,
@@ -493,12 +491,7 @@ def _run_loops(
                 unwritten.add(res["file"])
         if "error" in res:
             failed.append((res["file"], res["error"]))
-            rows[res["loop"]] = {
-                "loop": res["loop"],
-                "source": res["file"],
-                "verdict": "error",
-                "error": res["error"],
-            }
+            rows[res["loop"]] = LoopRow.failed(res["loop"], res["file"], res["error"])
         else:
             rows[res["loop"]] = res["row"]
         folder.write({ROWS_FILE: _rows_json(rows)})
@@ -510,5 +503,6 @@ def _run_loops(
     return failed
 
 
-def _rows_json(rows: dict[str, dict]) -> str:
-    return json.dumps(sorted(rows.values(), key=sort_key), indent=1, default=str) + "\n"
+def _rows_json(rows: dict[str, LoopRow]) -> str:
+    ordered = sorted(rows.values(), key=sort_key)
+    return json.dumps([r.to_dict() for r in ordered], indent=1, default=str) + "\n"
