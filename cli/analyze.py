@@ -90,12 +90,21 @@ SUMMARY_KPIS = (
 )
 
 
+def _process_kind(rep: Replay) -> str | None:
+    """``foptd`` or ``integrating``: the structure of the replay's identified process."""
+    from stictiondiag.models.processes import FOPTD
+
+    if rep.process_fit is None:
+        return None
+    return "foptd" if isinstance(rep.process_fit.process, FOPTD) else "integrating"
+
+
 def _replay_lines(rep: Replay) -> list[str]:
     """The replay's process, its agreement with the data and the closed-loop refit."""
     from stictiondiag.replay.metrics import replay_metrics
 
     lines = [
-        f"replay      process {to_plain(rep.process).get('type')}",
+        f"replay      process {_process_kind(rep)}",
         f"            {replay_metrics(rep).text()}",
     ]
     # The refit's record is a mapping of the replay's settings (replay.refit).

@@ -34,11 +34,14 @@ from stictiondiag.apps.findings import (
 )
 from stictiondiag.apps.pages import duration_text, html_num, html_page, html_text
 from stictiondiag.core.serialize import plain_float, to_plain
+from stictiondiag.models.processes import FOPTD
 from stictiondiag.replay.metrics import ReplayMetrics, replay_metrics
 from stictiondiag.result import clock_text
 
 if TYPE_CHECKING:
     from stictiondiag.gap.diagnose import GapDiagnosis
+    from stictiondiag.identification.controller import ControllerFit
+    from stictiondiag.identification.process import ProcessFit
     from stictiondiag.replay.closed_loop import Replay
     from stictiondiag.result import Analysis
     from stictiondiag.stiction.valvefit import StictionFit
@@ -139,48 +142,40 @@ def _card(label: str, value: str, sub: str = "") -> str:
     )
 
 
-def _params(d: dict | None, names: Sequence[tuple[str, str, str]]) -> str:
-    """``symbol = value unit`` for the keys present in ``d``."""
-    if not d:
-        return "n/a"
+def _params(values: Sequence[tuple[float | None, str, str]]) -> str:
+    """``symbol = value unit`` for the finite values among ``(value, symbol, unit)``."""
     parts = [
-        f"{sym} = {_num(d.get(key))}{unit}" for key, sym, unit in names if d.get(key) is not None
+        f"{sym} = {_num(v)}{unit}"
+        for v, sym, unit in ((plain_float(v), sym, unit) for v, sym, unit in values)
+        if v is not None
     ]
     return escape(", ".join(parts)) if parts else "n/a"
 
 
-def _process_text(p: dict | None) -> str:
-    if not p:
-        return "n/a"
-    kind = str(p.get("type") or "process")
-    text = f"{escape(kind.upper() if kind == 'foptd' else kind)}: " + _params(
-        p,
-        [
-            ("gain", "K", ""),
-            ("time_constant_s", "\u03c4", " s"),
-            ("dead_time_s", "\u03b8", " s"),
-        ],
-    )
-    if p.get("fit_r2") is not None:
-        text += f" (R\u00b2 {_num(p.get('fit_r2'), '.2f')})"
-    return text
+def _r2_text(r2: float | None) -> str:
+    r2 = plain_float(r2)
+    return "" if r2 is None else f" (R\u00b2 {_num(r2, '.2f')})"
 
 
-def _controller_text(c: dict | None) -> str:
-    if not c:
+def _process_text(pf: ProcessFit | None) -> str:
+    """The identified process: structure, K, \u03c4, \u03b8 and the fit's R\u00b2."""
+    if pf is None:
         return "n/a"
-    kind = str(c.get("type") or "controller").upper()
-    text = f"{escape(kind)}: " + _params(
-        c,
-        [
-            ("gain", "Kc", ""),
-            ("integral_time_s", "Ti", " s"),
-            ("op_bias", "op bias", " %"),
-        ],
-    )
-    if c.get("fit_r2") is not None:
-        text += f" (R\u00b2 {_num(c.get('fit_r2'), '.2f')})"
-    return text
+    p = pf.process
+    tau = p.time_constant if isinstance(p, FOPTD) else None
+    kind = "FOPTD" if isinstance(p, FOPTD) else "integrating"
+    values = [(p.gain, "K", ""), (tau, "\u03c4", " s"), (p.dead_time, "\u03b8", " s")]
+    return f"{kind}: " + _params(values) + _r2_text(pf.fit_r2)
+
+
+def _controller_text(cf: ControllerFit | None) -> str:
+    """The identified controller: P or PI, Kc, Ti, op bias and the fit's R\u00b2."""
+    if cf is None:
+        return "n/a"
+    kind = "P" if cf.p_only else "PI"
+    c = cf.controller
+    values = [(c.gain, "Kc", ""), (c.integral_time, "Ti", " s"), (cf.op_bias, "op bias", " %")]
+    return f"{kind}: " + _params(values) + _r2_text(cf.fit_r2)
 
 
 def _param_text(params) -> str:
@@ -401,8 +396,8 @@ def _replay_section(
     parts.append(
         _kv_table(
             [
-                ("process", _process_text(to_plain(rep.process))),
-                ("controller", _controller_text(to_plain(rep.controller))),
+                ("process", _process_text(rep.process_fit)),
+                ("controller", _controller_text(rep.controller_fit)),
                 (
                     f"period of {m.period_signal or rep.period_signal or 'pv'}, data / replay [s]",
                     f"{_num(plain_float(m.period_data_s))} / "
