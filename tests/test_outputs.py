@@ -27,7 +27,7 @@ import stictiondiag.apps.scan as scan_module
 from stiction_cli.main import app
 from stictiondiag.apps.outdir import OutputFolder, is_stale_temp
 from stictiondiag.apps.pages import MAX_NAME_BYTES, safe_name
-from stictiondiag.apps.report import build_report, clean_report
+from stictiondiag.apps.report import ReportedLoop, build_report, clean_report
 from stictiondiag.apps.scan import scan
 from stictiondiag.core.errors import EXIT_USAGE, UsageError
 from stictiondiag.row import LoopRow
@@ -41,16 +41,14 @@ def _fake_report_loop(source, read_options, gap):
     """Stand-in for :func:`analyse_for_report`: a page and JSON without analysing."""
     path, name = source[0], source[1]
     loop = source[4] if len(source) > 4 else Path(path).stem
-    return {
-        "file": str(path),
-        "loop": loop,
-        "name": name,
-        "page": f"<!DOCTYPE html><p>{name}</p>\n",
-        "json": json.dumps({"loop": loop}) + "\n",
-        "row": LoopRow(
-            loop=loop, source=str(path), verdict="no_stiction", page=f"loops/{name}.html"
-        ),
-    }
+    return ReportedLoop(
+        file=str(path),
+        loop=loop,
+        name=name,
+        page_html=f"<!DOCTYPE html><p>{name}</p>\n",
+        json_text=json.dumps({"loop": loop}) + "\n",
+        row=LoopRow(loop=loop, source=str(path), verdict="no_stiction", page=f"loops/{name}.html"),
+    )
 
 
 @pytest.fixture

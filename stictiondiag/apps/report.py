@@ -56,6 +56,7 @@ from stictiondiag.row import LoopRow
 
 __all__ = [
     "ReportResult",
+    "ReportedLoop",
     "build_report",
     "clean_report",
     "md_escape",
@@ -210,15 +211,42 @@ def _display_name(path: str, name: str) -> str:
     return stem if safe_name(stem) == name else name
 
 
-def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -> dict:
+@dataclass(frozen=True)
+class ReportedLoop:
+    """What a report's worker hands back for one loop.
+
+    Attributes
+    ----------
+    file : str
+        The input (``file#loop`` for a loop of a plant export).
+    loop : str
+        The loop's name in the index.
+    name : str or None
+        Its file name in ``loops/`` (without extension).
+    page_html, json_text : str or None
+        The loop page and the loop's JSON, rendered in the worker.
+    row : LoopRow or None
+        Its index row.
+    error : str or None
+        Why the loop could not be analysed (one line); the other fields are then None.
+    """
+
+    file: str
+    loop: str
+    name: str | None = None
+    page_html: str | None = None
+    json_text: str | None = None
+    row: LoopRow | None = None
+    error: str | None = None
+
+
+def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -> ReportedLoop:
     """Analyse one loop file and render its page; never raises for a bad loop.
 
     Module-level so that it runs in worker processes. ``source`` is (file, name):
     the name is the loop's file name in the report (distinct for every input).
-    Returns ``{"file", "loop", "page", "json", "row"}`` on success (``row`` a
-    :class:`~stictiondiag.row.LoopRow`), ``{"file",
-    "loop", "error"}`` when the loop could not be analysed (one line: the data error,
-    or the internal error and where it arose).
+    A loop that could not be analysed comes back with its ``error`` (one line: the
+    data error, or the internal error and where it arose).
     """
     # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import (
@@ -245,30 +273,30 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
 
         images = {k: figure_png(fig) for k, fig in result.figures().items()}
         row = replace(result.row(), loop=loop, source=label, page=f"{LOOPS_DIR}/{name}.html")
-        return {
-            "file": label,
-            "loop": loop,
-            "name": name,
-            "page": render_loop_html(result, images, loop=loop, json_name=f"{name}.json"),
-            "json": json.dumps(d, indent=2) + "\n",
-            "row": row,
-        }
+        return ReportedLoop(
+            file=label,
+            loop=loop,
+            name=name,
+            page_html=render_loop_html(result, images, loop=loop, json_name=f"{name}.json"),
+            json_text=json.dumps(d, indent=2) + "\n",
+            row=row,
+        )
     except StictionError as exc:
         message = _first_line(exc)
     except Exception as exc:  # one broken loop must not stop the report of the others
         last = traceback.extract_tb(exc.__traceback__)[-1:]
         where = f" at {last[0].name}" if last else ""
         message = f"internal error{where}: {type(exc).__name__}: {_first_line(exc)}"
-    return {"file": label, "loop": loop, "error": message}
+    return ReportedLoop(file=label, loop=loop, error=message)
 
 
-def _worker_died(source: tuple, exc: BaseException) -> dict:
+def _worker_died(source: tuple, exc: BaseException) -> ReportedLoop:
     plant = source[2] if len(source) > 2 else None
-    return {
-        "file": f"{source[0]}#{plant.loop}" if plant is not None else str(source[0]),
-        "loop": source[4] if len(source) > 4 else _display_name(source[0], source[1]),
-        "error": f"internal error: the analysis process failed ({type(exc).__name__})",
-    }
+    return ReportedLoop(
+        file=f"{source[0]}#{plant.loop}" if plant is not None else str(source[0]),
+        loop=source[4] if len(source) > 4 else _display_name(source[0], source[1]),
+        error=f"internal error: the analysis process failed ({type(exc).__name__})",
+    )
 
 
 def _expand(files: Sequence[str]) -> list[tuple[str, str, PlantLoop | None]]:
@@ -482,21 +510,21 @@ def _run_loops(
         on_error=_worker_died,
     )
     for done, res in enumerate(outcomes, start=1):
-        if "error" not in res:
-            base = f"{LOOPS_DIR}/{res['name']}"
+        if res.error is None:
+            base = f"{LOOPS_DIR}/{res.name}"
             try:
-                folder.write({f"{base}.json": res["json"], f"{base}.html": res["page"]})
+                folder.write({f"{base}.json": res.json_text, f"{base}.html": res.page_html})
             except UsageError as exc:
-                res = {"file": res["file"], "loop": res["loop"], "error": _first_line(exc)}
-                unwritten.add(res["file"])
-        if "error" in res:
-            failed.append((res["file"], res["error"]))
-            rows[res["loop"]] = LoopRow.failed(res["loop"], res["file"], res["error"])
-        else:
-            rows[res["loop"]] = res["row"]
+                res = ReportedLoop(file=res.file, loop=res.loop, error=_first_line(exc))
+                unwritten.add(res.file)
+        if res.error is not None:
+            failed.append((res.file, res.error))
+            rows[res.loop] = LoopRow.failed(res.loop, res.file, res.error)
+        elif res.row is not None:  # a loop analysed carries its row
+            rows[res.loop] = res.row
         folder.write({ROWS_FILE: _rows_json(rows)})
         if progress:
-            progress(done, len(sources), res["loop"])
+            progress(done, len(sources), res.loop)
     if failed and len(unwritten) == len(sources):
         # Every loop was analysed and none could be written: an output error.
         raise UsageError(failed[0][1])
