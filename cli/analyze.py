@@ -1,4 +1,8 @@
-"""``stiction analyze FILE``: the stiction verdict, S and J, and the closed-loop replay."""
+"""``stiction analyze FILE``: the stiction verdict, S and J, and the closed-loop replay.
+
+The library is imported inside the functions, as in every command: loading the CLI
+(``stiction --help``, any other command) must not import numpy and the numerics.
+"""
 
 from __future__ import annotations
 
@@ -6,8 +10,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-
-from stictiondiag.core.serialize import plain_float, to_plain
 
 from .app import app
 from .common import (
@@ -66,6 +68,7 @@ def _param(a: Analysis, sym: str) -> str:
     values marked as such (:func:`stictiondiag.apps.findings.param_note`); in op's own
     units when op is not in % of span."""
     from stictiondiag.apps.findings import OWN_UNITS, estimate, param_note
+    from stictiondiag.core.serialize import plain_float
 
     value = estimate(a.fit, sym)
     unit = OWN_UNITS if a.tags.op_scale == "unknown" else " % of op span"
@@ -101,6 +104,7 @@ def _process_kind(rep: Replay) -> str | None:
 
 def _replay_lines(rep: Replay) -> list[str]:
     """The replay's process, its agreement with the data and the closed-loop refit."""
+    from stictiondiag.core.serialize import to_plain
     from stictiondiag.replay.metrics import replay_metrics
 
     lines = [
@@ -136,6 +140,7 @@ def render_summary(a: Analysis) -> str:
     amplitude and waveform agreement, and the findings in words close the summary.
     """
     from stictiondiag.apps.findings import findings_of, probability_text
+    from stictiondiag.core.serialize import plain_float
 
     tags, verdict, osc = a.tags, a.verdict, a.oscillation
     source = tags.loop_type_source or "user/default"
