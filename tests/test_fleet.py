@@ -12,14 +12,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stictiondiag.apps.history import merge_entry, trend_sentence
+from stictiondiag.apps.history import HistoryEntry, merge_entry, trend_sentence
 from stictiondiag.apps.pages import RANKING_RULE, rank_key
 from stictiondiag.apps.scan import rank, scan
 
 
 def test_trend_sentence_says_rise_fall_or_no_change():
     def e(s, lo, hi, start):
-        return {"key": str(start), "record_start_s": start, "S": s, "S_lo": lo, "S_hi": hi}
+        return HistoryEntry(key=str(start), record_start_s=start, S=s, S_lo=lo, S_hi=hi)
 
     entries = []
     for k, (s, lo, hi) in enumerate([(1.2, 1.1, 1.3), (2.0, 1.9, 2.1), (3.4, 3.3, 3.5)]):
@@ -27,7 +27,7 @@ def test_trend_sentence_says_rise_fall_or_no_change():
     assert trend_sentence(entries) == "S rose from 1.2 % to 3.4 % over 3 exports"
     # The same record analysed again replaces its entry (keyed by the record period).
     again = merge_entry(entries, e(3.5, 3.3, 3.6, 1e9 + 2 * 86400))
-    assert len(again) == 3 and again[-1]["S"] == 3.5
+    assert len(again) == 3 and again[-1].S == 3.5
     flat = [e(2.0, 1.5, 2.5, 1e9), e(2.2, 1.8, 2.6, 2e9)]
     assert trend_sentence(flat) == "S stayed at about 2.2 % over 2 exports (intervals overlap)"
     assert trend_sentence(flat[:1]) is None

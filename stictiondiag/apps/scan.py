@@ -119,8 +119,10 @@ __all__ = [
 
 
 def analyse_source(source: LoopSource, read_options: dict, gap: bool, plots: bool = True) -> dict:
-    """Analyse one loop and return its table row, the full JSON and the loop page's
-    figures (PNG bytes, drawn in the worker; none when ``plots`` is False) (never raises)."""
+    """Analyse one loop and return its table row, its :class:`~stictiondiag.result.Analysis`
+    (``analysis``; it pickles, so it crosses to the scan's process as the typed
+    result) and the loop page's figures (PNG bytes, drawn in the worker; none when
+    ``plots`` is False) (never raises)."""
     # Imported here: only the workers analyse; the scan's own process stays 0.3 s lighter.
     from stictiondiag.analysis import AnalysisConfig, analyze
 
@@ -128,14 +130,12 @@ def analyse_source(source: LoopSource, read_options: dict, gap: bool, plots: boo
     try:
         tags = load_source(source, **{**read_options, **(source.read_options or {})})
         result = analyze(tags, config=AnalysisConfig(gap=gap))
-        full = result.to_dict()
-        row.update(result.summary_row(full))
-        full["loop"] = source.loop
+        row.update(result.summary_row())
         row["loop"] = source.loop
         row["source"] = source.path
         images, extras = loop_extras(result, plots, plant=source.plant is not None)
         row.update(extras)
-        return {"row": row, "analysis": full, "images": images}
+        return {"row": row, "analysis": result, "images": images}
     except StictionError as exc:
         return error_result(source, _first_line(exc))
     except Exception as exc:  # one broken loop must never stop a plant scan

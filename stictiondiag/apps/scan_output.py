@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 from stictiondiag.apps.history import (
     HISTORY_FOLDER,
+    HistoryEntry,
     entry_of,
     history_html,
     merge_entry,
@@ -30,9 +31,12 @@ from stictiondiag.apps.scan_page import scan_html
 from stictiondiag.core.atomic import atomic_path
 from stictiondiag.core.csvsafe import safe_frame
 from stictiondiag.core.errors import UsageError
+from stictiondiag.row import LoopRow
 
 if TYPE_CHECKING:
     import pandas as pd
+
+    from stictiondiag.result import Analysis
 
 __all__ = [
     "OUTPUT_TABLES",
@@ -109,12 +113,13 @@ def _save_loop(
     """
     row = res["row"]
     name = file_names.get(row["loop"], safe_name(row["loop"]))
-    entries: list[dict] = []
+    entries: list[HistoryEntry] = []
     try:
         # Named together in the manifest before either is written (one manifest write).
         folder.claim(f"loops/{name}.html", f"loops/{name}.json")
-        if res["analysis"] is not None:
-            entries = _update_history(folder, name, row, res["analysis"], keys.get(row["loop"]))
+        analysis = res["analysis"]
+        if analysis is not None:
+            entries = _update_history(folder, name, row, analysis, keys.get(row["loop"]))
             trend = trend_sentence(entries)
             if trend:
                 row = {**row, "trend": trend}
@@ -122,9 +127,9 @@ def _save_loop(
             "row": row,
             "settings": settings,
             "source_key": keys.get(row["loop"]),
-            "analysis": res["analysis"],
+            "analysis": None if analysis is None else {**analysis.to_dict(), "loop": row["loop"]},
         }
-        page = loop_html(row, res["analysis"], name, res.get("images") or {}, entries)
+        page = loop_html(row, analysis, name, res.get("images") or {}, entries)
         # The JSON record marks the loop as done, so it is written last.
         folder.write({f"loops/{name}.html": page})
         folder.write({f"loops/{name}.json": json.dumps(record, indent=1, default=_json_default)})
@@ -134,18 +139,18 @@ def _save_loop(
 
 
 def _update_history(
-    folder: OutputFolder, name: str, row: dict, analysis: dict, key: dict | None
-) -> list[dict]:
+    folder: OutputFolder, name: str, row: dict, analysis: Analysis, key: dict | None
+) -> list[HistoryEntry]:
     """The loop's history with this result merged in, written back (only a history file
     the scan wrote is read; anything else there is refused by the write)."""
     path = f"{HISTORY_FOLDER}/{name}.json"
-    entries: list[dict] = []
+    entries: list[HistoryEntry] = []
     target = folder.out / path
     if target.is_file() and folder.owns(path):
         entries = read_entries(target.read_text(encoding="utf-8", errors="replace"))
     entry = entry_of(row, analysis, (key or {}).get("sha256"))
     entries = merge_entry(entries, entry)
-    payload = {"loop": row["loop"], "entries": entries}
+    payload = {"loop": row["loop"], "entries": [e.to_dict() for e in entries]}
     folder.write({path: json.dumps(payload, indent=1, default=_json_default)})
     return entries
 
@@ -225,10 +230,10 @@ def _check_out(out: Path) -> None:
 
 def loop_html(
     row: dict,
-    analysis: dict | None,
+    analysis: Analysis | None,
     name: str | None = None,
     images: dict[str, bytes] | None = None,
-    history: list[dict] | None = None,
+    history: list[HistoryEntry] | None = None,
 ) -> str:
     """Per-loop page linked from the scan's ``index.html``: the analysis with its
     figures (drawn by the worker) and the loop's history across scans."""
@@ -236,23 +241,28 @@ def loop_html(
 
     # Imported here: the page's findings bring the verdict and numba (about 0.5 s),
     # which a scan's own process does not otherwise load.
-    from stictiondiag.apps.report_html import render_loop_html
+    from stictiondiag.apps.loop_page import render_loop_html
 
     name = name or safe_name(row["loop"])
     if analysis is not None:
         page = render_loop_html(
-            analysis, images or {}, json_name=f"{name}.json", index_href="../index.html"
+            analysis,
+            images or {},
+            loop=row["loop"],
+            json_name=f"{name}.json",
+            index_href="../index.html",
         )
         section = history_html(history or [])
         return page.replace("\n<script>", section + "\n<script>", 1) if section else page
+    failed = LoopRow.from_dict(row)
     body = (
-        f"<h1>Loop {escape(str(row.get('loop')))}</h1>"
-        f"<p>Source <code>{escape(str(row.get('source')))}</code></p>"
+        f"<h1>Loop {escape(failed.loop)}</h1>"
+        f"<p>Source <code>{escape(str(failed.source))}</code></p>"
         f'<p><span class="verdict error">not analysed</span></p>'
-        f"<p>{escape(str(row.get('error')))}</p>"
+        f"<p>{escape(str(failed.error))}</p>"
         '<p><a href="../index.html">all loops</a></p>'
     )
-    return html_page(f"stiction: {row.get('loop')}", body)
+    return html_page(f"stiction: {failed.loop}", body)
 
 
 def _json_default(o):
