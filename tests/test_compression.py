@@ -113,6 +113,29 @@ def test_constant_set_point_of_two_rows_is_held_not_two_samples(tmp_path):
     assert tags.start_time == pd.Timestamp("2004-03-01", tz="UTC").timestamp()
 
 
+def test_window_that_opens_after_the_set_points_last_change_is_read_whole(tmp_path):
+    # A recorded-values export of a window: the flat set point's only archived row
+    # inside it is the last one.  It no longer bounds the record's start ("the tags of
+    # the loop do not overlap in time"); it is taken at that value before it, and the
+    # note says for how long.
+    frame = _level()
+    long = _long_archive(frame, lambda s, v: exception_compress(v, 0.1))
+    window = long[long["timestamp"] >= "2004-03-01 06:00:00"]
+    assert (window["tag"] == "LIC101.SV").sum() == 1
+    path = tmp_path / "window.csv"
+    window.to_csv(path, index=False)
+    tags = read_plant_loop(plant_loops(path)[0])
+    # The record starts where pv, op and mv all have an archived value (each of them
+    # unknown before: it may have been anywhere within its deadband) and ends with the
+    # day's record: 5 s scans.
+    stamps = pd.to_datetime(window["timestamp"])
+    first = max(stamps[window["tag"] == f"LIC101.{r}"].min() for r in ("PV", "OP", "MV"))
+    assert first > pd.Timestamp("2004-03-01 06:00:00")
+    assert tags.n == (stamps.max() - first).total_seconds() / 5 + 1
+    np.testing.assert_array_equal(tags.sp, np.full(tags.n, 50.0))
+    assert "sp taken at its first archived value for the" in tags.warnings[0]
+
+
 def test_wide_recorded_values_export_with_empty_cells_is_rebuilt(tmp_path):
     # A wide "recorded values" export: each tag's cell is filled only where it was
     # archived.  Held, the stuck valve's position is exact between its slips.

@@ -299,7 +299,8 @@ def _cards(a: Analysis, metrics: ReplayMetrics | None) -> str:
         cards.append(
             _card(
                 "reconstruction",
-                f"period {per:+.0f} %" if per is not None else "no period",
+                # + 0.0: a period error that rounds to zero reads "+0 %", never "-0 %".
+                f"period {round(per) + 0.0:+.0f} %" if per is not None else "no period",
                 escape("waveform agreement " + _waveform_text(metrics)),
             )
         )
