@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 from stictiondiag.apps.history import (
     HISTORY_FOLDER,
     HistoryEntry,
+    absent_html,
     entry_of,
     history_html,
     merge_entry,
@@ -290,6 +291,35 @@ def loop_html(
     return html_page(f"stiction: {failed.loop}", body)
 
 
+def _absent(
+    folder: OutputFolder, present: set[str]
+) -> tuple[dict[str, list[HistoryEntry]], dict[str, str]]:
+    """Histories this scan's folder holds of loops not in ``present`` (only files the
+    scan wrote are read), and the file names of their pages from earlier scans."""
+    histories: dict[str, list[HistoryEntry]] = {}
+    pages: dict[str, str] = {}
+    base = folder.out / HISTORY_FOLDER
+    if not base.is_dir():
+        return histories, pages
+    for path in sorted(base.glob("*.json")):
+        rel = f"{HISTORY_FOLDER}/{path.name}"
+        if not folder.owns(rel):
+            continue
+        try:
+            text = path.read_text(encoding="utf-8", errors="replace")
+            payload = json.loads(text)
+        except (OSError, ValueError):
+            continue
+        loop = payload.get("loop") if isinstance(payload, dict) else None
+        if not isinstance(loop, str) or loop in present:
+            continue
+        histories[loop] = read_entries(text)
+        page = f"{path.stem}.html"
+        if (folder.out / "loops" / page).is_file():
+            pages[loop] = page
+    return histories, pages
+
+
 def _json_default(o):
     try:
         v = float(o)
@@ -332,9 +362,10 @@ def write_table(
             )
 
     page = scan_html(clean, file_names)
-    section = plant_html(plant)
-    if section:
-        page = page.replace("</body>", section + "</body>", 1)
+    present = set(clean["loop"].astype(str)) if "loop" in clean.columns else set()
+    for section in (absent_html(*_absent(folder, present)), plant_html(plant)):
+        if section:
+            page = page.replace("</body>", section + "</body>", 1)
     folder.write({"index.html": page})
     folder.claim("scan.parquet")
     with atomic_path(paths["parquet"]) as tmp:
