@@ -103,11 +103,11 @@ def main() -> None:
         runs[label] = time_library(files, gap)
     print("| loop | verdict | " + " | ".join(f"{k} [s]" for k in runs) + " |")
     print("|---|---|" + "---|" * len(runs))
-    rows = {r["loop"]: r for r in runs["gap, first pass"][2]}
+    rows = {r.loop: r for r in runs["gap, first pass"][2]}
     for f in files:
         name = Path(f).stem
         cells = " | ".join(f"{runs[k][1].get(name, float('nan')):.2f}" for k in runs)
-        print(f"| {name} | {rows.get(name, {}).get('verdict', '?')} | {cells} |")
+        print(f"| {name} | {getattr(rows.get(name), 'verdict', '?')} | {cells} |")
     totals = " | ".join(f"**{runs[k][0]:.1f}**" for k in runs)
     print(f"| total build_report, 1 worker | | {totals} |")
 

@@ -1,9 +1,13 @@
-"""``stiction analyze FILE``: the stiction verdict, S and J, and the closed-loop replay."""
+"""``stiction analyze FILE``: the stiction verdict, S and J, and the closed-loop replay.
+
+The library is imported inside the functions, as in every command: loading the CLI
+(``stiction --help``, any other command) must not import numpy and the numerics.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -37,6 +41,10 @@ from .options import (
     command_read_options,
 )
 
+if TYPE_CHECKING:
+    from stictiondiag.replay.closed_loop import Replay
+    from stictiondiag.result import Analysis
+
 
 def check_outputs(out: Path | None, json_path: str | None, file: Path | None = None) -> None:
     """Refuse output locations that cannot be written before the analysis runs.
@@ -55,17 +63,18 @@ def check_outputs(out: Path | None, json_path: str | None, file: Path | None = N
     check_output_file("--json", json_path, inputs)
 
 
-def _param(st: dict, sym: str, unknown_scale: bool = False) -> str:
+def _param(a: Analysis, sym: str) -> str:
     """``5 % of op span (interval 4.98-5.01; 1.64 scaled)``, poorly determined
     values marked as such (:func:`stictiondiag.apps.findings.param_note`); in op's own
     units when op is not in % of span."""
-    from stictiondiag.apps.findings import OWN_UNITS, param_note
+    from stictiondiag.apps.findings import OWN_UNITS, estimate, param_note
+    from stictiondiag.core.serialize import plain_float
 
-    value = st.get(sym)
-    unit = OWN_UNITS if unknown_scale else " % of op span"
+    value = estimate(a.fit, sym)
+    unit = OWN_UNITS if a.tags.op_scale == "unknown" else " % of op span"
     text = "n/a" if value is None else f"{value:.3g}{unit}"
-    note = param_note(st, sym)
-    scaled = f"{_fmt(st.get(f'{sym}_scaled'))} scaled"
+    note = param_note(a.fit, sym)
+    scaled = f"{_fmt(plain_float(a.fit.S_scaled if sym == 'S' else a.fit.J_scaled))} scaled"
     return f"{text} ({note}; {scaled})" if note else f"{text} ({scaled})"
 
 
@@ -73,84 +82,103 @@ def _fmt(x, spec=".2f", none="n/a") -> str:
     return none if x is None else format(x, spec)
 
 
-def render_summary(d: dict) -> str:
-    """Readable terminal summary of an :meth:`Analysis.to_dict` result.
+#: The loop KPIs the summary shows, with their wording (all are in the JSON).
+SUMMARY_KPIS = (
+    ("op_travel_per_day", "op travel {:.4g}/day"),
+    ("op_reversals_per_day", "reversals {:.3g}/day"),
+    ("time_at_op_limits", "at op limits {:.3g} %"),
+    ("error_std", "error std {:.3g}"),
+    ("harris_index", "Harris index {:.2g}"),
+    ("service_factor", "service factor {:.3g} %"),
+)
+
+
+def _process_kind(rep: Replay) -> str | None:
+    """``foptd`` or ``integrating``: the structure of the replay's identified process."""
+    from stictiondiag.models.processes import FOPTD
+
+    if rep.process_fit is None:
+        return None
+    return "foptd" if isinstance(rep.process_fit.process, FOPTD) else "integrating"
+
+
+def _replay_lines(rep: Replay) -> list[str]:
+    """The replay's process, its agreement with the data and the closed-loop refit."""
+    from stictiondiag.core.serialize import to_plain
+    from stictiondiag.replay.metrics import replay_metrics
+
+    lines = [
+        f"replay      process {_process_kind(rep)}",
+        f"            {replay_metrics(rep).text()}",
+    ]
+    # The refit's record is a mapping of the replay's settings (replay.refit).
+    refit = to_plain(rep.settings.get("refit") or {})
+    if refit.get("accepted"):
+        same = (refit.get("S"), refit.get("J")) == (
+            refit.get("S_open_loop"),
+            refit.get("J_open_loop"),
+        )
+        what = (
+            "process only (S and J measured from mv kept)"
+            if same
+            else f"S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
+            f"(open-loop fit S {_fmt(refit.get('S_open_loop'))}, "
+            f"J {_fmt(refit.get('J_open_loop'))}) and the process"
+        )
+        lines.append(
+            f"            closed-loop refit: {what}; cycle mismatch "
+            f"{_fmt(refit.get('cost_open_loop'), '.3g')} -> {_fmt(refit.get('cost'), '.3g')}"
+        )
+    return lines
+
+
+def render_summary(a: Analysis) -> str:
+    """Readable terminal summary of one loop's :class:`~stictiondiag.result.Analysis`.
 
     The verdict shows the calibrated P(stiction) with its decision levels, a poorly
     determined S or J says so next to its value, the replay is read by period,
     amplitude and waveform agreement, and the findings in words close the summary.
     """
-    from stictiondiag.apps.findings import findings_from_dict, probability_text
-    from stictiondiag.replay.metrics import render_metrics
+    from stictiondiag.apps.findings import findings_of, probability_text
+    from stictiondiag.core.serialize import plain_float
 
-    st, tg = d["stiction"], d["tags"]
-    osc = d["oscillation"]["pv"]
-    source = tg.get("loop_type_source") or "user/default"
+    tags, verdict, osc = a.tags, a.verdict, a.oscillation
+    source = tags.loop_type_source or "user/default"
     lines = [
-        f"loop        {d['loop']}  ({tg['loop_type']} [{source}], {tg['n_samples']} samples at "
-        f"{tg['ts_s']:g} s, {'with' if tg['has_mv'] else 'no'} mv)",
-        f"verdict     {st.get('status', '?').upper().replace('_', ' ')}  ({probability_text(st)})",
-        f"S           {_param(st, 'S', tg.get('op_scale') == 'unknown')}",
-        f"J           {_param(st, 'J', tg.get('op_scale') == 'unknown')}",
-        f"method      {st.get('method')}",
+        f"loop        {a.loop}  ({tags.loop_type} [{source}], {int(tags.n)} samples at "
+        f"{float(tags.ts):g} s, {'with' if tags.mv is not None else 'no'} mv)",
+        f"verdict     {verdict.status.upper().replace('_', ' ')}  ({probability_text(verdict)})",
+        f"S           {_param(a, 'S')}",
+        f"J           {_param(a, 'J')}",
+        f"method      {a.fit.method}",
         "oscillation "
         + (
-            f"period {_fmt(osc.get('period_s'), '.1f')} s, regularity {_fmt(osc.get('regularity'))}"
-            if osc.get("present")
+            f"period {_fmt(plain_float(osc.period_s), '.1f')} s, "
+            f"regularity {_fmt(plain_float(osc.regularity))}"
+            if osc.present
             else "none detected"
         ),
     ]
-    for r in st.get("reasons") or []:
-        lines.append(f"  - {r}")
-    rep = d.get("replay")
-    if rep:
-        lines.append(f"replay      process {rep.get('process', {}).get('type')}")
-        if rep.get("metrics"):
-            lines.append(f"            {render_metrics(rep['metrics'])}")
-        refit = (rep.get("settings") or {}).get("refit") or {}
-        if refit.get("accepted"):
-            same = (refit.get("S"), refit.get("J")) == (
-                refit.get("S_open_loop"),
-                refit.get("J_open_loop"),
-            )
-            what = (
-                "process only (S and J measured from mv kept)"
-                if same
-                else f"S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
-                f"(open-loop fit S {_fmt(refit.get('S_open_loop'))}, "
-                f"J {_fmt(refit.get('J_open_loop'))}) and the process"
-            )
-            lines.append(
-                f"            closed-loop refit: {what}; cycle mismatch "
-                f"{_fmt(refit.get('cost_open_loop'), '.3g')} -> {_fmt(refit.get('cost'), '.3g')}"
-            )
-    gap = d.get("gap")
-    if gap:
+    lines += [f"  - {r}" for r in verdict.reasons]
+    if a.replay is not None:
+        lines += _replay_lines(a.replay)
+    gap = a.gap
+    if gap is not None:
         lines.append(
-            f"gap         {gap.get('metric_name', gap.get('metric'))}: before {_fmt(gap.get('before'), '.1f')} %, "
-            f"after {_fmt(gap.get('after'), '.1f')} % ({_fmt(gap.get('shrink_pct'), '.0f')} % shrink) "
-            f"-> effect {gap.get('effect')} (runner-up {gap.get('runner_up')})"
+            f"gap         {gap.metric}: before {_fmt(plain_float(gap.before), '.1f')} %, "
+            f"after {_fmt(plain_float(gap.after), '.1f')} % "
+            f"({_fmt(plain_float(gap.shrink_pct), '.0f')} % shrink) "
+            f"-> effect {gap.effect} (runner-up {gap.runner_up})"
         )
-    kp = d.get("kpis") or {}
-    if kp:
-        shown = [
-            ("op_travel_per_day", "op travel {:.4g}/day"),
-            ("op_reversals_per_day", "reversals {:.3g}/day"),
-            ("time_at_op_limits", "at op limits {:.3g} %"),
-            ("error_std", "error std {:.3g}"),
-            ("harris_index", "Harris index {:.2g}"),
-            ("service_factor", "service factor {:.3g} %"),
-        ]
+    if a.kpis is not None and a.kpis.items:
+        values = a.kpis.values()
         parts = [
-            form.format(kp[name]["value"])
-            for name, form in shown
-            if (kp.get(name) or {}).get("value") is not None
+            form.format(values[name]) for name, form in SUMMARY_KPIS if values.get(name) is not None
         ]
         lines.append("kpis        " + ", ".join(parts) + " (definitions in the JSON)")
-    for w in d.get("warnings") or []:
-        lines.append(f"warning     {w}")
+    lines += [f"warning     {w}" for w in a.warnings]
     lines.append("findings")
-    lines += ["  " + line for line in findings_from_dict(d).text(width=14).splitlines()]
+    lines += ["  " + line for line in findings_of(a).text(width=14).splitlines()]
     return "\n".join(lines)
 
 
@@ -190,10 +218,9 @@ def analyze(
         compile_if_cold()
         info(f"analysing {file} ...")
         result = analyze_file(file, config=AnalysisConfig(gap=gap), **options)
-        from stictiondiag.apps.findings import with_findings
+        from stictiondiag.apps.findings import analysis_json
 
-        d = with_findings(result.to_dict())
-        emit(d, render_summary(d), json_path)
+        emit(analysis_json(result), render_summary(result), json_path)
         if out is not None:
             for target in result.save_figures(out):
                 info(f"wrote {target}")

@@ -44,6 +44,7 @@ class Action(str, Enum):
 class Compression(str, Enum):
     hold = "hold"
     linear = "linear"
+    band = "band"
 
 
 VendorOption = Annotated[
@@ -68,7 +69,8 @@ CompressionOption = Annotated[
     typer.Option(
         "--compression",
         help="How a compressed historian archive (recorded values) is rebuilt: hold "
-        "(exception reporting) or linear (swinging door). Default: told per tag.",
+        "(exception reporting), linear (swinging door) or band (linear within the "
+        "deadband). Default: told per tag, op of an exception archive banded.",
     ),
 ]
 

@@ -64,10 +64,8 @@ def validate(
     ] = False,
 ) -> None:
     """Analyse every ISDB loop; compare verdicts (and baselines) with the published labels."""
-    from stictiondiag.apps.validation import (
-        render_markdown,
-        validate_isdb,
-    )
+    from stictiondiag.apps.validation import validate_isdb
+    from stictiondiag.apps.validation_page import render_markdown
 
     with friendly_errors():
         check_output_file("--out", out)

@@ -1,12 +1,12 @@
-"""Why a held deadband archive of op biases S, and why joining op's steps is no cure.
+"""Why a held deadband archive of op biases S, and what the banded reading of op does.
 
     python scripts/compressed_op.py
 
 Each bundled sample with mv has its op and mv put through exception (deadband)
 compression at 0.05 to 0.5 % of span and rebuilt on the scan grid held, as the reader
-does (:func:`stictiondiag.io.compression.reconstruct`).  The experiment beside it: op's
-small steps (at most two deadbands, lasting at most twice the step before) joined
-linearly, mv held.  S and J come from the mv-op estimator
+did before op was read banded, and as the reader does now: op banded (the straight
+line between archived values within the deadband, :func:`stictiondiag.io.compression.banded`),
+mv held (:func:`stictiondiag.io.compression.reconstruct`).  S and J come from the mv-op estimator
 (:func:`stictiondiag.stiction.segments.estimate_from_mv`); one line per sample and
 deadband, with the deadbands the reader finds in the archives
 (:func:`stictiondiag.io.compression.archive_deadbands`); ``*`` marks S and J within
@@ -40,27 +40,15 @@ SAMPLES = ("level_undershoot", "flow_mixed", "slave_flow_stickslip", "temperatur
 DEADBANDS = (0.05, 0.1, 0.2, 0.5)
 
 
-def _joined(t: np.ndarray, v: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """A held archive with its small steps joined linearly (the experiment)."""
-    held = v[np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 1)]
-    changes = np.abs(np.diff(v))
-    inner = changes[1:-1][changes[1:-1] > 0]
-    if inner.size < 8:
-        return held
-    steps = np.diff(t)
-    before = np.concatenate(([np.inf], steps[:-1]))
-    join = (changes <= 2.0 * inner.min()) & (steps <= 2.0 * before)
-    interval = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 2)
-    return np.where(join[interval], np.interp(grid, t, v), held)
-
-
-def _rebuilt(t, op, mv, deadband_op, deadband_mv, join):
-    """op and mv rebuilt from their archives, and the deadbands the reader finds in them."""
+def _rebuilt(t, op, mv, deadband_op, deadband_mv, band):
+    """op and mv rebuilt from their archives (every tag held, or as the reader does),
+    and the deadbands the reader finds in them."""
     i, j = exception_compress(op, deadband_op), exception_compress(mv, deadband_mv)
     series = {"pv": (t, np.zeros(t.size)), "op": (t[i], op[i]), "mv": (t[j], mv[j])}
-    arrays, *_ = reconstruct(series, "x", "hold")
-    found = archive_deadbands(series, "x", "hold")
-    return (_joined(t[i], op[i], t) if join else arrays["op"]), arrays["mv"], found
+    how = None if band else "hold"
+    arrays, *_ = reconstruct(series, "x", how)
+    found = archive_deadbands(series, "x", how)
+    return arrays["op"], arrays["mv"], found
 
 
 def _verdicts() -> None:
@@ -71,8 +59,8 @@ def _verdicts() -> None:
     t = np.arange(tags.n) * tags.ts
     print("healthy_flow, whole analysis (no gap): op / mv deadband, reading, verdict, S, J")
     for deadbands in ((0.1, 0.1), (0.05, 0.2), (0.2, 0.05)):
-        for join in (False, True):
-            op, mv, found = _rebuilt(t, tags.op, tags.mv, *deadbands, join)
+        for band in (False, True):
+            op, mv, found = _rebuilt(t, tags.op, tags.mv, *deadbands, band)
             rebuilt = Tags.from_arrays(tags.pv, op, mv=mv, sp=tags.sp, ts=tags.ts,
                                        loop_type="flow")  # fmt: skip
             # As the reader carries them (io.tags.Tags.archive_deadband) ...
@@ -80,7 +68,7 @@ def _verdicts() -> None:
                              config=AnalysisConfig(gap=False))  # fmt: skip
             # ... and without them, as before the valve fit knew the archive.
             blind = analyze(rebuilt, config=AnalysisConfig(gap=False))
-            print(f"  {deadbands[0]:.2f} / {deadbands[1]:.2f}  {'op joined' if join else 'held':9s}"
+            print(f"  {deadbands[0]:.2f} / {deadbands[1]:.2f}  {'op banded' if band else 'held':9s}"
                   f"  {result.verdict.status:12s} S {result.fit.S:.3f}  J {result.fit.J:.3f}"
                   f"  P {result.verdict.evidence['probability']:.2f}"
                   f"  (deadbands not known: {blind.verdict.status}, S {blind.fit.S:.3f})",
@@ -88,7 +76,7 @@ def _verdicts() -> None:
 
 
 def main() -> None:
-    print("sample                 deadband  plain S / J    op held S / J   op joined S / J"
+    print("sample                 deadband  plain S / J    op held S / J   op banded S / J"
           "   (* within what the archive can hide)")  # fmt: skip
     for name in SAMPLES:
         tags = read_tags(ROOT / "sample_data" / f"{name}.csv")
@@ -97,8 +85,8 @@ def main() -> None:
         plain = estimate_from_mv(op, mv, ts)
         for deadband in DEADBANDS:
             cells = []
-            for join in (False, True):
-                op_r, mv_r, found = _rebuilt(t, op, mv, deadband, deadband, join)
+            for band in (False, True):
+                op_r, mv_r, found = _rebuilt(t, op, mv, deadband, deadband, band)
                 fit = estimate_from_mv(op_r, mv_r, ts, deadband=found)
                 hidden = (fit.details.get("resolution") or {}).get("within")
                 cells.append(f"{fit.S:5.2f} / {fit.J:4.2f}{'*' if hidden else ' '}")

@@ -7,8 +7,11 @@ loop analysed without mv (the Hammerstein fit of :mod:`stictiondiag.stiction.ham
 this prints S, J, the fit's process gain (the sum of its two input gains, in the
 fit's scaled units: only its sign is compared) and the PI gain identified from sp, pv
 and op (:func:`stictiondiag.identification.controller.identify_controller`), and
-counts the loops whose signs would make the loop a positive-feedback one.  The labels
-are not read.
+counts the loops whose signs would make the loop a positive-feedback one.  Since the
+fit holds its gain to the controller's sign where that sign is well determined
+(``details["gain_sign"]``), it also prints the sign held (0: free) and counts the
+fits that found no valve output driving pv with that sign (a gain of zero).  The
+labels are not read.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--isdb", default=None, help="ISDB folder (default ../shared/data/isdb)")
     args = p.parse_args(argv)
     m = load_manifest(args.isdb)
-    n = opposite = 0
+    n = opposite = held = inconsistent = 0
     for _, r in m.iterrows():
         lt = LOOP_TYPE_MAP.get(str(r["loop_type"]).lower(), "other")
         try:
@@ -47,13 +50,21 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{r['loop']:8s} not analysed: {exc}")
             continue
         flip = bool(np.sign(kp) * np.sign(kc) < 0)
+        signs = (fit.details or {}).get("gain_sign") or {}
+        required = int(signs.get("required", 0))
+        none_fits = not signs.get("consistent_fit", True)
         n += 1
         opposite += flip
+        held += required != 0
+        inconsistent += none_fits
         print(
             f"{r['loop']:8s} S {fit.S:6.2f}  J {fit.J:6.2f}  Kp {kp:+9.3g}  Kc {kc:+9.3g}"
+            f"  held {required:+d}"
             + ("  positive feedback" if flip else "")
+            + ("  no fit of that sign" if none_fits else "")
         )
     print(f"{opposite} of {n} fits without mv have a process gain of the sign of positive feedback")
+    print(f"sign held on {held} of {n}; {inconsistent} found no fit of the sign held")
     return 0
 
 

@@ -44,7 +44,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from typing import Any, TypeVar
 
@@ -52,6 +52,7 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError, StictionError, require_bool
 from stictiondiag.gap.diagnose import GapDiagnosis, diagnose_gap
+from stictiondiag.identification.controller import loop_gain_sign
 from stictiondiag.identification.looptype import (
     StructureEvidence,
     identify_structure,
@@ -473,20 +474,28 @@ def estimate_stiction(tags: Tags, segments: Segments | None = None) -> StictionF
 
     From the stick and slip segments of the mv-op plot when mv is recorded (Figs. 3
     and 6), otherwise from the valve model and a linear process fitted together to
-    op and pv (Section 5.3.1).  ``segments``: :func:`segment_valve` of op, mv and
-    ts when the caller has it already.
+    op and pv (Section 5.3.1), its process gain of the sign the identified
+    controller needs (``details["gain_sign"]``, with the R^2 of the controller's
+    law).  ``segments``: :func:`segment_valve` of op, mv and ts when the caller has
+    it already.
     """
     if tags.mv is not None:
         return estimate_from_mv(
             tags.op, tags.mv, float(tags.ts), segments=segments, deadband=tags.archive_deadband
         )
-    return fit_hammerstein(
+    # The process gain takes the sign that closes a negative feedback loop with the
+    # identified controller, when that sign is well determined (loop_gain_sign).
+    sign, r2 = loop_gain_sign(tags.sp, tags.pv, tags.op, float(tags.ts))
+    fit = fit_hammerstein(
         tags.op,
         tags.pv,
         float(tags.ts),
         integrating=bool(tags.integrating),
         flow_loop=tags.loop_type in FLOW_LIKE,
+        gain_sign=sign,
     )
+    signs = {**fit.details["gain_sign"], "controller_fit_r2": r2}
+    return replace(fit, details={**fit.details, "gain_sign": signs})
 
 
 def _or_warn(what: str, warnings: list[str], step: Callable[[], _T]) -> _T | None:

@@ -18,12 +18,13 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.schema import SCHEMA_VERSION, dumps, loads
-from stictiondiag.core.serialize import to_plain
+from stictiondiag.core.serialize import plain_float, to_plain
 from stictiondiag.gap.diagnose import GapDiagnosis
 from stictiondiag.io.tags import Tags
 from stictiondiag.replay import Replay
 from stictiondiag.replay.compensation import Compensation
 from stictiondiag.replay.metrics import replay_metrics
+from stictiondiag.row import LoopRow
 from stictiondiag.signals.kpis import LoopKpis
 from stictiondiag.signals.oscillation import Oscillation
 from stictiondiag.stiction.valvefit import StictionFit
@@ -139,7 +140,7 @@ class Analysis:
                 "n_samples": int(tags.n),
                 "ts_s": float(tags.ts),
                 "duration_s": float(tags.n * tags.ts),
-                "start": _clock_text(getattr(tags, "start_time", None)),
+                "start": clock_text(getattr(tags, "start_time", None)),
                 "loop_type": tags.loop_type,
                 "loop_type_source": _plain_text(getattr(tags, "loop_type_source", None)),
                 "integrating": bool(tags.integrating),
@@ -163,60 +164,59 @@ class Analysis:
             "warnings": list(self.warnings),
         }
 
-    def summary_row(self, d: dict[str, Any] | None = None) -> dict[str, Any]:
-        """One flat row for plant-wide tables (``stiction scan``).
+    def summary_row(self) -> dict[str, Any]:
+        """One flat row for plant-wide tables (``stiction scan``, ``stiction report``):
+        :meth:`LoopRow.to_dict <stictiondiag.row.LoopRow.to_dict>` of :meth:`row`."""
+        return self.row().to_dict()
 
-        ``d`` is this analysis's :meth:`to_dict` when the caller has it already (it
-        is not computed again; a scan serialises every loop once).
-        """
-        if d is None:
-            d = self.to_dict()
-        st = d["stiction"]
-        gap = d["gap"] or {}
-        rep = d["replay"] or {}
-        s_int = st.get("S_interval") or [None, None]
-        j_int = st.get("J_interval") or [None, None]
-        return {
-            "loop": self.loop,
-            "source": d["source"],
-            "loop_type": d["tags"]["loop_type"],
-            "loop_type_source": d["tags"]["loop_type_source"],
-            "integrating": d["tags"]["integrating"],
-            "n_samples": d["tags"]["n_samples"],
-            "has_mv": d["tags"]["has_mv"],
-            "op_scale": d["tags"].get("op_scale", "percent"),
-            "start_time_s": d["tags"].get("start_time_s"),
-            "duration_s": d["tags"].get("duration_s"),
-            "oscillating": bool(self.oscillation.present),
-            "period_s": d["oscillation"]["pv"].get("period_s"),
-            "verdict": st.get("status"),
-            "detected": st.get("detected"),
-            "confidence": st.get("confidence"),
-            "probability": st.get("probability"),
-            "cause": st.get("cause"),
-            "runner_up": st.get("runner_up"),
-            "cause_model": _top_cause(st.get("cause_probabilities")),
-            "p_valve_cause": (st.get("cause_probabilities") or {}).get("valve"),
-            "S": st.get("S"),
-            "J": st.get("J"),
-            "S_lo": s_int[0],
-            "S_hi": s_int[1],
-            "J_lo": j_int[0],
-            "J_hi": j_int[1],
-            "S_determinacy": ((st.get("details") or {}).get("determinacy") or {}).get("S"),
-            "J_determinacy": ((st.get("details") or {}).get("determinacy") or {}).get("J"),
-            "method": st.get("method"),
-            "replay_fit_pv": (rep.get("fit") or {}).get("pv"),
-            "replay_period_error_pct": (rep.get("metrics") or {}).get("period_error_pct"),
-            "gap_effect": gap.get("effect"),
-            "gap_shrink_pct": gap.get("shrink_pct"),
-            "n_warnings": len(self.warnings),
-            "flags": "; ".join(self.warnings),
-            **{
-                f"kpi_{name}": (value or {}).get("value")
-                for name, value in (d.get("kpis") or {}).items()
-            },
-        }
+    def row(self) -> LoopRow:
+        """This analysis's row of the plant-wide tables (:class:`~stictiondiag.row.LoopRow`;
+        the report's and the scan's own fields left None)."""
+        tags, fit, verdict, rep = self.tags, self.fit, self.verdict, self.replay
+        s_int = list(to_plain(fit.S_interval) or [None, None])
+        j_int = list(to_plain(fit.J_interval) or [None, None])
+        probs = to_plain(verdict.cause_probabilities)
+        words = (fit.details or {}).get("determinacy") or {}
+        return LoopRow(
+            loop=self.loop,
+            source=str(tags.source),
+            loop_type=tags.loop_type,
+            loop_type_source=_plain_text(tags.loop_type_source),
+            integrating=bool(tags.integrating),
+            n_samples=int(tags.n),
+            has_mv=tags.mv is not None,
+            op_scale=tags.op_scale,
+            start_time_s=tags.start_time,
+            duration_s=float(tags.n * tags.ts),
+            oscillating=bool(self.oscillation.present),
+            period_s=plain_float(self.oscillation.period_s),
+            verdict=verdict.status,
+            detected=to_plain(verdict.detected),
+            confidence=to_plain(verdict.confidence),
+            probability=to_plain(verdict.probability),
+            cause=verdict.cause,
+            runner_up=verdict.runner_up,
+            cause_model=max(probs, key=lambda c: float(probs[c])) if probs else None,
+            p_valve_cause=(probs or {}).get("valve"),
+            S=to_plain(fit.S),
+            J=to_plain(fit.J),
+            S_lo=s_int[0],
+            S_hi=s_int[1],
+            J_lo=j_int[0],
+            J_hi=j_int[1],
+            S_determinacy=to_plain(words.get("S")),
+            J_determinacy=to_plain(words.get("J")),
+            method=fit.method,
+            replay_fit_pv=None if rep is None else to_plain(rep.fit).get("pv"),
+            replay_period_error_pct=(
+                None if rep is None else plain_float(replay_metrics(rep).period_error_pct)
+            ),
+            gap_effect=None if self.gap is None else self.gap.effect,
+            gap_shrink_pct=None if self.gap is None else to_plain(self.gap.shrink_pct),
+            n_warnings=len(self.warnings),
+            flags="; ".join(self.warnings),
+            kpis={} if self.kpis is None else to_plain(self.kpis.values()),
+        )
 
     def to_pandas(self) -> pd.DataFrame:
         """The loop's time series, one row per sample.
@@ -330,14 +330,7 @@ class Analysis:
         ]
 
 
-def _top_cause(probs: dict | None) -> str | None:
-    """The cause model's most likely cause of the cycle (None without a reading)."""
-    if not probs:
-        return None
-    return max(probs, key=lambda c: float(probs[c]))
-
-
-def _clock_text(seconds: float | None) -> str | None:
+def clock_text(seconds: float | None) -> str | None:
     """Clock time of the first sample as ISO 8601 UTC text (None without dates)."""
     if seconds is None or not math.isfinite(float(seconds)):
         return None

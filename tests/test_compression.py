@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from stictiondiag.io.compression import (
+    archive_deadbands,
     archive_kind,
     exception_compress,
     reconstruct,
@@ -69,6 +70,34 @@ def test_deadband_archive_held_is_within_the_deadband_and_swinging_door_linear()
         assert np.max(np.abs(arrays["pv"] - v)) > 0.4 * deviation  # not the raw data
 
 
+def test_op_of_an_exception_archive_is_read_banded_and_follows_its_drift():
+    # op under integral action drifts; its exception archive (deadband 0.1) keeps a
+    # value each time it has moved 0.1.  Held, it is a sawtooth about the drift (RMS
+    # error d / sqrt(3) = 0.058); banded it follows the ramp (the error is the 0.002
+    # noise and the scan the archive fired on), and never leaves the band the archive
+    # guarantees (2 d: the signal and the reading both within d of the archived value).
+    # The valve's position, a staircase of 1 % steps, stays held and exact.
+    rng = np.random.default_rng(5)
+    t = np.arange(3000) * 1.0
+    op = 40 + 0.01 * t + rng.normal(0, 0.002, t.size)
+    mv = np.floor(op)
+    i, j = exception_compress(op, 0.1), exception_compress(mv, 0.1)
+    series = {"pv": (t, np.zeros(t.size)), "op": (t[i], op[i]), "mv": (t[j], mv[j])}
+    arrays, _, _, note = reconstruct(series, "x")
+    held, *_ = reconstruct(series, "x", "hold")
+
+    def rms(e):
+        return float(np.sqrt(np.mean(e**2)))
+
+    assert np.max(np.abs(arrays["op"] - op)) <= 0.2
+    assert rms(arrays["op"] - op) < 0.1 * rms(held["op"] - op)
+    assert rms(held["op"] - op) == pytest.approx(0.1 / np.sqrt(3), rel=0.1)
+    np.testing.assert_array_equal(arrays["mv"], mv)
+    assert "op 285 values linear within its deadband 0.1" in note and "mv 32 values held" in note
+    # Asked for, every tag is held, and the deadbands are carried either way.
+    assert archive_deadbands(series, "x") == archive_deadbands(series, "x", "hold")
+
+
 def test_constant_set_point_of_two_rows_is_held_not_two_samples(tmp_path):
     # The flat sp of a compressed export is two rows; the grid is the fastest tag's,
     # never "only 2 samples ... export a longer record".
@@ -82,6 +111,29 @@ def test_constant_set_point_of_two_rows_is_held_not_two_samples(tmp_path):
     np.testing.assert_array_equal(tags.sp, np.full(tags.n, 50.0))
     assert "compressed archive" in tags.warnings[0] and "sp 2 values held" in tags.warnings[0]
     assert tags.start_time == pd.Timestamp("2004-03-01", tz="UTC").timestamp()
+
+
+def test_window_that_opens_after_the_set_points_last_change_is_read_whole(tmp_path):
+    # A recorded-values export of a window: the flat set point's only archived row
+    # inside it is the last one.  It no longer bounds the record's start ("the tags of
+    # the loop do not overlap in time"); it is taken at that value before it, and the
+    # note says for how long.
+    frame = _level()
+    long = _long_archive(frame, lambda s, v: exception_compress(v, 0.1))
+    window = long[long["timestamp"] >= "2004-03-01 06:00:00"]
+    assert (window["tag"] == "LIC101.SV").sum() == 1
+    path = tmp_path / "window.csv"
+    window.to_csv(path, index=False)
+    tags = read_plant_loop(plant_loops(path)[0])
+    # The record starts where pv, op and mv all have an archived value (each of them
+    # unknown before: it may have been anywhere within its deadband) and ends with the
+    # day's record: 5 s scans.
+    stamps = pd.to_datetime(window["timestamp"])
+    first = max(stamps[window["tag"] == f"LIC101.{r}"].min() for r in ("PV", "OP", "MV"))
+    assert first > pd.Timestamp("2004-03-01 06:00:00")
+    assert tags.n == (stamps.max() - first).total_seconds() / 5 + 1
+    np.testing.assert_array_equal(tags.sp, np.full(tags.n, 50.0))
+    assert "sp taken at its first archived value for the" in tags.warnings[0]
 
 
 def test_wide_recorded_values_export_with_empty_cells_is_rebuilt(tmp_path):

@@ -1,47 +1,28 @@
-"""Findings in words (stictiondiag.apps.findings), from analysis dicts."""
+"""Findings in words (stictiondiag.apps.findings), from typed analyses."""
 
 from __future__ import annotations
 
 import pytest
+from typed_results import make_analysis, make_gap
 
-from stictiondiag.apps.findings import findings_from_dict, param_text
+from stictiondiag.apps.findings import findings_of, param_text
+from stictiondiag.replay.compensation import Compensation
+from stictiondiag.stiction.valvefit import Determinacy
 
-
-def _dict(status="stiction", p=0.97, S=5.0, J=2.0, compensation=None, gap=None, **tags):
-    return {
-        "loop": "LIC200",
-        "tags": {"loop_type": "level", "has_mv": True, **tags},
-        "oscillation": {"pv": {"present": True, "period_s": 1000.0}},
-        "stiction": {
-            "status": status,
-            "probability": p,
-            "confidence": p if status != "no_stiction" else 1 - p,
-            "S": S,
-            "J": J,
-            "S_interval": [S * 0.95, S * 1.05],
-            "J_interval": [J * 0.95, J * 1.05],
-            "details": {"determinacy": {"S": "well determined", "J": "well determined"}},
-            "evidence": {"stiction_level": 0.7, "no_stiction_level": 0.3},
-        },
-        "compensation": compensation,
-        "gap": gap,
-    }
-
-
-COMPENSATION = {
-    "applicable": True,
-    "reason": "a band of 0.8 pv units stops the cycle",
-    "band_pv": 0.8,
-    "band_pct_of_amplitude": 95.0,
-    "offset_pv": 0.79,
-}
+COMPENSATION = Compensation(
+    applicable=True,
+    reason="a band of 0.8 pv units stops the cycle",
+    band=0.8,
+    band_pct_of_amplitude=95.0,
+    offset=0.79,
+)
 
 
 def test_sticky_valve_says_what_to_do_with_the_simulated_band():
-    f = findings_from_dict(
-        _dict(
+    f = findings_of(
+        make_analysis(
             compensation=COMPENSATION,
-            gap={"effect": "quantization", "before": 27.6, "shrink_pct": 96, "metric": "x"},
+            gap=make_gap(effect="quantization", before=27.6, after=1.1, shrink_pct=96),
         )
     )
     assert f.headline == "STICTION, P(stiction) = 0.97 (decision levels 0.3 and 0.7)"
@@ -68,7 +49,7 @@ def test_sticky_valve_says_what_to_do_with_the_simulated_band():
 )
 def test_undecided_and_negative_verdicts_give_the_probability(status, p, words):
     """Issue 18: no "confidence 1.00" on an inconclusive or no-stiction verdict."""
-    f = findings_from_dict(_dict(status, p))
+    f = findings_of(make_analysis(status=status, p=p))
     assert f"P(stiction) = {p:.2f} (decision levels 0.3 and 0.7)" in f.headline
     assert "confidence" not in f.text()
     assert words in f.meaning
@@ -76,30 +57,41 @@ def test_undecided_and_negative_verdicts_give_the_probability(status, p, words):
 
 
 def test_poorly_determined_parameter_is_marked():
-    d = _dict(J=5.78)
-    d["stiction"]["J_interval"] = [2.89, 5.78]
-    d["stiction"]["details"]["determinacy"]["J"] = (
-        "poorly determined (interval reaches the search limit)"
+    a = make_analysis(
+        J=5.78, J_interval=(2.89, 5.78), determinacy=("well determined", Determinacy.OPEN.value)
     )
-    f = findings_from_dict(d)
+    f = findings_of(a)
     assert f.poorly_determined == ("J",)
     assert f.J_text == (
         "J = 5.78 % of travel (poorly determined: interval 2.89\u20135.78 at the search edge)"
     )
     assert any("J is poorly determined" in x for x in f.limits)
-    assert param_text(d["stiction"], "S") == "S = 5 % (interval 4.75\u20135.25)"
+    assert param_text(a.fit, "S") == "S = 5 % (interval 4.75\u20135.25)"
 
 
 def test_zero_estimate_pinned_at_zero_is_not_poorly_determined():
-    d = _dict("no_stiction", 0.02, S=0.0, J=0.0)
-    d["stiction"]["details"]["determinacy"] = {"S": "poorly determined", "J": "poorly determined"}
-    assert findings_from_dict(d).poorly_determined == ()
+    a = make_analysis(
+        status="no_stiction",
+        p=0.02,
+        S=0.0,
+        J=0.0,
+        determinacy=("poorly determined", "poorly determined"),
+    )
+    assert findings_of(a).poorly_determined == ()
 
 
 def test_what_the_data_cannot_tell():
-    d = _dict(has_mv=False, loop_type="other")
-    limits = findings_from_dict(d).limits
+    limits = findings_of(make_analysis(has_mv=False, loop_type="other")).limits
     assert any("mv is not recorded" in x for x in limits)
     assert any("loop type was not given" in x for x in limits)
-    d = _dict(loop_type="level", loop_type_source="tag prefix LIC")
-    assert not any("loop type" in x for x in findings_from_dict(d).limits)
+    a = make_analysis(loop_type="level", loop_type_source="tag prefix LIC")
+    assert not any("loop type" in x for x in findings_of(a).limits)
+
+
+def test_findings_of_a_result_read_back_are_the_same():
+    """The findings of a result read back from its JSON (the typed round trip) are
+    those of the result itself: nothing is read from text."""
+    from stictiondiag.result import Analysis
+
+    a = make_analysis(compensation=COMPENSATION, gap=make_gap())
+    assert findings_of(Analysis.from_json(a.to_json())) == findings_of(a)

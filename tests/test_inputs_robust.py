@@ -25,6 +25,7 @@ from stictiondiag.apps.scan import discover, scan
 from stictiondiag.core.errors import DataError, UsageError
 from stictiondiag.io.plant import plant_loops, read_plant_loop, unmatched_manifest_rows
 from stictiondiag.io.tags import Tags, read_frame, read_tags
+from stictiondiag.row import LoopRow
 
 ROOT = Path(__file__).resolve().parents[1]
 HEALTHY = ROOT / "sample_data" / "healthy_flow.csv"
@@ -159,15 +160,10 @@ def test_manifest_rows_matching_no_loop_are_listed_with_a_hint():
 def test_report_warns_of_an_unmatched_manifest_row(tmp_path, monkeypatch):
     def fake(source, read_options, gap):  # the folder and notes are under test
         name = source[1]
-        row = {"loop": name, "source": source[0], "verdict": "no_stiction"}
-        return {
-            "file": source[0],
-            "loop": name,
-            "name": name,
-            "page": "<p>",
-            "json": "{}",
-            "row": row,
-        }
+        row = LoopRow(loop=name, source=source[0], verdict="no_stiction")
+        return report_module.ReportedLoop(
+            file=source[0], loop=name, name=name, page_html="<p>", json_text="{}", row=row
+        )
 
     monkeypatch.setattr(report_module, "analyse_for_report", fake)
     (tmp_path / "in").mkdir()

@@ -90,7 +90,7 @@ def test_analysis_reports_kpis_in_its_json_and_row():
     # The replay identified the dead time, so the Harris index is given, in (0, 1].
     harris = d["kpis"]["harris_index"]["value"]
     assert harris is not None and 0 < harris <= 1
-    row = result.summary_row(d)
+    row = result.summary_row()
     assert row["kpi_op_travel_per_day"] == pytest.approx(travel, rel=1e-12)
     # The oscillation KPI is the oscillation found for the verdict (about 1010 s).
     assert d["kpis"]["oscillation_period"]["value"] == pytest.approx(1010, rel=0.05)

@@ -19,6 +19,7 @@ import pandas as pd
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from typed_results import make_analysis
 from typer.testing import CliRunner
 
 import stictiondiag.apps.report as report_module
@@ -26,9 +27,11 @@ import stictiondiag.apps.scan as scan_module
 from stiction_cli.main import app
 from stictiondiag.apps.outdir import OutputFolder, is_stale_temp
 from stictiondiag.apps.pages import MAX_NAME_BYTES, safe_name
-from stictiondiag.apps.report import build_report, clean_report
+from stictiondiag.apps.report import ReportedLoop, build_report, clean_report
 from stictiondiag.apps.scan import scan
+from stictiondiag.apps.scan_output import ScannedLoop
 from stictiondiag.core.errors import EXIT_USAGE, UsageError
+from stictiondiag.row import LoopRow
 
 ROOT = Path(__file__).resolve().parents[1]
 HEALTHY = ROOT / "sample_data" / "healthy_flow.csv"
@@ -39,19 +42,14 @@ def _fake_report_loop(source, read_options, gap):
     """Stand-in for :func:`analyse_for_report`: a page and JSON without analysing."""
     path, name = source[0], source[1]
     loop = source[4] if len(source) > 4 else Path(path).stem
-    return {
-        "file": str(path),
-        "loop": loop,
-        "name": name,
-        "page": f"<!DOCTYPE html><p>{name}</p>\n",
-        "json": json.dumps({"loop": loop}) + "\n",
-        "row": {
-            "loop": loop,
-            "source": str(path),
-            "verdict": "no_stiction",
-            "page": f"loops/{name}.html",
-        },
-    }
+    return ReportedLoop(
+        file=str(path),
+        loop=loop,
+        name=name,
+        page_html=f"<!DOCTYPE html><p>{name}</p>\n",
+        json_text=json.dumps({"loop": loop}) + "\n",
+        row=LoopRow(loop=loop, source=str(path), verdict="no_stiction", page=f"loops/{name}.html"),
+    )
 
 
 @pytest.fixture
@@ -327,7 +325,8 @@ def _fake_scan_loop(source, read_options, gap, plots=True):
         "verdict": "no_stiction",
         "S": -1.5,
     }
-    return {"row": row, "analysis": {"loop": source.loop}}
+    analysis = make_analysis(source.loop, status="no_stiction", p=0.0, S=-1.5)
+    return ScannedLoop(row, analysis)
 
 
 def test_scan_csv_escapes_formulas_and_parquet_stays_raw(tmp_path, monkeypatch):

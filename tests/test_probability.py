@@ -378,6 +378,11 @@ def test_probability_of_the_packaged_model_orders_the_evidence():
     # Clear stick-slip evidence in a regular cycle scores higher than none, with and
     # without mv.
     # The continuous statistics sit at their neutral values (a test that could not run).
+    # Clear evidence holds over both halves of the record too: the model without mv,
+    # retrained once the fit's process gain took the controller's sign, weighs the
+    # halves' improvement and band (+0.21, +0.49 standardised) and gives the
+    # whole-record improvement, collinear with its support, a small negative weight,
+    # so a record whose halves show nothing is not clear evidence.
     base = dict.fromkeys(CANDIDATES, 0.0) | NEUTRAL
     strong = base | {
         "improvement": 0.9,
@@ -386,6 +391,9 @@ def test_probability_of_the_packaged_model_orders_the_evidence():
         "s_low_share": 0.8,
         "oscillating": 1.0,
         "regularity": math.log1p(5.0),
+        "halves_improvement": 0.9,
+        "halves_s_low": 0.8,
+        "halves_s_agree": 1.0,
     }
     none = base | {"s_open": 1.0, "oscillating": 1.0, "regularity": 1.0}
     for has_mv in (False, True):

@@ -9,12 +9,13 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from typed_results import make_analysis, make_candidate, make_gap
 
+from stictiondiag.apps.loop_page import render_loop_html
 from stictiondiag.apps.report import (
     build_report,
     md_escape,
     render_index_html,
-    render_loop_html,
     render_markdown,
 )
 
@@ -23,45 +24,26 @@ ROOT = Path(__file__).resolve().parents[1]
 EVIL = "<script>alert('x')</script>"
 
 
-def _analysis_dict(name=EVIL):
-    return {
-        "loop": name,
-        "source": f"/data/{name}.csv",
-        "tags": {
-            "names": {"pv": EVIL, "op": "FIC101.OP"},
-            "n_samples": 1000,
-            "ts_s": 1.0,
-            "loop_type": "flow",
-            "integrating": False,
-        },
-        "stiction": {
-            "status": "stiction",
-            "confidence": 0.8,
-            "S": 3.0,
-            "J": 1.0,
-            "S_interval": [2.5, 3.5],
-            "J_interval": [0.5, 1.5],
-            "method": "mv_segments",
-            "reasons": [f"comment {EVIL}"],
-        },
-        "replay": None,
-        "gap": {
-            "metric": "nrmse",
-            "before": 0.5,
-            "after": 0.2,
-            "shrink_pct": 60.0,
-            "effect": "quantization",
-            "runner_up": "none",
-            "candidates": [
-                {"effect": EVIL, "after": 0.3, "shrink_pct": 40.0, "params": {"q": EVIL}}
-            ],
-        },
+def _analysis(name=EVIL, **fields):
+    values = {
+        "status": "stiction",
+        "p": 0.8,
+        "S": 3.0,
+        "J": 1.0,
+        "S_interval": (2.5, 3.5),
+        "J_interval": (0.5, 1.5),
+        "determinacy": (None, None),
+        "names": {"pv": EVIL, "op": "FIC101.OP"},
+        "loop_type": "flow",
+        "reasons": [f"comment {EVIL}"],
+        "gap": make_gap(candidates=[make_candidate(EVIL, params={"q": EVIL})]),
         "warnings": [f"gap at {EVIL}"],
     }
+    return make_analysis(name, **{**values, **fields})
 
 
 def test_html_escapes_everything_from_the_data():
-    html = render_loop_html(_analysis_dict(), {})
+    html = render_loop_html(_analysis(), {})
     # The only <script> allowed is the page's own load marker.
     assert html.count("<script>") == 1
     assert "alert(" not in html.split("<script>")[1].split("</script>")[0]
@@ -113,34 +95,27 @@ def test_md_escape_neutralises_markdown():
     assert _cell_separators(cell) == [] and "\n" not in cell
 
 
-def _poorly_determined_dict(status="inconclusive", p=0.55):
-    d = _analysis_dict("LIC200")
-    d["stiction"].update(
-        {
-            "status": status,
-            "probability": p,
-            "confidence": p,
-            "S": 0.48,
-            "J": 5.78,
-            "S_interval": [0.0, 1.7],
-            "J_interval": [2.89, 5.78],
-            "details": {
-                "determinacy": {
-                    "S": "poorly determined",
-                    "J": "poorly determined (interval reaches the search limit)",
-                }
-            },
-            "evidence": {"stiction_level": 0.7, "no_stiction_level": 0.3},
-        }
+def _poorly_determined(status="inconclusive", p=0.55):
+    return _analysis(
+        "LIC200",
+        status=status,
+        p=p,
+        S=0.48,
+        J=5.78,
+        S_interval=(0.0, 1.7),
+        J_interval=(2.89, 5.78),
+        determinacy=(
+            "poorly determined",
+            "poorly determined (interval reaches the search limit)",
+        ),
+        has_mv=False,
     )
-    d["tags"]["has_mv"] = False
-    return d
 
 
 def test_loop_page_shows_probability_and_marks_poorly_determined_parameters():
     """Issue 18: no "confidence 1.00" on an undecided verdict; a poorly determined
     J is marked where it is shown, with its interval and the search edge."""
-    html = render_loop_html(_poorly_determined_dict(), {})
+    html = render_loop_html(_poorly_determined(), {})
     assert "P(stiction) = 0.55 (decision levels 0.3 and 0.7)" in html
     assert "confidence" not in html.split("verdict evidence")[0]
     assert "J = 5.78 % of travel (poorly determined: interval 2.89–5.78 at the search edge)" in html
@@ -150,9 +125,7 @@ def test_loop_page_shows_probability_and_marks_poorly_determined_parameters():
 
 
 def test_loop_type_source_is_shown_when_recorded():
-    d = _analysis_dict("FIC101")
-    d["tags"]["loop_type_source"] = "tag prefix FIC"
-    html = render_loop_html(d, {})
+    html = render_loop_html(_analysis("FIC101", loop_type_source="tag prefix FIC"), {})
     assert "from tag prefix FIC" in html
 
 

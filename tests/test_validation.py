@@ -21,12 +21,12 @@ from stictiondiag.apps.validation import (
     default_isdb_dir,
     expert_label,
     load_manifest,
-    render_markdown,
     score,
     split_half,
     split_summary,
     validate_isdb,
 )
+from stictiondiag.apps.validation_page import render_markdown
 
 HAVE_ISDB = (default_isdb_dir() / "manifest.csv").is_file()
 needs_isdb = pytest.mark.skipif(not HAVE_ISDB, reason="../shared/data/isdb not present")
@@ -195,7 +195,7 @@ def test_split_summary_counts():
 def test_stated_auc_and_per_cause_table():
     import pandas as pd
 
-    from stictiondiag.apps.validation import cause_table, stated_auc
+    from stictiondiag.apps.validation_page import cause_table, stated_auc
 
     t = pd.DataFrame(
         {

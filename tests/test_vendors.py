@@ -113,7 +113,7 @@ def test_normalised_op_is_not_sized_in_percent_nor_sent_to_inspection():
     # the stiction pattern is found, but S and J are in op's own units and the advice
     # is to size them, never "schedule a valve inspection".
     from stictiondiag import AnalysisConfig, analyze
-    from stictiondiag.apps.findings import findings_from_dict
+    from stictiondiag.apps.findings import findings_of
     from stictiondiag.io.tags import Tags
 
     raw = read_tags(SAMPLES / "level_undershoot.csv")
@@ -127,7 +127,7 @@ def test_normalised_op_is_not_sized_in_percent_nor_sent_to_inspection():
     )
     assert tags.op_scale == "unknown"
     result = analyze(tags, config=AnalysisConfig(gap=False, replay=False, compensation=False))
-    findings = findings_from_dict(result.to_dict())
+    findings = findings_of(result)
     assert result.verdict.status == "stiction"
     # S scales with op: 5 % of span / 20 = 0.25 op units (within 5 %, the plain fit's
     # interval being far tighter).

@@ -131,8 +131,8 @@ def test_same_sign_fit_many_equals_column_by_column():
     B = P.T @ Y
     yy = np.sum(Y**2, axis=0)
     out = np.empty(6)
-    hk.same_sign_fit_many(A, B, yy, 2, out)
-    ref = [hk.same_sign_fit(A, np.ascontiguousarray(B[:, k]), yy[k], 2) for k in range(6)]
+    hk.same_sign_fit_many(A, B, yy, 2, 0, out)
+    ref = [hk.same_sign_fit(A, np.ascontiguousarray(B[:, k]), yy[k], 2, 0) for k in range(6)]
     # The same operations per active set: equal to the last bit (no set ties with
     # the full one here, where the shortcut could differ by rounding).
     assert out.tolist() == ref
@@ -215,6 +215,7 @@ def test_threaded_batch_cost_equals_serial():
         prob.yy,
         0.0,
         prob.D,
+        0,
     )
     serial = hk.batch_cost(*args)
     threaded = hk.batch_cost_threaded(*args)

@@ -1,7 +1,8 @@
 """Findings in words for one loop: what was found, what it means, what to do.
 
-:func:`findings_from_dict` reads an analysis (:meth:`stictiondiag.analysis.Analysis.to_dict`,
-or the JSON written from it) and writes, for a maintenance planner:
+:func:`findings_of` reads the typed result of one loop
+(:class:`stictiondiag.result.Analysis`, as run or as read back with
+:meth:`~stictiondiag.result.Analysis.from_json`) and writes, for a maintenance planner:
 
 * the verdict with its calibrated ``P(stiction)`` and the decision levels (Section 5.3
   verdict, :mod:`stictiondiag.stiction.verdict`), never a bare "confidence";
@@ -15,7 +16,9 @@ or the JSON written from it) and writes, for a maintenance planner:
 * what the sim-to-real gap diagnosis found (:mod:`stictiondiag.gap`);
 * what the data cannot tell.
 
-Everything is worked from the dict, so saved JSON files give the same findings.
+Everything is read from the typed parts (:class:`~stictiondiag.stiction.valvefit.StictionFit`,
+:class:`~stictiondiag.stiction.verdict.Verdict`, ...), never from text or string keys of
+the JSON, so a field added to a result is a field of its class here too.
 """
 
 from __future__ import annotations
@@ -23,12 +26,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.stiction.cause import ACTIONS, CAUSE_WORDS
-from stictiondiag.stiction.valvefit import Determinacy, poorly_determined
-from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL
+from stictiondiag.stiction.valvefit import Determinacy, StictionFit
+from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL, Verdict
 
 if TYPE_CHECKING:
     import pandas as pd
+
+    from stictiondiag.replay.compensation import Compensation
+    from stictiondiag.result import Analysis
 
 #: Relative difference of J and S within which the valve counts as "no offset" (J = S,
 #: Fig. 11c): below it the slip lands on the demand within a tenth of the jump.
@@ -149,70 +156,78 @@ def _fmt(v: float | None) -> str:
     return format(float(v), ".3g")
 
 
-def determinacy_of(st: dict, sym: str) -> Determinacy | None:
-    """How well ``sym`` is determined (``details.determinacy`` in the JSON), None
-    when the estimator did not say."""
-    details = st.get("details") or {}
-    return Determinacy.of((details.get("determinacy") or {}).get(sym))
+def estimate(fit: StictionFit, sym: str) -> float | None:
+    """The estimate of ``sym`` (``"S"`` or ``"J"``) [% of op span], None when not finite."""
+    return plain_float(fit.S if sym == "S" else fit.J)
 
 
-def determinacy(st: dict, sym: str) -> str:
+def interval(fit: StictionFit, sym: str) -> tuple[float, float] | None:
+    """The interval of ``sym`` [% of op span], None unless both ends are finite."""
+    iv = fit.S_interval if sym == "S" else fit.J_interval
+    ends = [plain_float(v) for v in (iv or ())]
+    if len(ends) != 2 or ends[0] is None or ends[1] is None:
+        return None
+    return (ends[0], ends[1])
+
+
+def determinacy(fit: StictionFit, sym: str) -> str:
     """The estimator's words on how well ``sym`` is determined ('' when none)."""
-    member = determinacy_of(st, sym)
+    member = fit.determinacy_of(sym)
     return "" if member is None else member.value
 
 
-def is_poorly_determined(st: dict, sym: str) -> bool:
-    """The data determine ``sym`` poorly (:func:`stictiondiag.stiction.valvefit.
-    poorly_determined`: the figures' rule too)."""
-    return poorly_determined(determinacy_of(st, sym), st.get(sym), st.get(f"{sym}_interval"))
-
-
-def param_note(st: dict, sym: str) -> str:
+def param_note(fit: StictionFit, sym: str) -> str:
     """How well ``sym`` is known, in words: ``interval 4.98-5.01``,
     ``moderately determined: interval ...`` or ``poorly determined: interval
     2.89-5.78 at the search edge`` ('' without an interval)."""
-    iv = list(st.get(f"{sym}_interval") or [])
-    have_iv = len(iv) == 2 and None not in iv
-    iv_text = f"interval {_fmt(iv[0])}\u2013{_fmt(iv[1])}" if have_iv else "no interval"
-    member = determinacy_of(st, sym)
-    if is_poorly_determined(st, sym):
+    iv = interval(fit, sym)
+    iv_text = f"interval {_fmt(iv[0])}\u2013{_fmt(iv[1])}" if iv else "no interval"
+    member = fit.determinacy_of(sym)
+    if fit.poorly_determined(sym):
         edge = " at the search edge" if member is not None and member.open else ""
         return f"poorly determined: {iv_text}{edge}"
     if member is Determinacy.MODERATE:
         return f"moderately determined: {iv_text}"
-    return iv_text if have_iv else ""
+    return iv_text if iv else ""
 
 
-def param_text(st: dict, sym: str, *, unit: str = " %") -> str:
+def param_text(fit: StictionFit, sym: str, *, unit: str = " %") -> str:
     """``J = 5.8 % (poorly determined: interval 2.9-5.8 at the search edge)``.
 
     A well or moderately determined value carries its interval; a poorly determined
     one says so, with the interval and whether it ends at the edge of the search
     (the data bound it on one side only).
     """
-    note = param_note(st, sym)
-    text = f"{sym} = {_fmt(st.get(sym))}{unit}"
+    note = param_note(fit, sym)
+    text = f"{sym} = {_fmt(estimate(fit, sym))}{unit}"
     return f"{text} ({note})" if note else text
 
 
-def probability_text(st: dict) -> str:
+def decision_levels(verdict: Verdict) -> tuple[float, float]:
+    """The levels on P(stiction) the verdict decided with: below the first no
+    stiction, above the second stiction [-]."""
+    ev = verdict.evidence or {}
+    return (
+        float(ev.get("no_stiction_level", NO_STICTION_LEVEL)),
+        float(ev.get("stiction_level", STICTION_LEVEL)),
+    )
+
+
+def probability_text(verdict: Verdict) -> str:
     """``P(stiction) = 0.55 (decision levels 0.3 and 0.7)``, with the cause model's
     reading after it for a loop with a cycle and no mv (``; cause model: the valve
     (P 0.72), runner-up: the controller's tuning (P 0.15)``), or ``no limit
     cycle`` for a loop without one."""
-    ev = st.get("evidence") or {}
-    probs = st.get("cause_probabilities")
-    cause = str(st.get("cause"))
-    if cause == "none":
-        pf = ev.get("p_friction")
+    ev = verdict.evidence or {}
+    probs = verdict.cause_probabilities
+    if str(verdict.cause) == "none":
+        pf = plain_float(ev.get("p_friction"))
         return "no limit cycle" + (
-            f"; P(the valve has friction) = {float(pf):.2f}" if pf is not None else ""
+            f"; P(the valve has friction) = {pf:.2f}" if pf is not None else ""
         )
-    lo = ev.get("no_stiction_level", NO_STICTION_LEVEL)
-    hi = ev.get("stiction_level", STICTION_LEVEL)
-    p = st.get("probability")
-    p_text = "n/a" if p is None else f"{float(p):.2f}"
+    lo, hi = decision_levels(verdict)
+    p = plain_float(verdict.probability)
+    p_text = "n/a" if p is None else f"{p:.2f}"
     text = f"P(stiction) = {p_text} (decision levels {lo:g} and {hi:g})"
     if probs and not ev.get("has_mv"):
         ranked = sorted(probs, key=lambda c: -float(probs[c]))
@@ -238,13 +253,13 @@ def _shape(S: float, J: float) -> str:
     return "each slip overshoots the demand (overshoot, Fig. 11d)"
 
 
-def _meaning(status: str, st: dict, oscillating: bool) -> str:
-    S, J = st.get("S"), st.get("J")
+def _meaning(status: str, a: Analysis, oscillating: bool) -> str:
+    S, J = estimate(a.fit, "S"), estimate(a.fit, "J")
     if status == "stiction" and S is not None and J is not None:
         return (
             f"valve sticky, about {_fmt(S)} % of travel: the demand must move "
             f"{_fmt(S)} % before the valve moves after a reversal, and it then jumps "
-            f"{_fmt(J)} %; {_shape(float(S), float(J))}"
+            f"{_fmt(J)} %; {_shape(S, J)}"
         )
     if status == "inconclusive":
         return (
@@ -252,7 +267,7 @@ def _meaning(status: str, st: dict, oscillating: bool) -> str:
             "between the decision levels"
         )
     if status == "no_stiction":
-        cause = st.get("cause")
+        cause = a.verdict.cause
         if cause in ("tuning", "external", "other"):
             return (
                 f"the loop cycles, and the cause is most likely {CAUSE_WORDS[cause]}, not the valve"
@@ -268,16 +283,11 @@ def _meaning(status: str, st: dict, oscillating: bool) -> str:
     return "no verdict"
 
 
-def _unknown_scale(d: dict) -> bool:
-    """Whether op was not in % of span (:attr:`stictiondiag.io.tags.Tags.op_scale`)."""
-    return (d.get("tags") or {}).get("op_scale") == "unknown"
-
-
 #: Unit of S and J when op's scale is unknown.
 OWN_UNITS = " in op's own units (scale unknown, not % of span)"
 
 
-def _action(status: str, st: dict, oscillating: bool, unknown_scale: bool = False) -> str:
+def _action(status: str, cause: str | None, oscillating: bool, unknown_scale: bool) -> str:
     if status == "stiction" and unknown_scale:
         # A size in unknown units cannot schedule work: S of 0.002 may be 0.2 % of span
         # or nothing at all.
@@ -286,7 +296,6 @@ def _action(status: str, st: dict, oscillating: bool, unknown_scale: bool = Fals
             "span (--op-range LO HI, or op_range in the loops manifest), or test the "
             "valve directly in manual"
         )
-    cause = st.get("cause")
     if status != "inconclusive" and cause in ACTIONS:
         return ACTIONS[cause]
     if status == "stiction":
@@ -302,54 +311,58 @@ def _action(status: str, st: dict, oscillating: bool, unknown_scale: bool = Fals
     return "nothing to do for the valve"
 
 
-def _compensation(status: str, d: dict) -> str:
-    comp = d.get("compensation")
+def _compensation(status: str, comp: Compensation | None) -> str:
     if status != "stiction":
         return ""
-    if not comp:
+    if comp is None:
         return "no compensation tried (it needs the closed-loop replay)"
-    if not comp.get("applicable"):
-        return f"no compensation tried: {comp.get('reason')}"
-    band = comp.get("band_pv")
+    if not comp.applicable:
+        return f"no compensation tried: {comp.reason}"
+    band = plain_float(comp.band)
     if band is None:
         return (
             "a variable-integral PI (Section 6.4) does not stop the cycle of the fitted "
-            f"loop: {comp.get('reason')}"
+            f"loop: {comp.reason}"
         )
-    offset, amplitude = comp.get("offset_pv"), comp.get("amplitude_pv")
+    offset, amplitude = plain_float(comp.offset), plain_float(comp.amplitude)
     share = (
         f", {100 * offset / amplitude:.0f} % of the cycle's amplitude"
-        if isinstance(offset, int | float) and isinstance(amplitude, int | float) and amplitude > 0
+        if offset is not None and amplitude is not None and amplitude > 0
         else ""
     )
     return (
         f"meanwhile a variable-integral band of {_num(band, '.3g')} pv units "
-        f"({_num(comp.get('band_pct_of_amplitude'), '.0f')} % of the cycle's pv "
+        f"({_num(plain_float(comp.band_pct_of_amplitude), '.0f')} % of the cycle's pv "
         f"amplitude) stops the cycle at an offset of {_num(offset, '.3g')} pv units"
         f"{share} (at most the band), simulated on the fitted loop (Section 6.4)"
     )
 
 
-def _gap(d: dict) -> str:
+def _gap(a: Analysis) -> str:
     """The gap in words: how much of the departure is the fitted loop's (the
     closed-loop refit) and how much an unmodelled effect's
     (:func:`stictiondiag.gap.attribution.attribute_gap`)."""
     # Imported here: the gap's effects bring numba, which reading a result does not need.
     from stictiondiag.gap.attribution import attribute_gap
 
-    gap = d.get("gap")
-    why = attribute_gap(d.get("replay"), gap)
-    if not gap:
+    # attribute_gap reads the replay's and the gap's JSON-able dicts (their to_dict).
+    rep = None if a.replay is None else a.replay.to_dict()
+    gap = None if a.gap is None else a.gap.to_dict()
+    why = attribute_gap(rep, gap)
+    if a.gap is None:
         text = "no gap diagnosis (it needs the closed-loop replay)"
         return f"{text}; {why['text']}" if why["identification"]["refit_accepted"] else text
-    head = f"the replay departs from the data by {_num(gap.get('before'), '.3g')} % ({gap.get('metric')})"
+    head = (
+        f"the replay departs from the data by {_num(plain_float(a.gap.before), '.3g')} % "
+        f"({a.gap.metric})"
+    )
     return f"{head}; {why['text']}" if why["text"] else head
 
 
-def _limits(d: dict, st: dict, poorly: list[str]) -> list[str]:
-    tg = d.get("tags") or {}
+def _limits(a: Analysis, poorly: list[str]) -> list[str]:
+    tags = a.tags
     out = []
-    if not tg.get("has_mv", True):
+    if tags.mv is None:
         out.append(
             "mv is not recorded: S and J come from pv through a fitted process, so "
             "valve and process cannot be told apart with certainty (Section 5.3.1)"
@@ -359,16 +372,15 @@ def _limits(d: dict, st: dict, poorly: list[str]) -> list[str]:
             f"{sym} is poorly determined: values across its interval fit the data "
             "about equally well"
         )
-    if not tg.get("loop_type_source") and tg.get("loop_type") in (None, "other"):
+    if not tags.loop_type_source and tags.loop_type in (None, "other"):
         out.append("the loop type was not given: the replay chose the process structure by fit")
-    ev = st.get("evidence") or {}
-    if ev.get("short_record"):
+    if (a.verdict.evidence or {}).get("short_record"):
         out.append("the record is short: a missing cycle is not taken as evidence")
     out.append(
         "the cause of the friction (packing, actuator, positioner) and the valve's "
         "behaviour outside the travel seen in the record"
     )
-    if d.get("compensation") and (d["compensation"] or {}).get("band_pv") is not None:
+    if a.compensation is not None and plain_float(a.compensation.band) is not None:
         out.append(
             "how the plant itself responds to the band: the figures come from the "
             "fitted model of the loop"
@@ -376,46 +388,45 @@ def _limits(d: dict, st: dict, poorly: list[str]) -> list[str]:
     return out
 
 
-def findings_from_dict(d: dict) -> Findings:
-    """The findings of one analysis dict (:meth:`Analysis.to_dict` or its JSON)."""
-    st = d.get("stiction") or {}
-    status = str(st.get("status") or "unknown")
-    osc = (d.get("oscillation") or {}).get("pv") or {}
-    oscillating = bool(osc.get("present"))
-    poorly = [sym for sym in ("S", "J") if is_poorly_determined(st, sym)]
-    ev = st.get("evidence") or {}
-    levels = (
-        float(ev.get("no_stiction_level", NO_STICTION_LEVEL)),
-        float(ev.get("stiction_level", STICTION_LEVEL)),
-    )
+def findings_of(a: Analysis, *, loop: str | None = None) -> Findings:
+    """The findings of one analysis; ``loop`` names the loop (default :attr:`Analysis.loop`)."""
+    fit, verdict = a.fit, a.verdict
+    status = str(verdict.status or "unknown")
+    oscillating = bool(a.oscillation.present)
+    poorly = [sym for sym in ("S", "J") if fit.poorly_determined(sym)]
     word = status.upper().replace("_", " ")
-    unknown = _unknown_scale(d)
+    unknown = a.tags.op_scale == "unknown"
     unit = OWN_UNITS if unknown else " % of travel"
-    meaning = _meaning(status, st, oscillating)
+    meaning = _meaning(status, a, oscillating)
     if unknown and status == "stiction":
         meaning = (
-            f"a sticky valve's pattern, S = {_fmt(st.get('S'))} and J = {_fmt(st.get('J'))}"
-            f"{OWN_UNITS}: op is not in % of span, so its size in travel is not known"
+            f"a sticky valve's pattern, S = {_fmt(estimate(fit, 'S'))} and J = "
+            f"{_fmt(estimate(fit, 'J'))}{OWN_UNITS}: op is not in % of span, so its size in "
+            "travel is not known"
         )
     return Findings(
-        loop=str(d.get("loop")),
+        loop=str(a.loop if loop is None else loop),
         verdict=status,
-        probability=st.get("probability"),
-        levels=levels,
-        S=st.get("S"),
-        J=st.get("J"),
-        S_text=param_text(st, "S", unit=unit),
-        J_text=param_text(st, "J", unit=unit),
+        probability=plain_float(verdict.probability),
+        levels=decision_levels(verdict),
+        S=estimate(fit, "S"),
+        J=estimate(fit, "J"),
+        S_text=param_text(fit, "S", unit=unit),
+        J_text=param_text(fit, "J", unit=unit),
         poorly_determined=tuple(poorly),
-        headline=f"{word}, {probability_text(st)}",
+        headline=f"{word}, {probability_text(verdict)}",
         meaning=meaning,
-        action=_action(status, st, oscillating, unknown),
-        compensation=_compensation(status, d),
-        gap=_gap(d),
-        limits=tuple(_limits(d, st, poorly)),
+        action=_action(status, verdict.cause, oscillating, unknown),
+        compensation=_compensation(status, a.compensation),
+        gap=_gap(a),
+        limits=tuple(_limits(a, poorly)),
     )
 
 
-def with_findings(d: dict) -> dict:
-    """``d`` with its findings in words under ``"findings"`` (for the JSON files)."""
-    return {**d, "findings": findings_from_dict(d).to_dict()}
+def analysis_json(a: Analysis, *, loop: str | None = None) -> dict[str, Any]:
+    """The analysis's JSON (:meth:`Analysis.to_dict`, the loop named ``loop`` when
+    given) with its findings in words under ``"findings"``."""
+    d = a.to_dict()
+    if loop is not None:
+        d["loop"] = loop
+    return {**d, "findings": findings_of(a, loop=loop).to_dict()}

@@ -13,17 +13,22 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from html import escape
 from pathlib import Path
+
+from stictiondiag.row import LoopRow, as_row
 
 __all__ = [
     "CSS",
     "RANKING_RULE",
     "VERDICT_ORDER",
     "duration_text",
+    "html_num",
     "html_page",
+    "html_text",
     "rank_key",
     "safe_name",
     "severity",
@@ -67,6 +72,24 @@ window.addEventListener('load', function () {
   document.body.setAttribute('data-images-loaded', ok + '/' + imgs.length);
 });
 """
+
+
+def html_num(v, spec=".3g") -> str:
+    """A number as text (``n/a`` for None or not finite), anything else escaped."""
+    if v is None:
+        return "n/a"
+    if isinstance(v, bool):
+        return str(v)
+    if isinstance(v, int | float):
+        if not math.isfinite(float(v)):
+            return "n/a"
+        return format(round(v) if spec.endswith("d") else v, spec)
+    return escape(str(v))
+
+
+def html_text(v) -> str:
+    """Any value from the data as escaped HTML text."""
+    return escape("" if v is None else str(v))
 
 
 def _csp_hash(text: str) -> str:
@@ -125,44 +148,37 @@ RANKING_RULE = (
 )
 
 
-def severity(row: dict) -> float:
+def severity(row: LoopRow | Mapping) -> float:
     """Maintenance priority of a loop: P(stiction) times stiction size (S + J) [% of span].
 
     A row without a probability (written by an older run) uses its confidence.
     """
-    import math
-
-    conf = row.get("probability")
-    if conf is None or (isinstance(conf, float) and math.isnan(conf)):
-        conf = row.get("confidence")
-    s, j = row.get("S"), row.get("J")
-    if conf is None or s is None or j is None:
+    r = as_row(row)
+    conf = r.probability if r.probability is not None else r.confidence
+    if conf is None or r.S is None or r.J is None:
         return 0.0
     try:
-        v = float(conf) * (float(s) + float(j))
+        v = float(conf) * (float(r.S) + float(r.J))
     except (TypeError, ValueError):
         return 0.0
     return v if math.isfinite(v) else 0.0
 
 
-def rank_key(row: dict) -> tuple:
+def rank_key(row: LoopRow | Mapping) -> tuple:
     """Sort key of :data:`RANKING_RULE`."""
-    import math
-
-    verdict = str(row.get("verdict"))
+    r = as_row(row)
+    verdict = str(r.verdict)
     order = VERDICT_ORDER.index(verdict) if verdict in VERDICT_ORDER else len(VERDICT_ORDER)
     try:
-        p = float(row.get("probability"))  # type: ignore[arg-type]
+        p = float(r.probability)  # type: ignore[arg-type]
     except (TypeError, ValueError):
         p = -1.0  # a row of an older run without P: severity decides
     p = p if math.isfinite(p) else -1.0
-    return (order, -p, -severity(row), str(row.get("loop")))
+    return (order, -p, -severity(r), str(r.loop))
 
 
 def duration_text(seconds) -> str:
     """A period or duration for people: ``85 s``, ``21.5 min``, ``3.2 h``, ``2.1 d``."""
-    import math
-
     try:
         s = float(seconds)
     except (TypeError, ValueError):
@@ -182,8 +198,6 @@ def sparkline(
     values: Sequence[float], *, width: int = 120, height: int = 22, color: str = "#1f77b4"
 ) -> str:
     """An inline SVG polyline of ``values`` (scaled to their own range), no script, no style."""
-    import math
-
     vals = [float(v) for v in values if v is not None and math.isfinite(float(v))]
     if len(vals) < 2:
         return ""

@@ -25,16 +25,16 @@ import os
 import time
 import traceback
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from stictiondiag.apps.findings import with_findings
+from stictiondiag.apps.findings import analysis_json
+from stictiondiag.apps.loop_page import render_loop_html
 from stictiondiag.apps.outdir import OutputFolder
 from stictiondiag.apps.pages import safe_name, unique_names
 from stictiondiag.apps.report_html import (
     md_escape,
     render_index_html,
-    render_loop_html,
     render_markdown,
     sort_key,
 )
@@ -52,9 +52,11 @@ from stictiondiag.io.plant import (
     read_plant_loop,
     unmatched_manifest_rows,
 )
+from stictiondiag.row import LoopRow
 
 __all__ = [
     "ReportResult",
+    "ReportedLoop",
     "build_report",
     "clean_report",
     "md_escape",
@@ -81,8 +83,8 @@ class ReportResult:
 
     Attributes
     ----------
-    rows : list of dict
-        One summary row per loop in the index (this run's and earlier runs'), in the
+    rows : list of LoopRow
+        One row per loop in the index (this run's and earlier runs'), in the
         index's order; failed loops have ``verdict == "error"`` and an ``error``.
     failed : list of (str, str)
         Inputs of this run that could not be analysed: (file, one-line message).
@@ -95,7 +97,7 @@ class ReportResult:
         Warnings of the run (manifest rows that match no loop), one line each.
     """
 
-    rows: list
+    rows: list[LoopRow]
     failed: list = field(default_factory=list)
     outputs: dict = field(default_factory=dict)
     renamed: dict = field(default_factory=dict)
@@ -103,9 +105,7 @@ class ReportResult:
 
     def max_stiction_confidence(self) -> float | None:
         """Highest confidence among loops called stiction; None when there is none."""
-        vals = [
-            float(r.get("confidence") or 0.0) for r in self.rows if r.get("verdict") == "stiction"
-        ]
+        vals = [float(r.confidence or 0.0) for r in self.rows if r.verdict == "stiction"]
         return max(vals) if vals else None
 
 
@@ -172,10 +172,11 @@ def _inside(path: Path, folder: Path) -> bool:
         return False
 
 
-def _read_rows(out: Path) -> dict[str, dict]:
+def _read_rows(out: Path) -> dict[str, LoopRow]:
     try:
-        return {str(r["loop"]): r for r in json.loads((out / ROWS_FILE).read_text())}
-    except (OSError, ValueError, KeyError, TypeError):
+        rows = [LoopRow.from_dict(r) for r in json.loads((out / ROWS_FILE).read_text())]
+        return {row.loop: row for row in rows}
+    except (OSError, ValueError, AttributeError, TypeError):
         # No earlier report, or an unreadable index: start the index afresh (the loop
         # pages on disk are left alone).
         return {}
@@ -210,14 +211,42 @@ def _display_name(path: str, name: str) -> str:
     return stem if safe_name(stem) == name else name
 
 
-def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -> dict:
+@dataclass(frozen=True)
+class ReportedLoop:
+    """What a report's worker hands back for one loop.
+
+    Attributes
+    ----------
+    file : str
+        The input (``file#loop`` for a loop of a plant export).
+    loop : str
+        The loop's name in the index.
+    name : str or None
+        Its file name in ``loops/`` (without extension).
+    page_html, json_text : str or None
+        The loop page and the loop's JSON, rendered in the worker.
+    row : LoopRow or None
+        Its index row.
+    error : str or None
+        Why the loop could not be analysed (one line); the other fields are then None.
+    """
+
+    file: str
+    loop: str
+    name: str | None = None
+    page_html: str | None = None
+    json_text: str | None = None
+    row: LoopRow | None = None
+    error: str | None = None
+
+
+def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -> ReportedLoop:
     """Analyse one loop file and render its page; never raises for a bad loop.
 
     Module-level so that it runs in worker processes. ``source`` is (file, name):
     the name is the loop's file name in the report (distinct for every input).
-    Returns ``{"file", "loop", "page", "json", "row"}`` on success, ``{"file",
-    "loop", "error"}`` when the loop could not be analysed (one line: the data error,
-    or the internal error and where it arose).
+    A loop that could not be analysed comes back with its ``error`` (one line: the
+    data error, or the internal error and where it arose).
     """
     # Imported here: the analysis brings numba (about 0.3 s); only analysing needs it.
     from stictiondiag.analysis import (
@@ -238,40 +267,36 @@ def analyse_for_report(source: tuple[str, str], read_options: dict, gap: bool) -
             result = analyze(read_plant_loop(plant, **options), config=AnalysisConfig(gap=gap))
         else:
             result = analyze_file(path, config=AnalysisConfig(gap=gap), **options)
-        plain = result.to_dict()
-        row = result.summary_row(plain)
-        d = with_findings({**plain, "loop": loop})
+        d = analysis_json(result, loop=loop)
         # Upward (plotting sits above apps): imported only when figures are drawn.
         from stictiondiag.plotting import figure_png
 
         images = {k: figure_png(fig) for k, fig in result.figures().items()}
-        row["loop"] = loop
-        row["source"] = label
-        row["page"] = f"{LOOPS_DIR}/{name}.html"
-        return {
-            "file": label,
-            "loop": loop,
-            "name": name,
-            "page": render_loop_html(d, images, json_name=f"{name}.json"),
-            "json": json.dumps(d, indent=2) + "\n",
-            "row": row,
-        }
+        row = replace(result.row(), loop=loop, source=label, page=f"{LOOPS_DIR}/{name}.html")
+        return ReportedLoop(
+            file=label,
+            loop=loop,
+            name=name,
+            page_html=render_loop_html(result, images, loop=loop, json_name=f"{name}.json"),
+            json_text=json.dumps(d, indent=2) + "\n",
+            row=row,
+        )
     except StictionError as exc:
         message = _first_line(exc)
     except Exception as exc:  # one broken loop must not stop the report of the others
         last = traceback.extract_tb(exc.__traceback__)[-1:]
         where = f" at {last[0].name}" if last else ""
         message = f"internal error{where}: {type(exc).__name__}: {_first_line(exc)}"
-    return {"file": label, "loop": loop, "error": message}
+    return ReportedLoop(file=label, loop=loop, error=message)
 
 
-def _worker_died(source: tuple, exc: BaseException) -> dict:
+def _worker_died(source: tuple, exc: BaseException) -> ReportedLoop:
     plant = source[2] if len(source) > 2 else None
-    return {
-        "file": f"{source[0]}#{plant.loop}" if plant is not None else str(source[0]),
-        "loop": source[4] if len(source) > 4 else _display_name(source[0], source[1]),
-        "error": f"internal error: the analysis process failed ({type(exc).__name__})",
-    }
+    return ReportedLoop(
+        file=f"{source[0]}#{plant.loop}" if plant is not None else str(source[0]),
+        loop=source[4] if len(source) > 4 else _display_name(source[0], source[1]),
+        error=f"internal error: the analysis process failed ({type(exc).__name__})",
+    )
 
 
 def _expand(files: Sequence[str]) -> list[tuple[str, str, PlantLoop | None]]:
@@ -462,7 +487,7 @@ def build_report(
 def _run_loops(
     folder: OutputFolder,
     sources: list,
-    rows: dict[str, dict],
+    rows: dict[str, LoopRow],
     read_options: dict,
     gap: bool,
     workers: int,
@@ -485,31 +510,27 @@ def _run_loops(
         on_error=_worker_died,
     )
     for done, res in enumerate(outcomes, start=1):
-        if "error" not in res:
-            base = f"{LOOPS_DIR}/{res['name']}"
+        if res.error is None:
+            base = f"{LOOPS_DIR}/{res.name}"
             try:
-                folder.write({f"{base}.json": res["json"], f"{base}.html": res["page"]})
+                folder.write({f"{base}.json": res.json_text, f"{base}.html": res.page_html})
             except UsageError as exc:
-                res = {"file": res["file"], "loop": res["loop"], "error": _first_line(exc)}
-                unwritten.add(res["file"])
-        if "error" in res:
-            failed.append((res["file"], res["error"]))
-            rows[res["loop"]] = {
-                "loop": res["loop"],
-                "source": res["file"],
-                "verdict": "error",
-                "error": res["error"],
-            }
-        else:
-            rows[res["loop"]] = res["row"]
+                res = ReportedLoop(file=res.file, loop=res.loop, error=_first_line(exc))
+                unwritten.add(res.file)
+        if res.error is not None:
+            failed.append((res.file, res.error))
+            rows[res.loop] = LoopRow.failed(res.loop, res.file, res.error)
+        elif res.row is not None:  # a loop analysed carries its row
+            rows[res.loop] = res.row
         folder.write({ROWS_FILE: _rows_json(rows)})
         if progress:
-            progress(done, len(sources), res["loop"])
+            progress(done, len(sources), res.loop)
     if failed and len(unwritten) == len(sources):
         # Every loop was analysed and none could be written: an output error.
         raise UsageError(failed[0][1])
     return failed
 
 
-def _rows_json(rows: dict[str, dict]) -> str:
-    return json.dumps(sorted(rows.values(), key=sort_key), indent=1, default=str) + "\n"
+def _rows_json(rows: dict[str, LoopRow]) -> str:
+    ordered = sorted(rows.values(), key=sort_key)
+    return json.dumps([r.to_dict() for r in ordered], indent=1, default=str) + "\n"

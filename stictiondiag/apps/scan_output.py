@@ -12,11 +12,14 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from stictiondiag.apps.history import (
     HISTORY_FOLDER,
+    HistoryEntry,
+    absent_html,
     entry_of,
     history_html,
     merge_entry,
@@ -30,14 +33,18 @@ from stictiondiag.apps.scan_page import scan_html
 from stictiondiag.core.atomic import atomic_path
 from stictiondiag.core.csvsafe import safe_frame
 from stictiondiag.core.errors import UsageError
+from stictiondiag.row import LoopRow
 
 if TYPE_CHECKING:
     import pandas as pd
+
+    from stictiondiag.result import Analysis
 
 __all__ = [
     "OUTPUT_TABLES",
     "SCAN_MANIFEST",
     "SCAN_TOOL",
+    "ScannedLoop",
     "is_scan_output",
     "loop_extras",
     "loop_html",
@@ -94,27 +101,51 @@ def _legacy_outputs(out: Path) -> list[str]:
     return names
 
 
+@dataclass(frozen=True)
+class ScannedLoop:
+    """What a scan's worker hands back for one loop.
+
+    Attributes
+    ----------
+    row : dict
+        Its row of the scan's table: the columns of :class:`~stictiondiag.row.LoopRow`
+        (:meth:`Analysis.summary_row <stictiondiag.result.Analysis.summary_row>`) and
+        the scan's own (``error``, ``unit``, ``spark_pv``, ``spark_op``); a failed
+        loop's row holds ``loop``, ``source``, ``verdict`` (``"error"``) and ``error``.
+    analysis : Analysis or None
+        The loop's result (it pickles, so it crosses from the worker typed); None
+        for a failed loop.
+    images : dict
+        The loop page's figures, name -> PNG bytes (drawn in the worker).
+    """
+
+    row: dict
+    analysis: Analysis | None = None
+    images: dict[str, bytes] = field(default_factory=dict)
+
+
 def scan_folder(out: str | os.PathLike) -> OutputFolder:
     """The scan's output folder ``out`` and its manifest."""
     return OutputFolder(out, SCAN_MANIFEST, SCAN_TOOL, adopt=_legacy_outputs)
 
 
 def _save_loop(
-    folder: OutputFolder, res: dict, file_names: dict, keys: dict, settings: dict
+    folder: OutputFolder, res: ScannedLoop, file_names: dict, keys: dict, settings: dict
 ) -> dict:
     """Write one finished loop's history, page and record; a write that fails fails its row.
 
     The history (:mod:`stictiondiag.apps.history`) keeps the results of earlier scans
     of the loop, one entry per record period; the row carries its trend in words.
     """
-    row = res["row"]
+    row = res.row
     name = file_names.get(row["loop"], safe_name(row["loop"]))
-    entries: list[dict] = []
+    entries: list[HistoryEntry] = []
     try:
         # Named together in the manifest before either is written (one manifest write).
         folder.claim(f"loops/{name}.html", f"loops/{name}.json")
-        if res["analysis"] is not None:
-            entries = _update_history(folder, name, row, res["analysis"], keys.get(row["loop"]))
+        analysis = res.analysis
+        if analysis is not None:
+            entries = _update_history(folder, name, row, analysis, keys.get(row["loop"]))
             trend = trend_sentence(entries)
             if trend:
                 row = {**row, "trend": trend}
@@ -122,9 +153,9 @@ def _save_loop(
             "row": row,
             "settings": settings,
             "source_key": keys.get(row["loop"]),
-            "analysis": res["analysis"],
+            "analysis": None if analysis is None else {**analysis.to_dict(), "loop": row["loop"]},
         }
-        page = loop_html(row, res["analysis"], name, res.get("images") or {}, entries)
+        page = loop_html(row, analysis, name, res.images, entries)
         # The JSON record marks the loop as done, so it is written last.
         folder.write({f"loops/{name}.html": page})
         folder.write({f"loops/{name}.json": json.dumps(record, indent=1, default=_json_default)})
@@ -134,18 +165,18 @@ def _save_loop(
 
 
 def _update_history(
-    folder: OutputFolder, name: str, row: dict, analysis: dict, key: dict | None
-) -> list[dict]:
+    folder: OutputFolder, name: str, row: dict, analysis: Analysis, key: dict | None
+) -> list[HistoryEntry]:
     """The loop's history with this result merged in, written back (only a history file
     the scan wrote is read; anything else there is refused by the write)."""
     path = f"{HISTORY_FOLDER}/{name}.json"
-    entries: list[dict] = []
+    entries: list[HistoryEntry] = []
     target = folder.out / path
     if target.is_file() and folder.owns(path):
         entries = read_entries(target.read_text(encoding="utf-8", errors="replace"))
     entry = entry_of(row, analysis, (key or {}).get("sha256"))
     entries = merge_entry(entries, entry)
-    payload = {"loop": row["loop"], "entries": entries}
+    payload = {"loop": row["loop"], "entries": [e.to_dict() for e in entries]}
     folder.write({path: json.dumps(payload, indent=1, default=_json_default)})
     return entries
 
@@ -225,10 +256,10 @@ def _check_out(out: Path) -> None:
 
 def loop_html(
     row: dict,
-    analysis: dict | None,
+    analysis: Analysis | None,
     name: str | None = None,
     images: dict[str, bytes] | None = None,
-    history: list[dict] | None = None,
+    history: list[HistoryEntry] | None = None,
 ) -> str:
     """Per-loop page linked from the scan's ``index.html``: the analysis with its
     figures (drawn by the worker) and the loop's history across scans."""
@@ -236,23 +267,57 @@ def loop_html(
 
     # Imported here: the page's findings bring the verdict and numba (about 0.5 s),
     # which a scan's own process does not otherwise load.
-    from stictiondiag.apps.report_html import render_loop_html
+    from stictiondiag.apps.loop_page import render_loop_html
 
     name = name or safe_name(row["loop"])
     if analysis is not None:
         page = render_loop_html(
-            analysis, images or {}, json_name=f"{name}.json", index_href="../index.html"
+            analysis,
+            images or {},
+            loop=row["loop"],
+            json_name=f"{name}.json",
+            index_href="../index.html",
         )
         section = history_html(history or [])
         return page.replace("\n<script>", section + "\n<script>", 1) if section else page
+    failed = LoopRow.from_dict(row)
     body = (
-        f"<h1>Loop {escape(str(row.get('loop')))}</h1>"
-        f"<p>Source <code>{escape(str(row.get('source')))}</code></p>"
+        f"<h1>Loop {escape(failed.loop)}</h1>"
+        f"<p>Source <code>{escape(str(failed.source))}</code></p>"
         f'<p><span class="verdict error">not analysed</span></p>'
-        f"<p>{escape(str(row.get('error')))}</p>"
+        f"<p>{escape(str(failed.error))}</p>"
         '<p><a href="../index.html">all loops</a></p>'
     )
-    return html_page(f"stiction: {row.get('loop')}", body)
+    return html_page(f"stiction: {failed.loop}", body)
+
+
+def _absent(
+    folder: OutputFolder, present: set[str]
+) -> tuple[dict[str, list[HistoryEntry]], dict[str, str]]:
+    """Histories this scan's folder holds of loops not in ``present`` (only files the
+    scan wrote are read), and the file names of their pages from earlier scans."""
+    histories: dict[str, list[HistoryEntry]] = {}
+    pages: dict[str, str] = {}
+    base = folder.out / HISTORY_FOLDER
+    if not base.is_dir():
+        return histories, pages
+    for path in sorted(base.glob("*.json")):
+        rel = f"{HISTORY_FOLDER}/{path.name}"
+        if not folder.owns(rel):
+            continue
+        try:
+            text = path.read_text(encoding="utf-8", errors="replace")
+            payload = json.loads(text)
+        except (OSError, ValueError):
+            continue
+        loop = payload.get("loop") if isinstance(payload, dict) else None
+        if not isinstance(loop, str) or loop in present:
+            continue
+        histories[loop] = read_entries(text)
+        page = f"{path.stem}.html"
+        if (folder.out / "loops" / page).is_file():
+            pages[loop] = page
+    return histories, pages
 
 
 def _json_default(o):
@@ -297,9 +362,10 @@ def write_table(
             )
 
     page = scan_html(clean, file_names)
-    section = plant_html(plant)
-    if section:
-        page = page.replace("</body>", section + "</body>", 1)
+    present = set(clean["loop"].astype(str)) if "loop" in clean.columns else set()
+    for section in (absent_html(*_absent(folder, present)), plant_html(plant)):
+        if section:
+            page = page.replace("</body>", section + "</body>", 1)
     folder.write({"index.html": page})
     folder.claim("scan.parquet")
     with atomic_path(paths["parquet"]) as tmp:

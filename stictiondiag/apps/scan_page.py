@@ -26,6 +26,7 @@ from stictiondiag.apps.pages import (
     sparkline,
 )
 from stictiondiag.apps.pages import safe_name as _safe_name
+from stictiondiag.row import LoopRow
 
 __all__ = ["FILTER_JS", "scan_html"]
 
@@ -68,11 +69,12 @@ def _num(v, spec: str = ".3g") -> str:
     return "" if x is None else format(x, spec)
 
 
-def _param(r, sym: str) -> str:
-    value = _num(r.get(sym))
+def _param(r: LoopRow, sym: str) -> str:
+    value_f, lo_f, hi_f = r.estimate(sym)
+    value = _num(value_f)
     if not value:
         return ""
-    lo, hi = _num(r.get(f"{sym}_lo")), _num(r.get(f"{sym}_hi"))
+    lo, hi = _num(lo_f), _num(hi_f)
     interval = f" <span class='muted'>[{lo}, {hi}]</span>" if lo and hi else ""
     return f"{value}{interval}"
 
@@ -86,19 +88,23 @@ def _spark(text) -> list[float]:
         return []
 
 
-def _kpis(r) -> str:
+#: The KPIs of the fleet page: name, wording (``{}`` the value), format.
+FLEET_KPIS = (
+    ("op_travel_per_day", "travel {}{unit}/d", ".0f"),
+    ("op_reversals_per_day", "reversals {}/d", ".0f"),
+    ("time_at_op_limits", "at op limits {} %", ".2g"),
+    ("harris_index", "Harris index {}", ".2g"),
+    ("service_factor", "in auto {} %", ".3g"),
+)
+
+
+def _kpis(r: LoopRow) -> str:
     parts = []
-    unit = "" if r.get("op_scale") == "unknown" else " %"
-    for key, form, spec in (
-        ("kpi_op_travel_per_day", "travel {}" + unit + "/d", ".0f"),
-        ("kpi_op_reversals_per_day", "reversals {}/d", ".0f"),
-        ("kpi_time_at_op_limits", "at op limits {} %", ".2g"),
-        ("kpi_harris_index", "Harris index {}", ".2g"),
-        ("kpi_service_factor", "in auto {} %", ".3g"),
-    ):
-        value = _num(r.get(key), spec)
+    unit = "" if r.op_scale == "unknown" else " %"
+    for name, form, spec in FLEET_KPIS:
+        value = _num(r.kpis.get(name), spec)
         if value:
-            parts.append(form.format(value))
+            parts.append(form.replace("{unit}", unit).format(value))
     return "<br>".join(escape(p) for p in parts)
 
 
@@ -106,37 +112,37 @@ def _text(v) -> str:
     return "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v)
 
 
-def _row(r, file_names: dict | None) -> str:
-    loop = _text(r.get("loop"))
+def _row(r: LoopRow, file_names: dict | None) -> str:
+    loop = _text(r.loop)
     name = (file_names or {}).get(loop) or _safe_name(loop)
-    verdict = _text(r.get("verdict"))
+    verdict = _text(r.verdict)
     v_class = verdict if verdict in _STYLE_VERDICT else "unknown"
     link = (
         f'<a href="loops/{escape(name)}.html">{escape(loop)}</a> '
         f'<a class="muted" href="loops/{escape(name)}.json">json</a>'
     )
-    unit = _text(r.get("unit"))
+    unit = _text(r.unit)
     cells = [
-        f"<td class='num'>{_num(r.get('rank'), '.0f')}</td>",
+        f"<td class='num'>{_num(r.rank, '.0f')}</td>",
         f"<td>{link}</td>",
         f"<td><span class='verdict {v_class}'>{escape(verdict.replace('_', ' '))}</span></td>",
     ]
     if verdict == "error":
-        cells.append(f"<td colspan='9'>{escape(_text(r.get('error')))}</td>")
+        cells.append(f"<td colspan='9'>{escape(_text(r.error))}</td>")
     else:
-        scale = " <span class='warn'>(op units)</span>" if r.get("op_scale") == "unknown" else ""
-        cause = _text(r.get("cause")) or _text(r.get("gap_effect"))
+        scale = " <span class='warn'>(op units)</span>" if r.op_scale == "unknown" else ""
+        cause = _text(r.cause) or _text(r.gap_effect)
         cells += [
-            f"<td class='num'>{_num(r.get('probability'), '.2f')}</td>",
+            f"<td class='num'>{_num(r.probability, '.2f')}</td>",
             f"<td>{escape(cause)}</td>",
             f"<td class='num'>{_param(r, 'S')}{scale}</td>",
             f"<td class='num'>{_param(r, 'J')}{scale}</td>",
-            f"<td>{sparkline(_spark(r.get('spark_pv')))}<br>"
-            f"{sparkline(_spark(r.get('spark_op')), color='#555')}</td>",
+            f"<td>{sparkline(_spark(r.spark_pv))}<br>"
+            f"{sparkline(_spark(r.spark_op), color='#555')}</td>",
             f"<td class='kpi'>{_kpis(r)}</td>",
-            f"<td class='num'>{escape(duration_text(r.get('period_s')))}</td>",
-            f"<td>{escape(_text(r.get('loop_type')))}</td>",
-            f"<td class='trend'>{escape(_text(r.get('trend')))}</td>",
+            f"<td class='num'>{escape(duration_text(r.period_s))}</td>",
+            f"<td>{escape(_text(r.loop_type))}</td>",
+            f"<td class='trend'>{escape(_text(r.trend))}</td>",
         ]
     cells.append(f"<td>{escape(unit)}</td>")
     return (
@@ -147,10 +153,10 @@ def _row(r, file_names: dict | None) -> str:
 
 def scan_html(table: pd.DataFrame, file_names: dict | None = None) -> str:
     """The fleet page (module docstring) of a ranked scan table."""
-    rows = table.to_dict("records") if len(table) else []
-    counts = {v: sum(1 for r in rows if r.get("verdict") == v) for v in VERDICT_ORDER}
+    rows = [LoopRow.from_dict(r) for r in table.to_dict("records")] if len(table) else []
+    counts = {v: sum(1 for r in rows if r.verdict == v) for v in VERDICT_ORDER}
     summary = ", ".join(f"{n} {v.replace('_', ' ')}" for v, n in counts.items() if n)
-    units = sorted({_text(r.get("unit")) for r in rows if _text(r.get("unit"))})
+    units = sorted({_text(r.unit) for r in rows if _text(r.unit)})
     verdicts = [v for v in VERDICT_ORDER if counts[v]]
     v_options = "".join(
         f'<option value="{escape(v)}">{escape(v.replace("_", " "))}</option>' for v in verdicts

@@ -25,7 +25,7 @@ The loops manifest (:func:`read_manifest`) gives per-loop settings: a CSV with a
 column ``file`` or ``loop`` and any of ``loop_type``, ``ts``, ``op_units``,
 ``op_range`` (``LO HI``) or ``op_lo``/``op_hi``, ``integrating``, ``vendor``
 (``yokogawa`` reads ``.MV`` as op), ``action`` (``direct``/``reverse``),
-``compression`` (``hold``/``linear``) and the tag names ``pv``, ``op``, ``mv``,
+``compression`` (``hold``/``linear``/``band``) and the tag names ``pv``, ``op``, ``mv``,
 ``sp``, ``time`` and ``mode`` (the controller's mode, :mod:`stictiondiag.io.mode`).
 """
 
@@ -473,7 +473,7 @@ _MANIFEST_KEYS = (
 _CHOICES = {
     "vendor": ("yokogawa", "honeywell", "deltav", "pi", "generic"),
     "action": ("direct", "reverse"),
-    "compression": ("hold", "linear"),
+    "compression": ("hold", "linear", "band"),
 }
 
 

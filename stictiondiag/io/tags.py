@@ -478,7 +478,7 @@ def read_tags(
         :func:`stictiondiag.analysis.analyze`) lets the data decide.
     integrating : bool, optional
         Whether the process integrates; default: True for level loops only.
-    compression : {"hold", "linear"}, optional
+    compression : {"hold", "linear", "band"}, optional
         How a compressed archive's tags are rebuilt (:mod:`stictiondiag.io.compression`);
         default: told per tag from its archived values.
     vendor : {"yokogawa", "honeywell", "deltav", "pi", "generic"}, optional

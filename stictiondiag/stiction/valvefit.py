@@ -83,8 +83,8 @@ def poorly_determined(determinacy: Determinacy | None, value, interval) -> bool:
     """The data determine a parameter poorly: its :class:`Determinacy` says so,
     unless estimate and interval are all zero (a zero estimate cannot pass the
     width-to-value test of :func:`determinacy`; the data pin it at zero).  The one
-    rule of the figures (:meth:`StictionFit.poorly_determined`) and of the findings
-    (:func:`stictiondiag.apps.findings.is_poorly_determined`)."""
+    rule of the figures and the findings (:meth:`StictionFit.poorly_determined`) and of
+    the report's index (:meth:`stictiondiag.row.LoopRow.poorly_determined`)."""
     if determinacy is None or not determinacy.poor:
         return False
     values = [value, *(interval or (None, None))]

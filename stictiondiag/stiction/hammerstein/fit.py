@@ -20,7 +20,9 @@ cycle periods) applied to both sides::
 
 ``b0`` and ``b1`` have one sign (a monotone step response: a process, not the inverse
 of the PI controller, which an unconstrained fit to closed-loop data would find: with
-Eq. 3's controller pv is a high-pass of op); ``d >= 1`` samples (op at sample k is
+Eq. 3's controller pv is a high-pass of op), and with ``gain_sign`` the sign that
+closes a negative feedback loop with the identified controller (see
+:func:`stictiondiag.stiction.hammerstein.search.gain_sign_evidence`); ``d >= 1`` samples (op at sample k is
 computed from pv at sample k, so the valve acts from the next one); ``tau`` and ``d``
 are searched; the last three terms are free and carry what the start of the record
 leaves (the high-pass and the process responding to their unknown state there).  The
@@ -166,6 +168,7 @@ from stictiondiag.stiction.hammerstein.search import (
     Start,
     coarse_search,
     fit_linear,
+    gain_sign_evidence,
     leave_out_misfits,
     polish,
     refine,
@@ -354,7 +357,7 @@ def _integrating_target(y, period, a_hp, k_start) -> tuple[np.ndarray, float, fl
     return yf, pre_lag, noise_var, dy_std
 
 
-def _setup(op, pv, dt, integrating, period_s, disturbance="highpass") -> FitSetup:
+def _setup(op, pv, dt, integrating, period_s, disturbance="highpass", gain_sign=0) -> FitSetup:
     """Time scales, structure, start and the least-squares problem of a fit."""
     n = op.size
     op_mean = float(np.mean(op))
@@ -398,7 +401,9 @@ def _setup(op, pv, dt, integrating, period_s, disturbance="highpass") -> FitSetu
         pv_unit *= dy_std
     else:
         noise_var = white_noise_std(y) ** 2
-    prob = Problem(x, yf, taus, a_hp, k_start, d_start, j0, j1, stride, coarse_delays, pre_lag)
+    prob = Problem(
+        x, yf, taus, a_hp, k_start, d_start, j0, j1, stride, coarse_delays, pre_lag, gain_sign
+    )
     if disturbance == "drift":
         prob.with_drift(_n_drift_states(prob, period))
     return FitSetup(
@@ -597,6 +602,7 @@ def fit_hammerstein(
     flow_loop: bool,
     period_s: float | None = None,
     disturbance: str = "highpass",
+    gain_sign: int = 0,
 ) -> StictionFit:
     """S and J from op and pv by fitting valve model and linear process together.
 
@@ -622,6 +628,10 @@ def fit_hammerstein(
         the high-pass alone (default, chosen by measurement), drift states estimated
         alongside, or drift states only when the high-pass fit's residual calls for
         them (:func:`drift_called_for`); ``details["disturbance_model"]`` says which.
+    gain_sign : {0, 1, -1}
+        Sign the process gain (pv per op) must have, for both valves: the
+        controller's (:func:`stictiondiag.identification.controller.loop_gain_sign`);
+        0: free.  ``details["gain_sign"]``: see :func:`.search.gain_sign_evidence`.
 
     Returns
     -------
@@ -655,12 +665,12 @@ def fit_hammerstein(
     if disturbance not in (*DISTURBANCE_MODELS, "auto"):
         raise ValueError(f"disturbance must be auto, highpass or drift, got {disturbance!r}")
     first = "highpass" if disturbance == "auto" else disturbance
-    fit = _fit_one(op, pv, dt, integrating, flow_loop, period_s, first)
+    fit = _fit_one(op, pv, dt, integrating, flow_loop, period_s, first, gain_sign)
     chosen, why = first, f"disturbance={disturbance!r}"
     if disturbance == "auto":
         chosen, why = drift_called_for(fit)
         if chosen == "drift":
-            fit = _fit_one(op, pv, dt, integrating, flow_loop, period_s, "drift")
+            fit = _fit_one(op, pv, dt, integrating, flow_loop, period_s, "drift", gain_sign)
     return replace(
         fit, details={**fit.details, "disturbance_model": {"model": chosen, "reason": why}}
     )
@@ -693,14 +703,14 @@ def drift_called_for(fit: StictionFit) -> tuple[str, str]:
     )
 
 
-def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance) -> StictionFit:
+def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) -> StictionFit:
     """The fit of :func:`fit_hammerstein` with one disturbance model (checked input)."""
     n_in = op.size
     # Very long records: the central MAX_SAMPLES samples (the fit's cost grows with
     # the record; tens of cycles are plenty).
     first = max(0, (n_in - MAX_SAMPLES) // 2)
     op_fit, pv_fit = op[first : first + MAX_SAMPLES], pv[first : first + MAX_SAMPLES]
-    setup = _setup(op_fit, pv_fit, dt, integrating, period_s, disturbance)
+    setup = _setup(op_fit, pv_fit, dt, integrating, period_s, disturbance, sign)
     prob = setup.problem
 
     start, search, n_left_out, tau_range = _search(setup)
@@ -731,6 +741,10 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance) -> Stict
     moving_fraction = _moving_fraction(setup, variant, mv_model)
     J_confounded = moving_fraction < MIN_MOVING_FRACTION and S_hat > 0
     J_iv, J_open = ((0.0, setup.S_max), True) if J_confounded else (iv.J, iv.J_open)
+    signs = gain_sign_evidence(prob, theta, (S_hat, J_hat, start.variant, delay, offset, tau))
+    if not signs["consistent_fit"]:  # no valve drives pv with the sign: S, J unknown
+        iv = replace(iv, S=(0.0, setup.S_max), S_open=True)
+        J_iv, J_open = (0.0, setup.S_max), True
 
     # Valve output over the whole record, from the same starting state.
     scale, op_mean = setup.scale, float(np.mean(op_fit))
@@ -766,7 +780,7 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance) -> Stict
         J_confounded=J_confounded,
         block=block,
         n_left_out=n_left_out,
-        note={"drift_model": drift, **_note(integrating, flow_loop)},
+        note={"drift_model": drift, "gain_sign": signs, **_note(integrating, flow_loop)},
     )
     return StictionFit(
         S=S_hat,

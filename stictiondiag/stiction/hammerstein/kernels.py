@@ -58,14 +58,36 @@ def _solve_subset(A, b, idx, k, theta):
 
 
 @jit
-def same_sign_fit(A, b, yy, nb):
+def _signs_allowed(theta, kb, sign):
+    """The first ``kb`` entries of ``theta`` (basis gains) have one common sign, and
+    that sign is ``sign`` when it is not 0 (+1: none negative, -1: none positive)."""
+    pos = True
+    neg = True
+    for i in range(kb):
+        if theta[i] < 0.0:
+            pos = False
+        if theta[i] > 0.0:
+            neg = False
+    if sign > 0:
+        return pos
+    if sign < 0:
+        return neg
+    return pos or neg
+
+
+@jit
+def same_sign_fit(A, b, yy, nb, sign):
     """Least squares with the first ``nb`` (basis) gains of one common sign.
 
     The remaining columns are free.  A combination of first-order lags with gains of
     one sign has a monotone step response: a process, and not the inverse of the
     controller, which an unconstrained fit to closed-loop data finds instead (through
-    the PI law of Eq. 3, pv is a high-pass of op).  Solved exactly by enumerating the
-    active sets (at most 2^4 small systems).  Returns the sum of squared residuals.
+    the PI law of Eq. 3, pv is a high-pass of op).  ``sign`` (+1 or -1; 0: either)
+    fixes that common sign: the process gain a negative feedback loop needs with the
+    identified controller (:func:`stictiondiag.identification.controller.loop_gain_sign`).
+    Gains of zero satisfy every sign, so a solution always exists.  Solved exactly by
+    enumerating the active sets (at most 2^4 small systems).  Returns the sum of
+    squared residuals.
     """
     m = A.shape[0]
     idx = np.empty(8, dtype=np.int64)
@@ -84,14 +106,7 @@ def same_sign_fit(A, b, yy, nb):
         e = _solve_subset(A, b, idx, k, theta)
         if e < 0.0:
             continue
-        pos = True
-        neg = True
-        for i in range(kb):
-            if theta[i] < 0.0:
-                pos = False
-            if theta[i] > 0.0:
-                neg = False
-        if (pos or neg) and yy - e < best:
+        if _signs_allowed(theta, kb, sign) and yy - e < best:
             best = yy - e
     return max(best, 0.0)
 
@@ -136,13 +151,13 @@ def _solve_factored(L, b, idx, k, theta, z):
 
 
 @jit
-def same_sign_fit_many(A, B, yy, nb, out):
+def same_sign_fit_many(A, B, yy, nb, sign, out):
     """:func:`same_sign_fit` for every column of ``B`` (one right-hand side per dead
     time) with the same ``A``: each active set is factored once, not once per column.
-    Writes the sums of squared residuals to ``out``.
+    Writes the sums of squared residuals to ``out``; ``sign`` as there.
 
     The active sets are tried from the full one down; a column whose unconstrained
-    fit already has its basis gains of one sign is done, as no smaller set can fit
+    fit already has its basis gains of the allowed sign is done, as no smaller set can fit
     it better (the others are tried for the remaining columns only).  The same
     numbers as column by column, but for a smaller set that ties with the full one
     to the last bit (a basis gain of exactly zero), where the two differ by rounding.
@@ -173,14 +188,7 @@ def same_sign_fit_many(A, B, yy, nb, out):
             if done[c]:
                 continue
             e = _solve_factored(L, B[:, c], idx, k, theta, z)
-            pos = True
-            neg = True
-            for i in range(kb):
-                if theta[i] < 0.0:
-                    pos = False
-                if theta[i] > 0.0:
-                    neg = False
-            if pos or neg:
+            if _signs_allowed(theta, kb, sign):
                 if yy[c] - e < out[c]:
                     out[c] = yy[c] - e
                 if mask == full:
@@ -209,6 +217,7 @@ def _pair_cost(
     yy,
     pre_lag,
     D,
+    sign,
     cost,
     best_d,
     best_o,
@@ -226,7 +235,7 @@ def _pair_cost(
             u = lag(u, pre_lag, k_start)
         A, B = normal_equations(u, taus, a_hp, k_start, j0, j1, stride, keep, Y, D)
         for t in range(nt):
-            same_sign_fit_many(A[t], B[t], yy, 2, sse_d)
+            same_sign_fit_many(A[t], B[t], yy, 2, sign, sse_d)
             for k in range(nd):
                 sse = sse_d[k]
                 if sse < cost[i]:
@@ -257,12 +266,14 @@ def batch_cost(
     yy,
     pre_lag,
     D,
+    sign,
 ):  # pragma: no cover - compiled
     """Best cost over start offsets, process time constants and delays for every (S, J).
 
     ``Y[r, i]`` is the high-passed pv at regression row ``r`` shifted by delay ``i``
     and ``yy[i]`` its sum of squares; ``pre_lag`` [samples] a lag applied to the valve
-    output first (the same lag the target went through; 0: none).  Returns the cost
+    output first (the same lag the target went through; 0: none); ``sign`` the sign
+    the process gain must have (0: either, see :func:`same_sign_fit`).  Returns the cost
     and, for each pair, the indices of the best delay, start offset and time
     constant.  O(pairs x offsets x n x time constants).
     """
@@ -291,6 +302,7 @@ def batch_cost(
             yy,
             pre_lag,
             D,
+            sign,
             cost,
             best_d,
             best_o,
@@ -318,6 +330,7 @@ def batch_cost_threaded(
     yy,
     pre_lag,
     D,
+    sign,
 ):  # pragma: no cover - compiled
     """:func:`batch_cost` with the pairs shared among numba's threads: the same
     numbers (each pair is computed alone), less wall time when the process has
@@ -347,6 +360,7 @@ def batch_cost_threaded(
             yy,
             pre_lag,
             D,
+            sign,
             cost,
             best_d,
             best_o,
@@ -376,15 +390,16 @@ def kernel_threads() -> int:
     return min(n, numba.get_num_threads())
 
 
-def same_sign_lstsq(X: np.ndarray, y: np.ndarray, nb: int) -> np.ndarray:
-    """Parameters of :func:`same_sign_fit` (first ``nb`` gains of one sign)."""
+def same_sign_lstsq(X: np.ndarray, y: np.ndarray, nb: int, sign: int = 0) -> np.ndarray:
+    """Parameters of :func:`same_sign_fit` (first ``nb`` gains of one sign, that of
+    ``sign`` when it is not 0)."""
     m = X.shape[1]
     best, best_theta = np.inf, np.zeros(m)
     for mask in range(0, 1 << nb):
         cols = [i for i in range(nb) if mask & (1 << i)] + list(range(nb, m))
         th, *_ = np.linalg.lstsq(X[:, cols], y, rcond=None)
         g = th[: len(cols) - (m - nb)]
-        if g.size and not (np.all(g >= 0) or np.all(g <= 0)):
+        if g.size and not ((sign >= 0 and np.all(g >= 0)) or (sign <= 0 and np.all(g <= 0))):
             continue
         sse = float(np.sum((y - X[:, cols] @ th) ** 2))
         if sse < best:
@@ -398,10 +413,25 @@ class Problem:
     """Everything the cost of one (S, J) needs, fixed for one fit.
 
     Regression rows are ``j0, j0 + stride, ... < j1``; ``j1`` leaves room for the
-    longest dead time, so every delay uses the same rows.
+    longest dead time, so every delay uses the same rows.  ``gain_sign`` (+1 or -1;
+    0: either) is the sign the process gains must have (:func:`same_sign_fit`).
     """
 
-    def __init__(self, x, yf, taus, a_hp, k_start, d_start, j0, j1, stride, delays, pre_lag=0.0):
+    def __init__(
+        self,
+        x,
+        yf,
+        taus,
+        a_hp,
+        k_start,
+        d_start,
+        j0,
+        j1,
+        stride,
+        delays,
+        pre_lag=0.0,
+        gain_sign: int = 0,
+    ):
         self.x, self.yf = x, yf
         self.taus = np.asarray(taus, dtype=float)
         self.a_hp = float(a_hp)
@@ -412,6 +442,7 @@ class Problem:
         self.rows = self.all_rows
         self.inputs: dict[str, np.ndarray] = {}
         self.pre_lag = float(pre_lag)
+        self.gain_sign = int(np.sign(gain_sign))
         self.n_drift = 0
         self.D = np.zeros((self.rows.size, 0))
         # Costs already computed, per state of the problem (see _cost); the rows
@@ -434,6 +465,7 @@ class Problem:
             stride,
             self.delays,
             self.pre_lag,
+            self.gain_sign,
         ).with_drift(self.n_drift)
 
     def with_drift(self, n_drift: int) -> Problem:
@@ -519,6 +551,7 @@ class Problem:
             self.delays.tobytes(),
             off.tobytes(),
             self._rows_version,
+            self.gain_sign,
         )
         known = self._costs.setdefault(state, {})
         pairs = list(zip(S.tolist(), J.tolist(), strict=True))
@@ -559,10 +592,12 @@ class Problem:
             self.yy,
             self.pre_lag,
             self.D,
+            self.gain_sign,
         )
 
-    def residual(self, S, J, variant: ValveVariant, delay, offset, tau):
-        """Residual on the regression rows, fitted parameters and valve output."""
+    def residual(self, S, J, variant: ValveVariant, delay, offset, tau, gain_sign=None):
+        """Residual on the regression rows, fitted parameters and valve output;
+        ``gain_sign`` overrides the problem's (None: the problem's own)."""
         variant = variant.for_band(float(S))
         x = self._input(variant)
         u, n_slips = valve_run(
@@ -581,5 +616,6 @@ class Problem:
         if self.D.shape[1]:
             X = X - self.D @ (self.D.T @ X)
             y = y - self.D @ (self.D.T @ y)
-        theta = same_sign_lstsq(X, y, 2)
+        sign = self.gain_sign if gain_sign is None else int(gain_sign)
+        theta = same_sign_lstsq(X, y, 2, sign)
         return y - X @ theta, theta, u, n_slips

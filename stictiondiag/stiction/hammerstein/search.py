@@ -324,3 +324,38 @@ def fit_linear(setup: FitSetup, tau, tau_range) -> tuple[float, int, float]:
         options={"maxiter": 30, "xatol": 0.01},
     )
     return lin_best
+
+
+def gain_sign_evidence(prob: Problem, theta: np.ndarray, estimate: tuple) -> dict:
+    """What the sign of the process gain did to the fit (``details["gain_sign"]``).
+
+    ``theta`` are the linear part's parameters at the estimate ``estimate`` (S, J,
+    variant, dead time, start offset, time constant, in the search's units).
+
+    * ``required``: +1 or -1, the sign the process gain (pv per op) was held to, the
+      controller's (a loop under control has ``Kc Kp > 0``); 0: free (the
+      controller's sign is not well determined,
+      :func:`stictiondiag.identification.controller.loop_gain_sign`);
+    * ``binding_at_estimate``: at the estimate, the linear part fitted with the sign
+      free has a process gain of the other sign (the constraint changed the linear
+      part there).  A search with the sign free may still have ended elsewhere
+      (that would cost a second search; ``benchmarks/gain_sign_family.py`` runs
+      both);
+    * ``consistent_fit``: the fitted process gain is not zero.  With the sign held,
+      a record that no valve output drives with that sign is fitted with gains of
+      zero (the fit explains nothing through the valve); then S and J are not
+      determined by the data, and the fit reports them so (intervals over the whole
+      search range).
+    """
+    required = int(prob.gain_sign)
+    gain = float(theta[0] + theta[1])
+    binding = False
+    if required != 0:
+        S, J, variant, delay, offset, tau = estimate
+        _, free, *_ = prob.residual(S, J, variant, delay, offset, tau, gain_sign=0)
+        binding = bool(float(free[0] + free[1]) * required < 0.0)
+    return {
+        "required": required,
+        "binding_at_estimate": binding,
+        "consistent_fit": bool(required == 0 or gain != 0.0),
+    }
