@@ -46,7 +46,7 @@ def test_one_ranking_rule_for_the_table_and_every_page():
     assert "then P(stiction)" in RANKING_RULE
 
 
-def _export(path: Path, S: float, day: int) -> None:
+def _export(path: Path, S: float, day: int, tag: str = "QIC7") -> None:
     """A long export of a sticky concentration loop (Table 3) recorded on ``day``."""
     from stictiondiag.models.loops import simulate_paper_loop
 
@@ -54,7 +54,7 @@ def _export(path: Path, S: float, day: int) -> None:
     start = pd.Timestamp("2024-01-01") + pd.Timedelta(days=day)
     stamps = start + pd.to_timedelta(sim.time, unit="s")
     frame = pd.concat(
-        pd.DataFrame({"timestamp": stamps, "tag": f"QIC7.{role.upper()}", "value": values})
+        pd.DataFrame({"timestamp": stamps, "tag": f"{tag}.{role.upper()}", "value": values})
         for role, values in (("pv", sim.pv), ("op", sim.op), ("mv", sim.mv), ("sp", sim.sp))
     )
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -126,6 +126,29 @@ def test_history_of_three_scans_keeps_every_record_and_says_the_trend(three_scan
     index = (out / "index.html").read_text()
     assert RANKING_RULE.split(",")[0] in index and "over 3 exports" in index
     assert "flags" not in index  # no internal notes on the overview
+
+
+@pytest.mark.slow
+def test_a_loop_left_out_of_the_next_export_keeps_its_last_result_in_view(
+    three_scans, tmp_path
+):
+    # A fourth export holds another loop only: QIC7's history stays, and the fleet
+    # page lists it as not in this export, with its last S (true 4 %, within 0.3 % of
+    # span as above), its trend and its earlier page; the ranked table has QIC8 alone.
+    out = tmp_path / "scan"
+    shutil.copytree(three_scans, out)
+    export = tmp_path / "export3" / "plant.csv"
+    _export(export, 3.0, day=90, tag="QIC8")
+    scan(export.parent, out=out, workers=1, gap=False)
+    assert list(pd.read_csv(out / "scan.csv")["loop"]) == ["QIC8"]
+    assert len(json.loads((out / "history" / "QIC7.json").read_text())["entries"]) == 3
+    index = (out / "index.html").read_text()
+    section = index[index.index('<h2 id="absent">') :]
+    assert "Not in this export (1 loop)" in section
+    assert '<a href="loops/QIC7.html">QIC7</a>' in section and "QIC8" not in section
+    S = float(re.search(r"<td class='num'>([\d.]+) \[", section).group(1))
+    assert S == pytest.approx(4.0, abs=0.3)
+    assert re.search(r"S rose from 2(\.\d+)? % to 4(\.\d+)? % over 3 exports", section)
 
 
 @pytest.mark.slow

@@ -29,6 +29,7 @@ from stictiondiag.apps.outdir import OutputFolder, is_stale_temp
 from stictiondiag.apps.pages import MAX_NAME_BYTES, safe_name
 from stictiondiag.apps.report import ReportedLoop, build_report, clean_report
 from stictiondiag.apps.scan import scan
+from stictiondiag.apps.scan_output import ScannedLoop
 from stictiondiag.core.errors import EXIT_USAGE, UsageError
 from stictiondiag.row import LoopRow
 
@@ -325,7 +326,7 @@ def _fake_scan_loop(source, read_options, gap, plots=True):
         "S": -1.5,
     }
     analysis = make_analysis(source.loop, status="no_stiction", p=0.0, S=-1.5)
-    return {"row": row, "analysis": analysis}
+    return ScannedLoop(row, analysis)
 
 
 def test_scan_csv_escapes_formulas_and_parquet_stays_raw(tmp_path, monkeypatch):

@@ -179,9 +179,9 @@ def test_corrupt_parquet_among_loop_files_is_one_failed_loop(tmp_path, plant):
     sources = discover(tmp_path)
     assert [s.loop for s in sources] == ["A0", "L0001"]
     bad = analyse_source(sources[0], {}, False)
-    assert bad["row"]["verdict"] == "error"
-    assert bad["analysis"] is None
-    assert "\n" not in bad["row"]["error"]
+    assert bad.row["verdict"] == "error"
+    assert bad.analysis is None
+    assert "\n" not in bad.row["error"]
 
 
 # ----------------------------------------------------------------------------- ranking

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 __all__ = [
     "HISTORY_FOLDER",
     "HistoryEntry",
+    "absent_html",
     "entry_of",
     "history_html",
     "merge_entry",
@@ -272,4 +273,48 @@ def history_html(entries: list[HistoryEntry]) -> str:
         "<table><tr><th>record from</th><th>verdict</th><th>P(stiction)</th>"
         "<th>S (interval)</th><th>J (interval)</th><th>cause</th></tr>"
         f"{rows}</table>"
+    )
+
+
+def absent_html(histories: Mapping[str, list[HistoryEntry]], pages: Mapping[str, str]) -> str:
+    """The fleet page's section of loops with a history that are not in this export.
+
+    A loop that an export leaves out (a renamed tag, a unit out of service) keeps its
+    history; its last result and trend stay in view, marked as not re-analysed.
+    ``histories``: loop -> its entries; ``pages``: loop -> the file of its page from
+    an earlier scan in ``loops/`` (left out when there is none).
+    """
+    if not histories:
+        return ""
+
+    def num(v: Any) -> str:
+        x = _finite(v)
+        return "" if x is None else f"{x:.3g}"
+
+    rows = []
+    for loop in sorted(histories):
+        entries = histories[loop]
+        if not entries:
+            continue
+        last = entries[-1]
+        link = escape(loop)
+        if loop in pages:
+            link = f'<a href="loops/{escape(pages[loop])}">{link}</a>'
+        S, S_lo, S_hi = last.estimate("S")
+        trend = trend_sentence(entries) or ""
+        rows.append(
+            f"<tr><td>{link}</td><td>{escape(_when(last))}</td>"
+            f"<td>{escape(str(last.verdict or '').replace('_', ' '))}</td>"
+            f"<td class='num'>{num(S)} [{num(S_lo)}, {num(S_hi)}]</td>"
+            f"<td>{escape(str(last.cause or ''))}</td><td>{escape(trend)}</td></tr>"
+        )
+    if not rows:
+        return ""
+    return (
+        f'<h2 id="absent">Not in this export ({len(rows)} loop{"s" if len(rows) != 1 else ""})'
+        "</h2><p>These loops have results from earlier scans into this folder but no "
+        "record in this one: their last result, not re-analysed.</p>"
+        "<table><tr><th>loop</th><th>last record from</th><th>last verdict</th>"
+        "<th>S (interval)</th><th>cause</th><th>trend over scans</th></tr>"
+        f"{''.join(rows)}</table>"
     )

@@ -42,6 +42,7 @@ from stictiondiag.apps.scan_output import (
     OUTPUT_TABLES,
     SCAN_MANIFEST,
     SCAN_TOOL,
+    ScannedLoop,
     _check_out,
     _json_default,
     _make_dir,
@@ -66,6 +67,7 @@ from stictiondiag.core.errors import (
     require_bool,
 )
 from stictiondiag.io.plant import manifest_options, unmatched_manifest_rows
+from stictiondiag.row import LoopRow
 
 #: Order of verdicts in the ranked table: what maintenance should look at first.
 VERDICT_RANK = {verdict: k for k, verdict in enumerate(VERDICT_ORDER)}
@@ -118,11 +120,12 @@ __all__ = [
 ]
 
 
-def analyse_source(source: LoopSource, read_options: dict, gap: bool, plots: bool = True) -> dict:
-    """Analyse one loop and return its table row, its :class:`~stictiondiag.result.Analysis`
-    (``analysis``; it pickles, so it crosses to the scan's process as the typed
-    result) and the loop page's figures (PNG bytes, drawn in the worker; none when
-    ``plots`` is False) (never raises)."""
+def analyse_source(
+    source: LoopSource, read_options: dict, gap: bool, plots: bool = True
+) -> ScannedLoop:
+    """Analyse one loop: its table row, its :class:`~stictiondiag.result.Analysis` and
+    the loop page's figures (none when ``plots`` is False), as a :class:`ScannedLoop`
+    (never raises)."""
     # Imported here: only the workers analyse; the scan's own process stays 0.3 s lighter.
     from stictiondiag.analysis import AnalysisConfig, analyze
 
@@ -135,7 +138,7 @@ def analyse_source(source: LoopSource, read_options: dict, gap: bool, plots: boo
         row["source"] = source.path
         images, extras = loop_extras(result, plots, plant=source.plant is not None)
         row.update(extras)
-        return {"row": row, "analysis": result, "images": images}
+        return ScannedLoop(row, result, images)
     except StictionError as exc:
         return error_result(source, _first_line(exc))
     except Exception as exc:  # one broken loop must never stop a plant scan
@@ -151,13 +154,12 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
-def error_result(source: LoopSource, message: str) -> dict:
+def error_result(source: LoopSource, message: str) -> ScannedLoop:
     """The result of a loop that could not be analysed: verdict ``error`` and one line."""
-    row = {"loop": source.loop, "source": source.path, "verdict": "error", "error": message}
-    return {"row": row, "analysis": None}
+    return ScannedLoop(LoopRow.failed(source.loop, source.path, message).to_dict())
 
 
-def worker_failure(source: LoopSource, exc: BaseException) -> dict:
+def worker_failure(source: LoopSource, exc: BaseException) -> ScannedLoop:
     """Result for a loop whose worker failed outside :func:`analyse_source`.
 
     A worker killed by the operating system (out of memory, a crash in compiled

@@ -12,12 +12,14 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from stictiondiag.apps.history import (
     HISTORY_FOLDER,
     HistoryEntry,
+    absent_html,
     entry_of,
     history_html,
     merge_entry,
@@ -42,6 +44,7 @@ __all__ = [
     "OUTPUT_TABLES",
     "SCAN_MANIFEST",
     "SCAN_TOOL",
+    "ScannedLoop",
     "is_scan_output",
     "loop_extras",
     "loop_html",
@@ -98,26 +101,49 @@ def _legacy_outputs(out: Path) -> list[str]:
     return names
 
 
+@dataclass(frozen=True)
+class ScannedLoop:
+    """What a scan's worker hands back for one loop.
+
+    Attributes
+    ----------
+    row : dict
+        Its row of the scan's table: the columns of :class:`~stictiondiag.row.LoopRow`
+        (:meth:`Analysis.summary_row <stictiondiag.result.Analysis.summary_row>`) and
+        the scan's own (``error``, ``unit``, ``spark_pv``, ``spark_op``); a failed
+        loop's row holds ``loop``, ``source``, ``verdict`` (``"error"``) and ``error``.
+    analysis : Analysis or None
+        The loop's result (it pickles, so it crosses from the worker typed); None
+        for a failed loop.
+    images : dict
+        The loop page's figures, name -> PNG bytes (drawn in the worker).
+    """
+
+    row: dict
+    analysis: Analysis | None = None
+    images: dict[str, bytes] = field(default_factory=dict)
+
+
 def scan_folder(out: str | os.PathLike) -> OutputFolder:
     """The scan's output folder ``out`` and its manifest."""
     return OutputFolder(out, SCAN_MANIFEST, SCAN_TOOL, adopt=_legacy_outputs)
 
 
 def _save_loop(
-    folder: OutputFolder, res: dict, file_names: dict, keys: dict, settings: dict
+    folder: OutputFolder, res: ScannedLoop, file_names: dict, keys: dict, settings: dict
 ) -> dict:
     """Write one finished loop's history, page and record; a write that fails fails its row.
 
     The history (:mod:`stictiondiag.apps.history`) keeps the results of earlier scans
     of the loop, one entry per record period; the row carries its trend in words.
     """
-    row = res["row"]
+    row = res.row
     name = file_names.get(row["loop"], safe_name(row["loop"]))
     entries: list[HistoryEntry] = []
     try:
         # Named together in the manifest before either is written (one manifest write).
         folder.claim(f"loops/{name}.html", f"loops/{name}.json")
-        analysis = res["analysis"]
+        analysis = res.analysis
         if analysis is not None:
             entries = _update_history(folder, name, row, analysis, keys.get(row["loop"]))
             trend = trend_sentence(entries)
@@ -129,7 +155,7 @@ def _save_loop(
             "source_key": keys.get(row["loop"]),
             "analysis": None if analysis is None else {**analysis.to_dict(), "loop": row["loop"]},
         }
-        page = loop_html(row, analysis, name, res.get("images") or {}, entries)
+        page = loop_html(row, analysis, name, res.images, entries)
         # The JSON record marks the loop as done, so it is written last.
         folder.write({f"loops/{name}.html": page})
         folder.write({f"loops/{name}.json": json.dumps(record, indent=1, default=_json_default)})
@@ -265,6 +291,35 @@ def loop_html(
     return html_page(f"stiction: {failed.loop}", body)
 
 
+def _absent(
+    folder: OutputFolder, present: set[str]
+) -> tuple[dict[str, list[HistoryEntry]], dict[str, str]]:
+    """Histories this scan's folder holds of loops not in ``present`` (only files the
+    scan wrote are read), and the file names of their pages from earlier scans."""
+    histories: dict[str, list[HistoryEntry]] = {}
+    pages: dict[str, str] = {}
+    base = folder.out / HISTORY_FOLDER
+    if not base.is_dir():
+        return histories, pages
+    for path in sorted(base.glob("*.json")):
+        rel = f"{HISTORY_FOLDER}/{path.name}"
+        if not folder.owns(rel):
+            continue
+        try:
+            text = path.read_text(encoding="utf-8", errors="replace")
+            payload = json.loads(text)
+        except (OSError, ValueError):
+            continue
+        loop = payload.get("loop") if isinstance(payload, dict) else None
+        if not isinstance(loop, str) or loop in present:
+            continue
+        histories[loop] = read_entries(text)
+        page = f"{path.stem}.html"
+        if (folder.out / "loops" / page).is_file():
+            pages[loop] = page
+    return histories, pages
+
+
 def _json_default(o):
     try:
         v = float(o)
@@ -307,9 +362,10 @@ def write_table(
             )
 
     page = scan_html(clean, file_names)
-    section = plant_html(plant)
-    if section:
-        page = page.replace("</body>", section + "</body>", 1)
+    present = set(clean["loop"].astype(str)) if "loop" in clean.columns else set()
+    for section in (absent_html(*_absent(folder, present)), plant_html(plant)):
+        if section:
+            page = page.replace("</body>", section + "</body>", 1)
     folder.write({"index.html": page})
     folder.claim("scan.parquet")
     with atomic_path(paths["parquet"]) as tmp:

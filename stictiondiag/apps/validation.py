@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stictiondiag.apps.scan_output import ScannedLoop
 from stictiondiag.apps.sources import load_source
 from stictiondiag.core.errors import DataError, StictionError
 from stictiondiag.core.serialize import plain_float
@@ -188,33 +189,51 @@ def split_half(tags, period_s: float | None) -> dict | None:
     }
 
 
-def validate_one(source, gap: bool) -> dict:
+@dataclass(frozen=True)
+class ValidatedLoop:
+    """One ISDB loop validated (:func:`validate_one`).
+
+    Attributes
+    ----------
+    scanned : ScannedLoop
+        Its analysis and table row (:func:`stictiondiag.apps.scan.analyse_source`).
+    baselines : dict
+        The classic tests' calls, by test.
+    split : dict or None
+        The split-half check (:func:`split_half`), None when not run.
+    """
+
+    scanned: ScannedLoop
+    baselines: dict
+    split: dict | None = None
+
+
+def validate_one(source, gap: bool) -> ValidatedLoop:
     """Analyse one ISDB loop, run the classic tests beside it and, for a record of at
     least :data:`SPLIT_MIN_CYCLES` cycles, each of its halves (for a worker process)."""
     from stictiondiag.apps.scan import analyse_source
 
-    res = analyse_source(source, {}, gap)
+    scanned = analyse_source(source, {}, gap)
     opts = source.read_options or {}
-    res["baselines"] = _baselines(
+    baselines = _baselines(
         source.path,
         opts.get("ts") or 1.0,
         bool(opts.get("integrating")),
         opts.get("loop_type"),
     )
-    res["split"] = None
-    row = res["row"]
-    analysis = res["analysis"]
-    if row.get("verdict") not in (None, "error"):
+    split = None
+    analysis = scanned.analysis
+    if scanned.row.get("verdict") not in (None, "error"):
         period = None
         if analysis is not None:
             period = plain_float(analysis.oscillation.period_s) or plain_float(
                 analysis.oscillation_op.period_s
             )
         try:
-            res["split"] = split_half(load_source(source, **opts), period)
+            split = split_half(load_source(source, **opts), period)
         except Exception as exc:  # the check must not hide the main result
-            res["split"] = {"error": f"{type(exc).__name__}: {exc}"}
-    return res
+            split = {"error": f"{type(exc).__name__}: {exc}"}
+    return ValidatedLoop(scanned, baselines, split)
 
 
 @dataclass(frozen=True)
@@ -310,9 +329,9 @@ def validate_isdb(
     workers = int(workers or os.cpu_count() or 1)
     rows = []
     for i, res in enumerate(run_local(sources, validate_one, (gap,), workers)):
-        row = dict(res["row"])
-        row.update({f"baseline_{k}": v for k, v in res["baselines"].items()})
-        analysis = res["analysis"]
+        row = dict(res.scanned.row)
+        row.update({f"baseline_{k}": v for k, v in res.baselines.items()})
+        analysis = res.scanned.analysis
         reasons = () if analysis is None else analysis.verdict.reasons
         row["reasons"] = "; ".join(str(x) for x in reasons)
         if analysis is not None and analysis.gap is not None:
@@ -322,7 +341,7 @@ def validate_isdb(
             rep = None if analysis.replay is None else analysis.replay.to_dict()
             row["gap_cause"] = attribute_gap(rep, analysis.gap.to_dict())["cause"]
             row["gap_before"] = plain_float(analysis.gap.before)
-        row.update(_split_columns(res.get("split")))
+        row.update(_split_columns(res.split))
         rows.append(row)
         if progress:
             progress(i + 1, len(sources), row["loop"])

@@ -31,7 +31,9 @@ signals' cycle-scale movement; 0 means "within its noise".  For pv the floor is 
 correct replay still misses at its horizon: measurement noise plus the load it could
 not foresee, from the noise model of the best process replay
 (:func:`stictiondiag.gap.effects.process_noise_floor`), and never below the best pv
-replay's error on held-out data.  A quantised signal's rounding error (``q^2/12``)
+replay's error on held-out data.  The winner's floor is no higher than its own error
+on the record unless the base replay's floor is (a load tracking retuned to follow a
+tone the effect does not model claims that tone as unforeseeable load).  A quantised signal's rounding error (``q^2/12``)
 counts as explained once quantization is added.
 
 Attribution
@@ -52,8 +54,9 @@ blocks (best and worst block left out) exceeds a penalty: twice the robust stand
 error of the block-by-block improvement, and the reduction of the base error that the
 Bayesian information criterion asks of its extra parameters, ``E0 (1 - exp(-k
 log(n_eff)/n_eff))`` for ``k`` parameters (``n_eff log(E0/E1) >= k log(n_eff)``; ``n_eff``:
-effectively independent residuals, the judged samples over the residuals' integrated
-autocorrelation time); when the log ratio of the blocks' errors, base against effect,
+effectively independent residuals, the judged samples over the integrated
+autocorrelation time of the residual the candidate leaves, so that an oscillation
+the base replay lacks does not set the charge for explaining it); when the log ratio of the blocks' errors, base against effect,
 passes the same two-standard-error test (free of the blocks' differing error sizes),
 the BIC reduction alone.  It must also beat that reduction, block by block, in at
 least two blocks and in at least as many blocks as it falls short of the base by as
@@ -104,6 +107,7 @@ from stictiondiag.gap.selection import (
     N_BLOCKS,
     Measure,
     Score,
+    candidate_share,
     choose_quantization,
     combined_predictions,
     effective_samples_of,
@@ -370,7 +374,7 @@ def diagnose_gap(
     evidences = {"none": 0.0}
     floors = evidence_floors(ctx, held.blocks, n_blocks)
     for name, ef in fits.items():
-        scores[name] = score_candidate(name, ef, errors, ctx, base, share)
+        scores[name] = score_candidate(name, ef, errors, ctx, base, candidate_share(ctx, ef, share))
         evidences[name] = evidence(ef, name, errors, n_eff, scores[name].gain_by_block, floors)
 
     sel = select_winner(ctx, base, fits, errors, scores, evidences)

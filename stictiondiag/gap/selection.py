@@ -245,6 +245,29 @@ def effective_samples_of(ctx: ReplayContext, base: BaseFit) -> dict:
     }
 
 
+def candidate_share(ctx: ReplayContext, ef: EffectFit, share: dict) -> dict:
+    """The per-parameter share ``log(n_eff) / n_eff`` of the Bayesian information
+    criterion for one candidate: on the signals it changes, ``n_eff`` from the
+    residual the candidate leaves (:func:`effective_samples`); elsewhere ``share``
+    (the base replay's).
+
+    The charge per parameter counts the effectively independent residuals of the
+    noise the model leaves.  The base replay's residual holds whatever effect it
+    lacks: an oscillation from outside the loop left in it is correlated over a
+    quarter of its period, so its ``n_eff`` counts the cycles rather than the noise,
+    and the charge it sets grows with the very oscillation the candidate explains
+    (a disturbance removing most of pv's error was charged half of it for its five
+    parameters).  On a loop without the effect the candidate leaves the base's
+    residual, and the share is the base's.
+    """
+    out = dict(share)
+    for s, pred in ef.predictions.items():
+        if s in out:
+            v = effective_samples(pred - getattr(ctx.sig, s), ctx.w_eval)
+            out[s] = math.log(v) / v
+    return out
+
+
 def choose_quantization(fits: dict, held: HeldOut, share: dict) -> None:
     """Keep all quantised signals when their steps together pay for themselves on
     held-out data, else the subset that pays best (``fits`` and ``held`` updated).
@@ -527,7 +550,17 @@ def noise_floors(
     """
     pv_floor = base_pv_floor
     if win_fit is not None and win_fit.pv_floor is not None:
-        pv_floor = win_fit.pv_floor
+        # A floor is what a correct replay still misses, and the winner's replay
+        # misses no less than its own floor on the record it was fitted to.  Where it
+        # does, its filter's split of the error into load and noise is off (a load
+        # tracking retuned to follow a second, unmodelled tone claims that tone as
+        # load it could never foresee), and its error on the record bounds the claim.
+        # That error is fitted, so it bounds the claim only down to the base
+        # replay's own floor: below both estimates a floor would come from nothing but
+        # the winner's fit to the record.
+        own = float(np.dot(ctx.w_eval, (win_fit.predictions["pv"] - ctx.sig.pv) ** 2))
+        own /= max(float(ctx.w_eval.sum()), 1.0)
+        pv_floor = min(win_fit.pv_floor, max(own, base_pv_floor))
     floors = {"op": 0.0, "pv": max(pv_floor, min(heldout_pv))}
     if ctx.sig.mv is not None:
         floors["mv"] = noise_variance(ctx.sig.mv)

@@ -130,6 +130,21 @@ class PredictorFit:
     params: dict = field(default_factory=dict)
 
 
+def extra_start(column: np.ndarray) -> float:
+    """Initial state of the filter of an extra column (an output disturbance): its
+    first value.
+
+    The innovations are linear in the filtered signal and in the filter's initial
+    state, so pv less a disturbance ``a c`` is filtered from ``pv[0] - a c[0]`` only
+    if the column's own filter starts at ``c[0]`` (pv's starts at ``pv[0]``).  From
+    0, the fitted disturbance's first value is an error the filter carries into the
+    record as load, for as long as its tracking takes to forget it (on a slow filter,
+    the first block of the record): a disturbance fitted on the other blocks then
+    lost on the first one what it gained on all the others.
+    """
+    return float(column[0]) if column.size else 0.0
+
+
 def _input_response(u: np.ndarray, model: ProcessModel, k1: float, k2: float) -> np.ndarray:
     """Innovation response to a unit gain on the input without dead time."""
     u0 = u - u[0]
@@ -358,7 +373,9 @@ class _Replay:
             for i in range(self.n_extra):
                 zi.append(2 + i)
                 di.append(0)
-                par.append((0.0, m.pole, k1, k2))
+                # The filter of an extra column starts at the column's first value,
+                # as pv's starts at pv[0] (:func:`extra_start`).
+                par.append((extra_start(self.extra_rows[i]), m.pole, k1, k2))
             todo.append((fkey, e_key, b_key, e0, base, first))
         if not todo:
             return
@@ -664,7 +681,9 @@ def process_noise_floor(
     if extra is not None and fit.coef.size > 2:
         E = np.column_stack(
             [
-                -_prediction_errors(np.ascontiguousarray(c), zeros, m.pole, k1, k2, 0.0, 1)
+                -_prediction_errors(
+                    np.ascontiguousarray(c), zeros, m.pole, k1, k2, extra_start(c), 1
+                )
                 for c in np.atleast_2d(extra.T)
             ]
         )
