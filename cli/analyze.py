@@ -93,12 +93,10 @@ SUMMARY_KPIS = (
 )
 
 
-def _process_kind(rep: Replay) -> str | None:
+def _process_kind(rep: Replay) -> str:
     """``foptd`` or ``integrating``: the structure of the replay's identified process."""
     from stictiondiag.models.processes import FOPTD
 
-    if rep.process_fit is None:
-        return None
     return "foptd" if isinstance(rep.process_fit.process, FOPTD) else "integrating"
 
 

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -19,9 +20,14 @@ from stictiondiag.core.atomic import (
     write_atomic,
 )
 from stictiondiag.core.errors import UsageError
+from stictiondiag.core.serialize import plain_float
 
 from .app import app
 from .common import check_output_file, friendly_errors, info, write_stdout
+
+if TYPE_CHECKING:
+    from stictiondiag.models.describing import LimitCyclePrediction
+    from stictiondiag.models.simulation import LimitCycle, Simulation
 
 _VALVES = {"datadriven": "choudhury", "kano": "kano", "physical": "physical", "linear": "linear"}
 
@@ -82,51 +88,61 @@ def _fmt(x, spec: str = ".3g") -> str:
     return "n/a" if x is None else format(x, spec)
 
 
-def render_summary(loop: str, summary: dict) -> str:
-    """Readable summary of :meth:`stictiondiag.models.simulation.Simulation.summary` for stderr."""
-    st = summary["settings"]
-    valve = st["valve"]
+def _valve_text(sim: Simulation) -> str:
+    """The simulated valve and its parameters."""
+    valve = sim.settings.get("valve")
     if valve in ("choudhury", "kano"):
         name = "data-driven (Choudhury et al.)" if valve == "choudhury" else "Kano et al."
-        valve_text = f"{name}: S = {st['S']:g} %, J = {st['J']:g} %"
-    elif valve == "physical":
-        ph, eq = st["physical"], st["data_driven_equivalent"]
-        valve_text = (
-            f"physical: Fs = {ph['Fs']:g} N, Fc = {ph['Fc']:g} N, Fv = {ph['Fv']:g} N s/m, "
-            f"calibration x{ph['calibration']:g} (quasi-static S = {eq['S']:.2f} %, "
-            f"J = {eq['J']:.2f} %)"
+        return f"{name}: S = {float(sim.settings['S']):g} %, J = {float(sim.settings['J']):g} %"
+    if valve == "physical" and sim.physical is not None:
+        ph = sim.physical
+        eq = ph.data_driven_equivalent()
+        return (
+            f"physical: Fs = {float(ph.Fs):g} N, Fc = {float(ph.Fc):g} N, "
+            f"Fv = {float(ph.Fv):g} N s/m, calibration x{float(ph.calibration):g} "
+            f"(quasi-static S = {eq['S']:.2f} %, J = {eq['J']:.2f} %)"
         )
-    else:
-        valve_text = "linear (no stiction)"
-    amp = summary["amplitude"]
-    df = summary["describing_function"]
+    return "linear (no stiction)"
+
+
+def render_summary(
+    loop: str,
+    sim: Simulation,
+    cycle: LimitCycle,
+    describing: tuple[LimitCyclePrediction, dict],
+    warnings: Sequence[str] = (),
+) -> str:
+    """Readable summary of a run for stderr: the valve, the run, the simulated
+    limit cycle (``cycle``, :meth:`Simulation.limit_cycle`) and the
+    describing-function prediction with its basis
+    (:meth:`Simulation.describing_function`)."""
+    st = sim.settings
+    prediction, basis = describing
+    step, band = st.get("integration_step_s"), st.get("integral_band")
     lines = [
         f"loop         {loop}",
-        f"valve        {valve_text}",
-        f"simulated    {st['duration_s']:g} s, recorded every {st['dt_s']:g} s"
-        + (
-            f" (integrated at {st['integration_step_s']:g} s)"
-            if st["integration_step_s"] != st["dt_s"]
-            else ""
-        )
-        + (f", integral band {st['integral_band']:g}" if st["integral_band"] is not None else ""),
+        f"valve        {_valve_text(sim)}",
+        f"simulated    {sim.n * sim.dt:g} s, recorded every {sim.dt:g} s"
+        + (f" (integrated at {step:g} s)" if step is not None and step != sim.dt else "")
+        + (f", integral band {band:g}" if band is not None else ""),
     ]
-    if summary["limit_cycle"]:
+    if cycle.present:
+        amp = {k: plain_float(cycle.amplitude[k]) for k in ("pv", "op", "mv")}
         lines.append(
-            f"limit cycle  YES: pv period {_fmt(summary['period_s'], '.1f')} s; amplitude "
-            f"pv {_fmt(amp['pv'])}, op {_fmt(amp['op'])} %, mv {_fmt(amp['mv'])} %"
+            f"limit cycle  YES: pv period {_fmt(plain_float(cycle.period_s), '.1f')} s; "
+            f"amplitude pv {_fmt(amp['pv'])}, op {_fmt(amp['op'])} %, mv {_fmt(amp['mv'])} %"
         )
     else:
-        reason = summary["oscillation"]["oscillations"]["pv"]["reason"]
-        lines.append(f"limit cycle  no ({reason})")
-    if df["limit_cycle"]:
+        lines.append(f"limit cycle  no ({cycle.oscillations['pv'].reason})")
+    if prediction.limit_cycle:
         lines.append(
-            f"describing   predicts a cycle: period {_fmt(df['period_s'], '.1f')} s, "
-            f"op amplitude {_fmt(df['amplitude'])} %  [{df['basis']}]"
+            f"describing   predicts a cycle: period {_fmt(plain_float(prediction.period_s), '.1f')}"
+            f" s, op amplitude {_fmt(plain_float(prediction.amplitude_op))} %  "
+            f"[{basis['source']}]"
         )
     else:
-        lines.append(f"describing   predicts no limit cycle  [{df['basis']}]")
-    lines += [f"warning      {w}" for w in summary.get("warnings") or []]
+        lines.append(f"describing   predicts no limit cycle  [{basis['source']}]")
+    lines += [f"warning      {w}" for w in warnings]
     return "\n".join(lines)
 
 
@@ -312,10 +328,15 @@ def simulate(
         if physical_valve is not None:
             kwargs["physical"] = physical_valve
         sim = loops.simulate_paper_loop(loop_name, s_value, j_value, **kwargs)
-        summary = sim.summary()
+        cycle, describing = sim.limit_cycle(), sim.describing_function()
         stuck = stuck_valve_warning(sim, s_value)
-        summary = {"loop": loop_name, **summary, "warnings": [stuck] if stuck else []}
-        info(render_summary(loop_name, summary))
+        warnings = [stuck] if stuck else []
+        info(render_summary(loop_name, sim, cycle, describing, warnings))
+        summary = {
+            "loop": loop_name,
+            **sim.summary(cycle=cycle, describing=describing),
+            "warnings": warnings,
+        }
         text = json.dumps(summary, indent=2, allow_nan=False) + "\n"
         if json_out == "-":
             write_stdout(text)

@@ -413,9 +413,7 @@ def kpis_of(tags: Tags, osc_pv: Oscillation, rep: Replay | None) -> LoopKpis:
     identified process dead time plus the controller's one-sample delay."""
     dead_time_s = None
     if rep is not None:
-        samples = (rep.process or {}).get("dead_time_samples")
-        if samples is not None:
-            dead_time_s = (int(samples) + 1) * float(tags.ts)
+        dead_time_s = (int(rep.process_fit.dead_time_samples) + 1) * float(tags.ts)
     return loop_kpis(
         tags.pv,
         tags.op,

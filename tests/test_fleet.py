@@ -129,9 +129,7 @@ def test_history_of_three_scans_keeps_every_record_and_says_the_trend(three_scan
 
 
 @pytest.mark.slow
-def test_a_loop_left_out_of_the_next_export_keeps_its_last_result_in_view(
-    three_scans, tmp_path
-):
+def test_a_loop_left_out_of_the_next_export_keeps_its_last_result_in_view(three_scans, tmp_path):
     # A fourth export holds another loop only: QIC7's history stays, and the fleet
     # page lists it as not in this export, with its last S (true 4 %, within 0.3 % of
     # span as above), its trend and its earlier page; the ranked table has QIC8 alone.

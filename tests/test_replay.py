@@ -23,6 +23,7 @@ from stictiondiag.models.processes import (
     FOPTD,
     LOOP_PARAMETERS,
     PI,
+    Integrating,
 )
 from stictiondiag.models.valve import choudhury_model
 from stictiondiag.replay.closed_loop import Replay, nrmse, replay
@@ -68,7 +69,7 @@ def test_replay_period_within_target(name, S, J):
     # issue's target is 5 %.
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT
     # Structure chosen by fit: integrating for the level loop, FOPTD otherwise.
-    assert rep.process["type"] == ("integrating" if name == "level" else "foptd")
+    assert isinstance(rep.process_fit.process, Integrating if name == "level" else FOPTD)
     # Amplitudes of the limit cycle within 2 % (measured <= 1 %).
     for signal in ("pv", "op", "mv"):
         amp = rep.amplitude[signal]
@@ -164,7 +165,7 @@ def test_replay_reverse_acting_loop():
     )
     tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, sp=sim.sp, ts=DT)
     rep = replay(tags, fit_of(5.0, 5.0, sim.mv))
-    assert rep.controller["reverse_acting"]
+    assert rep.controller_fit.reverse_acting
     assert rep.warnings == ()
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT  # measured < 0.1 %
 

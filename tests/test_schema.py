@@ -76,7 +76,10 @@ def test_foreign_and_newer_documents_are_refused():
     newer = json.dumps({"schema": "s", "version": SCHEMA_VERSION + 1, "result": None})
     with pytest.raises(DataError, match="upgrade"):
         loads(newer, schema="s")
-    evil = json.dumps({"schema": "s", "version": 1, "result": {"$type": "os:system"}})
+    older = json.dumps({"schema": "s", "version": SCHEMA_VERSION - 1, "result": None})
+    with pytest.raises(DataError, match="analyse the record again"):
+        loads(older, schema="s")
+    evil = json.dumps({"schema": "s", "version": SCHEMA_VERSION, "result": {"$type": "os:system"}})
     with pytest.raises(DataError, match="outside stictiondiag"):
         loads(evil, schema="s")
     with pytest.raises(DataError, match="not a result file"):

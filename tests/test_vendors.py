@@ -144,9 +144,9 @@ def test_declared_action_fixes_the_controller_sign_in_the_replay():
 
     tags = read_tags(SAMPLES / "level_undershoot.csv")
     plain = analyze(tags, config=AnalysisConfig(gap=False, compensation=False))
-    assert plain.replay.controller["gain"] > 0
+    assert plain.replay.controller_fit.controller.gain > 0
     direct = read_tags(SAMPLES / "level_undershoot.csv", action="direct")
     assert direct.action == "direct"
     result = analyze(direct, config=AnalysisConfig(gap=False, compensation=False))
-    assert result.replay.controller["gain"] < 0
+    assert result.replay.controller_fit.controller.gain < 0
     assert any("declared direct action" in w for w in result.replay.warnings)

@@ -157,10 +157,8 @@ def _r2_text(r2: float | None) -> str:
     return "" if r2 is None else f" (R\u00b2 {_num(r2, '.2f')})"
 
 
-def _process_text(pf: ProcessFit | None) -> str:
+def _process_text(pf: ProcessFit) -> str:
     """The identified process: structure, K, \u03c4, \u03b8 and the fit's R\u00b2."""
-    if pf is None:
-        return "n/a"
     p = pf.process
     tau = p.time_constant if isinstance(p, FOPTD) else None
     kind = "FOPTD" if isinstance(p, FOPTD) else "integrating"
@@ -168,10 +166,8 @@ def _process_text(pf: ProcessFit | None) -> str:
     return f"{kind}: " + _params(values) + _r2_text(pf.fit_r2)
 
 
-def _controller_text(cf: ControllerFit | None) -> str:
+def _controller_text(cf: ControllerFit) -> str:
     """The identified controller: P or PI, Kc, Ti, op bias and the fit's R\u00b2."""
-    if cf is None:
-        return "n/a"
     kind = "P" if cf.p_only else "PI"
     c = cf.controller
     values = [(c.gain, "Kc", ""), (c.integral_time, "Ti", " s"), (cf.op_bias, "op bias", " %")]

@@ -140,6 +140,8 @@ def warm_up(progress: Callable[[str], None] | None = None) -> WarmUp:
         for i, (what, step) in enumerate(STEPS, start=1):
             say(f"[{i}/{len(STEPS)}] {what} ({time.perf_counter() - t0:.0f} s)")
             step()
+    # What the steps left stale is only ever compiled into its callers (jit.forget_stale).
+    jit.forget_stale()
     n_kernels = len(jit.kernels())
     not_cached = tuple(jit.cold_kernels())
     return WarmUp(tuple(compiled), n_kernels, not_cached, time.perf_counter() - t0)

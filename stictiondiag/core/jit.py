@@ -97,6 +97,27 @@ def ever_cached(dispatcher: Dispatcher) -> bool:
         return True
 
 
+def forget_stale() -> list[str]:
+    """Remove the cache index of every kernel that is stale after a warm-up; their names.
+
+    A kernel called only from other kernels is compiled into its callers and is not
+    cached on its own.  If an earlier version of the package cached it, that index
+    stays stale for good, and :func:`cache_is_cold` would answer "cold" on every run
+    after an upgrade (each command compiling again).  Without the index the kernel
+    counts as never cached, as on a fresh installation.  Only this package's kernels'
+    index files are touched; numba rewrites them whenever it caches the kernel.
+    """
+    removed = []
+    for d in kernels():
+        if ever_cached(d) and not on_disk(d):
+            try:
+                os.remove(d._cache._cache_file._index_path)  # type: ignore[attr-defined]
+            except Exception:  # noqa: S112  (gone already, or cache internals differ)
+                continue
+            removed.append(kernel_name(d))
+    return removed
+
+
 def cold_kernels() -> list[str]:
     """Names of the imported kernels (:func:`kernels`) that would be compiled, not
     loaded, at their first call in a new process."""

@@ -15,8 +15,9 @@ by another as the typed object, not as a dict to walk by string keys:
 
 Python writes floats in JSON with ``repr``, which reads back bit for bit, so a round
 trip is exact.  :func:`dumps` and :func:`loads` wrap the payload with the schema's
-name and :data:`SCHEMA_VERSION`; :func:`loads` refuses another schema or a newer
-version with a one-line :class:`~stictiondiag.core.errors.DataError`.
+name and :data:`SCHEMA_VERSION`; :func:`loads` refuses another schema or another
+version with a one-line :class:`~stictiondiag.core.errors.DataError` (a newer one:
+upgrade; an older one: analyse the record again).
 
 Only classes of this package are rebuilt: a ``$type`` or ``$enum`` outside
 ``stictiondiag`` is refused, so reading a file never imports foreign code.
@@ -37,7 +38,8 @@ import numpy as np
 from stictiondiag.core.errors import DataError
 
 #: Version of the encoding below; raised when a change would misread older files.
-SCHEMA_VERSION = 1
+#: 2: the replay holds its identified process and controller once, as typed fits.
+SCHEMA_VERSION = 2
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"
@@ -153,5 +155,10 @@ def loads(text: str, *, schema: str) -> Any:
         raise DataError(
             f"{schema} result file of version {version!r}: this stiction reads up to "
             f"version {SCHEMA_VERSION}; upgrade it"
+        )
+    if version < SCHEMA_VERSION:
+        raise DataError(
+            f"{schema} result file of version {version}, written by an older stiction: "
+            f"analyse the record again to write it at version {SCHEMA_VERSION}"
         )
     return decode(payload.get("result"))

@@ -175,16 +175,24 @@ class Simulation:
         basis = {"S": S, "J": J, "process_gain_factor": gain, "source": source}
         return prediction, basis
 
-    def summary(self, transient: float | None = None) -> dict:
+    def summary(
+        self,
+        transient: float | None = None,
+        *,
+        cycle: LimitCycle | None = None,
+        describing: tuple | None = None,
+    ) -> dict:
         """JSON-able summary: simulated cycle and describing-function prediction.
 
         Keys: ``limit_cycle`` (bool), ``period_s`` (pv period [s] or None),
         ``amplitude`` {op, mv [% of span], pv [pv units]} (half peak-to-peak),
         ``describing_function`` {limit_cycle, period_s, amplitude (X_m, % of span),
         S, J, basis}, ``oscillation`` (per-signal detail) and ``settings``.
+        ``cycle`` and ``describing``: :meth:`limit_cycle` (then ``transient`` is not
+        used) and :meth:`describing_function` of this run when already computed.
         """
-        lc = self.limit_cycle(transient)
-        prediction, basis = self.describing_function()
+        lc = self.limit_cycle(transient) if cycle is None else cycle
+        prediction, basis = self.describing_function() if describing is None else describing
         return {
             "limit_cycle": bool(lc.present),
             "period_s": plain_float(lc.period_s),

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
+from stictiondiag.core.serialize import plain_float
+from stictiondiag.models.processes import FOPTD
 from stictiondiag.plotting.canvas import (
     decimate,
     new_figure,
@@ -27,6 +29,12 @@ WIDTH_RATIOS = (2.4, 1)
 
 def _fmt(v, spec: str = ".3g") -> str:
     return "-" if v is None else format(v, spec)
+
+
+def _num(v, spec: str = ".3g") -> str:
+    """A number of the replay's models; "-" for None, NaN or inf (a P-only
+    controller's integral time)."""
+    return _fmt(plain_float(v), spec)
 
 
 def _default_window(replay) -> float:
@@ -159,24 +167,24 @@ _FLOWCHARTS = {"choudhury": "Choudhury, Fig. 10", "kano": "Kano et al."}
 def _summary(replay, metrics: dict | None = None) -> str:
     """The text of the last panel: valve, controller, process, periods, amplitudes
     (by the one measure of ``metrics`` for data and replay, when given)."""
-    proc, ctrl = replay.process, replay.controller
+    pf, cf = replay.process_fit, replay.controller_fit
+    proc, ctrl = pf.process, cf.controller
     lines = [
         f"valve: S = {replay.S:.3g} %, J = {replay.J:.3g} %"
         f" ({_FLOWCHARTS.get(str((replay.settings or {}).get('valve')), 'data-driven')})",
-        f"controller: Kc = {_fmt(ctrl.get('gain'))}, Ti = {_fmt(ctrl.get('integral_time_s'))} s"
-        f" (R2 {_fmt(ctrl.get('fit_r2'), '.3f')})",
+        f"controller: Kc = {_num(ctrl.gain)}, Ti = {_num(ctrl.integral_time)} s"
+        f" (R2 {_num(cf.fit_r2, '.3f')})",
     ]
-    if proc.get("type") == "foptd":
+    if isinstance(proc, FOPTD):
         lines.append(
-            f"process: K = {_fmt(proc.get('gain'))}, tau = {_fmt(proc.get('time_constant_s'))}"
-            f" s, theta = {_fmt(proc.get('dead_time_s'))} s"
+            f"process: K = {_num(proc.gain)}, tau = {_num(proc.time_constant)}"
+            f" s, theta = {_num(proc.dead_time)} s"
         )
     else:
         lines.append(
-            f"process: K = {_fmt(proc.get('gain'))} /s (integrating), "
-            f"theta = {_fmt(proc.get('dead_time_s'))} s"
+            f"process: K = {_num(proc.gain)} /s (integrating), theta = {_num(proc.dead_time)} s"
         )
-    lines.append(f"process R2 {_fmt(proc.get('fit_r2'), '.3f')}")
+    lines.append(f"process R2 {_num(pf.fit_r2, '.3f')}")
     lines.append(
         f"period [s]: data {_fmt(replay.period_s.get('data'))}, "
         f"replay {_fmt(replay.period_s.get('replay'))} ({replay.period_signal})"

@@ -141,12 +141,12 @@ class Replay:
     data : dict
         Recorded arrays: ``pv``, ``op``, ``sp`` (as used), ``mv`` (None when not
         recorded), ``mv_model`` (the stiction fit's valve output, or None).
-    process : dict
-        Identified process (``ProcessFit.to_dict``: type, gain, time constant [s],
-        dead time [s], biases, R^2).
-    controller : dict
-        Identified controller (``ControllerFit.to_dict``: gain, integral time [s],
-        op bias [% of span], R^2).
+    process_fit : ProcessFit
+        Identified process (type, gain, time constant [s], dead time [s], biases,
+        R^2; ``to_dict`` gives the ``process`` entry of :meth:`to_dict`).
+    controller_fit : ControllerFit
+        Identified controller (gain, integral time [s], op bias [% of span], R^2;
+        ``to_dict`` gives the ``controller`` entry of :meth:`to_dict`).
     fit : dict
         Signal -> ``100 (1 - NRMSE)`` [%] of the replay against the data (pv, op, and
         mv where recorded).
@@ -172,8 +172,6 @@ class Replay:
         data: op bias (the process operating point) and pv bias, initial op and mv,
         valve, ``op_offset`` (shift of op and mv into the simulator's 0-100 % when
         the recorded op leaves that range), ``start_sample``.
-    process_fit : ProcessFit
-    controller_fit : ControllerFit
     warnings : tuple of str
         One-line notes (inconsistent signs, poor identification, no cycle).
     """
@@ -184,8 +182,8 @@ class Replay:
     op: np.ndarray
     mv: np.ndarray
     data: dict
-    process: dict
-    controller: dict
+    process_fit: ProcessFit
+    controller_fit: ControllerFit
     fit: dict
     nrmse: dict
     waveform: dict
@@ -196,8 +194,6 @@ class Replay:
     J: float
     dt: float
     settings: dict = field(default_factory=dict)
-    process_fit: ProcessFit | None = None
-    controller_fit: ControllerFit | None = None
     warnings: tuple[str, ...] = ()
 
     @property
@@ -216,8 +212,8 @@ class Replay:
     def to_dict(self, include_series: bool = False) -> dict:
         """JSON-able dict: models, measures and, optionally, the time series."""
         out = {
-            "process": to_plain(self.process),
-            "controller": to_plain(self.controller),
+            "process": to_plain(self.process_fit.to_dict()),
+            "controller": to_plain(self.controller_fit.to_dict()),
             "S": to_plain(self.S),
             "J": to_plain(self.J),
             "fit": to_plain(self.fit),
@@ -737,8 +733,8 @@ def replay(
         op=sim.op,
         mv=sim.mv,
         data=data,
-        process=pf.to_dict(),
-        controller=cf.to_dict(),
+        process_fit=pf,
+        controller_fit=cf,
         fit=measures["fit"],
         nrmse=measures["nrmse"],
         waveform=measures["waveform"],
@@ -749,7 +745,5 @@ def replay(
         J=J,
         dt=rec.dt,
         settings=sim.settings,
-        process_fit=pf,
-        controller_fit=cf,
         warnings=(*rec.warnings, *model_warnings, *measures["warnings"]),
     )

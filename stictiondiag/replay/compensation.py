@@ -343,8 +343,6 @@ def compensation_from_replay(rep) -> Compensation:
         From :func:`stictiondiag.replay.closed_loop.replay`.
     """
     pf, cf = rep.process_fit, rep.controller_fit
-    if pf is None or cf is None:
-        return Compensation(False, "the replay carries no identified process and controller")
     period = rep.period_s.get("replay") or rep.period_s.get("data")
     if not period:
         return Compensation(False, "neither the data nor the replay show a cycle")
