@@ -20,7 +20,6 @@ from stictiondiag.core.atomic import (
     write_atomic,
 )
 from stictiondiag.core.errors import UsageError
-from stictiondiag.core.serialize import plain_float
 
 from .app import app
 from .common import check_output_file, friendly_errors, info, write_stdout
@@ -116,6 +115,9 @@ def render_summary(
     limit cycle (``cycle``, :meth:`Simulation.limit_cycle`) and the
     describing-function prediction with its basis
     (:meth:`Simulation.describing_function`)."""
+    # Here, not at the top: it brings numpy, and loading the CLI imports none.
+    from stictiondiag.core.serialize import plain_float
+
     st = sim.settings
     prediction, basis = describing
     step, band = st.get("integration_step_s"), st.get("integral_band")
