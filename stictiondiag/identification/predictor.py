@@ -503,15 +503,40 @@ def _prediction_horizon(m: ProcessModel, n: int) -> int:
     return int(min(max(round(m.delay + tau), 2), 60, max(n // 20, 2)))
 
 
+#: Smallest load-to-noise ratio of an integrating replay (the one-step grid's smallest,
+#: :func:`_structure_grid`); see :func:`_lowest_load_exponent`.
+INTEGRATOR_MIN_LOAD_RATIO = 1e-6
+
+
+def _lowest_load_exponent(pole: float) -> float:
+    """log10 of the smallest load-to-noise ratio searched for a structure of ``pole``.
+
+    An integrator must track its load.  With the tracking nearly off (ratios near
+    1e-10), its filter hardly reads pv, and the replay integrates the valve open
+    loop from the record's start: the load offset the controller answers in mv then
+    drifts it off without bound, so least squares drives the gain to zero and the
+    replay predicts pv at its level, a flat forecast that in a loop held at its set
+    point can beat every physical replay at the horizon.  It is not a process: on a
+    first-order process of gain 1.6 (time constant 25 s) with a miscalibrated valve it
+    was chosen with a gain of 2.3e-4 /s, 270 times below the lag's 0.06 /s, and the gap
+    then had no valve to act through.  A lag's open-loop replay is stable and keeps the
+    whole range.
+    """
+    return math.log10(INTEGRATOR_MIN_LOAD_RATIO) if pole >= 1.0 else -math.inf
+
+
 def _tune_at_horizon(rep: _Replay, cm: ProcessModel, horizon: int) -> tuple[float, ProcessModel]:
-    """Load ratio (coarse grid, then golden) and dead time (+-2) at the horizon."""
-    grid = [ProcessModel(cm.pole, cm.delay, 10.0**e, horizon) for e in range(-9, 1)]
+    """Load ratio (coarse grid, then golden) and dead time (+-2) at the horizon; an
+    integrator's ratio not below :data:`INTEGRATOR_MIN_LOAD_RATIO`
+    (:func:`_lowest_load_exponent`)."""
+    lowest = _lowest_load_exponent(cm.pole)
+    grid = [ProcessModel(cm.pole, cm.delay, 10.0**e, horizon) for e in range(-9, 1) if e >= lowest]
     rep.prefetch(grid)
     sse, cm = min(((rep.sse(g), g) for g in grid), key=lambda v: v[0])
     c0 = math.log10(cm.load_ratio)
     ll = golden_section(
         lambda v: rep.sse(ProcessModel(cm.pole, cm.delay, 10.0**v, horizon)),
-        c0 - 1.0,
+        max(c0 - 1.0, lowest),
         c0 + 1.0,
         10,
     )
@@ -567,8 +592,10 @@ def _search_structure(rep: _Replay, cache: dict | None) -> ProcessModel:
 
 def _retune_load(rep: _Replay, m0: ProcessModel) -> ProcessModel:
     """``m0`` with its load-to-noise ratio searched again (golden section over two
-    decades below and one above), kept only where it lowers the error."""
-    lo, hi = math.log10(m0.load_ratio) - 2.0, math.log10(m0.load_ratio) + 1.0
+    decades below and one above, an integrator's not below
+    :data:`INTEGRATOR_MIN_LOAD_RATIO`), kept only where it lowers the error."""
+    lo = max(math.log10(m0.load_ratio) - 2.0, _lowest_load_exponent(m0.pole))
+    hi = math.log10(m0.load_ratio) + 1.0
     ll = golden_section(
         lambda v: rep.sse(ProcessModel(m0.pole, m0.delay, 10.0**v, m0.horizon)), lo, hi, 12
     )
