@@ -793,3 +793,25 @@ def test_wide_export_reads_only_the_loop_columns(tmp_path):
     table = read_table(path, select)
     assert seen["n"] == 1005 and list(table.columns) == ["time", "pv", "op"]
     assert read_tags(path).n == 200
+
+
+def test_a_huge_time_cell_is_not_handed_to_the_free_format_parser(tmp_path, monkeypatch):
+    # dateutil's free-format parsing costs the square of a cell's length (a 2-million
+    # digit cell took over two minutes): cells longer than any written time stamp are
+    # left out of it, and the file still gets its one-line data error.
+    from stictiondiag.io import timebase
+
+    seen: list[int] = []
+    real = pd.to_datetime
+
+    def spy(arg, *args, **kwargs):
+        if kwargs.get("format") == "mixed":
+            seen.extend(len(str(v)) for v in pd.Series(arg).dropna())
+        return real(arg, *args, **kwargs)
+
+    monkeypatch.setattr(pd, "to_datetime", spy)
+    path = tmp_path / "long_cell.csv"
+    path.write_text("time,pv,op\n" + ("9" * 5000 + ",1,2\n") * 3 + "26.11.2026 14:00,1,2\n")
+    with pytest.raises(DataError, match="time column 'time'"):
+        read_tags(path)
+    assert seen and max(seen) <= timebase.MAX_STAMP_CHARS

@@ -200,8 +200,16 @@ def time_seconds(
     return nanoseconds * 1e-9
 
 
+#: Longest cell read as a time stamp by the free-format parser [characters]: the
+#: longest written forms ("Thursday, 26 November 2026 14:00:00.123456 +01:00") are
+#: under 50; that parser's cost grows with the square of a cell's length (a 2-million
+#: digit cell took over two minutes), so longer cells are not time stamps.
+MAX_STAMP_CHARS = 64
+
+
 def _parse_stamps(text: pd.Series, column: str, file: str) -> pd.Series:
-    """ISO 8601 strings (then any format pandas recognises) as UTC timestamps."""
+    """ISO 8601 strings (then any format pandas recognises, cells of at most
+    :data:`MAX_STAMP_CHARS` characters) as UTC timestamps."""
     import pandas as pd
 
     need = 0.5 * max(int(text.notna().sum()), 1)
@@ -213,9 +221,10 @@ def _parse_stamps(text: pd.Series, column: str, file: str) -> pd.Series:
         # 26.11.2026 14:00 (a European locale) is day first; 11/26/2026 is left to pandas.
         first = str(text.dropna().iloc[0]) if text.notna().any() else ""
         dayfirst = re.match(r"^\d{1,2}\.\d{1,2}\.\d{4}", first) is not None
+        short = text.where(text.astype(str).str.len() <= MAX_STAMP_CHARS)
         try:
             stamps = pd.to_datetime(
-                text, format="mixed", utc=True, errors="coerce", dayfirst=dayfirst
+                short, format="mixed", utc=True, errors="coerce", dayfirst=dayfirst
             )
         except (ValueError, TypeError, OverflowError):
             stamps = pd.Series(pd.NaT, index=text.index)
