@@ -150,12 +150,6 @@ def archive_kind(v: np.ndarray) -> str:
     return "hold" if smallest > 0 and smallest >= _DEADBAND_FLOOR * quartile else "linear"
 
 
-def _step_signal(v: np.ndarray) -> bool:
-    """Whether a held archive is a step signal (a set point): fewer than
-    :data:`_FEW_CHANGES` archived changes."""
-    return int(np.count_nonzero(np.diff(np.asarray(v, dtype=float)))) < _FEW_CHANGES
-
-
 def held_deadband(v: np.ndarray) -> float:
     """The deadband an exception archive was written with, from its archived values
     [units of v]; 0 when there are too few changes to tell (a set point).
@@ -278,11 +272,12 @@ def reconstruct(
         if t.size < 2 and role in ("pv", "op"):
             raise DataError(f"{label}: {role} has {t.size} archived values: export more of it")
     signals, steps, step, kinds = _kinds(series, label, compression)
-    # A step signal archived by exception (a set point) may have no row for hours, and
-    # the window of a recorded-values export can open long after its last change: it
-    # does not bound the record's start, and before its first archived value it is
-    # taken at that value (said in the note).
-    steppy = {r for r, (_, v) in signals.items() if kinds[r] == "hold" and _step_signal(v)}
+    # A step signal archived by exception (a set point: too few changes to read a
+    # deadband from, held_deadband 0) may have no row for hours, and the window of a
+    # recorded-values export can open long after its last change: it does not bound
+    # the record's start, and before its first archived value it is taken at that
+    # value (said in the note).
+    steppy = {r for r, (_, v) in signals.items() if kinds[r] == "hold" and held_deadband(v) == 0}
     firsts = [t[0] for r, (t, _) in signals.items() if r not in steppy]
     start = max(firsts) if firsts else max(t[0] for t, _ in signals.values())
     # A held tag keeps its last archived value until the record ends: the export's
