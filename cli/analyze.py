@@ -117,7 +117,7 @@ def _replay_lines(rep: Replay) -> list[str]:
             refit.get("J_open_loop"),
         )
         what = (
-            "process only (S and J measured from mv kept)"
+            "process only (S and J kept)"
             if same
             else f"S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
             f"(open-loop fit S {_fmt(refit.get('S_open_loop'))}, "

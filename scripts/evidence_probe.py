@@ -292,7 +292,7 @@ def _pe_one(seed: int) -> dict | None:
     sse = {}
     for name, u in (("linear", tags.op), ("stiction", fit.mv_model)):
         rep = fit_predictor(np.asarray(u, float), pv, dt, w, cache={})
-        sse[name] = float(np.sum((rep.pv - pv) ** 2))
+        sse[name] = float(np.sum((rep.prediction.pv - pv) ** 2))
     return {
         "sticky": loop.sticky,
         "kind": loop.truth["kind"],

@@ -51,11 +51,8 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         controller_fit,
         identify_controller,
     )
-    from stictiondiag.identification.process import (
-        ProcessFit,
-        identify_process,
-        process_fit,
-    )
+    from stictiondiag.identification.process import identify_process, process_fit
+    from stictiondiag.identification.process_result import ProcessFit
     from stictiondiag.io.tags import (
         Tags,
         read_frame,
@@ -215,7 +212,7 @@ _LAZY: dict[str, str] = {
     "diagnose_gap": "gap.diagnose",
     "fit_hammerstein": "stiction.hammerstein",
     "ControllerFit": "identification.controller",
-    "ProcessFit": "identification.process",
+    "ProcessFit": "identification.process_result",
     "controller_fit": "identification.controller",
     "identify_controller": "identification.controller",
     "identify_process": "identification.process",

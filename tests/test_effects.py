@@ -162,9 +162,9 @@ def test_fit_process_recovers_foptd():
     # Gain and time constant within 10 %: the fit tracks a random-walk load too, and
     # the grid of poles is refined by a short golden search; dead time within one
     # sample (a fractional dead time shares the two input taps).
-    assert fit.params["gain"] == pytest.approx(2.0, rel=0.1)
-    assert fit.params["time_constant_s"] == pytest.approx(12.0, rel=0.1)
-    assert abs(fit.params["dead_time_s"] - 5.0) <= 1.0
+    assert fit.process.gain == pytest.approx(2.0, rel=0.1)
+    assert fit.process.time_constant == pytest.approx(12.0, rel=0.1)
+    assert abs(fit.process.dead_time - 5.0) <= 1.0
 
 
 def test_fit_controller_recovers_pi():

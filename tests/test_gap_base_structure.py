@@ -29,9 +29,9 @@ def test_first_order_process_is_not_replayed_by_a_gainless_integrator():
     sig = signals_of(tags)
     ctx = build_context(sig)
     fit = fit_process(sig.mv, ctx, ctx.w_eval)
-    assert not fit.params["integrating"]
+    assert not fit.integrating
     # The steady-state gain within 25 %: the oscillation at the output leaves the
     # lag's gain free to within a few per cent here (0.86 against 0.87); 25 % allows
     # for the time constant, which the load tracking leaves less well determined
     # (446 s against 238 s) and which the gain trades against.
-    assert abs(fit.params["gain"] / truth["gain"] - 1.0) < 0.25
+    assert abs(fit.process.gain / truth["gain"] - 1.0) < 0.25

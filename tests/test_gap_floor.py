@@ -112,6 +112,6 @@ def test_disturbance_column_filter_starts_at_its_first_value():
     pv = 2.0 * extra[:, 0] + 0.01 * rng.standard_normal(n)
     model = ProcessModel(pole=0.9, delay=2, load_ratio=1e-6, horizon=5)
     fit = fit_predictor(u, pv, 1.0, np.ones(n), extra=extra, model=model)
-    err = fit.pv - pv
+    err = fit.prediction.pv - pv
     assert float(np.sqrt(np.mean(err[:300] ** 2))) < 0.03
-    assert fit.coef[2] == pytest.approx(2.0, abs=0.01)
+    assert fit.prediction.coef[2] == pytest.approx(2.0, abs=0.01)

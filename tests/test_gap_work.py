@@ -197,9 +197,9 @@ def test_a_refitted_process_is_judged_at_the_base_horizon(disturbed):
     sig = signals_of(_tags(disturbed))
     ctx = build_context(sig, **_starting_point(None, sig))
     base = fit_base(ctx, ctx.w_eval)
-    h = base.process.model.horizon
+    h = base.process.prediction.model.horizon
     for target in (max(h - 3, 1), h + 3):
         f = fit_process(sig.mv, ctx, ctx.w_eval, horizon=target)
-        assert f.model.horizon == target
+        assert f.prediction.model.horizon == target
     # Without a horizon the structure search sets its own (the base's here).
-    assert fit_process(sig.mv, ctx, ctx.w_eval).model.horizon == h
+    assert fit_process(sig.mv, ctx, ctx.w_eval).prediction.model.horizon == h

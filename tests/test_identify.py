@@ -257,8 +257,8 @@ def test_process_foptd_closed_loop(conc_clean):
     assert p.process.gain == pytest.approx(3.0, rel=1e-4)
     assert p.process.time_constant == pytest.approx(10.0, rel=1e-4)
     assert p.process.dead_time == pytest.approx(10.0, abs=1e-9)
-    assert p.fit_r2 > 0.9999
-    assert p.candidates["integrating"] < p.candidates["foptd"] - 0.1
+    assert p.output_error.fit_r2 > 0.9999
+    assert p.output_error.integrating_r2 < p.output_error.foptd_r2 - 0.1
 
 
 @pytest.mark.parametrize("seed", [0, 1, 3])
@@ -286,7 +286,10 @@ def test_process_drift_prefilter():
     s = run(CONC, 5.0, 5.0, load=load)
     filtered = identify_process(s.mv, s.pv, DT)
     raw = identify_process(s.mv, s.pv, DT, drift_time_constant=math.inf)
-    assert filtered.drift_time_constant is not None and raw.drift_time_constant is None
+    assert (
+        filtered.output_error.drift_time_constant is not None
+        and raw.output_error.drift_time_constant is None
+    )
     assert filtered.process.gain == pytest.approx(3.0, rel=0.07)
     assert abs(filtered.process.gain - 3.0) < abs(raw.process.gain - 3.0)
 
@@ -300,8 +303,8 @@ def test_process_integrating_closed_loop(level_clean):
     assert isinstance(p.process, Integrating)
     assert p.process.gain == pytest.approx(1.0, rel=1e-6)
     assert p.process.dead_time == 0.0
-    assert p.u_bias == pytest.approx(40.0, abs=1e-6)  # the balance valve position
-    assert p.candidates["foptd"] <= p.candidates["integrating"]
+    assert p.output_error.u_bias == pytest.approx(40.0, abs=1e-6)  # the balance valve position
+    assert p.output_error.foptd_r2 <= p.output_error.integrating_r2
 
 
 def test_process_integrating_noisy():
@@ -311,7 +314,7 @@ def test_process_integrating_noisy():
     p = identify_process(s.mv, s.pv, DT, integrating=None)
     assert p.integrating
     assert p.process.gain == pytest.approx(1.0, rel=0.01)
-    assert p.u_bias == pytest.approx(40.0, abs=0.05)
+    assert p.output_error.u_bias == pytest.approx(40.0, abs=0.05)
 
 
 def test_process_forced_structure(level_clean):
@@ -341,7 +344,7 @@ def test_process_fit_of_given_process(conc_clean):
     s = conc_clean
     p = process_fit(CONC["process"], s.mv, s.pv, DT)
     # True dynamics: only the biases are fitted, the response is exact.
-    assert p.fit_r2 > 1 - 1e-9
+    assert p.output_error.fit_r2 > 1 - 1e-9
     np.testing.assert_allclose(p.simulate(s.mv, DT)[101:], s.pv[101:], atol=1e-6)
     d = p.to_dict()
     assert d["type"] == "foptd" and d["dead_time_samples"] == 100
@@ -376,7 +379,7 @@ def test_process_integrating_wandering_load():
     p = identify_process(tags.mv, tags.pv, tags.ts, integrating=True)
     assert p.process.gain == pytest.approx(0.004, rel=0.15)
     assert p.process.dead_time <= 2 * tags.ts  # one sample true; the lag adds at most one
-    assert p.fit_r2 > 0.8  # of the filtered differences: the fit explains the slips
+    assert p.output_error.fit_r2 > 0.8  # of the filtered differences: the fit explains the slips
 
 
 @pytest.mark.parametrize("filter_samples", [2.0, 6.0])

@@ -41,7 +41,7 @@ from stictiondiag.result import clock_text
 if TYPE_CHECKING:
     from stictiondiag.gap.diagnose import GapDiagnosis
     from stictiondiag.identification.controller import ControllerFit
-    from stictiondiag.identification.process import ProcessFit
+    from stictiondiag.identification.process_result import ProcessFit
     from stictiondiag.replay.closed_loop import Replay
     from stictiondiag.result import Analysis
     from stictiondiag.stiction.valvefit import StictionFit
@@ -163,7 +163,7 @@ def _process_text(pf: ProcessFit) -> str:
     tau = p.time_constant if isinstance(p, FOPTD) else None
     kind = "FOPTD" if isinstance(p, FOPTD) else "integrating"
     values = [(p.gain, "K", ""), (tau, "\u03c4", " s"), (p.dead_time, "\u03b8", " s")]
-    return f"{kind}: " + _params(values) + _r2_text(pf.fit_r2)
+    return f"{kind}: " + _params(values) + _r2_text(pf.output_error.fit_r2)
 
 
 def _controller_text(cf: ControllerFit) -> str:

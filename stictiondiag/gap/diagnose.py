@@ -497,7 +497,7 @@ def _base_info(ctx: ReplayContext, base: BaseFit, floors: dict) -> dict:
             "logic": "kano" if valve.kano else "choudhury",
             "initial_direction": valve.initial_direction,
         },
-        "process": {**base.process.params, "horizon_samples": base.process.model.horizon},
+        "process": base.process.to_dict(),
         "controller": base.controller,
         "noise_floor": {s: floors[s] / ctx.norm[s] for s in floors},
         "judged_from_sample": int(np.argmax(ctx.w_eval > 0)),

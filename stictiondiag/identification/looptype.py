@@ -54,10 +54,10 @@ from stictiondiag.core.errors import StictionError
 from stictiondiag.identification.controller import ControllerFit, identify_controller
 from stictiondiag.identification.process import (
     FOPTD,
-    ProcessFit,
     identify_process,
     longest_time_constant,
 )
+from stictiondiag.identification.process_result import ProcessFit
 from stictiondiag.io.tags import Tags
 from stictiondiag.signals.oscillation import detect_oscillation
 
@@ -161,7 +161,7 @@ def identify_structure(tags: Tags) -> StructureEvidence:
         except (StictionError, ValueError, FloatingPointError):
             continue
         processes[integrating] = pf
-        r2 = float(pf.fit_r2)
+        r2 = float(pf.output_error.fit_r2)
         if math.isfinite(r2) and math.isfinite(kc):
             fits[integrating] = (kc * float(pf.process.gain) > 0.0, r2)
         if isinstance(pf.process, FOPTD):

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,6 +39,13 @@ from stictiondiag.identification.predictor_kernels import (
     shifted_grams,
     shifted_pair_wls,
 )
+from stictiondiag.identification.process_result import (
+    Objective,
+    PredictionFit,
+    ProcessFit,
+    ProcessModel,
+)
+from stictiondiag.models.processes import FOPTD, Integrating
 
 
 @functools.lru_cache(maxsize=1024)
@@ -78,56 +84,6 @@ def prediction_variance_ratio(pole: float, load_ratio: float, horizon: int) -> t
         Fj = F @ Fj
     Pm = Fj @ P @ Fj.T + acc
     return float(s1), float(Pm[0, 0] + 1.0)
-
-
-@dataclass(frozen=True)
-class ProcessModel:
-    """Structure of the process replay.
-
-    Attributes
-    ----------
-    pole : float
-        Discrete pole of the lag (1: integrating).
-    delay : int
-        Dead time [samples].
-    load_ratio : float
-        Load-to-noise variance ratio of the load tracking.
-    horizon : int
-        Prediction horizon [samples]: pv is predicted this far ahead.
-    """
-
-    pole: float
-    delay: int
-    load_ratio: float
-    horizon: int = 1
-
-    @property
-    def gains(self) -> tuple[float, float]:
-        return kalman_gains(self.pole, self.load_ratio)
-
-
-@dataclass(frozen=True)
-class PredictorFit:
-    """A fitted process replay: pv predicted one sample ahead (Section 4.2.2, Eq. 3).
-
-    Attributes
-    ----------
-    pv : ndarray
-        One-step-ahead prediction of pv [pv units].
-    model : ProcessModel
-        Pole (1 for an integrating process), dead time [samples] and the load-to-noise
-        variance ratio of the load tracking.
-    coef : ndarray
-        Linear coefficients (input gains at two adjacent dead times, then any extra
-        columns).
-    params : dict
-        Readable parameters: gain, time constant [s], dead time [s], integrating.
-    """
-
-    pv: np.ndarray
-    model: ProcessModel
-    coef: np.ndarray
-    params: dict = field(default_factory=dict)
 
 
 def extra_start(column: np.ndarray) -> float:
@@ -615,7 +571,7 @@ def fit_predictor(
     model: ProcessModel | None = None,
     retune: bool = False,
     cache: dict | None = None,
-) -> PredictorFit:
+) -> ProcessFit:
     """One-step-ahead process replay with the unmeasured load tracked (Section 4.2.2, Eq. 3).
 
     The process is a first-order lag with dead time (or an integrator, pole 1), as
@@ -659,35 +615,34 @@ def fit_predictor(
     elif retune:
         model = _retune_load(rep, model)
     _, coef, r = rep.solve(model)
-    params = _process_params(model, coef, dt)
-    return PredictorFit(pv=rep.pv - r, model=model, coef=coef, params=params)
+    return ProcessFit(
+        Objective.PREDICTION_ERROR,
+        _process_of(model, coef, dt),
+        model.delay,
+        PredictionFit(pv=rep.pv - r, model=model, coef=coef),
+    )
 
 
-def _process_params(model: ProcessModel, coef: np.ndarray, dt: float) -> dict:
+def _process_of(model: ProcessModel, coef: np.ndarray, dt: float) -> FOPTD | Integrating:
+    """The process of a fitted structure: the input's gains at the dead times d and
+    d + 1 summed, and the fraction of the second taken as a fractional dead time."""
     pole = model.pole
     integrating = pole >= 1.0
     b = float(coef[0] + coef[1])
     frac = float(coef[1] / b) if abs(b) > 1e-12 else 0.0
     frac = min(max(frac, 0.0), 1.0)
+    dead_time = (model.delay + frac) * dt
     if integrating:
-        gain, tau = b / dt, None
-    else:
-        gain = b / (1.0 - pole)
-        tau = -dt / math.log(pole) if pole > 0.0 else 0.0
-    return {
-        "integrating": integrating,
-        "gain": gain,
-        "time_constant_s": tau,
-        "dead_time_s": (model.delay + frac) * dt,
-        "load_to_noise_ratio": model.load_ratio,
-    }
+        return Integrating(gain=b / dt, dead_time=dead_time)
+    tau = -dt / math.log(pole) if pole > 0.0 else 0.0
+    return FOPTD(gain=b / (1.0 - pole), time_constant=tau, dead_time=dead_time)
 
 
 def process_noise_floor(
     u: np.ndarray,
     pv: np.ndarray,
     w: np.ndarray,
-    fit: PredictorFit,
+    fit: ProcessFit,
     extra: np.ndarray | None = None,
 ) -> float:
     """Variance of the pv prediction error that a correct process replay still makes [pv^2].
@@ -698,14 +653,15 @@ def process_noise_floor(
     (:func:`prediction_variance_ratio`): measurement noise plus the load the filter
     could not foresee.
     """
-    m = fit.model
+    m = fit.prediction.model
     k1, k2 = kalman_gains(m.pole, m.load_ratio)
     pv = np.ascontiguousarray(pv, dtype=float)
     zeros = np.zeros(pv.size)
     one = ProcessModel(m.pole, m.delay, m.load_ratio, 1)
     e0 = _prediction_errors(pv, zeros, m.pole, k1, k2, float(pv[0]), 1)
     X = process_regressors(np.ascontiguousarray(u, dtype=float), one, k1, k2)
-    if extra is not None and fit.coef.size > 2:
+    coef = fit.prediction.coef
+    if extra is not None and coef.size > 2:
         E = np.column_stack(
             [
                 -_prediction_errors(
@@ -715,7 +671,7 @@ def process_noise_floor(
             ]
         )
         X = np.column_stack([X, E])
-    e1 = e0 + X @ fit.coef[: X.shape[1]]
+    e1 = e0 + X @ coef[: X.shape[1]]
     s1 = float(np.dot(w, e1 * e1)) / max(float(w.sum()), 1.0)
     r1, rm = prediction_variance_ratio(m.pole, m.load_ratio, m.horizon)
     return s1 / r1 * rm

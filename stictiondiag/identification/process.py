@@ -42,14 +42,12 @@ tracked by a Kalman filter and pv predicted ``h`` samples ahead, is
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import cast
+from dataclasses import replace
 
 import numpy as np
 
 from stictiondiag.core.checks import check_dt
 from stictiondiag.core.errors import DataError, UsageError
-from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.numerics import (
     MIN_SAMPLES,
     as_signal,
@@ -65,6 +63,7 @@ from stictiondiag.identification.output_error import (
     lag_response,
     powers,
 )
+from stictiondiag.identification.process_result import Objective, OutputErrorFit, ProcessFit
 from stictiondiag.models.processes import FOPTD, Integrating
 from stictiondiag.signals.oscillation import dominant_period
 
@@ -116,88 +115,6 @@ DIFFERENCED_DRIFT_PERIODS = 0.25
 
 #: ... and the operating point is then fitted on the first this many periods [-].
 START_WINDOW_PERIODS = 2.0
-
-
-@dataclass(frozen=True)
-class ProcessFit:
-    """Process from valve position (or any input ``u``) to pv.
-
-    Attributes
-    ----------
-    process : FOPTD or Integrating
-        Gain [pv units / % of span] (integrating: [pv units / (% of span s)]), time
-        constant [s], dead time [s] (a whole number of samples).
-    u_bias : float
-        Input reference [% of span].  FOPTD: mean of ``u``; integrating: the balance
-        input at which pv does not move.
-    pv_bias : float
-        FOPTD: steady-state pv at ``u = u_bias`` [pv units].  Integrating: pv at the
-        first sample of the simulated response [pv units].
-    initial_deviation : float
-        FOPTD: pv[0] minus the steady state of ``u[0]`` (a decaying free response with
-        the time constant) [pv units]; 0 for the integrating model.
-    fit_r2 : float
-        R^2 of the simulated (output-error) response against pv, both high-passed
-        against drift (``drift_time_constant``), over the samples after the first dead
-        time (before it pv answers to inputs from before the record) [-].
-    arx_r2 : float
-        R^2 of the one-step ARX model at the chosen dead time, on pv differences [-].
-    integrating : bool
-        The integrating model was chosen.
-    dead_time_samples : int
-        Dead time [samples].
-    candidates : dict
-        ``fit_r2`` of each structure that was fitted (``foptd``, ``integrating``).
-    unfiltered_r2 : float
-        R^2 of the simulated response against the raw pv (drift included) [-].
-    drift_time_constant : float or None
-        Time constant of the drift high-pass [s]; None when the fit was unfiltered.
-    """
-
-    process: FOPTD | Integrating
-    u_bias: float
-    pv_bias: float
-    initial_deviation: float
-    fit_r2: float
-    arx_r2: float
-    integrating: bool
-    dead_time_samples: int
-    candidates: dict = field(default_factory=dict)
-    unfiltered_r2: float = math.nan
-    drift_time_constant: float | None = None
-
-    def simulate(self, u: np.ndarray, dt: float) -> np.ndarray:
-        """Open-loop response of the fitted model to ``u`` [pv units] (same length)."""
-        u = np.asarray(u, dtype=float)
-        d = self.dead_time_samples
-        if self.integrating:
-            return integrating_regressors(u, d, dt) @ np.array(
-                [self.pv_bias, self.process.gain, -self.process.gain * self.u_bias]
-            )
-        # Not integrating: the process is a FOPTD (see identify_process, process_fit).
-        a = math.exp(-dt / cast(FOPTD, self.process).time_constant)
-        z = lag_response(u, d, a)
-        free = self.initial_deviation * powers(a, 0, u.size)
-        return self.pv_bias + self.process.gain * (z - self.u_bias) + free
-
-    def to_dict(self) -> dict:
-        """JSON-able dict: the process parameters plus biases and fit measures."""
-        out = {
-            k: to_plain(v) if isinstance(v, float) else v for k, v in self.process.to_dict().items()
-        }
-        out.update(
-            {
-                "u_bias": to_plain(self.u_bias),
-                "pv_bias": to_plain(self.pv_bias),
-                "fit_r2": to_plain(self.fit_r2),
-                "arx_r2": to_plain(self.arx_r2),
-                "dead_time_samples": int(self.dead_time_samples),
-                "candidates": {k: to_plain(v) for k, v in self.candidates.items()},
-                "unfiltered_r2": to_plain(self.unfiltered_r2),
-                "drift_time_constant_s": to_plain(self.drift_time_constant),
-            }
-        )
-        return out
 
 
 def _period_s(pv: np.ndarray, dt: float) -> float | None:
@@ -428,19 +345,16 @@ def identify_process(
     p = results[chosen]
     d = p["d"]
     process, fit = _chosen_process(chosen, p, u, pv, dt)
-    return ProcessFit(
-        process=process,
-        u_bias=fit.u_bias,
-        pv_bias=fit.pv_bias,
-        initial_deviation=fit.initial_deviation,
+    oe = replace(
+        fit.output_error,
         fit_r2=p["r2"],
         arx_r2=_arx_r2_at(uc, pc, d, chosen == "integrating", sst_dy),
-        integrating=chosen == "integrating",
-        dead_time_samples=d,
-        candidates={k: v["r2"] for k, v in results.items()},
+        foptd_r2=results["foptd"]["r2"] if "foptd" in results else None,
+        integrating_r2=results["integrating"]["r2"] if "integrating" in results else None,
         unfiltered_r2=r_squared(pv[d + 1 :], fit.simulate(u, dt)[d + 1 :]),
         drift_time_constant=drift_T,
     )
+    return replace(fit, detail=oe)
 
 
 def _biases(process, u, pv, dt, d, *, u_bias=None) -> ProcessFit:
@@ -460,13 +374,15 @@ def _biases(process, u, pv, dt, d, *, u_bias=None) -> ProcessFit:
             pv0, u_bias = float(coef[0]), -float(coef[1]) / gain
         else:
             pv0 = float(np.mean(target + gain * u_bias * X[:, 2]))
-        return ProcessFit(process, float(u_bias), pv0, 0.0, math.nan, math.nan, True, d)
+        oe = OutputErrorFit(u_bias=float(u_bias), pv_bias=pv0, initial_deviation=0.0)
+        return ProcessFit(Objective.OUTPUT_ERROR, process, d, oe)
     a = math.exp(-dt / float(process.time_constant))
     u_bias = float(u.mean())
     target = pv[k] - gain * (lag_response(u, d, a)[k] - u_bias)
     free = powers(a, d + 1, u.size)
     coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(k.size), free]), target, rcond=None)
-    return ProcessFit(process, u_bias, float(coef[0]), float(coef[1]), math.nan, math.nan, False, d)
+    oe = OutputErrorFit(u_bias=u_bias, pv_bias=float(coef[0]), initial_deviation=float(coef[1]))
+    return ProcessFit(Objective.OUTPUT_ERROR, process, d, oe)
 
 
 def _arx_r2_at(u, pv, d, integrating, sst_dy) -> float:
@@ -513,18 +429,14 @@ def process_fit(
     fit = _biases(process, u, pv, dt, d)
     # Rows within the first dead time are left out, as in identify_process.
     r2 = r_squared(pv[d + 1 :], fit.simulate(u, dt)[d + 1 :])
-    kind = "integrating" if fit.integrating else "foptd"
-    return ProcessFit(
-        process=process,
-        u_bias=fit.u_bias,
-        pv_bias=fit.pv_bias,
-        initial_deviation=fit.initial_deviation,
+    oe = replace(
+        fit.output_error,
         fit_r2=r2,
         arx_r2=_arx_r2_at(
             u, pv, d, fit.integrating, float(np.var(np.diff(pv))) * (u.size - 1) or 1e-300
         ),
-        integrating=fit.integrating,
-        dead_time_samples=d,
-        candidates={kind: r2},
+        foptd_r2=None if fit.integrating else r2,
+        integrating_r2=r2 if fit.integrating else None,
         unfiltered_r2=r2,
     )
+    return replace(fit, detail=oe)

@@ -184,7 +184,7 @@ def _summary(replay, metrics: dict | None = None) -> str:
         lines.append(
             f"process: K = {_num(proc.gain)} /s (integrating), theta = {_num(proc.dead_time)} s"
         )
-    lines.append(f"process R2 {_num(pf.fit_r2, '.3f')}")
+    lines.append(f"process R2 {_num(pf.output_error.fit_r2, '.3f')}")
     lines.append(
         f"period [s]: data {_fmt(replay.period_s.get('data'))}, "
         f"replay {_fmt(replay.period_s.get('replay'))} ({replay.period_signal})"

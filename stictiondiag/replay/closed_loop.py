@@ -93,12 +93,8 @@ from stictiondiag.identification.controller import (
     identify_controller,
 )
 from stictiondiag.identification.looptype import StructureEvidence
-from stictiondiag.identification.process import (
-    ProcessFit,
-    drift_pole,
-    identify_process,
-    process_fit,
-)
+from stictiondiag.identification.process import drift_pole, identify_process, process_fit
+from stictiondiag.identification.process_result import ProcessFit
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import (
     FOPTD,
@@ -500,7 +496,7 @@ def _replay_models(
         pf = process
     else:
         pf = process_fit(process, rec.u, pv, dt)
-    for what, r2 in (("controller", cf.fit_r2), ("process", pf.fit_r2)):
+    for what, r2 in (("controller", cf.fit_r2), ("process", pf.output_error.fit_r2)):
         if r2 is not None and math.isfinite(r2) and r2 < LOW_FIT_R2:
             warnings.append(f"{what} identification explains little of the data (R^2 = {r2:.2f})")
     if cf.controller.gain * pf.process.gain < 0:
@@ -535,12 +531,13 @@ def _replay_simulate(
     # outside the span is clipped and the difference carried by the load, which also
     # carries the free response of the recorded initial state (the simulator starts
     # the process at rest, its dead-time line filled with the operating point).
-    op_bias_sim = float(np.clip(pf.u_bias + offset, 0.0, 100.0))
+    oe = pf.output_error
+    op_bias_sim = float(np.clip(oe.u_bias + offset, 0.0, 100.0))
     ref = op_bias_sim - offset  # the operating point in the units of the data
     if pf.integrating:
-        pv_bias_sim = pf.pv_bias
+        pv_bias_sim = oe.pv_bias
     else:
-        pv_bias_sim = pf.pv_bias + gain * (ref - pf.u_bias)
+        pv_bias_sim = oe.pv_bias + gain * (ref - oe.u_bias)
     free = _open_loop_like_simulator(pf, u, dt, ref, pv_bias_sim)
     modelled = pf.simulate(u, dt)
     load = modelled - free

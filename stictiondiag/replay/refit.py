@@ -61,21 +61,18 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stictiondiag.core.errors import StictionError
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.numerics import r_squared
+from stictiondiag.identification.process_result import OutputErrorFit, ProcessFit
 from stictiondiag.models.describing import predict_limit_cycle
 from stictiondiag.models.processes import FOPTD, PI, Integrating
 from stictiondiag.replay.cycles import _up_crossings, waveform_similarity
 from stictiondiag.replay.metrics import _cycle_period
 from stictiondiag.signals.oscillation import _detrend_by_cycles
-
-if TYPE_CHECKING:
-    from stictiondiag.identification.process import ProcessFit
 
 #: Weight ``w_T`` of the period's term against the amplitudes' [-].  The period of a
 #: limit cycle is measured over all its cycles, to a few per cent; an amplitude
@@ -439,7 +436,7 @@ def df_start(
 
 
 def with_process(pf, process: FOPTD | Integrating, dt: float):
-    """``pf`` (a :class:`~stictiondiag.identification.process.ProcessFit`) with its
+    """``pf`` (a :class:`~stictiondiag.identification.process_result.ProcessFit`) with its
     dynamics replaced by ``process``, biases and initial state kept."""
     return replace(pf, process=process, dead_time_samples=int(round(process.dead_time / dt)))
 
@@ -521,13 +518,17 @@ def refine_loop(
         )
     d = new.dead_time_samples
     r2 = r_squared(rec.pv[d + 1 :], new.simulate(rec.u, dt)[d + 1 :])
-    return result, replace(
-        new,
+    oe = OutputErrorFit(
+        u_bias=new.output_error.u_bias,
+        pv_bias=new.output_error.pv_bias,
+        initial_deviation=new.output_error.initial_deviation,
         fit_r2=r2,
+        arx_r2=new.output_error.arx_r2,
+        closed_loop_refit_r2=r2,
         unfiltered_r2=r2,
         drift_time_constant=None,
-        candidates={"closed_loop_refit": r2},
     )
+    return result, replace(new, detail=oe)
 
 
 def _refitted_process(result: ClosedLoopRefit, template: FOPTD | Integrating):

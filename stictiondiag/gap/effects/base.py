@@ -25,12 +25,8 @@ from stictiondiag.gap.context import ReplayContext
 from stictiondiag.gap.effects.kernels import valve_replay
 from stictiondiag.gap.effects.valve import ValveFit, fit_valve
 from stictiondiag.identification.controller import fit_controller_replay
-from stictiondiag.identification.predictor import (
-    PredictorFit,
-    ProcessModel,
-    fit_predictor,
-    process_noise_floor,
-)
+from stictiondiag.identification.predictor import fit_predictor, process_noise_floor
+from stictiondiag.identification.process_result import ProcessFit, ProcessModel
 
 
 @dataclass(frozen=True)
@@ -86,7 +82,7 @@ class EffectFit:
         Replayed signals this effect changes (``mv``, ``pv`` or ``op``) [their units].
     x : tuple
         The searched parameter vector (starts the search on a part of the record).
-    process : PredictorFit or None
+    process : ProcessFit or None
         For effects on the process side, the process replay with the effect in it.
     pv_floor : float or None
         For effects on the process side, the pv noise floor of that replay
@@ -105,7 +101,7 @@ class EffectFit:
     params: dict
     predictions: dict
     x: tuple = ()
-    process: PredictorFit | None = None
+    process: ProcessFit | None = None
     pv_floor: float | None = None
     supported: bool = True
     explained: dict = field(default_factory=dict)
@@ -119,7 +115,7 @@ class BaseFit:
     ----------
     valve : ValveFit or None
         None when mv is not recorded.
-    process : PredictorFit
+    process : ProcessFit
         Process replay driven by the recorded mv (or ``mv_model``).
     op : ndarray
         Controller replay [% of span].
@@ -131,14 +127,14 @@ class BaseFit:
     """
 
     valve: ValveFit | None
-    process: PredictorFit
+    process: ProcessFit
     op: np.ndarray
     controller: dict
     mv_model: np.ndarray
 
     def predictions(self) -> dict:
         """Replayed signals by name [their units]."""
-        out = {"op": self.op, "pv": self.process.pv}
+        out = {"op": self.op, "pv": self.process.prediction.pv}
         if self.valve is not None:
             out["mv"] = self.valve.mv
         return out
@@ -160,7 +156,7 @@ def fit_process(
     model: ProcessModel | None = None,
     retune: bool = False,
     horizon: int | None = None,
-) -> PredictorFit:
+) -> ProcessFit:
     """The process replay of ``ctx``'s pv from the input ``u`` on the weights ``w``
     (:func:`stictiondiag.identification.predictor.fit_predictor`, sharing the
     context's cache of structure terms).
@@ -174,14 +170,14 @@ def fit_process(
     fit = fit_predictor(
         u, ctx.sig.pv, ctx.sig.dt, w, extra=extra, model=model, retune=retune, cache=ctx.cache
     )
-    if model is None and horizon is not None and fit.model.horizon != horizon:
+    if model is None and horizon is not None and fit.prediction.model.horizon != horizon:
         fit = fit_predictor(
             u,
             ctx.sig.pv,
             ctx.sig.dt,
             w,
             extra=extra,
-            model=replace(fit.model, horizon=int(horizon)),
+            model=replace(fit.prediction.model, horizon=int(horizon)),
             retune=True,
             cache=ctx.cache,
         )
@@ -189,7 +185,7 @@ def fit_process(
 
 
 def pv_noise_floor(
-    u: np.ndarray, ctx: ReplayContext, fit: PredictorFit, extra: np.ndarray | None = None
+    u: np.ndarray, ctx: ReplayContext, fit: ProcessFit, extra: np.ndarray | None = None
 ) -> float:
     """The pv noise floor of a process replay on the judged samples of ``ctx`` [pv^2]
     (:func:`stictiondiag.identification.predictor.process_noise_floor`)."""
@@ -231,6 +227,6 @@ def fit_base(ctx: ReplayContext, w: np.ndarray, *, like: BaseFit | None = None) 
         S, J = ctx.start if ctx.start is not None else (0.0, 0.0)
         mvm, _ = valve_replay(sig.op, S, J)
     u = sig.mv if sig.mv is not None else mvm
-    process = fit_process(u, ctx, w, model=None if like is None else like.process.model)
+    process = fit_process(u, ctx, w, model=None if like is None else like.process.prediction.model)
     op_hat, ctrl = fit_controller_replay(sig.sp, sig.pv, sig.op, sig.dt, w)
     return BaseFit(valve=valve, process=process, op=op_hat, controller=ctrl, mv_model=mvm)

@@ -23,7 +23,7 @@ from stictiondiag.gap.effects.base import (
     pv_noise_floor,
 )
 from stictiondiag.identification.numerics import golden_section
-from stictiondiag.identification.predictor import PredictorFit
+from stictiondiag.identification.process_result import ProcessFit
 
 
 def _sinusoids(n: int, omega: float, harmonics: int) -> np.ndarray:
@@ -108,7 +108,7 @@ def fit_external_disturbance(
     u = process_input(ctx, base)
     pv, n = sig.pv, sig.n
     var_pv = ctx.norm["pv"]
-    model = base.process.model
+    model = base.process.prediction.model
 
     def cost(om, harmonics, model=model, retune=False):
         f = fit_process(
@@ -118,16 +118,16 @@ def fit_external_disturbance(
             extra=_sinusoids(n, om, harmonics),
             model=model,
             retune=retune,
-            horizon=base.process.model.horizon,
+            horizon=base.process.prediction.model.horizon,
         )
-        return float(np.dot(w, (f.pv - pv) ** 2)) / var_pv, f
+        return float(np.dot(w, (f.prediction.pv - pv) ** 2)) / var_pv, f
 
     if init is not None:
         om = 2.0 * math.pi * sig.dt / init.params["period_s"]
         harmonics = 1 if init.variant == "fundamental" else 2
-        c, f = cost(om, harmonics, model=init.process.model if init.process else model)
+        c, f = cost(om, harmonics, model=init.process.prediction.model if init.process else model)
     else:
-        r = (pv - base.process.pv) * w
+        r = (pv - base.process.prediction.pv) * w
         nfft = 1 << int(math.ceil(math.log2(4 * n)))
         spec = np.abs(np.fft.rfft(r, nfft)) ** 2
         omega = 2.0 * math.pi * np.arange(spec.size) / nfft  # [rad/sample]
@@ -159,11 +159,11 @@ def fit_external_disturbance(
         # residual of that fit hides the disturbance's own peak.
         screened = {i: cost(omega[i], 1, model=None) for i in peaks}
         peaks = _screen_peaks(peaks, lambda i: screened[i][0], REFINED_PEAKS)
-        best: tuple[float, float, int, PredictorFit] | None = None
+        best: tuple[float, float, int, ProcessFit] | None = None
         width = 2.0 * math.pi / nfft * 4.0
         for i in peaks:
             om0 = omega[i]
-            m_i = screened[i][1].model
+            m_i = screened[i][1].prediction.model
 
             def cost_at(o: float, m_i=m_i) -> float:
                 return cost(o, 1, model=m_i)[0]
@@ -188,13 +188,15 @@ def fit_external_disturbance(
         c2, f2 = cost(om, harmonics, model=None)
         if c2 < c:
             c, f = c2, f2
-        c3, f3 = cost(om, harmonics, model=f.model, retune=True)
+        c3, f3 = cost(om, harmonics, model=f.prediction.model, retune=True)
         if c3 < c:
             f = f3
-    amp = f.coef[-2 * harmonics :]
+    amp = f.prediction.coef[-2 * harmonics :]
     amplitudes = [float(math.hypot(amp[2 * h], amp[2 * h + 1])) for h in range(harmonics)]
     coherence, p_value = (
-        phase_coherence(pv - base.process.pv, om, ctx.w_eval) if init is None else (None, 0.0)
+        phase_coherence(pv - base.process.prediction.pv, om, ctx.w_eval)
+        if init is None
+        else (None, 0.0)
     )
     return EffectFit(
         effect="external_disturbance",
@@ -207,7 +209,7 @@ def fit_external_disturbance(
             "phase_coherence": coherence,
             "phase_coherence_p": p_value,
         },
-        predictions={"pv": f.pv},
+        predictions={"pv": f.prediction.pv},
         supported=p_value < COHERENCE_P,
         x=(float(om),),
         process=f,

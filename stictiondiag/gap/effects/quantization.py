@@ -162,7 +162,7 @@ def _rounding_in_op(
     if kc == 0.0 or step <= 0.0:
         return 0.0
     dt = ctx.sig.dt
-    smooth = np.asarray(base.process.pv, dtype=float)
+    smooth = np.asarray(base.process.prediction.pv, dtype=float)
     e = quantize(smooth, step, offset) - smooth
     tf = float(ctrl.get("filter_time_s") or 0.0)
     ef = filtered_pv(e, tf, dt) if tf > 0.0 else e

@@ -38,7 +38,8 @@ from stictiondiag.gap.effects.valve import (
     valve_rows,
 )
 from stictiondiag.identification.numerics import golden_section
-from stictiondiag.identification.predictor import PredictorFit, process_regressors
+from stictiondiag.identification.predictor import kalman_gains, process_regressors
+from stictiondiag.identification.process_result import ProcessFit
 
 
 def characteristic_curve(x: np.ndarray, curvature: float, family: str) -> np.ndarray:
@@ -102,12 +103,12 @@ def gain_change_test(
     sig = ctx.sig
     if side == "process":
         u = process_input(ctx, base)
-        model = base.process.model
-        k1, k2 = model.gains
+        model = base.process.prediction.model
+        k1, k2 = kalman_gains(model.pole, model.load_ratio)
         h = np.maximum(u - _weighted_median(u, w), 0.0)
         X_u = process_regressors(u, model, k1, k2)
-        x_h = process_regressors(h, model, k1, k2) @ base.process.coef[:2]
-        r = sig.pv - base.process.pv
+        x_h = process_regressors(h, model, k1, k2) @ base.process.prediction.coef[:2]
+        r = sig.pv - base.process.prediction.pv
         others = np.column_stack([np.ones(sig.n), X_u])
         return signature_test(x_h, -r, w, others=others)
     measured = testable_slips(ctx.slips)
@@ -134,9 +135,9 @@ def fit_valve_characteristic(
     """
     sig = ctx.sig
     u = process_input(ctx, base)
-    model = base.process.model
+    model = base.process.prediction.model
     pv, var_pv = sig.pv, ctx.norm["pv"]
-    base_pv_cost = float(np.dot(w, (base.process.pv - pv) ** 2)) / var_pv
+    base_pv_cost = float(np.dot(w, (base.process.prediction.pv - pv) ** 2)) / var_pv
     forms = ["process_exponential", "process_power"]
     if sig.mv is not None:
         forms += ["valve_exponential", "valve_power"]
@@ -155,7 +156,7 @@ def fit_valve_characteristic(
             int,
             dict[str, Any],
             dict[str, np.ndarray],
-            PredictorFit | None,
+            ProcessFit | None,
             np.ndarray | None,
         ]
     ] = []
@@ -165,7 +166,7 @@ def fit_valve_characteristic(
 
             def cost_pv(c, family=family):
                 f = fit_process(characteristic_curve(u, c, family), ctx, w, model=model)
-                return float(np.dot(w, (f.pv - pv) ** 2)) / var_pv
+                return float(np.dot(w, (f.prediction.pv - pv) ** 2)) / var_pv
 
             if init is not None:
                 c = float(init.params["curvature"])
@@ -176,10 +177,20 @@ def fit_valve_characteristic(
             if init is None:
                 f = fit_process(ue, ctx, w, model=model, retune=True)
             else:
-                f = fit_process(ue, ctx, w, model=init.process.model if init.process else model)
-            cc = float(np.dot(w, (f.pv - pv) ** 2)) / var_pv
+                f = fit_process(
+                    ue, ctx, w, model=init.process.prediction.model if init.process else model
+                )
+            cc = float(np.dot(w, (f.prediction.pv - pv) ** 2)) / var_pv
             results.append(
-                (cc, form, 1, {"curvature": c, "family": family, "side": side}, {"pv": f.pv}, f, ue)
+                (
+                    cc,
+                    form,
+                    1,
+                    {"curvature": c, "family": family, "side": side},
+                    {"pv": f.prediction.pv},
+                    f,
+                    ue,
+                )
             )
         else:
 
