@@ -2,59 +2,32 @@
 
     python scripts/replay_cause_probe.py [--seed 12] [--n 250] [--offset 0] \
         [--cache replay_probe] [--real ../shared/data/isdb] [--out probe.json] \
-        [--no-refit] [--train-seed 11 --n-train 250]
+        [--refit] [--train-seed 11 --n-train 250]
 
 Section 6 of Choudhury, Thornhill & Shah (2005) and the replay
-(:mod:`stictiondiag.replay`) offer a test of the cause of a loop's cycle that neither
-the friction model nor the cause model has been given: replay the identified loop
-with the fitted valve (the replay of ``analyze``: open-loop fit, closed-loop refit,
-:func:`stictiondiag.replay.replay`), and replay *the same identified loop* (the
-controller and the process the replay used, refit included) with a linear valve
-(S = J = 0, no refit).  The hypothesis:
-
-* the fitted loop reproduces the recorded cycle (period and amplitude,
-  :func:`stictiondiag.replay.metrics.cycle_reproduction`) and the linear-valve loop
-  settles: the valve causes the cycle;
-* the linear-valve loop cycles too: the tuning;
-* neither reproduces it: the cycle comes from outside.
+(:mod:`stictiondiag.replay`) offer a test of the cause of a loop's cycle: replay the
+identified loop with the fitted valve, replay the same identified loop with a linear
+valve, and compare both with the recorded cycle
+(:mod:`stictiondiag.replay.reproduction`, its features and its call: the valve when
+the fitted loop reproduces the cycle and its linear twin settles, the tuning when the
+twin cycles too, an external cause when neither reproduces it).
 
 For each loop of :mod:`stictiondiag.apps.family_causes` (seeds ``seed * 1_000_000 +
-offset + i``, i < n) with a cycle and a cause, analysed as a user's file is, this
-script records (all fixed before any figure was seen):
-
-``replay_available``
-    1 when the replay ran (an identified controller and process), else 0.
-``replay_reproduces``
-    1 when the fitted replay reproduces pv's cycle over the samples it covers (the
-    criterion of ``docs/real_loops.md``), else 0.
-``linear_cycles``
-    1 when the linear-valve replay's pv still cycles over the second half of the
-    replayed samples (the start-up transient has had half the record to die out).
-``replay_amplitude_ratio``, ``linear_amplitude_ratio``
-    ``log(A_replay / A_data)`` of pv over the second half (half the 5-95 % spread,
-    :func:`~stictiondiag.replay.metrics.spread_amplitude`), clipped to +-log 10.
-``replay_contrast``
-    ``replay_amplitude_ratio - linear_amplitude_ratio``: how much larger the cycle
-    of the fitted valve is than that of the same loop with a linear valve.
-``replay_call``
-    The hypothesis's call: ``valve``, ``tuning`` or ``external`` (as above).
-
-It prints the area under the ROC curve of each feature for "the valve causes the
-cycle" against every other cause (and against each non-valve generator), that of
+offset + i``, i < n) with a cycle and a cause, analysed as a user's file is (the
+chain's head and verdict, :func:`stictiondiag.analysis.estimate_loop`), this script
+prints the area under the ROC curve of each feature for "the valve causes the cycle"
+against every other cause (and against each non-valve generator's loops), that of
 ``df_amplitude_ratio`` (the describing-function version) on the same loops, the
-confusion of ``replay_call``, and the cost: the replay and the linear twin's replay
-per loop, against steps 1-4 of the analysis, and per sample.  With ``--real``, the
-same features on the real records of that folder (its manifest's sample time, loop
-type and integrating flag; no label column is read), loops with a cycle only, and
-the Kolmogorov-Smirnov distance between simulated and real (the shift check of
-``scripts/train_cause.py``).  With ``--train-seed``, the documented gate of the cause
-model on those training seeds and the cause model with and without the features
-that pass it (:func:`model_lines`).  ``--no-refit`` replays the open-loop fit
-instead of the refitted loop.  Rows are cached as JSON lines under ``--cache``.
-
-Cost: each replay is the replay of ``analyze`` (at most 63 closed-loop simulations
-with its refit, each O(n)); the linear twin is one more O(n) simulation with the
-identified loop reused.
+confusion of the call, and the cost: the two replays per loop against steps 1-4 of
+the analysis, and per sample.  With ``--real``, the same features of the real records
+of that folder (its manifest's sample time, loop type and integrating flag; no label
+column is read), loops with a cycle only, and the Kolmogorov-Smirnov distance between
+simulated and real (the shift check of ``scripts/train_cause.py``).  With
+``--train-seed``, the cause model's documented gate on those training seeds and the
+cause model with and without the features that pass it (:func:`model_lines`).
+``--refit`` replays the refitted loop (the replay of ``analyze``) instead of the
+open-loop fit: the variant measured and not taken.  Rows are cached as JSON lines
+under ``--cache``.
 """
 
 from __future__ import annotations
@@ -64,7 +37,6 @@ import json
 import math
 import sys
 import time
-from dataclasses import replace as dc_replace
 from pathlib import Path
 
 import numpy as np
@@ -72,100 +44,38 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-#: Largest |log ratio| kept [-].
-LOG_CAP = math.log(10.0)
-#: The features of this probe, in order.
-FEATURES = (
-    "replay_available",
-    "replay_reproduces",
-    "linear_cycles",
-    "replay_amplitude_ratio",
-    "linear_amplitude_ratio",
-    "replay_contrast",
+from stictiondiag.replay.reproduction import (  # noqa: E402
+    reproduction_call,
+    reproduction_features,
 )
-FILL = {
-    "replay_available": 0.0,
-    "replay_reproduces": 0.0,
-    "linear_cycles": 0.0,
-    "replay_amplitude_ratio": -LOG_CAP,
-    "linear_amplitude_ratio": -LOG_CAP,
-    "replay_contrast": 0.0,
-}
+from stictiondiag.stiction.consistency import REPLAY_FEATURES as FEATURES  # noqa: E402
 
 
-def _log_ratio(a: float | None, b: float | None) -> float:
-    if a is None or b is None or not b > 0:
-        return -LOG_CAP
-    if not a > 0:
-        return -LOG_CAP
-    return float(min(max(math.log(a / b), -LOG_CAP), LOG_CAP))
+def head_verdict(est):
+    """Step 4 without the reproduction (its cost is measured apart): the verdict the
+    chain gives, its replay features left at their "no replay" values."""
+    from stictiondiag.stiction.verdict import stiction_verdict
+
+    return stiction_verdict(
+        est.fit,
+        est.oscillation,
+        oscillation_op=est.oscillation_op,
+        has_mv=est.tags.mv is not None,
+        short_record=bool(est.short_record),
+        data=est.tags,
+    )
 
 
-def replay_features(est, refit: bool = True) -> tuple[dict, dict]:
-    """The probe's features of one analysed loop (its chain head ``est``), and the
-    seconds each replay took; ``refit`` False replays the open-loop fit (no
-    closed-loop refit)."""
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.replay import replay
-    from stictiondiag.replay.metrics import cycle_reproduction, spread_amplitude
-
-    tags, fit = est.tags, est.fit
-    cost = {"replay_s": 0.0, "linear_s": 0.0}
-    t0 = time.process_time()
-    try:
-        rep = replay(
-            tags,
-            fit,
-            valve=fit.valve_family,
-            integrating=tags.integrating,
-            action=tags.action,
-            known=est.structure,
-            refit=refit,
-        )
-    except StictionError:
-        cost["replay_s"] = time.process_time() - t0
-        return dict(FILL), cost
-    t1 = time.process_time()
-    cost["replay_s"] = t1 - t0
-    linear_fit = dc_replace(fit, S=0.0, J=0.0)
-    try:
-        lin = replay(
-            tags,
-            linear_fit,
-            controller=rep.controller_fit,
-            process=rep.process_fit,
-            valve=fit.valve_family,
-            refit=False,
-        )
-    except StictionError:
-        lin = None
-    cost["linear_s"] = time.process_time() - t1
-    dt = float(rep.dt)
-    pv = rep.data["pv"]
-    out = dict(FILL)
-    out["replay_available"] = 1.0
-    out["replay_reproduces"] = float(cycle_reproduction(pv, rep.pv, dt).reproduced)
-    h = pv.size // 2
-    a_data = spread_amplitude(pv[h:])
-    out["replay_amplitude_ratio"] = _log_ratio(spread_amplitude(rep.pv[h:]), a_data)
-    if lin is not None and lin.pv.size == pv.size:
-        c_lin = cycle_reproduction(pv[h:], lin.pv[h:], dt)
-        out["linear_cycles"] = float(c_lin.period_replay_s is not None)
-        out["linear_amplitude_ratio"] = _log_ratio(spread_amplitude(lin.pv[h:]), a_data)
-    out["replay_contrast"] = out["replay_amplitude_ratio"] - out["linear_amplitude_ratio"]
-    return out, cost
+def replay_features(est, refit: bool = False) -> tuple[dict, dict]:
+    """The features of one analysed loop (its chain head ``est``) and the CPU seconds
+    of each replay: :func:`~stictiondiag.replay.reproduction.reproduction_features`."""
+    return reproduction_features(est.tags, est.fit, known=est.structure, refit=refit)
 
 
-def replay_call(f: dict) -> str:
-    """The hypothesis's call from the features."""
-    if f["linear_cycles"] > 0.5:
-        return "tuning"
-    if f["replay_reproduces"] > 0.5:
-        return "valve"
-    return "external"
+replay_call = reproduction_call
 
 
-def _sim_one(seed: int, refit: bool = True) -> dict | None:
+def _sim_one(seed: int, refit: bool = False) -> dict | None:
     from stictiondiag.analysis import estimate_loop
     from stictiondiag.apps.family_causes import cause_label
     from stictiondiag.core.errors import StictionError
@@ -178,7 +88,7 @@ def _sim_one(seed: int, refit: bool = True) -> dict | None:
         tags = loop.tags()
         t0 = time.process_time()
         est = estimate_loop(tags)
-        v = est.verdict()
+        v = head_verdict(est)
         t_head = time.process_time() - t0
     except StictionError:
         return None
@@ -199,7 +109,7 @@ def _sim_one(seed: int, refit: bool = True) -> dict | None:
     }
 
 
-def _real_one(args: tuple[str, float, str, bool], refit: bool = True) -> dict | None:
+def _real_one(args: tuple[str, float, str, bool], refit: bool = False) -> dict | None:
     from stictiondiag.analysis import estimate_loop
     from stictiondiag.core.errors import StictionError
     from stictiondiag.io.tags import read_tags
@@ -208,7 +118,7 @@ def _real_one(args: tuple[str, float, str, bool], refit: bool = True) -> dict | 
     try:
         tags = read_tags(path, ts=ts, loop_type=loop_type, integrating=integrating)
         est = estimate_loop(tags)
-        v = est.verdict()
+        v = head_verdict(est)
     except StictionError:
         return None
     if v.cycle is None or not v.cycle.present:
@@ -234,18 +144,18 @@ def _cached(path: Path, make) -> list[dict]:
     return rows
 
 
-def sim_rows(seed: int, n: int, offset: int, cache: Path, refit: bool = True) -> list[dict]:
+def sim_rows(seed: int, n: int, offset: int, cache: Path, refit: bool = False) -> list[dict]:
     def make():
         for i in range(n):
             if (i + 1) % 25 == 0:
                 print(f"  {i + 1}/{n}", file=sys.stderr, flush=True)
             yield _sim_one(seed * 1_000_000 + offset + i, refit)
 
-    tag = "" if refit else "_norefit"
+    tag = "_refit" if refit else ""
     return _cached(cache / f"sim_{seed}_{offset}_{n}{tag}.jsonl", make)
 
 
-def real_rows(folder: Path, cache: Path, refit: bool = True) -> list[dict]:
+def real_rows(folder: Path, cache: Path, refit: bool = False) -> list[dict]:
     import pandas as pd
 
     from stictiondiag.apps.validation import LOOP_TYPE_MAP
@@ -257,7 +167,7 @@ def real_rows(folder: Path, cache: Path, refit: bool = True) -> list[dict]:
             m["file"], m["loop_type"], m["integrating"], m["ts_s"], strict=True
         )
     ]
-    tag = "" if refit else "_norefit"
+    tag = "_refit" if refit else ""
     return _cached(cache / f"real{tag}.jsonl", lambda: (_real_one(j, refit) for j in jobs))
 
 
@@ -400,10 +310,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--train-seed", type=int, default=None)
     ap.add_argument("--n-train", type=int, default=250)
     ap.add_argument(
-        "--no-refit",
-        dest="refit",
-        action="store_false",
-        help="replay the open-loop fit only (no closed-loop refit of S, J and the process)",
+        "--refit",
+        action="store_true",
+        help="replay the refitted loop (closed-loop refit of S, J and the process): the "
+        "variant measured and not taken",
     )
     a = ap.parse_args(argv)
     t0 = time.time()

@@ -3,13 +3,14 @@
     python scripts/train_cause.py [--n-train 400] [--n-test 200] [--seed 11] \
         [--test-seed 12] [--cache /tmp/stiction_causes] [--workers 1] \
         [--real ../shared/data/isdb] [--doc docs/calibration.md] [--no-describing] \
-        [--deadzone 0]
+        [--no-replay] [--deadzone 0]
 
 1. Draws ``--n-train`` and ``--n-test`` loops of :mod:`stictiondiag.apps.family_causes`
    (seeds ``seed * 1_000_000 + i``), labels each by its counterfactual twins
    (:func:`~stictiondiag.apps.family_causes.cause_label`) and analyses it exactly as a
-   user's file is analysed (:func:`stictiondiag.analysis.analyze` without the replay:
-   the loop-type step, the oscillation test, the fit, the evidence); the verdict's
+   user's file is analysed (:func:`stictiondiag.analysis.analyze` without step 5's
+   replay: the loop-type step, the oscillation test, the fit, the evidence with the
+   verdict's own closed-loop reproduction); the verdict's
    features are the model's inputs.  Cached as JSON lines under ``--cache``.
 2. **Shift check**: with ``--real``, the same features of the real records in that
    folder (its ``manifest.csv`` gives each file's sample time, loop type and
@@ -18,9 +19,11 @@
    Kolmogorov-Smirnov distance.  A feature whose distance exceeds
    :data:`MAX_SHIFT` is dropped (the rule was stated before any distance was seen).
 3. Chooses the features (the compact set, :data:`COMPACT`, plus the describing-function
-   features that separate on the training loops, :func:`describing_gate`; the full set
+   features and the closed-loop reproduction features that separate on the training
+   loops, :func:`describing_gate`; the full set
    if cross-validation favours it, :func:`choose_features`; ``--no-describing`` leaves
-   the describing-function features out, the model before them), then
+   the describing-function features out, ``--no-replay`` the reproduction features,
+   the models before them), then
    fits a softmax regression (L2, :data:`C`) on the training loops with a cycle and a
    cause, leaving out every loop of the held-out stick models (:data:`HELD_OUT`: the
    Karnopp physical valve, He et al.'s model, the band-hold valve); writes ``stictiondiag/stiction/cause_model.json``.
@@ -52,9 +55,12 @@ sys.path.insert(0, str(ROOT))
 
 from stictiondiag.stiction.cause import CAUSES  # noqa: E402
 
-# The describing-function consistency (stictiondiag.stiction.consistency): a candidate
-# for the compact set through describing_gate, measured in the table this script writes.
+# The describing-function consistency (stictiondiag.stiction.consistency) and the
+# closed-loop reproduction (stictiondiag.replay.reproduction), the two versions of
+# Section 6's check: candidates for the compact set through describing_gate, measured
+# in the table this script writes.
 from stictiondiag.stiction.consistency import FEATURES as DF_FEATURES  # noqa: E402
+from stictiondiag.stiction.consistency import REPLAY_FEATURES  # noqa: E402
 
 #: Inverse strength of the L2 penalty on the standardised coefficients [-].
 C = 1.0
@@ -264,17 +270,18 @@ def _confusion(P: np.ndarray, y: np.ndarray) -> list[str]:
     return lines
 
 
-def candidate_features(describing: bool = True) -> tuple[str, ...]:
+def candidate_features(describing: bool = True, replay: bool = True) -> tuple[str, ...]:
     """The evidence the cause model may use: every feature of the friction model's
     candidates (:data:`stictiondiag.stiction.probability.CANDIDATES`) that describes
     a loop without its valve position (the cause family records no mv) and is not a
     stage-1 flag (``oscillating``, ``short_record``: every loop of stage 2 has a cycle),
-    and with ``describing`` the describing-function consistency
-    (:data:`stictiondiag.stiction.consistency.FEATURES`)."""
+    with ``describing`` the describing-function consistency
+    (:data:`stictiondiag.stiction.consistency.FEATURES`) and with ``replay`` the
+    closed-loop reproduction (:data:`stictiondiag.stiction.consistency.REPLAY_FEATURES`)."""
     from stictiondiag.stiction.probability import CANDIDATES
 
     base = tuple(k for k in CANDIDATES if k not in ("oscillating", "short_record"))
-    return base + (DF_FEATURES if describing else ())
+    return base + (DF_FEATURES if describing else ()) + (REPLAY_FEATURES if replay else ())
 
 
 def df_separation(
@@ -310,7 +317,7 @@ def df_separation(
         f"| feature | {' | '.join(head)} | held-out stick models | shift |",
         "|---" * (len(head) + 3) + "|",
     ]
-    for k in DF_FEATURES:
+    for k in (k for k in SECTION6 if sim and k in sim[0]["features"]):
         cells = [auc(pos, neg, k), *(auc(pos, n, k) for _, n in groups), auc(held_pos, neg, k)]
         shift = ks_distance(col(sim, k), col(real, k)) if real else math.nan
         lines.append(f"| `{k}` | " + " | ".join(f"{c:.2f}" for c in cells) + f" | {shift:.2f} |")
@@ -349,9 +356,13 @@ COMPACT: tuple[str, ...] = (
 )
 
 
-#: Heading and words of the describing-function table.
+#: The features of Section 6's check: the describing function's, then the replay's.
+SECTION6: tuple[str, ...] = DF_FEATURES + REPLAY_FEATURES
+
+#: Heading and words of the Section 6 table.
 DF_INTRO = [
-    "**Describing-function consistency** (Section 6, `stictiondiag/stiction/consistency.py`):"
+    "**Describing-function consistency and closed-loop reproduction** (Section 6,"
+    " `stictiondiag/stiction/consistency.py`, `stictiondiag/replay/reproduction.py`):"
     ' area under the ROC curve of each feature for "the valve causes the cycle" on the'
     " held-out seeds' loops with a cycle and a cause, against all other causes and against"
     " the non-valve loops of each generator (how many in brackets); the held-out stick"
@@ -368,9 +379,10 @@ FOLDS = 5
 GATE_SE = 2.0
 
 
-#: A describing-function feature joins the compact set when its area under the ROC
-#: curve for "the valve causes the cycle" on the training loops lies at least this far
-#: from 0.5 [-] (a rule on the training seeds: the held-out seeds only measure).
+#: A Section 6 feature (describing function or closed-loop reproduction) joins the
+#: compact set when its area under the ROC curve for "the valve causes the cycle" on
+#: the training loops lies at least this far from 0.5 [-] (a rule on the training
+#: seeds: the held-out seeds only measure).
 DF_SEPARATION = 0.1
 
 
@@ -429,9 +441,9 @@ def held_out_lines(model: dict, names: tuple[str, ...], held: list[dict], a) -> 
 def describing_gate(
     train: list[dict], names: tuple[str, ...], describing: bool
 ) -> tuple[tuple[str, ...], dict | None]:
-    """The compact set, with each describing-function feature of ``names`` whose area
-    under the ROC curve on the training loops is :data:`DF_SEPARATION` or more from
-    0.5; also the cross-validated log loss with and without them (reported, not a
+    """The compact set, with each Section 6 feature of ``names`` (:data:`SECTION6`)
+    whose area under the ROC curve on the training loops is :data:`DF_SEPARATION` or
+    more from 0.5; also the cross-validated log loss with and without them (reported, not a
     gate).  Returns the set and the numbers (None without ``describing``)."""
     compact = tuple(k for k in COMPACT if k in names)
     if not describing:
@@ -439,7 +451,7 @@ def describing_gate(
     y = np.array([r["label"] == "valve" for r in train], dtype=int)
     auc = {
         k: roc_auc(y, np.array([float(r["features"][k]) for r in train]))
-        for k in DF_FEATURES
+        for k in SECTION6
         if k in names
     }
     joined = tuple(k for k, v in auc.items() if abs(v - 0.5) >= DF_SEPARATION)
@@ -521,6 +533,11 @@ def main(argv=None) -> int:
         help="leave the describing-function features out (the model before them)",
     )
     ap.add_argument(
+        "--no-replay",
+        action="store_true",
+        help="leave the closed-loop reproduction features out (the model before them)",
+    )
+    ap.add_argument(
         "--out", type=Path, default=ROOT / "stictiondiag" / "stiction" / "cause_model.json"
     )
     a = ap.parse_args(argv)
@@ -538,7 +555,7 @@ def main(argv=None) -> int:
 
     train, test = labelled(train_all, False), labelled(test_all, False)
     held = labelled(train_all, True) + labelled(test_all, True)
-    names = candidate_features(not a.no_describing)
+    names = candidate_features(not a.no_describing, not a.no_replay)
 
     # Shift check (unlabelled real records).
     shift: dict[str, float] = {}
@@ -555,7 +572,7 @@ def main(argv=None) -> int:
     X, y = _xy(train, kept)
     sd = X.std(axis=0)
     kept = tuple(k for k, s in zip(kept, sd, strict=True) if s > 0)
-    compact, df_gate = describing_gate(train, kept, not a.no_describing)
+    compact, df_gate = describing_gate(train, kept, not (a.no_describing and a.no_replay))
     kept, cv = choose_features(train, kept, compact)
     cv["df_gate"] = df_gate
     X, y = _xy(train, kept)
@@ -601,7 +618,8 @@ def _gate_text(g: dict | None) -> str:
     aucs = ", ".join(f"`{k}` {v:.2f}" for k, v in g["auc"].items())
     joined = ", ".join(f"`{k}`" for k in g["joined"]) or "none"
     return (
-        f" Describing-function features join the compact set when their area under the"
+        f" Section 6 features (describing function, closed-loop reproduction) join the"
+        f" compact set when their area under the"
         f" ROC curve for the valve on the training loops is at least {DF_SEPARATION:g}"
         f" from 0.5 ({aucs}): joined {joined}. Cross-validated log loss of the compact set"
         f" {g['compact']:.3f} without them, {g['with_df']:.3f} with them (standard error of"
@@ -628,6 +646,7 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
         f"(`--n-train {a.n_train} --n-test {a.n_test} --seed {a.seed} --test-seed {a.test_seed}"
         + (" --real $STICTION_ISDB" if a.real else "")
         + (" --no-describing" if a.no_describing else "")
+        + (" --no-replay" if a.no_replay else "")
         + (f" --deadzone {a.deadzone}" if a.deadzone else "")
         + f"`; features of all loops {MEASURED_RUN}; this run {t_feat / 60:.1f} min).",
         "",
@@ -646,10 +665,18 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
             else " The describing-function consistency of Section 6 (do the identified loop"
             " and the fitted S, J predict the observed cycle?) is among the candidates and in"
             " the compact set (its table below)."
+        )
+        + (
+            ""
+            if a.no_replay
+            else " So is its version by simulation, the closed-loop reproduction (does the"
+            " identified loop replayed with the fitted S, J reproduce the cycle, and does the"
+            " same loop with a linear valve settle?), by the same gate."
         ),
         "",
         "Loops of `stictiondiag/apps/family_causes.py`, each analysed exactly as a user's"
-        " file (`analyze` without the replay), labelled by the counterfactual twin that"
+        " file (`analyze` without step 5's replay and the gap; the verdict's own"
+        " reproduction replay runs), labelled by the counterfactual twin that"
         " stops the cycle (`none`: no cycle; `unexplained`: no single change stops it, left"
         " out). Loops by generator and label (training and held-out seeds):",
         "",

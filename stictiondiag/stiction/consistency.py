@@ -89,6 +89,31 @@ FILL: dict[str, float] = {
     "linear_phase_margin": 1.0,
 }
 
+#: The closed-loop reproduction of Section 6 by simulation (the fitted loop's replay
+#: against the same identified loop with a linear valve), computed in the chain by
+#: :func:`stictiondiag.replay.reproduction.reproduction_features` (the replay sits
+#: above this layer) and handed to the verdict; defined here with the describing
+#: function's, as the two versions of one question.  Meanings in that module.
+REPLAY_FEATURES: tuple[str, ...] = (
+    "replay_available",
+    "replay_reproduces",
+    "linear_cycles",
+    "replay_amplitude_ratio",
+    "linear_amplitude_ratio",
+    "replay_contrast",
+)
+
+#: Their values without a replay (no cycle, no Hammerstein fit, a loop the replay
+#: cannot identify): nothing reproduced, a linear loop that settles, no contrast.
+REPLAY_FILL: dict[str, float] = {
+    "replay_available": 0.0,
+    "replay_reproduces": 0.0,
+    "linear_cycles": 0.0,
+    "replay_amplitude_ratio": -LOG_CAP,
+    "linear_amplitude_ratio": -LOG_CAP,
+    "replay_contrast": 0.0,
+}
+
 #: Integral time given to a P-only controller, in observed periods [-].
 P_ONLY_PERIODS = 100.0
 

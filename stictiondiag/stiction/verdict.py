@@ -45,7 +45,7 @@ from stictiondiag.stiction.cause import (
 )
 from stictiondiag.stiction.cause_model import cause_probabilities
 from stictiondiag.stiction.consistency import FILL as DF_FILL
-from stictiondiag.stiction.consistency import describing_features
+from stictiondiag.stiction.consistency import REPLAY_FEATURES, REPLAY_FILL, describing_features
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.probability import (
     classic_votes,
@@ -424,6 +424,7 @@ def verdict_features(
     min_improvement: float = MIN_IMPROVEMENT,
     seed: int = 0,
     cycle: Cycle | None = None,
+    reproduction: dict | None = None,
 ) -> tuple[dict, tuple[float, float, tuple[float, float]], dict]:
     """The probability model's features of one loop, the improvement's support
     (:func:`improvement_support`: support, improvement, interval) and the classic
@@ -432,7 +433,11 @@ def verdict_features(
     mv also gets the describing-function consistency of
     :mod:`stictiondiag.stiction.consistency` (the others its "no prediction" values).
     ``cycle`` is :func:`~stictiondiag.stiction.cause.find_cycle`'s, found here if not
-    given."""
+    given.  ``reproduction``: the closed-loop reproduction's features
+    (:data:`~stictiondiag.stiction.consistency.REPLAY_FEATURES`), which the chain
+    computes with the replay (:func:`stictiondiag.replay.reproduction.reproduction_features`,
+    in :meth:`stictiondiag.analysis.LoopEstimate.verdict`); without them, and for a
+    loop without a cycle, their "no replay" values."""
     d = fit.details or {}
     blocks = d.get("block_sse") or {}
     bs = np.asarray(blocks.get("stiction", []), dtype=float)
@@ -470,6 +475,9 @@ def verdict_features(
         halves=halves,
     )
     features.update(df)
+    features.update(REPLAY_FILL)
+    if cycle.present and reproduction is not None:
+        features.update({k: float(reproduction[k]) for k in REPLAY_FEATURES})
     return features, (support, f, f_iv), classic
 
 
@@ -607,6 +615,7 @@ def stiction_verdict(
     seed: int = 0,
     model: dict | None = None,
     cause_model: dict | None = None,
+    reproduction: dict | None = None,
 ) -> Verdict:
     """Does valve stiction explain the loop's oscillation, and how probably?
 
@@ -642,6 +651,9 @@ def stiction_verdict(
     cause_model : dict, optional
         A fitted cause model (:mod:`stictiondiag.stiction.cause_model`); default the
         packaged one.
+    reproduction : dict, optional
+        The closed-loop reproduction's features (:func:`verdict_features`), computed
+        by the chain with the replay.
 
     Returns
     -------
@@ -664,6 +676,7 @@ def stiction_verdict(
         min_improvement=min_improvement,
         seed=seed,
         cycle=cycle,
+        reproduction=reproduction,
     )
     P = stiction_probability(features, has_mv, model)
     contrib = _contributions(features, has_mv, model)

@@ -1,11 +1,10 @@
-"""The closed-loop reproduction probe (scripts/replay_cause_probe.py): the fitted
-loop's replay against the same identified loop with a linear valve."""
+"""Closed-loop reproduction as evidence of the cause of a cycle
+(stictiondiag.replay.reproduction): the fitted loop's replay against the same
+identified loop with a linear valve."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,16 +15,8 @@ from stictiondiag.models.describing import stability_margins
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import FOPTD, PI
 from stictiondiag.replay import replay
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "replay_cause_probe.py"
-
-
-def _probe():
-    spec = importlib.util.spec_from_file_location("replay_cause_probe", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from stictiondiag.replay.reproduction import reproduction_call, reproduction_features
+from stictiondiag.stiction.consistency import REPLAY_FEATURES, REPLAY_FILL
 
 
 def _estimate(S, J, load=None):
@@ -53,15 +44,16 @@ def test_a_sticky_loop_is_reproduced_and_its_linear_twin_settles():
     # replay reproduces it (period within 20 %, amplitude within 35 %); the same loop
     # with a linear valve is stable (gain margin 2.6) and, with no load in the replay,
     # settles: its second-half pv spread is below a tenth of the data's.
-    probe = _probe()
-    f, cost = probe.replay_features(_estimate(5.0, 5.0))
+    est = _estimate(5.0, 5.0)
+    f, cost = reproduction_features(est.tags, est.fit, known=est.structure)
+    assert tuple(f) == REPLAY_FEATURES
     assert f["replay_available"] == 1.0
     assert f["replay_reproduces"] == 1.0
     assert f["linear_cycles"] == 0.0
     assert f["linear_amplitude_ratio"] <= math.log(0.1)
     # The replay's amplitude within 35 % (reproduced), the twin's below a tenth.
     assert f["replay_contrast"] > math.log(0.65 / 0.1)
-    assert probe.replay_call(f) == "valve"
+    assert reproduction_call(f) == "valve"
     assert cost["replay_s"] >= 0.0 and cost["linear_s"] >= 0.0
 
 
@@ -74,12 +66,20 @@ def test_an_external_cycle_makes_an_identified_loop_that_cycles_on_its_own():
     # closed-loop data alone the replay cannot tell an external cycle from a tight loop.
     k = np.arange(3000)
     est = _estimate(0.0, 0.0, load=2.0 * np.sin(2 * np.pi * k / 100.0))
-    probe = _probe()
-    f, _ = probe.replay_features(est)
+    f, _ = reproduction_features(est.tags, est.fit, known=est.structure)
     assert f["linear_cycles"] == 1.0
     assert abs(f["linear_amplitude_ratio"]) < math.log(1.35)
-    assert probe.replay_call(f) == "tuning"
+    assert reproduction_call(f) == "tuning"
     # The identified loop's gain margin is 1 within 10 % (the true loop's: 2.6).
     rep = replay(est.tags, est.fit, valve=est.fit.valve_family, integrating=False)
     margins = stability_margins(rep.process_fit.process, rep.controller_fit.controller)
     assert margins.gain_margin == pytest.approx(1.0, rel=0.1)
+
+
+def test_a_fit_on_the_valve_position_gets_the_fill_values():
+    # With mv recorded there is no Hammerstein fit to replay: the "no replay" values.
+    from dataclasses import replace
+
+    est = _estimate(5.0, 5.0)
+    f, _ = reproduction_features(est.tags, replace(est.fit, method="mv_segments"))
+    assert f == REPLAY_FILL
