@@ -50,9 +50,9 @@ def test_refit_recovers_the_cycle_of_a_wrong_valve_fit():
     # An open-loop fit with S and J 0.3 of the true ones: its replay's cycle is off.
     wrong = SimpleNamespace(S=1.5, J=0.6, mv_model=sim.mv)
     plain = replay(tags, wrong, refit=False)
-    before = cycle_reproduction(plain.data["pv"], plain.pv, DT)
+    before = cycle_reproduction(plain.data.pv, plain.pv, DT)
     rep = replay(tags, wrong)
-    after = cycle_reproduction(rep.data["pv"], rep.pv, DT)
+    after = cycle_reproduction(rep.data.pv, rep.pv, DT)
     refit = rep.settings["refit"]
     assert refit["accepted"] and refit["simulations"] <= MAX_SIMULATIONS + 2
     assert refit["S_open_loop"] == 1.5 and refit["J_open_loop"] == 0.6

@@ -75,7 +75,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 
@@ -102,6 +102,7 @@ from stictiondiag.models.processes import (
     Integrating,
 )
 from stictiondiag.replay.cycles import waveform_similarity
+from stictiondiag.replay.metrics import RecordedSignals, ReplayMeasures, SignalMeasures
 from stictiondiag.replay.refit import refine_loop
 from stictiondiag.signals.oscillation import detect_oscillation
 from stictiondiag.stiction.hammerstein import first_extreme
@@ -134,31 +135,25 @@ class Replay:
     pv, op, mv : ndarray
         Replayed process variable [pv units], controller output and valve position
         [% of span].
-    data : dict
-        Recorded arrays: ``pv``, ``op``, ``sp`` (as used), ``mv`` (None when not
-        recorded), ``mv_model`` (the stiction fit's valve output, or None).
+    data : RecordedSignals
+        Recorded arrays: pv, op, sp (as used), mv and the stiction fit's valve output
+        ``mv_model`` (each None when absent).
     process_fit : ProcessFit
         Identified process (type, gain, time constant [s], dead time [s], biases,
         R^2; ``to_dict`` gives the ``process`` entry of :meth:`to_dict`).
     controller_fit : ControllerFit
         Identified controller (gain, integral time [s], op bias [% of span], R^2;
         ``to_dict`` gives the ``controller`` entry of :meth:`to_dict`).
-    fit : dict
-        Signal -> ``100 (1 - NRMSE)`` [%] of the replay against the data (pv, op, and
-        mv where recorded).
-    nrmse : dict
-        Signal -> NRMSE [-].
-    waveform : dict
-        Signal -> correlation of the average cycle shapes [-], None when either
-        signal has fewer than two cycles.
-    period_s : dict
-        ``data`` and ``replay`` oscillation period of pv [s] (of op when the recorded
-        pv does not oscillate, see ``period_signal``); None where not oscillating.
+    measures : ReplayMeasures
+        Per signal (pv, op, and mv where recorded): ``100 (1 - NRMSE)`` [%], NRMSE
+        [-], correlation of the average cycle shapes [-] and the half peak-to-peak
+        amplitudes of record and replay [units of the signal].
+    period_data_s, period_replay_s : float or None
+        Oscillation period of pv in the record and in the replay [s] (of op when the
+        recorded pv does not oscillate, see ``period_signal``); None where not
+        oscillating.
     period_signal : str
-        Signal whose period is reported in ``period_s``.
-    amplitude : dict
-        Signal -> ``{"data": ..., "replay": ...}`` half peak-to-peak amplitude [units
-        of the signal].
+        Signal whose period is reported.
     S, J : float
         Stiction parameters of the replayed valve [% of span].
     dt : float
@@ -177,15 +172,13 @@ class Replay:
     pv: np.ndarray
     op: np.ndarray
     mv: np.ndarray
-    data: dict
+    data: RecordedSignals
     process_fit: ProcessFit
     controller_fit: ControllerFit
-    fit: dict
-    nrmse: dict
-    waveform: dict
-    period_s: dict
+    measures: ReplayMeasures
+    period_data_s: float | None
+    period_replay_s: float | None
     period_signal: str
-    amplitude: dict
     S: float
     J: float
     dt: float
@@ -200,25 +193,26 @@ class Replay:
     @property
     def period_error_pct(self) -> float | None:
         """Relative period error of the replay, ``100 (replay / data - 1)`` [%]."""
-        d, r = self.period_s.get("data"), self.period_s.get("replay")
+        d, r = self.period_data_s, self.period_replay_s
         if d is None or r is None:
             return None
         return 100.0 * (r / d - 1.0)
 
     def to_dict(self, include_series: bool = False) -> dict:
         """JSON-able dict: models, measures and, optionally, the time series."""
+        measures = self.measures.to_dict()
         out = {
             "process": to_plain(self.process_fit.to_dict()),
             "controller": to_plain(self.controller_fit.to_dict()),
             "S": to_plain(self.S),
             "J": to_plain(self.J),
-            "fit": to_plain(self.fit),
-            "nrmse": to_plain(self.nrmse),
-            "waveform": to_plain(self.waveform),
-            "period_s": to_plain(self.period_s),
+            "fit": to_plain(measures["fit"]),
+            "nrmse": to_plain(measures["nrmse"]),
+            "waveform": to_plain(measures["waveform"]),
+            "period_s": to_plain({"data": self.period_data_s, "replay": self.period_replay_s}),
             "period_signal": self.period_signal,
             "period_error_pct": to_plain(self.period_error_pct),
-            "amplitude": to_plain(self.amplitude),
+            "amplitude": to_plain(measures["amplitude"]),
             "settings": to_plain(self.settings),
             "warnings": list(self.warnings),
         }
@@ -239,13 +233,13 @@ class Replay:
             "pv": self.pv,
             "op": self.op,
             "mv": self.mv,
-            "pv_data": self.data["pv"],
-            "op_data": self.data["op"],
+            "pv_data": self.data.pv,
+            "op_data": self.data.op,
         }
-        if self.data.get("mv") is not None:
-            cols["mv_data"] = self.data["mv"]
-        if self.data.get("mv_model") is not None:
-            cols["mv_model"] = self.data["mv_model"]
+        if self.data.mv is not None:
+            cols["mv_data"] = self.data.mv
+        if self.data.mv_model is not None:
+            cols["mv_model"] = self.data.mv_model
         return pd.DataFrame(cols)
 
     def plot(self, **kwargs):
@@ -595,26 +589,28 @@ def _replay_simulate(
     return _Simulated(sim.pv[:n], sim.op[:n] - offset, sim.mv[:n] - offset, sp_used, settings)
 
 
-def _replay_compare(rec: _Record, sim: _Simulated) -> dict[str, Any]:
+def _replay_compare(
+    rec: _Record, sim: _Simulated
+) -> tuple[RecordedSignals, ReplayMeasures, float | None, float | None, str, list[str]]:
     """Step 4: fit, NRMSE, waveform, amplitude per signal and the period of pv (of
-    op when the recorded pv does not oscillate).  O(n log n) (the autocorrelations)."""
+    op when the recorded pv does not oscillate).  Returns the record, the measures,
+    the periods of record and replay [s], the signal they are of, and warnings.
+    O(n log n) (the autocorrelations)."""
 
-    pairs = {"pv": (rec.pv, sim.pv), "op": (rec.op, sim.op)}
-    if rec.mv is not None:
-        pairs["mv"] = (rec.mv, sim.mv)
-    fit_pct: dict[str, float | None] = {}
-    err: dict[str, float | None] = {}
-    shape: dict[str, float | None] = {}
-    amplitude: dict[str, dict] = {}
+    data = RecordedSignals(rec.pv, rec.op, sim.sp, rec.mv, rec.mv_model)
+    by: dict[str, SignalMeasures] = {}
     osc: dict[str, tuple] = {}
-    for name, (y, yr) in pairs.items():
+    for name, (y, yr) in data.pairs(sim).items():
         e = nrmse(y, yr)
-        err[name] = e
-        fit_pct[name] = None if e is None else 100.0 * (1.0 - e)
-        shape[name] = waveform_similarity(y, yr)
         od, orp = detect_oscillation(y, rec.dt), detect_oscillation(yr, rec.dt)
         osc[name] = (od, orp)
-        amplitude[name] = {"data": _amplitude(y, od), "replay": _amplitude(yr, orp)}
+        by[name] = SignalMeasures(
+            fit_pct=None if e is None else 100.0 * (1.0 - e),
+            nrmse=e,
+            waveform=waveform_similarity(y, yr),
+            amplitude_data=_amplitude(y, od),
+            amplitude_replay=_amplitude(yr, orp),
+        )
     period_signal = "pv"
     if not osc["pv"][0].present and osc["op"][0].present:
         period_signal = "op"
@@ -622,15 +618,8 @@ def _replay_compare(rec: _Record, sim: _Simulated) -> dict[str, Any]:
     warnings = []
     if od.present and not orp.present:
         warnings.append(f"the data oscillate but the replay does not ({orp.reason})")
-    return {
-        "fit": fit_pct,
-        "nrmse": err,
-        "waveform": shape,
-        "period_s": {"data": od.period_s, "replay": orp.period_s},
-        "period_signal": period_signal,
-        "amplitude": amplitude,
-        "warnings": warnings,
-    }
+    measures = ReplayMeasures(by["pv"], by["op"], by.get("mv"))
+    return data, measures, od.period_s, orp.period_s, period_signal, warnings
 
 
 def replay(
@@ -721,8 +710,9 @@ def replay(
     sim = _replay_simulate(rec, cf, pf, S, J, valve, noise_std, seed)
     if refit_result is not None:
         sim.settings["refit"] = refit_result.to_dict()
-    measures = _replay_compare(rec, sim)
-    data = {"pv": rec.pv, "op": rec.op, "sp": sim.sp, "mv": rec.mv, "mv_model": rec.mv_model}
+    data, measures, period_data, period_replay, period_signal, compare_warnings = _replay_compare(
+        rec, sim
+    )
     return Replay(
         time=(rec.start + np.arange(rec.n)) * rec.dt,
         sp=sim.sp,
@@ -732,15 +722,13 @@ def replay(
         data=data,
         process_fit=pf,
         controller_fit=cf,
-        fit=measures["fit"],
-        nrmse=measures["nrmse"],
-        waveform=measures["waveform"],
-        period_s=measures["period_s"],
-        period_signal=measures["period_signal"],
-        amplitude=measures["amplitude"],
+        measures=measures,
+        period_data_s=period_data,
+        period_replay_s=period_replay,
+        period_signal=period_signal,
         S=S,
         J=J,
         dt=rec.dt,
         settings=sim.settings,
-        warnings=(*rec.warnings, *model_warnings, *measures["warnings"]),
+        warnings=(*rec.warnings, *model_warnings, *compare_warnings),
     )

@@ -343,7 +343,7 @@ def compensation_from_replay(rep) -> Compensation:
         From :func:`stictiondiag.replay.closed_loop.replay`.
     """
     pf, cf = rep.process_fit, rep.controller_fit
-    period = rep.period_s.get("replay") or rep.period_s.get("data")
+    period = rep.period_replay_s or rep.period_data_s
     if not period:
         return Compensation(False, "neither the data nor the replay show a cycle")
     if not (rep.S > 0 or rep.J > 0):

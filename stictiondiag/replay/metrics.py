@@ -45,6 +45,106 @@ if TYPE_CHECKING:
 PERCENTILES = (2.0, 98.0)
 
 
+#: The signals a replay is compared on, in the order its measures are reported.
+SIGNALS = ("pv", "op", "mv")
+
+
+@dataclass(frozen=True, eq=False)
+class RecordedSignals:
+    """The recorded arrays a replay is compared with, from the replay's first sample.
+
+    Attributes
+    ----------
+    pv : ndarray
+        Process variable [pv units].
+    op : ndarray
+        Controller output [% of span].
+    sp : ndarray
+        Setpoint as used by the replay [pv units] (recorded, or constant at mean(pv)).
+    mv : ndarray or None
+        Valve position [% of span]; None when not recorded.
+    mv_model : ndarray or None
+        The stiction fit's valve output [% of span]; None when it has none.
+    """
+
+    pv: np.ndarray
+    op: np.ndarray
+    sp: np.ndarray
+    mv: np.ndarray | None = None
+    mv_model: np.ndarray | None = None
+
+    def pairs(self, replayed) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Signal -> (recorded, replayed) for pv, op and, where recorded, mv; ``replayed``
+        has ``pv``, ``op`` and ``mv`` arrays (a replay or its simulation)."""
+        out = {"pv": (self.pv, replayed.pv), "op": (self.op, replayed.op)}
+        if self.mv is not None:
+            out["mv"] = (self.mv, replayed.mv)
+        return out
+
+
+@dataclass(frozen=True)
+class SignalMeasures:
+    """How one replayed signal agrees with its record.
+
+    Attributes
+    ----------
+    fit_pct : float or None
+        ``100 (1 - NRMSE)`` [%]; None for a constant record.
+    nrmse : float or None
+        Normalised RMS error of the replay, point by point [-]; None for a constant
+        record.
+    waveform : float or None
+        Correlation of the average cycle shapes [-]; None when either signal has
+        fewer than two cycles.
+    amplitude_data, amplitude_replay : float
+        Half peak-to-peak amplitude of record and replay [units of the signal]: the
+        oscillation detector's where the signal oscillates, else half the range
+        between the 2nd and 98th percentiles.
+    """
+
+    fit_pct: float | None
+    nrmse: float | None
+    waveform: float | None
+    amplitude_data: float
+    amplitude_replay: float
+
+
+@dataclass(frozen=True)
+class ReplayMeasures:
+    """The replay's agreement with its record, per signal (pv, op and, where recorded, mv).
+
+    Attributes
+    ----------
+    pv, op : SignalMeasures
+    mv : SignalMeasures or None
+        None when mv is not recorded.
+    """
+
+    pv: SignalMeasures
+    op: SignalMeasures
+    mv: SignalMeasures | None = None
+
+    def by_signal(self) -> dict[str, SignalMeasures]:
+        """Signal -> its measures, in the order pv, op, mv (mv where recorded)."""
+        out = {"pv": self.pv, "op": self.op}
+        if self.mv is not None:
+            out["mv"] = self.mv
+        return out
+
+    def to_dict(self) -> dict[str, dict]:
+        """``fit`` [%], ``nrmse`` [-], ``waveform`` [-] and ``amplitude`` (``data`` and
+        ``replay`` [units of the signal]), each a dict by signal."""
+        by = self.by_signal()
+        return {
+            "fit": {k: m.fit_pct for k, m in by.items()},
+            "nrmse": {k: m.nrmse for k, m in by.items()},
+            "waveform": {k: m.waveform for k, m in by.items()},
+            "amplitude": {
+                k: {"data": m.amplitude_data, "replay": m.amplitude_replay} for k, m in by.items()
+            },
+        }
+
+
 def cycle_amplitude(x: np.ndarray, window: int | None) -> float | None:
     """Half peak-to-peak amplitude of a cycling signal, in its own units.
 
@@ -167,12 +267,10 @@ def render_metrics(m: dict) -> str:
 
 def replay_metrics(rep) -> ReplayMetrics:
     """:class:`ReplayMetrics` of a :class:`~stictiondiag.replay.closed_loop.Replay`."""
-    d = rep.period_s.get("data")
-    r = rep.period_s.get("replay")
+    d, r = rep.period_data_s, rep.period_replay_s
     window = None if not d else int(round(float(d) / float(rep.dt)))
-    pairs = {"pv": (rep.data["pv"], rep.pv), "op": (rep.data["op"], rep.op)}
-    if rep.data.get("mv") is not None:
-        pairs["mv"] = (rep.data["mv"], rep.mv)
+    pairs = rep.data.pairs(rep)
+    by = rep.measures.by_signal()
     amplitude: dict[str, dict] = {}
     errors: dict[str, float | None] = {}
     for name, (y, yr) in pairs.items():
@@ -186,8 +284,8 @@ def replay_metrics(rep) -> ReplayMetrics:
         period_error_pct=_pct_error(r, d),
         amplitude=amplitude,
         amplitude_error_pct=errors,
-        waveform={k: rep.waveform.get(k) for k in pairs},
-        nrmse={k: rep.nrmse.get(k) for k in pairs},
+        waveform={k: by[k].waveform for k in pairs},
+        nrmse={k: by[k].nrmse for k in pairs},
     )
 
 
