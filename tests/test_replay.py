@@ -93,7 +93,7 @@ def test_replay_without_mv_and_sp(name, S, J):
     rep = replay(tags, fit_of(S, J, choudhury_model(sim.op, S, J)))
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT
     assert rep.measures.mv is None
-    assert rep.settings["process_input"] == "mv_model"
+    assert rep.settings.process_input == "mv_model"
     assert any("no setpoint" in w for w in rep.warnings)
 
 
@@ -110,7 +110,7 @@ def test_replay_starts_where_the_fitted_valve_starts():
     assert rep.n == N - start
     assert rep.time[0] == pytest.approx(start * DT)
     np.testing.assert_array_equal(rep.data.pv, sim.pv[start:])
-    assert rep.settings["start_sample"] == start
+    assert rep.settings.start_sample == start
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT
 
 
@@ -125,7 +125,7 @@ def test_replay_of_offset_op_is_the_same():
         Tags.from_arrays(sim.pv, sim.op - 40.0, mv=sim.mv - 40.0, sp=sim.sp, ts=DT),
         fit_of(3.0, 3.0, sim.mv - 40.0),
     )
-    assert shifted.settings["op_offset"] != 0.0
+    assert shifted.settings.op_offset != 0.0
     np.testing.assert_allclose(shifted.pv, base.pv, atol=1e-6)
     np.testing.assert_allclose(shifted.op, base.op - 40.0, atol=1e-6)
     assert shifted.period_replay_s == pytest.approx(base.period_replay_s, rel=1e-6)
@@ -144,7 +144,7 @@ def test_replay_with_true_models_reproduces_data():
     # known at that point), and from there on it is the data.  Rounding only: the
     # load that carries the initial state is computed in a different order from the
     # simulator's own recursion.
-    start = rep.settings["start_sample"]
+    start = rep.settings.start_sample
     assert 0 < start * DT < 1.5 * 142.35  # first clear extreme: within 1.5 periods of op
     np.testing.assert_allclose(rep.pv, sim.pv[start:], atol=1e-8)
     np.testing.assert_allclose(rep.mv, sim.mv[start:], atol=1e-8)
@@ -178,7 +178,7 @@ def test_replay_noisy_level_loop_with_kano_valve():
     tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, sp=sim.sp, ts=DT)
     rep = replay(tags, fit_of(3.0, 3.0, sim.mv), valve="kano", noise_std=0.05, seed=2)
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT
-    assert rep.settings["noise_std"] == 0.05
+    assert rep.settings.noise_std == 0.05
 
 
 def test_replay_warns_on_sign_inconsistent_controller():
@@ -209,7 +209,7 @@ def test_replay_result_methods():
     assert set(d["fit"]) == {"pv", "op", "mv"}
     assert isinstance(d["fit"]["pv"], float)
     series = rep.to_dict(include_series=True)["series"]
-    assert len(series["pv"]) == N - rep.settings["start_sample"]
+    assert len(series["pv"]) == N - rep.settings.start_sample
     df = rep.to_pandas()
     assert list(df.columns) == [
         "time",

@@ -7,14 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from stictiondiag.replay.metrics import (
-    RecordedSignals,
-    ReplayMeasures,
-    SignalMeasures,
-    cycle_amplitude,
-    render_metrics,
-    replay_metrics,
-)
+from stictiondiag.replay.metrics import cycle_amplitude, render_metrics, replay_metrics
+from stictiondiag.replay.result import RecordedSignals, ReplayMeasures, SignalMeasures
 
 
 def _saw(n: int, period: int, amplitude: float) -> np.ndarray:

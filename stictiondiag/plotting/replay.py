@@ -161,7 +161,7 @@ def plot_replay(
     return fig
 
 
-#: The replayed valve's flowchart in words (``Replay.settings["valve"]``).
+#: The replayed valve's flowchart in words (``Replay.settings.valve``).
 _FLOWCHARTS = {"choudhury": "Choudhury, Fig. 10", "kano": "Kano et al."}
 
 
@@ -172,7 +172,7 @@ def _summary(replay, metrics: dict | None = None) -> str:
     proc, ctrl = pf.process, cf.controller
     lines = [
         f"valve: S = {replay.S:.3g} %, J = {replay.J:.3g} %"
-        f" ({_FLOWCHARTS.get(str((replay.settings or {}).get('valve')), 'data-driven')})",
+        f" ({_FLOWCHARTS.get(str(replay.settings.valve), 'data-driven')})",
         f"controller: Kc = {_num(ctrl.gain)}, Ti = {_num(ctrl.integral_time)} s"
         f" (R2 {_num(cf.fit_r2, '.3f')})",
     ]
