@@ -114,7 +114,7 @@ def _replay_lines(rep: Replay) -> list[str]:
         S0, J0 = plain_float(refit.S_open_loop), plain_float(refit.J_open_loop)
         S1, J1 = plain_float(refit.S), plain_float(refit.J)
         what = (
-            "process only (S and J measured from mv kept)"
+            "process only (S and J kept)"
             if (S1, J1) == (S0, J0)
             else f"S {_fmt(S1)}, J {_fmt(J1)} (open-loop fit S {_fmt(S0)}, J {_fmt(J0)}) "
             "and the process"

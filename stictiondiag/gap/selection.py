@@ -122,6 +122,33 @@ def bic_gain(base_error, n_params: float, share: float):
     return base_error * -math.expm1(-n_params * share)
 
 
+def signals_charge(gains: dict, charges: dict) -> float:
+    """The reduction of the summed error that pays for a candidate's parameters when
+    it acts on several signals, each charged in the units of its own error.
+
+    ``charges[s]`` is what the parameters must take off signal ``s``'s error on its own
+    (:func:`bic_gain`), ``gains[s]`` what they do.  The criterion with one variance
+    per signal (each signal's error its own Gaussian likelihood) asks
+    ``sum_s n_s log(E0_s / E1_s) >= k log n``, to first order
+    ``sum_s gains[s] / charges[s] >= 1``; as a least total gain, that is the gains'
+    sum over that ratio (a gain-weighted harmonic mean of the charges).  With one
+    signal it is that signal's charge.  The sum of the charges instead would charge a
+    signal the candidate changes little with the share of the error of another: a
+    historian's rounding of pv, which moves the controller replay's op by as much as
+    op's whole error, was asked for a tenth of pv's load error as well.  When the
+    signals' gains do not pass, the charges' sum (the candidate fails either way).
+    """
+    names = [s for s in charges if s in gains]
+    total = float(sum(charges[s] for s in names))
+    if len(names) < 2:
+        return total
+    ratio = sum(gains[s] / charges[s] for s in names if charges[s] > 0.0)
+    gain = float(sum(gains[s] for s in names))
+    if ratio < 1.0 or gain <= 0.0:
+        return total
+    return gain / ratio
+
+
 def effective_samples(residual: np.ndarray, w: np.ndarray) -> float:
     """Effectively independent residuals: the judged samples over the integrated
     autocorrelation time of the residual (summed until the autocorrelation first
@@ -282,10 +309,9 @@ def choose_quantization(fits: dict, held: HeldOut, share: dict) -> None:
 
     def q_net(h: dict, ef: EffectFit) -> float:
         sigs = [s for s in ef.predictions if s in errors["none"]]
-        gain = sum(float((errors["none"][s] - h[s]).sum()) for s in sigs)
-        return gain - sum(
-            bic_gain(float(errors["none"][s].sum()), ef.n_params, share[s]) for s in sigs
-        )
+        gains = {s: float((errors["none"][s] - h[s]).sum()) for s in sigs}
+        charges = {s: bic_gain(float(errors["none"][s].sum()), ef.n_params, share[s]) for s in sigs}
+        return sum(gains.values()) - signals_charge(gains, charges)
 
     full_net = q_net(errors["quantization"], fits["quantization"])
     best_q = (full_net, None)
@@ -371,7 +397,10 @@ def score_candidate(
     # The per-parameter share is of the base error on the signals the effect changes:
     # a valve effect is not asked to beat the process replay's error.
     sigs = [s for s in ef.predictions if s in held["none"]]
-    per_param = sum(bic_gain(float(held["none"][s].sum()), ef.n_params, share[s]) for s in sigs)
+    per_param = signals_charge(
+        {s: float((held["none"][s] - held[name][s]).sum()) for s in sigs},
+        {s: bic_gain(float(held["none"][s].sum()), ef.n_params, share[s]) for s in sigs},
+    )
     penalty = max(SIGNIFICANCE * se, per_param)
     # The scatter in absolute terms overstates the uncertainty when the blocks' errors
     # differ in size (a valve replay far out of step in some blocks): the same test on

@@ -312,7 +312,7 @@ _FEATURE_WORDS = {
     "pv_slope_kurtosis": ("pv moves in jumps", "pv moves smoothly"),
     "op_slope_kurtosis": ("op moves in jumps", "op moves smoothly"),
     "horch": "Horch's test",
-    "choudhury": "the bicoherence test and pv-op ellipse",
+    "choudhury": "the bicoherence test (with its pv-op ellipse)",
     "he": "He et al.'s shape test",
     "rossi_scali": "Rossi & Scali's shape test",
     "kano": "Kano et al.'s stuck-section test",
@@ -321,10 +321,18 @@ _FEATURE_WORDS = {
 _CALLS = {1.0: "says stiction", -1.0: "says no stiction", 0.0: "is undecided or does not apply"}
 
 
-def _feature_text(name: str, value: float, mean: float) -> str:
+def _feature_text(name: str, value: float, mean: float, term: float = 0.0) -> str:
+    """Words for one feature's value.  A test's call that pushes the log-odds the
+    other way from what it says (the model weighs it against its own call, given
+    the evidence it overlaps with) is marked so, not listed bare on the opposite
+    side."""
     words = _FEATURE_WORDS[name]
     if isinstance(words, str):
-        return f"{words} {_CALLS.get(float(value), 'is undecided')}"
+        call = float(value)
+        text = f"{words} {_CALLS.get(call, 'is undecided')}"
+        if call != 0.0 and call * term < 0:
+            text += " (weighed the other way, given the evidence it overlaps with)"
+        return text
     if name == "regularity" and value == 0.0:
         return "no cycle whose regularity could be measured"
     binary = name in ("s_excludes_zero", "s_open", "oscillating", "short_record", "halves_missing")
@@ -340,7 +348,7 @@ def _contributions(features: dict, has_mv: bool, model: dict) -> list[tuple[str,
     terms = []
     for i, k in enumerate(part_features(model, name)):
         t = part["coef"][i] * (features[k] - part["mean"][i]) / part["scale"][i]
-        terms.append((k, float(t), _feature_text(k, features[k], part["mean"][i])))
+        terms.append((k, float(t), _feature_text(k, features[k], part["mean"][i], t)))
     return sorted(terms, key=lambda kv: -abs(kv[1]))
 
 
