@@ -207,7 +207,7 @@ class Analysis:
             S_determinacy=to_plain(words.get("S")),
             J_determinacy=to_plain(words.get("J")),
             method=fit.method,
-            replay_fit_pv=None if rep is None else to_plain(rep.fit).get("pv"),
+            replay_fit_pv=None if rep is None else plain_float(rep.measures.pv.fit_pct),
             replay_period_error_pct=(
                 None if rep is None else plain_float(replay_metrics(rep).period_error_pct)
             ),

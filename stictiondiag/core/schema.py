@@ -40,7 +40,8 @@ from stictiondiag.core.errors import DataError
 #: Version of the encoding below; raised when a change would misread older files.
 #: 2: the replay holds its identified process and controller once, as typed fits.
 #: 3: one process fit for both objectives, its extras typed (``ProcessFit.detail``).
-SCHEMA_VERSION = 3
+#: 4: the replay's record, per-signal measures and settings typed (``replay.result``).
+SCHEMA_VERSION = 4
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

@@ -119,7 +119,7 @@ def reproduction_features(
         lin = None
     cost["linear_s"] = time.process_time() - t1
     dt = float(rep.dt)
-    pv = rep.data["pv"]
+    pv = rep.data.pv
     h = pv.size // 2
     a_data = spread_amplitude(pv[h:])
     out = dict(REPLAY_FILL)
