@@ -171,6 +171,11 @@ def real_rows(folder: Path, cache: Path, refit: bool = False) -> list[dict]:
     return _cached(cache / f"real{tag}.jsonl", lambda: (_real_one(j, refit) for j in jobs))
 
 
+#: Bootstrap resamples of the paired difference of areas, and their seed.
+BOOTSTRAPS = 2000
+BOOT_SEED = 0
+
+
 def _auc(pos: np.ndarray, neg: np.ndarray) -> float:
     if pos.size == 0 or neg.size == 0:
         return math.nan
@@ -210,6 +215,23 @@ def report(rows: list[dict], real: list[dict]) -> list[str]:
         cells += [_auc(col(pos, k), col(n, k)) for _, n in groups]
         shift = _ks(col(rows, k), col(real, k)) if real else math.nan
         lines.append(f"| `{k}` | " + " | ".join(f"{c:.2f}" for c in cells) + f" | {shift:.2f} |")
+    y = np.r_[np.ones(len(pos)), np.zeros(len(neg))].astype(int)
+    c = np.r_[col(pos, "replay_contrast"), col(neg, "replay_contrast")]
+    d = np.r_[col(pos, "df_amplitude_ratio"), col(neg, "df_amplitude_ratio")]
+    rng = np.random.default_rng(BOOT_SEED)
+    diffs = []
+    for _ in range(BOOTSTRAPS):
+        i = rng.integers(0, y.size, y.size)
+        yi = y[i]
+        diffs.append(_auc(c[i][yi == 1], c[i][yi == 0]) - _auc(d[i][yi == 1], d[i][yi == 0]))
+    lo, hi = np.nanpercentile(diffs, [2.5, 97.5])
+    lines += [
+        "",
+        "Area under the ROC curve of `replay_contrast` less that of `df_amplitude_ratio`,"
+        f" same loops: {_auc(c[y == 1], c[y == 0]) - _auc(d[y == 1], d[y == 0]):+.2f}"
+        f" (95 % interval over {BOOTSTRAPS} bootstrap resamples of the loops"
+        f" {lo:+.2f} to {hi:+.2f}).",
+    ]
     lines += ["", "| true \\ replay call | valve | tuning | external |", "|---|---|---|---|"]
     for c in CAUSES:
         rs = [r for r in rows if r["label"] == c]

@@ -60,12 +60,20 @@ import math
 import time
 from dataclasses import replace as dc_replace
 
+import numpy as np
+
 from stictiondiag.core.errors import StictionError
 from stictiondiag.replay.closed_loop import replay
 from stictiondiag.replay.metrics import cycle_reproduction, spread_amplitude
 from stictiondiag.stiction.consistency import LOG_CAP, REPLAY_FILL
 
 __all__ = ["reproduction_features", "reproduction_call"]
+
+#: What a replay that cannot use the data raises: the replay's own errors, and a
+#: singular or non-finite identification (seen on one simulated loop in several
+#: hundred: ``numpy.linalg.LinAlgError`` from the process fit's normal equations).
+#: Such a loop gets the "no replay" values, as one whose loop cannot be identified.
+_NO_REPLAY = (StictionError, np.linalg.LinAlgError, ValueError, FloatingPointError)
 
 
 def _log_ratio(a: float | None, b: float | None) -> float:
@@ -101,7 +109,7 @@ def reproduction_features(
             known=known,
             refit=refit,
         )
-    except StictionError:
+    except _NO_REPLAY:
         cost["replay_s"] = time.process_time() - t0
         return dict(REPLAY_FILL), cost
     t1 = time.process_time()
@@ -115,7 +123,7 @@ def reproduction_features(
             valve=fit.valve_family,
             refit=False,
         )
-    except StictionError:
+    except _NO_REPLAY:
         lin = None
     cost["linear_s"] = time.process_time() - t1
     dt = float(rep.dt)
