@@ -79,9 +79,9 @@ TOLERANCE = 0.1
 MIN_BAND = 10
 #: How long computing the features took from an empty cache, as measured.
 MEASURED_RUN = (
-    "measured from an empty cache on 27 Nov 2026: 750 simulated loops and 60 dead-zone"
-    " loops (with their twins) and the 77 real records in 9.3 min of wall time with two"
-    " worker processes on a shared two-core machine (load about 6)"
+    "measured from an empty cache on 27 Nov 2026, with the closed-loop reproduction:"
+    " 750 simulated loops and 60 dead-zone loops (with their twins) and the 77 real records"
+    " in 8.1 min of wall time with one worker process on a shared two-core machine"
 )
 
 #: Heading of the section this script writes in docs/calibration.md.
