@@ -41,7 +41,8 @@ from stictiondiag.core.errors import DataError
 #: 2: the replay holds its identified process and controller once, as typed fits.
 #: 3: one process fit for both objectives, its extras typed (``ProcessFit.detail``).
 #: 4: the replay's record, per-signal measures and settings typed (``replay.result``).
-SCHEMA_VERSION = 4
+#: 5: a stiction fit's determinacy and gain sign are typed fields, not in ``details``.
+SCHEMA_VERSION = 5
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

@@ -716,12 +716,12 @@ def estimate_from_mv(
     seg_cost = _segment_cost(op, mv, searches[best][0], ev, (k0, k_start, d_start))
 
     period = cycle_samples(op)
+    det = determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge)
     details = {
         **_mv_fit_details(
             variant, bias, searches, best, (S_iv, J_iv), (S_hi_edge, J_hi_edge), n_eff
         ),
         "segments": _segments_details(segs, ev, S_ci, J_ci, seg_cost),
-        "determinacy": determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge),
         "interval_method": (
             "hull of the 95 % profile-cost interval of the least-squares fit (F test, "
             "effective samples) and the 95 % bootstrap interval of the median over slips"
@@ -751,4 +751,6 @@ def estimate_from_mv(
         cost=cost,
         linear_cost=linear_cost,
         details=details,
+        S_determinacy=det["S"],
+        J_determinacy=det["J"],
     )

@@ -92,6 +92,44 @@ def poorly_determined(determinacy: Determinacy | None, value, interval) -> bool:
 
 
 @dataclass(frozen=True)
+class GainSign:
+    """What the sign of the process gain did to a fit without mv
+    (:func:`stictiondiag.stiction.hammerstein.search.gain_sign_evidence`).
+
+    Attributes
+    ----------
+    required : int
+        +1 or -1, the sign the process gain (pv per op) was held to, the controller's
+        (a loop under control has ``Kc Kp > 0``); 0: free.
+    binding_at_estimate : bool
+        At the estimate, the linear part fitted with the sign free has a process gain
+        of the other sign.
+    consistent_fit : bool
+        The fitted process gain is not zero (with the sign held, a record no valve
+        output drives with that sign is fitted with gains of zero).
+    controller_fit_r2 : float or None
+        R^2 of the controller's law the sign comes from [-]; None when the fit was not
+        given the controller's sign by :func:`stictiondiag.analysis.estimate_stiction`.
+    """
+
+    required: int
+    binding_at_estimate: bool
+    consistent_fit: bool
+    controller_fit_r2: float | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (``controller_fit_r2`` where the controller's law was read)."""
+        out: dict = {
+            "required": int(self.required),
+            "binding_at_estimate": bool(self.binding_at_estimate),
+            "consistent_fit": bool(self.consistent_fit),
+        }
+        if self.controller_fit_r2 is not None:
+            out["controller_fit_r2"] = _plain(self.controller_fit_r2)
+        return out
+
+
+@dataclass(frozen=True)
 class StictionFit:
     """Estimated stiction parameters of the data-driven model (Section 5.1).
 
@@ -119,8 +157,13 @@ class StictionFit:
     linear_cost : float
         The same cost with a linear valve (S = J = 0), fitted the same way.
     details : dict
-        Method-specific, JSON-able diagnostics: both estimates of the mv method,
-        determinacy, the valve model variant, per-cycle costs used by the verdict.
+        Method-specific, JSON-able diagnostics: both estimates of the mv method, the
+        valve model variant, per-cycle costs used by the verdict.
+    S_determinacy, J_determinacy : Determinacy or None
+        How well the data determine S and J; None when the estimator did not say.
+    gain_sign : GainSign or None
+        What the sign of the process gain did to a fit without mv; None for the mv
+        method.
     """
 
     S: float
@@ -135,11 +178,14 @@ class StictionFit:
     cost: float
     linear_cost: float
     details: dict = field(default_factory=dict, repr=False)
+    S_determinacy: Determinacy | None = None
+    J_determinacy: Determinacy | None = None
+    gain_sign: GainSign | None = None
 
     def determinacy_of(self, sym: str) -> Determinacy | None:
         """How well the data determine ``sym`` (``"S"`` or ``"J"``); None when the
         estimator did not say."""
-        return Determinacy.of(((self.details or {}).get("determinacy") or {}).get(sym))
+        return self.S_determinacy if sym == "S" else self.J_determinacy
 
     def poorly_determined(self, sym: str) -> bool:
         """``sym`` is poorly determined (:func:`poorly_determined`)."""
@@ -191,9 +237,19 @@ class StictionFit:
                 "cost": self.cost,
                 "linear_cost": self.linear_cost,
                 "improvement": self.improvement,
-                "details": self.details,
+                "details": self._details_dict(),
             }
         )
+
+    def _details_dict(self) -> dict:
+        """``details`` with the determinacy and the gain sign, as the JSON carries them."""
+        out = dict(self.details)
+        words = {"S": self.S_determinacy, "J": self.J_determinacy}
+        if any(w is not None for w in words.values()):
+            out["determinacy"] = {k: w.value for k, w in words.items() if w is not None}
+        if self.gain_sign is not None:
+            out["gain_sign"] = self.gain_sign.to_dict()
+        return out
 
 
 # --------------------------------------------------------------------------------------

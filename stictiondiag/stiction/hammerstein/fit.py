@@ -130,7 +130,7 @@ noise, coloured loads, healthy valves under external oscillations) and prints ho
 often the interval holds the true S.
 Without mv the breakaway point S trades off against the process dead time, and J
 against the process gain when the valve never moves smoothly (then J is reported
-unbounded); ``details["determinacy"]`` says "poorly determined" when the interval is
+unbounded); ``StictionFit.S_determinacy`` says "poorly determined" when the interval is
 wide or reaches the search limit.
 
 Known limit: a noisy op fed to a valve that sticks at every noise reversal (Kano's
@@ -477,7 +477,6 @@ def _details(
     theta: np.ndarray,
     lin_delay: int,
     iv: _Intervals,
-    determined: dict,
     residuals: tuple[np.ndarray, np.ndarray],
     moving_fraction: float,
     J_confounded: bool,
@@ -512,7 +511,6 @@ def _details(
         "start_offset": offset * scale,
         "start_direction": float(prob.d_start),
         "cost_by_valve_model_coarse": start.coarse_costs,
-        "determinacy": determined,
         "interval_method": INTERVAL_METHOD,
         "effective_samples": iv.n_eff,
         "effective_samples_residual": iv.n_eff_residual,
@@ -631,7 +629,7 @@ def fit_hammerstein(
     gain_sign : {0, 1, -1}
         Sign the process gain (pv per op) must have, for both valves: the
         controller's (:func:`stictiondiag.identification.controller.loop_gain_sign`);
-        0: free.  ``details["gain_sign"]``: see :func:`.search.gain_sign_evidence`.
+        0: free.  ``StictionFit.gain_sign``: see :func:`.search.gain_sign_evidence`.
 
     Returns
     -------
@@ -742,7 +740,7 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
     J_confounded = moving_fraction < MIN_MOVING_FRACTION and S_hat > 0
     J_iv, J_open = ((0.0, setup.S_max), True) if J_confounded else (iv.J, iv.J_open)
     signs = gain_sign_evidence(prob, theta, (S_hat, J_hat, start.variant, delay, offset, tau))
-    if not signs["consistent_fit"]:  # no valve drives pv with the sign: S, J unknown
+    if not signs.consistent_fit:  # no valve drives pv with the sign: S, J unknown
         iv = replace(iv, S=(0.0, setup.S_max), S_open=True)
         J_iv, J_open = (0.0, setup.S_max), True
 
@@ -774,14 +772,14 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         theta=theta,
         lin_delay=lin_delay,
         iv=iv,
-        determined=determinacy(S_hat, S_iv, iv.S_open, J_hat, J_iv, J_open),
         residuals=(resid, lin_resid),
         moving_fraction=moving_fraction,
         J_confounded=J_confounded,
         block=block,
         n_left_out=n_left_out,
-        note={"drift_model": drift, "gain_sign": signs, **_note(integrating, flow_loop)},
+        note={"drift_model": drift, **_note(integrating, flow_loop)},
     )
+    det = determinacy(S_hat, S_iv, iv.S_open, J_hat, J_iv, J_open)
     return StictionFit(
         S=S_hat,
         J=J_hat,
@@ -795,4 +793,7 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         cost=cost,
         linear_cost=linear_cost,
         details=details,
+        S_determinacy=det["S"],
+        J_determinacy=det["J"],
+        gain_sign=signs,
     )
