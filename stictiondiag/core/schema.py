@@ -42,7 +42,8 @@ from stictiondiag.core.errors import DataError
 #: 3: one process fit for both objectives, its extras typed (``ProcessFit.detail``).
 #: 4: the replay's record, per-signal measures and settings typed (``replay.result``).
 #: 5: a stiction fit's determinacy and gain sign are typed fields, not in ``details``.
-SCHEMA_VERSION = 5
+#: 6: and so are its valve model and the valve's state where the model starts.
+SCHEMA_VERSION = 6
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

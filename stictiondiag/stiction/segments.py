@@ -600,7 +600,6 @@ def _mv_fit_details(
     S_all, J_all, C_all, S_ls, J_ls, cost = searches[best][1]
     (S_iv, J_iv), (S_hi_edge, J_hi_edge) = intervals, hi_edges
     return {
-        "valve_model": variant.name,
         "play_width": variant.play_width,
         "bias": bias,
         "least_squares": {
@@ -753,4 +752,5 @@ def estimate_from_mv(
         details=details,
         S_determinacy=det["S"],
         J_determinacy=det["J"],
+        valve_model=variant.name,
     )

@@ -130,6 +130,26 @@ class GainSign:
 
 
 @dataclass(frozen=True)
+class ValveStart:
+    """The fitted valve's state where its model starts (a fit without mv begins at
+    the first clear extreme of op, where a sticky valve's state is known).
+
+    Attributes
+    ----------
+    sample : int
+        First sample the valve model covers [-].
+    offset : float
+        How far op had come back from the point where the valve stuck [% of span].
+    direction : float
+        Direction of the valve's last movement (+1, -1; 0 when not known) [-].
+    """
+
+    sample: int
+    offset: float
+    direction: float
+
+
+@dataclass(frozen=True)
 class StictionFit:
     """Estimated stiction parameters of the data-driven model (Section 5.1).
 
@@ -164,6 +184,12 @@ class StictionFit:
     gain_sign : GainSign or None
         What the sign of the process gain did to a fit without mv; None for the mv
         method.
+    valve_model : str or None
+        The valve model variant fitted (:func:`valve_variants`: Choudhury's or Kano's
+        flowchart, with or without the play operator); None when the fit does not say.
+    valve_start : ValveStart or None
+        The fitted valve's state where its model starts (fit without mv); None for
+        the mv method.
     """
 
     S: float
@@ -181,6 +207,8 @@ class StictionFit:
     S_determinacy: Determinacy | None = None
     J_determinacy: Determinacy | None = None
     gain_sign: GainSign | None = None
+    valve_model: str | None = None
+    valve_start: ValveStart | None = None
 
     def determinacy_of(self, sym: str) -> Determinacy | None:
         """How well the data determine ``sym`` (``"S"`` or ``"J"``); None when the
@@ -197,9 +225,9 @@ class StictionFit:
     def valve_family(self) -> str:
         """The flowchart of the fitted valve, ``"choudhury"`` (Fig. 10) or ``"kano"``
         (Kano et al. 2004), with or without the play operator against op's noise
-        (``details["valve_model"]``); ``"choudhury"`` when the fit does not say.  The
+        (:attr:`valve_model`); ``"choudhury"`` when the fit does not say.  The
         replay runs the valve that was fitted."""
-        name = str((self.details or {}).get("valve_model", "choudhury"))
+        name = self.valve_model or "choudhury"
         return "kano" if name.startswith("kano") else "choudhury"
 
     @property
@@ -242,8 +270,15 @@ class StictionFit:
         )
 
     def _details_dict(self) -> dict:
-        """``details`` with the determinacy and the gain sign, as the JSON carries them."""
+        """``details`` with the valve model, its start, the determinacy and the gain
+        sign, as the JSON carries them."""
         out = dict(self.details)
+        if self.valve_model is not None:
+            out["valve_model"] = self.valve_model
+        if self.valve_start is not None:
+            out["start_sample"] = int(self.valve_start.sample)
+            out["start_offset"] = self.valve_start.offset
+            out["start_direction"] = self.valve_start.direction
         words = {"S": self.S_determinacy, "J": self.J_determinacy}
         if any(w is not None for w in words.values()):
             out["determinacy"] = {k: w.value for k, w in words.items() if w is not None}

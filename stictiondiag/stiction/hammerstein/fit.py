@@ -175,6 +175,7 @@ from stictiondiag.stiction.hammerstein.search import (
 )
 from stictiondiag.stiction.valvefit import (
     StictionFit,
+    ValveStart,
     ValveVariant,
     block_sse,
     cost_threshold,
@@ -491,7 +492,6 @@ def _details(
     resid, lin_resid = residuals
     n_par = NCOL + 5  # linear columns; S, J, dead time, time constant, offset
     return {
-        "valve_model": variant.name,
         "play_width": variant.play_width * scale,
         "structure": setup.structure,
         "period_samples": setup.period,
@@ -506,10 +506,7 @@ def _details(
         "gain_units": setup.pv_unit / scale,
         "highpass_corner_s": HIGHPASS_PERIODS * setup.period * dt,
         "search_limit": setup.S_max * scale,
-        "start_sample": fitted[0] + prob.k_start,
         "fitted_samples": list(fitted),
-        "start_offset": offset * scale,
-        "start_direction": float(prob.d_start),
         "cost_by_valve_model_coarse": start.coarse_costs,
         "interval_method": INTERVAL_METHOD,
         "effective_samples": iv.n_eff,
@@ -796,4 +793,8 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         S_determinacy=det["S"],
         J_determinacy=det["J"],
         gain_sign=signs,
+        valve_model=variant.name,
+        valve_start=ValveStart(
+            sample=first + prob.k_start, offset=offset * scale, direction=float(prob.d_start)
+        ),
     )
