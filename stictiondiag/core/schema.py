@@ -43,7 +43,8 @@ from stictiondiag.core.errors import DataError
 #: 4: the replay's record, per-signal measures and settings typed (``replay.result``).
 #: 5: a stiction fit's determinacy and gain sign are typed fields, not in ``details``.
 #: 6: and so are its valve model and the valve's state where the model starts.
-SCHEMA_VERSION = 6
+#: 7: and its drift comparison and disturbance model (a fit without mv).
+SCHEMA_VERSION = 7
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

@@ -150,6 +150,63 @@ class ValveStart:
 
 
 @dataclass(frozen=True)
+class DriftComparison:
+    """Both valves of a fit without mv refitted with drift states estimated alongside
+    (:mod:`stictiondiag.stiction.hammerstein`, "The disturbance model").
+
+    Attributes
+    ----------
+    n_states : int
+        Drift states [-].
+    cutoff_cycles : float
+        Highest drift frequency, in cycles of the loop's oscillation [-].
+    cost, linear_cost : float
+        Sum of squared residuals of the stiction and of the linear valve with the
+        drift states [scaled pv]^2.
+    effective_samples : float
+        Effective number of independent samples of the stiction model's residual [-].
+    block_sse_stiction, block_sse_linear : ndarray
+        The two residuals' sums of squares per block of the record [scaled pv]^2.
+    """
+
+    n_states: int
+    cutoff_cycles: float
+    cost: float
+    linear_cost: float
+    effective_samples: float
+    block_sse_stiction: np.ndarray
+    block_sse_linear: np.ndarray
+
+    @property
+    def improvement(self) -> float | None:
+        """Fraction of the linear valve's residual the stiction model removes [-]."""
+        return 1.0 - self.cost / self.linear_cost if self.linear_cost > 0 else None
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (``details["drift_model"]`` of the JSON)."""
+        return {
+            "n_states": int(self.n_states),
+            "cutoff_cycles": self.cutoff_cycles,
+            "cost": self.cost,
+            "linear_cost": self.linear_cost,
+            "improvement": self.improvement,
+            "effective_samples": self.effective_samples,
+            "block_sse": {
+                "stiction": np.asarray(self.block_sse_stiction).tolist(),
+                "linear": np.asarray(self.block_sse_linear).tolist(),
+            },
+        }
+
+
+@dataclass(frozen=True)
+class DisturbanceChoice:
+    """The disturbance model a fit without mv used (``highpass`` or ``drift``) and why."""
+
+    model: str
+    reason: str
+
+
+@dataclass(frozen=True)
 class StictionFit:
     """Estimated stiction parameters of the data-driven model (Section 5.1).
 
@@ -190,6 +247,12 @@ class StictionFit:
     valve_start : ValveStart or None
         The fitted valve's state where its model starts (fit without mv); None for
         the mv method.
+    drift : DriftComparison or None
+        Both valves refitted with drift states (fit without mv); None for the mv
+        method.
+    disturbance : DisturbanceChoice or None
+        The disturbance model the fit without mv used, and why; None for the mv
+        method.
     """
 
     S: float
@@ -209,6 +272,8 @@ class StictionFit:
     gain_sign: GainSign | None = None
     valve_model: str | None = None
     valve_start: ValveStart | None = None
+    drift: DriftComparison | None = None
+    disturbance: DisturbanceChoice | None = None
 
     def determinacy_of(self, sym: str) -> Determinacy | None:
         """How well the data determine ``sym`` (``"S"`` or ``"J"``); None when the
@@ -241,13 +306,12 @@ class StictionFit:
     def improvement_drift(self) -> float | None:
         """The improvement with drift states estimated alongside both valves [-].
 
-        Hammerstein fit only (``details["drift_model"]``, see "The disturbance
-        model" in :mod:`stictiondiag.stiction.hammerstein`): the share of the linear
-        valve's residual the stiction model removes once slow load, set-point and
+        Hammerstein fit only (:attr:`drift`, see "The disturbance model" in
+        :mod:`stictiondiag.stiction.hammerstein`): the share of the linear valve's
+        residual the stiction model removes once slow load, set-point and
         operating-point drifts are fitted too.  None without it.
         """
-        dm = (self.details or {}).get("drift_model") or {}
-        value = dm.get("improvement")
+        value = None if self.drift is None else self.drift.improvement
         return None if value is None else float(value)
 
     def to_dict(self) -> dict:
@@ -284,6 +348,13 @@ class StictionFit:
             out["determinacy"] = {k: w.value for k, w in words.items() if w is not None}
         if self.gain_sign is not None:
             out["gain_sign"] = self.gain_sign.to_dict()
+        if self.drift is not None:
+            out["drift_model"] = self.drift.to_dict()
+        if self.disturbance is not None:
+            out["disturbance_model"] = {
+                "model": self.disturbance.model,
+                "reason": self.disturbance.reason,
+            }
         return out
 
 

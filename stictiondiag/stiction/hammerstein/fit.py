@@ -99,7 +99,7 @@ cycle), which halves the improvement of noisy sticky loops (median 0.27 -> 0.11)
 Under heavy drift they cut the S error on both draws that ran them (1.41 -> 0.72
 and 1.50 -> 0.62 % of span, seeds 3 and 11) but separated better on one only (AUC
 0.73 -> 0.83 and 0.86 -> 0.83).  The search therefore stays on the high-pass, which detects most and separates as well as any, and the drift states
-are reported beside it: ``details["drift_model"]`` holds both valves refitted with the
+are reported beside it: ``StictionFit.drift`` holds both valves refitted with the
 drift states at their fitted valve parameters, dead times and time constants (its
 improvement is :attr:`stictiondiag.stiction.valvefit.StictionFit.improvement_drift`,
 with block costs for a bootstrap).  As a statistic of its own it separates no
@@ -174,6 +174,8 @@ from stictiondiag.stiction.hammerstein.search import (
     refine,
 )
 from stictiondiag.stiction.valvefit import (
+    DisturbanceChoice,
+    DriftComparison,
     StictionFit,
     ValveStart,
     ValveVariant,
@@ -529,7 +531,9 @@ def _details(
     }
 
 
-def _drift_comparison(setup: FitSetup, block: int, stiction: tuple, linear: tuple) -> dict:
+def _drift_comparison(
+    setup: FitSetup, block: int, stiction: tuple, linear: tuple
+) -> DriftComparison:
     """Both valves compared with drift states estimated alongside, at their fitted
     valve parameters, dead times and time constants (see "The disturbance model").
 
@@ -546,18 +550,15 @@ def _drift_comparison(setup: FitSetup, block: int, stiction: tuple, linear: tupl
         0.0, 0.0, ValveVariant("linear", False), linear[0], 0.0, linear[1]
     )
     cost, linear_cost = float(np.sum(resid**2)), float(np.sum(lin_resid**2))
-    return {
-        "n_states": int(prob.D.shape[1]),
-        "cutoff_cycles": DRIFT_CUTOFF,
-        "cost": cost,
-        "linear_cost": linear_cost,
-        "improvement": 1.0 - cost / linear_cost if linear_cost > 0 else None,
-        "effective_samples": effective_samples(resid),
-        "block_sse": {
-            "stiction": block_sse(resid, block).tolist(),
-            "linear": block_sse(lin_resid, block).tolist(),
-        },
-    }
+    return DriftComparison(
+        n_states=int(prob.D.shape[1]),
+        cutoff_cycles=DRIFT_CUTOFF,
+        cost=cost,
+        linear_cost=linear_cost,
+        effective_samples=effective_samples(resid),
+        block_sse_stiction=block_sse(resid, block),
+        block_sse_linear=block_sse(lin_resid, block),
+    )
 
 
 def _n_drift_states(prob: Problem, period: int) -> int:
@@ -622,7 +623,7 @@ def fit_hammerstein(
         Disturbance model (see "The disturbance model" in the module docstring):
         the high-pass alone (default, chosen by measurement), drift states estimated
         alongside, or drift states only when the high-pass fit's residual calls for
-        them (:func:`drift_called_for`); ``details["disturbance_model"]`` says which.
+        them (:func:`drift_called_for`); ``StictionFit.disturbance`` says which.
     gain_sign : {0, 1, -1}
         Sign the process gain (pv per op) must have, for both valves: the
         controller's (:func:`stictiondiag.identification.controller.loop_gain_sign`);
@@ -634,9 +635,9 @@ def fit_hammerstein(
         ``method="hammerstein"``; costs are sums of squared residuals of the
         high-passed, unit-variance pv.  ``details`` holds the linear part (dead time,
         basis), the valve model variant, determinacy and per-cycle costs;
-        ``details["drift_model"]`` both valves refitted with drift states (number of
+        ``drift`` both valves refitted with drift states (number of
         states, costs, improvement, per-cycle costs, effective samples) and
-        ``details["disturbance_model"]`` the model the search used and why.
+        ``disturbance`` the model the search used and why.
 
     Notes
     -----
@@ -666,9 +667,7 @@ def fit_hammerstein(
         chosen, why = drift_called_for(fit)
         if chosen == "drift":
             fit = _fit_one(op, pv, dt, integrating, flow_loop, period_s, "drift", gain_sign)
-    return replace(
-        fit, details={**fit.details, "disturbance_model": {"model": chosen, "reason": why}}
-    )
+    return replace(fit, disturbance=DisturbanceChoice(model=chosen, reason=why))
 
 
 def drift_called_for(fit: StictionFit) -> tuple[str, str]:
@@ -684,9 +683,11 @@ def drift_called_for(fit: StictionFit) -> tuple[str, str]:
     model's residual, not the linear valve's: a sticky valve's slips leave a slow
     misfit in a linear valve's residual that drift states would explain away.
     """
-    dm = fit.details.get("drift_model") or {}
-    m, c0, c1 = int(dm.get("n_states", 0)), float(fit.cost), float(dm.get("cost", 0.0))
-    n = float(dm.get("effective_samples", 0.0))
+    dm = fit.drift
+    if dm is None:
+        return "highpass", "no drift states fit this record"
+    m, c0, c1 = int(dm.n_states), float(fit.cost), float(dm.cost)
+    n = float(dm.effective_samples)
     if m == 0 or not (c1 > 0 and c0 > 0 and n > m + 1):
         return "highpass", "no drift states fit this record"
     gain, penalty = n * math.log(c0 / c1), m * math.log(n)
@@ -774,7 +775,7 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         J_confounded=J_confounded,
         block=block,
         n_left_out=n_left_out,
-        note={"drift_model": drift, **_note(integrating, flow_loop)},
+        note=_note(integrating, flow_loop),
     )
     det = determinacy(S_hat, S_iv, iv.S_open, J_hat, J_iv, J_open)
     return StictionFit(
@@ -794,6 +795,7 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         J_determinacy=det["J"],
         gain_sign=signs,
         valve_model=variant.name,
+        drift=drift,
         valve_start=ValveStart(
             sample=first + prob.k_start, offset=offset * scale, direction=float(prob.d_start)
         ),
