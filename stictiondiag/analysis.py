@@ -70,9 +70,9 @@ from stictiondiag.signals.oscillation import (
     detect_oscillation,
     dominant_period,
 )
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import Segments, estimate_from_mv, segment_valve
-from stictiondiag.stiction.valvefit import StictionFit
 from stictiondiag.stiction.verdict import Verdict, stiction_verdict, verdict_features
 
 __all__ = [

@@ -27,7 +27,7 @@ from stictiondiag.replay.metrics import replay_metrics
 from stictiondiag.row import LoopRow
 from stictiondiag.signals.kpis import LoopKpis
 from stictiondiag.signals.oscillation import Oscillation
-from stictiondiag.stiction.valvefit import StictionFit
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.verdict import Verdict
 
 if TYPE_CHECKING:

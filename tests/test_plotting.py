@@ -191,7 +191,7 @@ def test_valve_zoom_draws_S_and_J_at_a_slip():
 
 def test_poorly_determined_parameters_are_marked_on_the_figures():
     from stictiondiag.plotting.valve import plot_valve_zoom
-    from stictiondiag.stiction.valvefit import Determinacy, StictionFit
+    from stictiondiag.stiction.fit_result import Determinacy, StictionFit
 
     def fit_of(S, S_iv, det_S, J=5.78, J_iv=(2.89, 5.78), det_J=Determinacy.OPEN):
         return StictionFit(

@@ -28,7 +28,7 @@ from stictiondiag.models.processes import (
 from stictiondiag.models.valve import choudhury_model
 from stictiondiag.replay.closed_loop import Replay, nrmse, replay
 from stictiondiag.replay.cycles import cycle_shape, waveform_similarity
-from stictiondiag.stiction.valvefit import ValveStart
+from stictiondiag.stiction.fit_result import ValveStart
 
 N = 10_000
 DT = 0.1

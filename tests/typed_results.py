@@ -13,7 +13,7 @@ from stictiondiag.gap.diagnose import Candidate, GapDiagnosis
 from stictiondiag.io.tags import Tags
 from stictiondiag.result import Analysis
 from stictiondiag.signals.oscillation import Oscillation
-from stictiondiag.stiction.valvefit import Determinacy, StictionFit
+from stictiondiag.stiction.fit_result import Determinacy, StictionFit
 from stictiondiag.stiction.verdict import Verdict
 
 #: The decision levels the tests' verdicts carry in their evidence [-].

@@ -44,7 +44,8 @@ from stictiondiag.core.errors import DataError
 #: 5: a stiction fit's determinacy and gain sign are typed fields, not in ``details``.
 #: 6: and so are its valve model and the valve's state where the model starts.
 #: 7: and its drift comparison and disturbance model (a fit without mv).
-SCHEMA_VERSION = 7
+#: 8: the stiction fit's result types live in ``stiction.fit_result``.
+SCHEMA_VERSION = 8
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

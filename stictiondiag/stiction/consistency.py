@@ -62,7 +62,7 @@ from stictiondiag.identification.controller import identify_controller
 from stictiondiag.models.describing import predict_limit_cycle, stability_margins
 from stictiondiag.models.processes import PI, SampledLag
 from stictiondiag.signals.oscillation import fundamental_amplitude
-from stictiondiag.stiction.valvefit import StictionFit
+from stictiondiag.stiction.fit_result import StictionFit
 
 #: The features of this module, in order.
 FEATURES: tuple[str, ...] = (

@@ -39,9 +39,9 @@ from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.core.stats import bootstrap_median_ci, median_small
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.resolution import resolution, resolution_details
 from stictiondiag.stiction.valvefit import (
-    StictionFit,
     block_sse,
     cost_threshold,
     cycle_samples,

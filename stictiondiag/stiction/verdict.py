@@ -46,6 +46,7 @@ from stictiondiag.stiction.cause import (
 from stictiondiag.stiction.cause_model import cause_probabilities
 from stictiondiag.stiction.consistency import FILL as DF_FILL
 from stictiondiag.stiction.consistency import describing_features
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.probability import (
     classic_votes,
@@ -55,7 +56,6 @@ from stictiondiag.stiction.probability import (
     part_name,
     stiction_probability,
 )
-from stictiondiag.stiction.valvefit import StictionFit
 
 
 @dataclass(frozen=True)

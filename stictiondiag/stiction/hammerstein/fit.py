@@ -101,7 +101,7 @@ and 1.50 -> 0.62 % of span, seeds 3 and 11) but separated better on one only (AU
 0.73 -> 0.83 and 0.86 -> 0.83).  The search therefore stays on the high-pass, which detects most and separates as well as any, and the drift states
 are reported beside it: ``StictionFit.drift`` holds both valves refitted with the
 drift states at their fitted valve parameters, dead times and time constants (its
-improvement is :attr:`stictiondiag.stiction.valvefit.StictionFit.improvement_drift`,
+improvement is :attr:`stictiondiag.stiction.fit_result.StictionFit.improvement_drift`,
 with block costs for a bootstrap).  As a statistic of its own it separates no
 better than the high-pass improvement: AUC 0.95, 0.95 and 0.90 against 0.93, 0.96
 and 0.93 on seeds 3, 5 and 11, winning under some disturbances and losing under
@@ -159,6 +159,12 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.filters import median_filter_nearest
+from stictiondiag.stiction.fit_result import (
+    DisturbanceChoice,
+    DriftComparison,
+    StictionFit,
+    ValveStart,
+)
 from stictiondiag.stiction.hammerstein.columns import NCOL, highpass, lag
 from stictiondiag.stiction.hammerstein.kernels import Problem
 from stictiondiag.stiction.hammerstein.search import (
@@ -174,10 +180,6 @@ from stictiondiag.stiction.hammerstein.search import (
     refine,
 )
 from stictiondiag.stiction.valvefit import (
-    DisturbanceChoice,
-    DriftComparison,
-    StictionFit,
-    ValveStart,
     ValveVariant,
     block_sse,
     cost_threshold,
@@ -684,10 +686,8 @@ def drift_called_for(fit: StictionFit) -> tuple[str, str]:
     misfit in a linear valve's residual that drift states would explain away.
     """
     dm = fit.drift
-    if dm is None:
-        return "highpass", "no drift states fit this record"
-    m, c0, c1 = int(dm.n_states), float(fit.cost), float(dm.cost)
-    n = float(dm.effective_samples)
+    m, c1, n = (0, 0.0, 0.0) if dm is None else (dm.n_states, dm.cost, dm.effective_samples)
+    m, c0, c1, n = int(m), float(fit.cost), float(c1), float(n)
     if m == 0 or not (c1 > 0 and c0 > 0 and n > m + 1):
         return "highpass", "no drift states fit this record"
     gain, penalty = n * math.log(c0 / c1), m * math.log(n)
@@ -796,7 +796,5 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         gain_sign=signs,
         valve_model=variant.name,
         drift=drift,
-        valve_start=ValveStart(
-            sample=first + prob.k_start, offset=offset * scale, direction=float(prob.d_start)
-        ),
+        valve_start=ValveStart(first + prob.k_start, offset * scale, float(prob.d_start)),
     )

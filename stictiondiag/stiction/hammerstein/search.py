@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stictiondiag.stiction.fit_result import GainSign
 from stictiondiag.stiction.hammerstein.kernels import Problem
-from stictiondiag.stiction.valvefit import GainSign, ValveVariant, valve_variants
+from stictiondiag.stiction.valvefit import ValveVariant, valve_variants
 
 #: Starting states tried: the valve is started stuck at the first extreme of op, its
 #: stop point this far back from the extreme, in cycle travels of op (see
