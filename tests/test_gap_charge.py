@@ -59,3 +59,26 @@ def test_historian_rounding_of_pv_is_named_on_an_integrating_loop():
     q = next(c for c in g.candidates if c.effect == "quantization")
     assert q.params["pv_step"] == pytest.approx(truth["pv_quantum"], rel=1e-3)
     assert g.after < 10.0 < g.before
+
+
+def test_mv_missed_by_its_rounding_alone_is_evidence_for_quantization():
+    """mv rounded to 1.0 % of span (and pv at the instrument) on a loop whose base
+    replay misses mv by its rounding almost alone: the quantization takes mv's held-out
+    error from 470 to 11 (normalised), which a floor holding the rounding variance a
+    second time (459) counted as no evidence, so a miscalibration that takes it to 188
+    was named (gap 28.9 to 19.3 %).  The rounding accounted for, the floor of what is
+    left is the rounding variance's own sampling error over mv's 19 effectively
+    independent errors (a fifth of it): quantization is named and the gap falls below
+    10 % (measured 4.0 %)."""
+    case = generate_case("quantization", 8005)
+    truth = case.truth["effect_parameters"]
+    assert truth["quantised"] == "both" and truth["pv_resolution"] == "instrument"
+    d = case.data
+    tags = Tags.from_arrays(
+        d.pv.values, d.op.values, mv=d.mv.values, sp=d.sp.values, ts=case.truth["ts"]
+    )
+    g = diagnose_gap(tags)
+    assert g.effect == "quantization"
+    q = next(c for c in g.candidates if c.effect == "quantization")
+    assert q.params["mv_step"] == pytest.approx(truth["mv_quantum_pct"], rel=1e-3)
+    assert g.after < 10.0 and g.before > 20.0
