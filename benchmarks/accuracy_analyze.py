@@ -201,8 +201,8 @@ def analyse_case(case: dict) -> list[dict]:
             J_err=abs(float(fit.J) - case["J"]),
             method=fit.method,
             verdict=result.verdict.status,
-            period_data=None if rep is None else rep.period_s.get("data"),
-            period_replay=None if rep is None else rep.period_s.get("replay"),
+            period_data=None if rep is None else rep.period_data_s,
+            period_replay=None if rep is None else rep.period_replay_s,
             warnings=len(result.warnings),
         )
         pd_, pr, pc = row["period_data"], row["period_replay"], data["period_clean_s"]

@@ -102,30 +102,27 @@ def _process_kind(rep: Replay) -> str:
 
 def _replay_lines(rep: Replay) -> list[str]:
     """The replay's process, its agreement with the data and the closed-loop refit."""
-    from stictiondiag.core.serialize import to_plain
+    from stictiondiag.core.serialize import plain_float
     from stictiondiag.replay.metrics import replay_metrics
 
     lines = [
         f"replay      process {_process_kind(rep)}",
         f"            {replay_metrics(rep).text()}",
     ]
-    # The refit's record is a mapping of the replay's settings (replay.refit).
-    refit = to_plain(rep.settings.get("refit") or {})
-    if refit.get("accepted"):
-        same = (refit.get("S"), refit.get("J")) == (
-            refit.get("S_open_loop"),
-            refit.get("J_open_loop"),
-        )
+    refit = rep.settings.refit
+    if refit is not None and refit.accepted:
+        S0, J0 = plain_float(refit.S_open_loop), plain_float(refit.J_open_loop)
+        S1, J1 = plain_float(refit.S), plain_float(refit.J)
         what = (
             "process only (S and J kept)"
-            if same
-            else f"S {_fmt(refit.get('S'))}, J {_fmt(refit.get('J'))} "
-            f"(open-loop fit S {_fmt(refit.get('S_open_loop'))}, "
-            f"J {_fmt(refit.get('J_open_loop'))}) and the process"
+            if (S1, J1) == (S0, J0)
+            else f"S {_fmt(S1)}, J {_fmt(J1)} (open-loop fit S {_fmt(S0)}, J {_fmt(J0)}) "
+            "and the process"
         )
         lines.append(
             f"            closed-loop refit: {what}; cycle mismatch "
-            f"{_fmt(refit.get('cost_open_loop'), '.3g')} -> {_fmt(refit.get('cost'), '.3g')}"
+            f"{_fmt(plain_float(refit.cost_open_loop), '.3g')} -> "
+            f"{_fmt(plain_float(refit.cost), '.3g')}"
         )
     return lines
 

@@ -56,11 +56,11 @@ def _row(r, ts: float) -> dict:
     if rep is None:
         row.update(reproduced=False, reason="no replay")
         return row
-    c = cycle_reproduction(rep.data["pv"], rep.pv, float(rep.dt))
+    c = cycle_reproduction(rep.data.pv, rep.pv, float(rep.dt))
     row.update(c.to_dict())
     row["S_replay"], row["J_replay"] = float(rep.S), float(rep.J)
-    row["refit"] = (rep.settings or {}).get("refit")
-    row["start_fit_pv"] = _start_fit(rep.data["pv"], rep.pv, row.get("period_data_s"), rep.dt)
+    row["refit"] = None if rep.settings.refit is None else rep.settings.refit.to_dict()
+    row["start_fit_pv"] = _start_fit(rep.data.pv, rep.pv, row.get("period_data_s"), rep.dt)
     row["cpu_s"] = time.process_time() - t0
     return row
 

@@ -81,7 +81,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         percent_to_ma,
         valve_characteristic,
     )
-    from stictiondiag.replay.closed_loop import Replay
+    from stictiondiag.replay.result import Replay
     from stictiondiag.result import Analysis
     from stictiondiag.signals.oscillation import (
         Oscillation,
@@ -227,7 +227,7 @@ _LAZY: dict[str, str] = {
     "VALVE_PARAMETERS": "models.physical",
     "PhysicalValve": "models.physical",
     "karnopp": "models.physical",
-    "Replay": "replay.closed_loop",
+    "Replay": "replay.result",
     "Segments": "stiction.segments",
     "estimate_from_mv": "stiction.segments",
     "segment_valve": "stiction.segments",

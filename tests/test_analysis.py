@@ -194,15 +194,15 @@ def test_replay_reproduces_the_data(which, request):
     # The generating valve is the data-driven model: the replayed limit cycle has
     # the data's period within 5 % (the target; the cycle period moves a
     # few percent with how S and J are rounded, Table 3 vs REFERENCE.md).
-    assert rep.period_s["replay"] == pytest.approx(rep.period_s["data"], rel=0.05)
+    assert rep.period_replay_s == pytest.approx(rep.period_data_s, rel=0.05)
     # Amplitudes within 15 %: the op cycle is set by S and J (Section 6, Xm), which
     # are recovered to a few percent of their size.
     for signal in ("pv", "op"):
-        amp = rep.amplitude[signal]
-        assert amp["replay"] == pytest.approx(amp["data"], rel=0.15), signal
+        amp = rep.measures.by_signal()[signal]
+        assert amp.amplitude_replay == pytest.approx(amp.amplitude_data, rel=0.15), signal
     # Same cycle shape (phase-free measure): triangle op, sharp-turning pv.
-    assert rep.waveform["pv"] > 0.9
-    assert rep.waveform["op"] > 0.9
+    assert rep.measures.pv.waveform > 0.9
+    assert rep.measures.op.waveform > 0.9
 
 
 def _same_result(a: Analysis, b: Analysis, abs_tol: float) -> None:

@@ -197,7 +197,7 @@ def test_poorly_determined_parameters_are_marked_on_the_figures():
         return StictionFit(
             S=S, J=J, S_scaled=S, J_scaled=J, S_interval=S_iv, J_interval=J_iv,
             method="hammerstein", mv_model=np.zeros(3), n_slips=0, cost=1.0,
-            linear_cost=1.0, details={"determinacy": {"S": det_S.value, "J": det_J.value}},
+            linear_cost=1.0, S_determinacy=det_S, J_determinacy=det_J,
         )  # fmt: skip
 
     fit = fit_of(0.5, (0.0, 1.7), Determinacy.WELL)

@@ -50,12 +50,13 @@ def test_refit_recovers_the_cycle_of_a_wrong_valve_fit():
     # An open-loop fit with S and J 0.3 of the true ones: its replay's cycle is off.
     wrong = SimpleNamespace(S=1.5, J=0.6, mv_model=sim.mv)
     plain = replay(tags, wrong, refit=False)
-    before = cycle_reproduction(plain.data["pv"], plain.pv, DT)
+    before = cycle_reproduction(plain.data.pv, plain.pv, DT)
     rep = replay(tags, wrong)
-    after = cycle_reproduction(rep.data["pv"], rep.pv, DT)
-    refit = rep.settings["refit"]
-    assert refit["accepted"] and refit["simulations"] <= MAX_SIMULATIONS + 2
-    assert refit["S_open_loop"] == 1.5 and refit["J_open_loop"] == 0.6
+    after = cycle_reproduction(rep.data.pv, rep.pv, DT)
+    refit = rep.settings.refit
+    assert refit is not None
+    assert refit.accepted and refit.simulations <= MAX_SIMULATIONS + 2
+    assert refit.S_open_loop == 1.5 and refit.J_open_loop == 0.6
     # Measured: amplitude error -46 % before; after the refit period and amplitude
     # within a few per cent.  Asserted: the 20 % / 35 % reproduction and a
     # clear improvement of the amplitude.
@@ -68,7 +69,7 @@ def test_no_refit_when_the_open_loop_fit_is_right():
     sim = _loop(5.0, 2.0)
     tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, sp=sim.sp, ts=DT)
     rep = replay(tags, SimpleNamespace(S=5.0, J=2.0, mv_model=sim.mv))
-    assert not rep.settings["refit"]["accepted"]
+    assert rep.settings.refit is not None and not rep.settings.refit.accepted
     assert (rep.S, rep.J) == (5.0, 2.0)
 
 
@@ -78,4 +79,5 @@ def test_with_recorded_mv_the_valve_is_kept_and_the_process_refined():
     rep = replay(tags, SimpleNamespace(S=1.5, J=0.6, mv_model=sim.mv))
     # S and J measured from mv are not the refit's to change.
     assert (rep.S, rep.J) == (1.5, 0.6)
-    assert rep.settings["refit"]["S"] == 1.5 and rep.settings["refit"]["J"] == 0.6
+    assert rep.settings.refit is not None
+    assert rep.settings.refit.S == 1.5 and rep.settings.refit.J == 0.6

@@ -28,6 +28,7 @@ from stictiondiag.models.processes import (
 from stictiondiag.models.valve import choudhury_model
 from stictiondiag.replay.closed_loop import Replay, nrmse, replay
 from stictiondiag.replay.cycles import cycle_shape, waveform_similarity
+from stictiondiag.stiction.valvefit import ValveStart
 
 N = 10_000
 DT = 0.1
@@ -64,7 +65,7 @@ def test_replay_period_within_target(name, S, J):
     sim = loop_data(name, S, J)
     tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, sp=sim.sp, ts=DT)
     rep = replay(tags, fit_of(S, J, sim.mv))
-    assert rep.period_s["data"] is not None and rep.period_s["replay"] is not None
+    assert rep.period_data_s is not None and rep.period_replay_s is not None
     # Measured: at most 0.12 % (identification is exact to about 1e-5 here); the
     # issue's target is 5 %.
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT
@@ -72,13 +73,13 @@ def test_replay_period_within_target(name, S, J):
     assert isinstance(rep.process_fit.process, Integrating if name == "level" else FOPTD)
     # Amplitudes of the limit cycle within 2 % (measured <= 1 %).
     for signal in ("pv", "op", "mv"):
-        amp = rep.amplitude[signal]
-        assert amp["replay"] == pytest.approx(amp["data"], rel=0.02)
+        amp = rep.measures.by_signal()[signal]
+        assert amp.amplitude_replay == pytest.approx(amp.amplitude_data, rel=0.02)
     # Same cycle shape: the phase-insensitive measure is close to 1 even where the
     # point-wise fit has drifted (measured >= 0.986; the undershoot cycle of the
     # concentration loop varies from cycle to cycle).
     for signal in ("pv", "op"):
-        assert rep.waveform[signal] > 0.95
+        assert rep.measures.by_signal()[signal].waveform > 0.95
     assert rep.warnings == ()
 
 
@@ -92,8 +93,8 @@ def test_replay_without_mv_and_sp(name, S, J):
     tags = Tags.from_arrays(sim.pv, sim.op, ts=DT)
     rep = replay(tags, fit_of(S, J, choudhury_model(sim.op, S, J)))
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT
-    assert "mv" not in rep.fit
-    assert rep.settings["process_input"] == "mv_model"
+    assert rep.measures.mv is None
+    assert rep.settings.process_input == "mv_model"
     assert any("no setpoint" in w for w in rep.warnings)
 
 
@@ -105,12 +106,12 @@ def test_replay_starts_where_the_fitted_valve_starts():
     sim = loop_data("concentration", S, J)
     mv_model = choudhury_model(sim.op, S, J)
     mv_model[:start] = mv_model[start]
-    fit = SimpleNamespace(S=S, J=J, mv_model=mv_model, details={"start_sample": start})
+    fit = SimpleNamespace(S=S, J=J, mv_model=mv_model, valve_start=ValveStart(start, 0.0, 0.0))
     rep = replay(Tags.from_arrays(sim.pv, sim.op, sp=sim.sp, ts=DT), fit)
     assert rep.n == N - start
     assert rep.time[0] == pytest.approx(start * DT)
-    np.testing.assert_array_equal(rep.data["pv"], sim.pv[start:])
-    assert rep.settings["start_sample"] == start
+    np.testing.assert_array_equal(rep.data.pv, sim.pv[start:])
+    assert rep.settings.start_sample == start
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT
 
 
@@ -125,10 +126,10 @@ def test_replay_of_offset_op_is_the_same():
         Tags.from_arrays(sim.pv, sim.op - 40.0, mv=sim.mv - 40.0, sp=sim.sp, ts=DT),
         fit_of(3.0, 3.0, sim.mv - 40.0),
     )
-    assert shifted.settings["op_offset"] != 0.0
+    assert shifted.settings.op_offset != 0.0
     np.testing.assert_allclose(shifted.pv, base.pv, atol=1e-6)
     np.testing.assert_allclose(shifted.op, base.op - 40.0, atol=1e-6)
-    assert shifted.period_s["replay"] == pytest.approx(base.period_s["replay"], rel=1e-6)
+    assert shifted.period_replay_s == pytest.approx(base.period_replay_s, rel=1e-6)
 
 
 def test_replay_with_true_models_reproduces_data():
@@ -144,11 +145,11 @@ def test_replay_with_true_models_reproduces_data():
     # known at that point), and from there on it is the data.  Rounding only: the
     # load that carries the initial state is computed in a different order from the
     # simulator's own recursion.
-    start = rep.settings["start_sample"]
+    start = rep.settings.start_sample
     assert 0 < start * DT < 1.5 * 142.35  # first clear extreme: within 1.5 periods of op
     np.testing.assert_allclose(rep.pv, sim.pv[start:], atol=1e-8)
     np.testing.assert_allclose(rep.mv, sim.mv[start:], atol=1e-8)
-    assert rep.fit["pv"] > 99.9999
+    assert rep.measures.pv.fit_pct > 99.9999
 
 
 def test_replay_reverse_acting_loop():
@@ -178,7 +179,7 @@ def test_replay_noisy_level_loop_with_kano_valve():
     tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, sp=sim.sp, ts=DT)
     rep = replay(tags, fit_of(3.0, 3.0, sim.mv), valve="kano", noise_std=0.05, seed=2)
     assert abs(rep.period_error_pct) < PERIOD_TOLERANCE_PCT
-    assert rep.settings["noise_std"] == 0.05
+    assert rep.settings.noise_std == 0.05
 
 
 def test_replay_warns_on_sign_inconsistent_controller():
@@ -209,7 +210,7 @@ def test_replay_result_methods():
     assert set(d["fit"]) == {"pv", "op", "mv"}
     assert isinstance(d["fit"]["pv"], float)
     series = rep.to_dict(include_series=True)["series"]
-    assert len(series["pv"]) == N - rep.settings["start_sample"]
+    assert len(series["pv"]) == N - rep.settings.start_sample
     df = rep.to_pandas()
     assert list(df.columns) == [
         "time",
@@ -351,10 +352,8 @@ def test_replay_starts_in_the_fitted_valve_state(direction, slips):
     mv_model[:start] = mv_model[start]
     # The two outcomes differ here (the valve of the record is not moving at start).
     assert abs(mv_model[start] - (sim.op[start] - (S - J) / 2.0)) > 0.5
-    details = {"start_sample": start, "start_offset": 3.0}
-    if direction is not None:
-        details["start_direction"] = direction
-    fit = SimpleNamespace(S=S, J=J, mv_model=mv_model, details=details)
+    valve_start = ValveStart(start, 3.0, 0.0 if direction is None else direction)
+    fit = SimpleNamespace(S=S, J=J, mv_model=mv_model, valve_start=valve_start)
     loop = LOOP_PARAMETERS["concentration"]
     rep = replay(
         Tags.from_arrays(sim.pv, sim.op, sp=sim.sp, ts=DT),

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from stictiondiag.replay.metrics import cycle_amplitude, render_metrics, replay_metrics
+from stictiondiag.replay.result import RecordedSignals, ReplayMeasures, SignalMeasures
 
 
 def _saw(n: int, period: int, amplitude: float) -> np.ndarray:
@@ -28,15 +29,21 @@ def test_amplitude_of_a_drifting_cycle_is_the_cycle_not_the_drift():
 
 
 def _replay(pv_data, pv_rep, op_data, op_rep, period_data, period_rep):
+    # Amplitudes of the replay's own measure are not read by replay_metrics: nan.
+    nan = float("nan")
     return SimpleNamespace(
-        period_s={"data": period_data, "replay": period_rep},
+        period_data_s=period_data,
+        period_replay_s=period_rep,
         period_signal="pv",
         dt=1.0,
-        data={"pv": pv_data, "op": op_data, "mv": None},
+        data=RecordedSignals(pv=pv_data, op=op_data, sp=np.zeros_like(pv_data)),
         pv=pv_rep,
         op=op_rep,
-        waveform={"pv": 0.97, "op": 0.95},
-        nrmse={"pv": 1.4, "op": 1.2},
+        mv=None,
+        measures=ReplayMeasures(
+            pv=SignalMeasures(None, 1.4, 0.97, nan, nan),
+            op=SignalMeasures(None, 1.2, 0.95, nan, nan),
+        ),
     )
 
 
@@ -94,7 +101,7 @@ def test_sample_level_loop_amplitudes_are_compared_by_one_measure():
     for name in ("pv", "op", "mv"):
         assert abs(m.amplitude_error_pct[name]) < 10.0, (name, m.amplitude[name])
     window = int(round(m.period_data_s / a.replay.dt))
-    assert m.amplitude["op"]["data"] == cycle_amplitude(a.replay.data["op"], window)
+    assert m.amplitude["op"]["data"] == cycle_amplitude(a.replay.data.op, window)
 
 
 # ------------------------------------------------------------------ cycle reproduction

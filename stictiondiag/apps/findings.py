@@ -345,18 +345,15 @@ def _gap(a: Analysis) -> str:
     # Imported here: the gap's effects bring numba, which reading a result does not need.
     from stictiondiag.gap.attribution import attribute_gap
 
-    # attribute_gap reads the replay's and the gap's JSON-able dicts (their to_dict).
-    rep = None if a.replay is None else a.replay.to_dict()
-    gap = None if a.gap is None else a.gap.to_dict()
-    why = attribute_gap(rep, gap)
+    why = attribute_gap(None if a.replay is None else a.replay.settings.refit, a.gap)
     if a.gap is None:
         text = "no gap diagnosis (it needs the closed-loop replay)"
-        return f"{text}; {why['text']}" if why["identification"]["refit_accepted"] else text
+        return f"{text}; {why.text}" if why.identification.refit_accepted else text
     head = (
         f"the replay departs from the data by {_num(plain_float(a.gap.before), '.3g')} % "
         f"({a.gap.metric})"
     )
-    return f"{head}; {why['text']}" if why["text"] else head
+    return f"{head}; {why.text}" if why.text else head
 
 
 def _limits(a: Analysis, poorly: list[str]) -> list[str]:

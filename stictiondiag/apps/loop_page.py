@@ -413,7 +413,8 @@ def _replay_section(
                     "NRMSE, point by point [-] (punishes phase drift)",
                     escape(
                         ", ".join(
-                            f"{k} {_num(plain_float(v), '.2f')}" for k, v in rep.nrmse.items()
+                            f"{k} {_num(plain_float(m.nrmse), '.2f')}"
+                            for k, m in rep.measures.by_signal().items()
                         )
                     )
                     or "n/a",

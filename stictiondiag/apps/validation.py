@@ -338,8 +338,8 @@ def validate_isdb(
             # Imported here: the gap's effects bring numba, which the table does not need.
             from stictiondiag.gap.attribution import attribute_gap
 
-            rep = None if analysis.replay is None else analysis.replay.to_dict()
-            row["gap_cause"] = attribute_gap(rep, analysis.gap.to_dict())["cause"]
+            refit = None if analysis.replay is None else analysis.replay.settings.refit
+            row["gap_cause"] = attribute_gap(refit, analysis.gap).cause.value
             row["gap_before"] = plain_float(analysis.gap.before)
         row.update(_split_columns(res.split))
         rows.append(row)

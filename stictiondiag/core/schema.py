@@ -40,7 +40,11 @@ from stictiondiag.core.errors import DataError
 #: Version of the encoding below; raised when a change would misread older files.
 #: 2: the replay holds its identified process and controller once, as typed fits.
 #: 3: one process fit for both objectives, its extras typed (``ProcessFit.detail``).
-SCHEMA_VERSION = 3
+#: 4: the replay's record, per-signal measures and settings typed (``replay.result``).
+#: 5: a stiction fit's determinacy and gain sign are typed fields, not in ``details``.
+#: 6: and so are its valve model and the valve's state where the model starts.
+#: 7: and its drift comparison and disturbance model (a fit without mv).
+SCHEMA_VERSION = 7
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

@@ -234,11 +234,8 @@ def _by_feature(sig, base, before, after, phase, replay) -> dict:
             "after": _slip_features(sig.op, after["mv"], phase),
         }
     if replay is not None:
-        closed = {}
-        for key in ("period_s", "amplitude"):
-            v = getattr(replay, key, None)
-            if v is not None:
-                closed[key] = v
-        if closed:
-            res["closed_loop_replay"] = closed
+        res["closed_loop_replay"] = {
+            "period_s": {"data": replay.period_data_s, "replay": replay.period_replay_s},
+            "amplitude": replay.measures.to_dict()["amplitude"],
+        }
     return res

@@ -40,7 +40,7 @@ def _num(v, spec: str = ".3g") -> str:
 def _default_window(replay) -> float:
     """About eight data periods, or the whole record."""
     duration = replay.n * replay.dt
-    period = replay.period_s.get("data") or replay.period_s.get("replay")
+    period = replay.period_data_s or replay.period_replay_s
     if period is None:
         return duration
     return min(duration, 8.0 * period)
@@ -54,9 +54,10 @@ def _signal_title(name: str, replay, metrics: dict | None) -> str:
         wave = (metrics.get("waveform") or {}).get(name)
         amp = "n/a" if err is None else f"{err:+.0f} %"
         return f"{name}: amplitude {amp}, waveform agreement {_fmt(wave, '.2f')}"
+    m = replay.measures.by_signal().get(name)
     return (
-        f"{name}: fit {_fmt(replay.fit.get(name), '.0f')} %, "
-        f"waveform {_fmt(replay.waveform.get(name), '.3f')}"
+        f"{name}: fit {_fmt(None if m is None else m.fit_pct, '.0f')} %, "
+        f"waveform {_fmt(None if m is None else m.waveform, '.3f')}"
     )
 
 
@@ -92,10 +93,10 @@ def plot_replay(
     stop = max(2, min(replay.n, int(round(window / replay.dt))))
     t = replay.time[:stop]
     data = replay.data
-    mv_data = data.get("mv")
+    mv_data = data.mv
     mv_label = "mv data"
     if mv_data is None:
-        mv_data = data.get("mv_model")
+        mv_data = data.mv_model
         mv_label = "mv model (fit)"
 
     fig, axes = new_figure(3, 2, (12, 7.5), width_ratios=WIDTH_RATIOS)
@@ -106,14 +107,14 @@ def plot_replay(
 
     ax = axes[0, 0]
     trend(ax, replay.sp, lw=0.7, color="0.55", ls="--", label="sp")
-    trend(ax, data["pv"], label="pv data", **DATA_STYLE)
+    trend(ax, data.pv, label="pv data", **DATA_STYLE)
     trend(ax, replay.pv, label="pv replay", **REPLAY_STYLE)
     ax.set_ylabel("pv [pv units]")
     ax.set_title(_signal_title("pv", replay, metrics), fontsize=9)
     ax.legend(loc="upper right", fontsize=7, ncol=3)
 
     ax = axes[1, 0]
-    trend(ax, data["op"], label="op data", **DATA_STYLE)
+    trend(ax, data.op, label="op data", **DATA_STYLE)
     trend(ax, replay.op, label="op replay", **REPLAY_STYLE)
     ax.set_ylabel("op [% of span]")
     ax.set_title(_signal_title("op", replay, metrics), fontsize=9)
@@ -125,15 +126,15 @@ def plot_replay(
     trend(ax, replay.mv, label="mv replay", **REPLAY_STYLE)
     ax.set_ylabel("mv [% of span]")
     ax.set_xlabel("time [s]")
-    if "mv" in replay.fit:
+    if replay.measures.mv is not None:
         ax.set_title(_signal_title("mv", replay, metrics), fontsize=9)
     ax.legend(loc="upper right", fontsize=7, ncol=2)
 
     ax = axes[0, 1]
     if mv_data is not None:
-        ax.plot(data["op"], mv_data, label=mv_label, **DATA_STYLE)
+        ax.plot(data.op, mv_data, label=mv_label, **DATA_STYLE)
     ax.plot(replay.op, replay.mv, label="replay", **REPLAY_STYLE)
-    ops = np.concatenate([data["op"], replay.op])
+    ops = np.concatenate([data.op, replay.op])
     lo, hi = float(np.min(ops)), float(np.max(ops))
     ax.plot([lo, hi], [lo, hi], lw=0.5, color="0.6", ls=":")
     ax.set_xlabel("op [% of span]")
@@ -142,7 +143,7 @@ def plot_replay(
     ax.legend(loc="upper left", fontsize=7)
 
     ax = axes[1, 1]
-    ax.plot(data["op"], data["pv"], label="data", **DATA_STYLE)
+    ax.plot(data.op, data.pv, label="data", **DATA_STYLE)
     ax.plot(replay.op, replay.pv, label="replay", **REPLAY_STYLE)
     ax.set_xlabel("op [% of span]")
     ax.set_ylabel("pv [pv units]")
@@ -160,7 +161,7 @@ def plot_replay(
     return fig
 
 
-#: The replayed valve's flowchart in words (``Replay.settings["valve"]``).
+#: The replayed valve's flowchart in words (``Replay.settings.valve``).
 _FLOWCHARTS = {"choudhury": "Choudhury, Fig. 10", "kano": "Kano et al."}
 
 
@@ -171,7 +172,7 @@ def _summary(replay, metrics: dict | None = None) -> str:
     proc, ctrl = pf.process, cf.controller
     lines = [
         f"valve: S = {replay.S:.3g} %, J = {replay.J:.3g} %"
-        f" ({_FLOWCHARTS.get(str((replay.settings or {}).get('valve')), 'data-driven')})",
+        f" ({_FLOWCHARTS.get(str(replay.settings.valve), 'data-driven')})",
         f"controller: Kc = {_num(ctrl.gain)}, Ti = {_num(ctrl.integral_time)} s"
         f" (R2 {_num(cf.fit_r2, '.3f')})",
     ]
@@ -186,13 +187,13 @@ def _summary(replay, metrics: dict | None = None) -> str:
         )
     lines.append(f"process R2 {_num(pf.output_error.fit_r2, '.3f')}")
     lines.append(
-        f"period [s]: data {_fmt(replay.period_s.get('data'))}, "
-        f"replay {_fmt(replay.period_s.get('replay'))} ({replay.period_signal})"
+        f"period [s]: data {_fmt(replay.period_data_s)}, "
+        f"replay {_fmt(replay.period_replay_s)} ({replay.period_signal})"
     )
     if metrics:
         per = metrics.get("period_error_pct")
         lines.append(f"period error: {'n/a' if per is None else format(per, '+.0f') + ' %'}")
-    amplitudes = (metrics or {}).get("amplitude") or replay.amplitude
+    amplitudes = (metrics or {}).get("amplitude") or replay.measures.to_dict()["amplitude"]
     for name, amp in amplitudes.items():
         lines.append(
             f"amplitude {name}: data {_fmt(amp.get('data'))}, replay {_fmt(amp.get('replay'))}"

@@ -1,5 +1,6 @@
 """Closed-loop replay: the fitted valve in the identified loop, compared with the data."""
 
-from stictiondiag.replay.closed_loop import Replay, replay
+from stictiondiag.replay.closed_loop import replay
+from stictiondiag.replay.result import Replay
 
 __all__ = ["Replay", "replay"]

@@ -22,7 +22,7 @@ The replay starts from the data's own state:
 - the valve: at the first clear extreme of op, where a sticky valve's state is
   known (it slipped on the way there and is stuck when op turns, Figs. 12 and 14).
   Without a recorded mv that is where the stiction fit's valve model starts
-  (``fit.details["start_sample"]``), and the replayed valve takes the fit's state
+  (``fit.valve_start``), and the replayed valve takes the fit's state
   there: its position, the op at which it stuck (``start_offset`` back from the
   extreme) and the direction of its last movement (``start_direction``), so it
   breaks away where the fitted valve does, J on in the same direction or S back
@@ -74,8 +74,8 @@ alone would then call a right model wrong, so two kinds of measure are reported:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any, cast
+from dataclasses import dataclass, replace
+from typing import cast
 
 import numpy as np
 
@@ -86,7 +86,6 @@ from stictiondiag.core.errors import (
 )
 from stictiondiag.core.filters import lfilter1
 from stictiondiag.core.robust import second_difference_noise_std
-from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.controller import (
     ControllerFit,
     controller_fit,
@@ -103,6 +102,13 @@ from stictiondiag.models.processes import (
 )
 from stictiondiag.replay.cycles import waveform_similarity
 from stictiondiag.replay.refit import refine_loop
+from stictiondiag.replay.result import (
+    RecordedSignals,
+    Replay,
+    ReplayMeasures,
+    ReplaySettings,
+    SignalMeasures,
+)
 from stictiondiag.signals.oscillation import detect_oscillation
 from stictiondiag.stiction.hammerstein import first_extreme
 
@@ -118,144 +124,6 @@ MIN_DRIFT_SAMPLES = 20
 LOW_FIT_R2 = 0.5
 
 SIGNALS = ("pv", "op", "mv")
-
-
-@dataclass(frozen=True, eq=False)
-class Replay:
-    """Closed-loop replay of a recorded loop with the fitted valve (Sections 4.2.2, 5.3).
-
-    Attributes
-    ----------
-    time : ndarray
-        Time [s] from the first sample of the record (the replay starts at
-        ``settings["start_sample"]`` when the fitted valve model starts there).
-    sp : ndarray
-        Setpoint used [pv units] (recorded, or constant at mean(pv) when missing).
-    pv, op, mv : ndarray
-        Replayed process variable [pv units], controller output and valve position
-        [% of span].
-    data : dict
-        Recorded arrays: ``pv``, ``op``, ``sp`` (as used), ``mv`` (None when not
-        recorded), ``mv_model`` (the stiction fit's valve output, or None).
-    process_fit : ProcessFit
-        Identified process (type, gain, time constant [s], dead time [s], biases,
-        R^2; ``to_dict`` gives the ``process`` entry of :meth:`to_dict`).
-    controller_fit : ControllerFit
-        Identified controller (gain, integral time [s], op bias [% of span], R^2;
-        ``to_dict`` gives the ``controller`` entry of :meth:`to_dict`).
-    fit : dict
-        Signal -> ``100 (1 - NRMSE)`` [%] of the replay against the data (pv, op, and
-        mv where recorded).
-    nrmse : dict
-        Signal -> NRMSE [-].
-    waveform : dict
-        Signal -> correlation of the average cycle shapes [-], None when either
-        signal has fewer than two cycles.
-    period_s : dict
-        ``data`` and ``replay`` oscillation period of pv [s] (of op when the recorded
-        pv does not oscillate, see ``period_signal``); None where not oscillating.
-    period_signal : str
-        Signal whose period is reported in ``period_s``.
-    amplitude : dict
-        Signal -> ``{"data": ..., "replay": ...}`` half peak-to-peak amplitude [units
-        of the signal].
-    S, J : float
-        Stiction parameters of the replayed valve [% of span].
-    dt : float
-        Sample time [s].
-    settings : dict
-        Simulator settings derived from the identification, in the units of the
-        data: op bias (the process operating point) and pv bias, initial op and mv,
-        valve, ``op_offset`` (shift of op and mv into the simulator's 0-100 % when
-        the recorded op leaves that range), ``start_sample``.
-    warnings : tuple of str
-        One-line notes (inconsistent signs, poor identification, no cycle).
-    """
-
-    time: np.ndarray
-    sp: np.ndarray
-    pv: np.ndarray
-    op: np.ndarray
-    mv: np.ndarray
-    data: dict
-    process_fit: ProcessFit
-    controller_fit: ControllerFit
-    fit: dict
-    nrmse: dict
-    waveform: dict
-    period_s: dict
-    period_signal: str
-    amplitude: dict
-    S: float
-    J: float
-    dt: float
-    settings: dict = field(default_factory=dict)
-    warnings: tuple[str, ...] = ()
-
-    @property
-    def n(self) -> int:
-        """Number of samples."""
-        return int(self.time.size)
-
-    @property
-    def period_error_pct(self) -> float | None:
-        """Relative period error of the replay, ``100 (replay / data - 1)`` [%]."""
-        d, r = self.period_s.get("data"), self.period_s.get("replay")
-        if d is None or r is None:
-            return None
-        return 100.0 * (r / d - 1.0)
-
-    def to_dict(self, include_series: bool = False) -> dict:
-        """JSON-able dict: models, measures and, optionally, the time series."""
-        out = {
-            "process": to_plain(self.process_fit.to_dict()),
-            "controller": to_plain(self.controller_fit.to_dict()),
-            "S": to_plain(self.S),
-            "J": to_plain(self.J),
-            "fit": to_plain(self.fit),
-            "nrmse": to_plain(self.nrmse),
-            "waveform": to_plain(self.waveform),
-            "period_s": to_plain(self.period_s),
-            "period_signal": self.period_signal,
-            "period_error_pct": to_plain(self.period_error_pct),
-            "amplitude": to_plain(self.amplitude),
-            "settings": to_plain(self.settings),
-            "warnings": list(self.warnings),
-        }
-        if include_series:
-            out["series"] = {
-                name: [to_plain(v) for v in np.asarray(col).tolist()]
-                for name, col in self.to_pandas().items()
-            }
-        return out
-
-    def to_pandas(self):
-        """DataFrame: time, sp, replayed pv/op/mv and recorded ``*_data`` columns."""
-        import pandas as pd
-
-        cols = {
-            "time": self.time,
-            "sp": self.sp,
-            "pv": self.pv,
-            "op": self.op,
-            "mv": self.mv,
-            "pv_data": self.data["pv"],
-            "op_data": self.data["op"],
-        }
-        if self.data.get("mv") is not None:
-            cols["mv_data"] = self.data["mv"]
-        if self.data.get("mv_model") is not None:
-            cols["mv_model"] = self.data["mv_model"]
-        return pd.DataFrame(cols)
-
-    def plot(self, **kwargs):
-        """Replay over data: pv, op, mv trends and the mv-op maps of both.
-
-        Keyword arguments go to :func:`stictiondiag.plotting.replay.plot_replay`.
-        """
-        from stictiondiag.plotting.replay import plot_replay
-
-        return plot_replay(self, **kwargs)
 
 
 # --------------------------------------------------------------------------- measures
@@ -374,7 +242,7 @@ class _Simulated:
     op: np.ndarray
     mv: np.ndarray
     sp: np.ndarray
-    settings: dict
+    settings: ReplaySettings
 
 
 def _replay_record(tags, fit) -> _Record:
@@ -407,11 +275,9 @@ def _replay_record(tags, fit) -> _Record:
     start, direction, back = 0, 0.0, 0.0
     why = "where the fitted valve model starts"
     if mv_rec is None:
-        details = getattr(fit, "details", None)
-        if isinstance(details, dict):
-            start = int(details.get("start_sample") or 0)
-            direction = float(details.get("start_direction") or 0.0)
-            back = max(float(details.get("start_offset") or 0.0), 0.0)
+        vs = getattr(fit, "valve_start", None)
+        if vs is not None:
+            start, direction, back = int(vs.sample), float(vs.direction), max(float(vs.offset), 0.0)
     elif S > 0.0:
         osc_op = detect_oscillation(op, dt)
         if osc_op.present and osc_op.period_s:
@@ -428,7 +294,7 @@ def _replay_record(tags, fit) -> _Record:
         sp_rec = None if sp_rec is None else sp_rec[start:]
         mv_rec = None if mv_rec is None else mv_rec[start:]
         mv_model = None if mv_model is None else mv_model[start:]
-        if mv_rec is None:  # with mv, settings["start_sample"] records it
+        if mv_rec is None:  # with mv, settings.start_sample records it
             warnings.append(f"replay starts at sample {start}, {why}")
     return _Record(pv, op, u, sp_rec, mv_rec, mv_model, dt, start, tuple(warnings), stop)
 
@@ -579,42 +445,44 @@ def _replay_simulate(
         seed=seed,
         pv_filter_time=cf.pv_filter_time,
     )
-    settings = {
-        "valve": valve,
-        "process_input": "mv" if rec.mv is not None else "mv_model",
-        "op_bias": ref,
-        "pv_bias": pv_bias_sim,
-        "initial_op": float(sim.settings["initial_op"]) - offset,
-        "initial_mv": float(sim.settings["initial_mv"]) - offset,
-        "op_offset": offset,
-        "integral_time_simulated_s": ti,
-        "sp_recorded": rec.sp is not None,
-        "start_sample": rec.start,
-        "noise_std": float(noise_std),
-    }
+    settings = ReplaySettings(
+        valve=valve,
+        process_input="mv" if rec.mv is not None else "mv_model",
+        op_bias=ref,
+        pv_bias=pv_bias_sim,
+        initial_op=float(sim.settings["initial_op"]) - offset,
+        initial_mv=float(sim.settings["initial_mv"]) - offset,
+        op_offset=offset,
+        integral_time_simulated_s=ti,
+        sp_recorded=rec.sp is not None,
+        start_sample=rec.start,
+        noise_std=float(noise_std),
+    )
     return _Simulated(sim.pv[:n], sim.op[:n] - offset, sim.mv[:n] - offset, sp_used, settings)
 
 
-def _replay_compare(rec: _Record, sim: _Simulated) -> dict[str, Any]:
+def _replay_compare(
+    rec: _Record, sim: _Simulated
+) -> tuple[RecordedSignals, ReplayMeasures, float | None, float | None, str, list[str]]:
     """Step 4: fit, NRMSE, waveform, amplitude per signal and the period of pv (of
-    op when the recorded pv does not oscillate).  O(n log n) (the autocorrelations)."""
+    op when the recorded pv does not oscillate).  Returns the record, the measures,
+    the periods of record and replay [s], the signal they are of, and warnings.
+    O(n log n) (the autocorrelations)."""
 
-    pairs = {"pv": (rec.pv, sim.pv), "op": (rec.op, sim.op)}
-    if rec.mv is not None:
-        pairs["mv"] = (rec.mv, sim.mv)
-    fit_pct: dict[str, float | None] = {}
-    err: dict[str, float | None] = {}
-    shape: dict[str, float | None] = {}
-    amplitude: dict[str, dict] = {}
+    data = RecordedSignals(rec.pv, rec.op, sim.sp, rec.mv, rec.mv_model)
+    by: dict[str, SignalMeasures] = {}
     osc: dict[str, tuple] = {}
-    for name, (y, yr) in pairs.items():
+    for name, (y, yr) in data.pairs(sim).items():
         e = nrmse(y, yr)
-        err[name] = e
-        fit_pct[name] = None if e is None else 100.0 * (1.0 - e)
-        shape[name] = waveform_similarity(y, yr)
         od, orp = detect_oscillation(y, rec.dt), detect_oscillation(yr, rec.dt)
         osc[name] = (od, orp)
-        amplitude[name] = {"data": _amplitude(y, od), "replay": _amplitude(yr, orp)}
+        by[name] = SignalMeasures(
+            fit_pct=None if e is None else 100.0 * (1.0 - e),
+            nrmse=e,
+            waveform=waveform_similarity(y, yr),
+            amplitude_data=_amplitude(y, od),
+            amplitude_replay=_amplitude(yr, orp),
+        )
     period_signal = "pv"
     if not osc["pv"][0].present and osc["op"][0].present:
         period_signal = "op"
@@ -622,15 +490,8 @@ def _replay_compare(rec: _Record, sim: _Simulated) -> dict[str, Any]:
     warnings = []
     if od.present and not orp.present:
         warnings.append(f"the data oscillate but the replay does not ({orp.reason})")
-    return {
-        "fit": fit_pct,
-        "nrmse": err,
-        "waveform": shape,
-        "period_s": {"data": od.period_s, "replay": orp.period_s},
-        "period_signal": period_signal,
-        "amplitude": amplitude,
-        "warnings": warnings,
-    }
+    measures = ReplayMeasures(by["pv"], by["op"], by.get("mv"))
+    return data, measures, od.period_s, orp.period_s, period_signal, warnings
 
 
 def replay(
@@ -681,7 +542,7 @@ def replay(
         Refine S, J and the process by closed-loop simulation when the open-loop
         fit's replay does not reproduce the recorded cycle
         (:mod:`stictiondiag.replay.refit`; at most 60 more O(n) simulations).  The
-        replay then uses the refitted loop; ``settings["refit"]`` holds both.
+        replay then uses the refitted loop; ``settings.refit`` holds both.
     action : {"direct", "reverse"}, optional
         Declared controller action: fixes the sign of the identified controller gain.
     known : StructureEvidence, optional
@@ -719,10 +580,9 @@ def replay(
         )
         S, J = refit_result.S, refit_result.J
     sim = _replay_simulate(rec, cf, pf, S, J, valve, noise_std, seed)
-    if refit_result is not None:
-        sim.settings["refit"] = refit_result.to_dict()
-    measures = _replay_compare(rec, sim)
-    data = {"pv": rec.pv, "op": rec.op, "sp": sim.sp, "mv": rec.mv, "mv_model": rec.mv_model}
+    data, measures, period_data, period_replay, period_signal, compare_warnings = _replay_compare(
+        rec, sim
+    )
     return Replay(
         time=(rec.start + np.arange(rec.n)) * rec.dt,
         sp=sim.sp,
@@ -732,15 +592,15 @@ def replay(
         data=data,
         process_fit=pf,
         controller_fit=cf,
-        fit=measures["fit"],
-        nrmse=measures["nrmse"],
-        waveform=measures["waveform"],
-        period_s=measures["period_s"],
-        period_signal=measures["period_signal"],
-        amplitude=measures["amplitude"],
+        measures=measures,
+        period_data_s=period_data,
+        period_replay_s=period_replay,
+        period_signal=period_signal,
         S=S,
         J=J,
         dt=rec.dt,
-        settings=sim.settings,
-        warnings=(*rec.warnings, *model_warnings, *measures["warnings"]),
+        settings=sim.settings
+        if refit_result is None
+        else replace(sim.settings, refit=refit_result),
+        warnings=(*rec.warnings, *model_warnings, *compare_warnings),
     )

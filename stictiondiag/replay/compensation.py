@@ -343,17 +343,13 @@ def compensation_from_replay(rep) -> Compensation:
         From :func:`stictiondiag.replay.closed_loop.replay`.
     """
     pf, cf = rep.process_fit, rep.controller_fit
-    period = rep.period_s.get("replay") or rep.period_s.get("data")
+    period = rep.period_replay_s or rep.period_data_s
     if not period:
         return Compensation(False, "neither the data nor the replay show a cycle")
     if not (rep.S > 0 or rep.J > 0):
         return Compensation(False, "the fitted valve has no stiction (S = J = 0)")
-    settings = rep.settings or {}
-    op_bias = float(
-        np.clip(
-            float(settings.get("op_bias", 50.0)) + float(settings.get("op_offset", 0.0)), 0, 100
-        )
-    )
+    settings = rep.settings
+    op_bias = float(np.clip(float(settings.op_bias) + float(settings.op_offset), 0, 100))
     return compensate(
         pf.process,
         cf.controller,
@@ -361,8 +357,8 @@ def compensation_from_replay(rep) -> Compensation:
         float(rep.J),
         dt=float(rep.dt),
         period_s=float(period),
-        valve=str(settings.get("valve", "choudhury")),
+        valve=str(settings.valve),
         op_bias=op_bias,
-        pv_bias=float(settings.get("pv_bias", 0.0)),
+        pv_bias=float(settings.pv_bias),
         pv_filter_time=float(cf.pv_filter_time or 0.0),
     )

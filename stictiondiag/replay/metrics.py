@@ -167,12 +167,10 @@ def render_metrics(m: dict) -> str:
 
 def replay_metrics(rep) -> ReplayMetrics:
     """:class:`ReplayMetrics` of a :class:`~stictiondiag.replay.closed_loop.Replay`."""
-    d = rep.period_s.get("data")
-    r = rep.period_s.get("replay")
+    d, r = rep.period_data_s, rep.period_replay_s
     window = None if not d else int(round(float(d) / float(rep.dt)))
-    pairs = {"pv": (rep.data["pv"], rep.pv), "op": (rep.data["op"], rep.op)}
-    if rep.data.get("mv") is not None:
-        pairs["mv"] = (rep.data["mv"], rep.mv)
+    pairs = rep.data.pairs(rep)
+    by = rep.measures.by_signal()
     amplitude: dict[str, dict] = {}
     errors: dict[str, float | None] = {}
     for name, (y, yr) in pairs.items():
@@ -186,8 +184,8 @@ def replay_metrics(rep) -> ReplayMetrics:
         period_error_pct=_pct_error(r, d),
         amplitude=amplitude,
         amplitude_error_pct=errors,
-        waveform={k: rep.waveform.get(k) for k in pairs},
-        nrmse={k: rep.nrmse.get(k) for k in pairs},
+        waveform={k: by[k].waveform for k in pairs},
+        nrmse={k: by[k].nrmse for k in pairs},
     )
 
 

@@ -403,7 +403,7 @@ def split_half_estimates(fit: StictionFit, data) -> tuple[float, float, float, f
                 integrating=bool(getattr(data, "integrating", False)),
                 flow_loop=str(getattr(data, "loop_type", "")) in _FLOW_TYPES,
                 period_s=float(period) * dt,
-                gain_sign=int(((fit.details or {}).get("gain_sign") or {}).get("required", 0)),
+                gain_sign=0 if fit.gain_sign is None else int(fit.gain_sign.required),
             )
         except (StictionError, ValueError, FloatingPointError, np.linalg.LinAlgError):
             return None

@@ -1,0 +1,424 @@
+"""Closed-loop reproduction as evidence of the cause of a cycle, measured on simulation.
+
+    python scripts/replay_cause_probe.py [--seed 12] [--n 250] [--offset 0] \
+        [--cache replay_probe] [--real ../shared/data/isdb] [--out probe.json] \
+        [--no-refit] [--train-seed 11 --n-train 250]
+
+Section 6 of Choudhury, Thornhill & Shah (2005) and the replay
+(:mod:`stictiondiag.replay`) offer a test of the cause of a loop's cycle that neither
+the friction model nor the cause model has been given: replay the identified loop
+with the fitted valve (the replay of ``analyze``: open-loop fit, closed-loop refit,
+:func:`stictiondiag.replay.replay`), and replay *the same identified loop* (the
+controller and the process the replay used, refit included) with a linear valve
+(S = J = 0, no refit).  The hypothesis:
+
+* the fitted loop reproduces the recorded cycle (period and amplitude,
+  :func:`stictiondiag.replay.metrics.cycle_reproduction`) and the linear-valve loop
+  settles: the valve causes the cycle;
+* the linear-valve loop cycles too: the tuning;
+* neither reproduces it: the cycle comes from outside.
+
+For each loop of :mod:`stictiondiag.apps.family_causes` (seeds ``seed * 1_000_000 +
+offset + i``, i < n) with a cycle and a cause, analysed as a user's file is, this
+script records (all fixed before any figure was seen):
+
+``replay_available``
+    1 when the replay ran (an identified controller and process), else 0.
+``replay_reproduces``
+    1 when the fitted replay reproduces pv's cycle over the samples it covers (the
+    criterion of ``docs/real_loops.md``), else 0.
+``linear_cycles``
+    1 when the linear-valve replay's pv still cycles over the second half of the
+    replayed samples (the start-up transient has had half the record to die out).
+``replay_amplitude_ratio``, ``linear_amplitude_ratio``
+    ``log(A_replay / A_data)`` of pv over the second half (half the 5-95 % spread,
+    :func:`~stictiondiag.replay.metrics.spread_amplitude`), clipped to +-log 10.
+``replay_contrast``
+    ``replay_amplitude_ratio - linear_amplitude_ratio``: how much larger the cycle
+    of the fitted valve is than that of the same loop with a linear valve.
+``replay_call``
+    The hypothesis's call: ``valve``, ``tuning`` or ``external`` (as above).
+
+It prints the area under the ROC curve of each feature for "the valve causes the
+cycle" against every other cause (and against each non-valve generator), that of
+``df_amplitude_ratio`` (the describing-function version) on the same loops, the
+confusion of ``replay_call``, and the cost: the replay and the linear twin's replay
+per loop, against steps 1-4 of the analysis, and per sample.  With ``--real``, the
+same features on the real records of that folder (its manifest's sample time, loop
+type and integrating flag; no label column is read), loops with a cycle only, and
+the Kolmogorov-Smirnov distance between simulated and real (the shift check of
+``scripts/train_cause.py``).  With ``--train-seed``, the documented gate of the cause
+model on those training seeds and the cause model with and without the features
+that pass it (:func:`model_lines`).  ``--no-refit`` replays the open-loop fit
+instead of the refitted loop.  Rows are cached as JSON lines under ``--cache``.
+
+Cost: each replay is the replay of ``analyze`` (at most 63 closed-loop simulations
+with its refit, each O(n)); the linear twin is one more O(n) simulation with the
+identified loop reused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import replace as dc_replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+#: Largest |log ratio| kept [-].
+LOG_CAP = math.log(10.0)
+#: The features of this probe, in order.
+FEATURES = (
+    "replay_available",
+    "replay_reproduces",
+    "linear_cycles",
+    "replay_amplitude_ratio",
+    "linear_amplitude_ratio",
+    "replay_contrast",
+)
+FILL = {
+    "replay_available": 0.0,
+    "replay_reproduces": 0.0,
+    "linear_cycles": 0.0,
+    "replay_amplitude_ratio": -LOG_CAP,
+    "linear_amplitude_ratio": -LOG_CAP,
+    "replay_contrast": 0.0,
+}
+
+
+def _log_ratio(a: float | None, b: float | None) -> float:
+    if a is None or b is None or not b > 0:
+        return -LOG_CAP
+    if not a > 0:
+        return -LOG_CAP
+    return float(min(max(math.log(a / b), -LOG_CAP), LOG_CAP))
+
+
+def replay_features(est, refit: bool = True) -> tuple[dict, dict]:
+    """The probe's features of one analysed loop (its chain head ``est``), and the
+    seconds each replay took; ``refit`` False replays the open-loop fit (no
+    closed-loop refit)."""
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.replay import replay
+    from stictiondiag.replay.metrics import cycle_reproduction, spread_amplitude
+
+    tags, fit = est.tags, est.fit
+    cost = {"replay_s": 0.0, "linear_s": 0.0}
+    t0 = time.process_time()
+    try:
+        rep = replay(
+            tags,
+            fit,
+            valve=fit.valve_family,
+            integrating=tags.integrating,
+            action=tags.action,
+            known=est.structure,
+            refit=refit,
+        )
+    except StictionError:
+        cost["replay_s"] = time.process_time() - t0
+        return dict(FILL), cost
+    t1 = time.process_time()
+    cost["replay_s"] = t1 - t0
+    linear_fit = dc_replace(fit, S=0.0, J=0.0)
+    try:
+        lin = replay(
+            tags,
+            linear_fit,
+            controller=rep.controller_fit,
+            process=rep.process_fit,
+            valve=fit.valve_family,
+            refit=False,
+        )
+    except StictionError:
+        lin = None
+    cost["linear_s"] = time.process_time() - t1
+    dt = float(rep.dt)
+    pv = rep.data.pv
+    out = dict(FILL)
+    out["replay_available"] = 1.0
+    out["replay_reproduces"] = float(cycle_reproduction(pv, rep.pv, dt).reproduced)
+    h = pv.size // 2
+    a_data = spread_amplitude(pv[h:])
+    out["replay_amplitude_ratio"] = _log_ratio(spread_amplitude(rep.pv[h:]), a_data)
+    if lin is not None and lin.pv.size == pv.size:
+        c_lin = cycle_reproduction(pv[h:], lin.pv[h:], dt)
+        out["linear_cycles"] = float(c_lin.period_replay_s is not None)
+        out["linear_amplitude_ratio"] = _log_ratio(spread_amplitude(lin.pv[h:]), a_data)
+    out["replay_contrast"] = out["replay_amplitude_ratio"] - out["linear_amplitude_ratio"]
+    return out, cost
+
+
+def replay_call(f: dict) -> str:
+    """The hypothesis's call from the features."""
+    if f["linear_cycles"] > 0.5:
+        return "tuning"
+    if f["replay_reproduces"] > 0.5:
+        return "valve"
+    return "external"
+
+
+def _sim_one(seed: int, refit: bool = True) -> dict | None:
+    from stictiondiag.analysis import estimate_loop
+    from stictiondiag.apps.family_causes import cause_label
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.stiction.cause import CAUSES
+
+    try:
+        loop, label = cause_label(seed)
+        if label not in CAUSES:
+            return None
+        tags = loop.tags()
+        t0 = time.process_time()
+        est = estimate_loop(tags)
+        v = est.verdict()
+        t_head = time.process_time() - t0
+    except StictionError:
+        return None
+    if v.cycle is None or not v.cycle.present:
+        return None
+    feats, cost = replay_features(est, refit)
+    return {
+        "seed": seed,
+        "label": label,
+        "generator": loop.truth["generator"],
+        "valve": loop.truth["valve"],
+        "n": int(est.tags.n),
+        "df_amplitude_ratio": float(v.evidence["features"]["df_amplitude_ratio"]),
+        "features": feats,
+        "evidence": {k: float(x) for k, x in v.evidence["features"].items()},
+        "head_s": t_head,
+        **cost,
+    }
+
+
+def _real_one(args: tuple[str, float, str, bool], refit: bool = True) -> dict | None:
+    from stictiondiag.analysis import estimate_loop
+    from stictiondiag.core.errors import StictionError
+    from stictiondiag.io.tags import read_tags
+
+    path, ts, loop_type, integrating = args
+    try:
+        tags = read_tags(path, ts=ts, loop_type=loop_type, integrating=integrating)
+        est = estimate_loop(tags)
+        v = est.verdict()
+    except StictionError:
+        return None
+    if v.cycle is None or not v.cycle.present:
+        return None
+    feats, cost = replay_features(est, refit)
+    return {
+        "file": Path(path).name,
+        "n": int(est.tags.n),
+        "df_amplitude_ratio": float(v.evidence["features"]["df_amplitude_ratio"]),
+        "features": feats,
+        **cost,
+    }
+
+
+def _cached(path: Path, make) -> list[dict]:
+    if path.is_file():
+        return [json.loads(line) for line in path.read_text().splitlines() if line]
+    rows = [r for r in make() if r is not None]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    tmp.replace(path)
+    return rows
+
+
+def sim_rows(seed: int, n: int, offset: int, cache: Path, refit: bool = True) -> list[dict]:
+    def make():
+        for i in range(n):
+            if (i + 1) % 25 == 0:
+                print(f"  {i + 1}/{n}", file=sys.stderr, flush=True)
+            yield _sim_one(seed * 1_000_000 + offset + i, refit)
+
+    tag = "" if refit else "_norefit"
+    return _cached(cache / f"sim_{seed}_{offset}_{n}{tag}.jsonl", make)
+
+
+def real_rows(folder: Path, cache: Path, refit: bool = True) -> list[dict]:
+    import pandas as pd
+
+    from stictiondiag.apps.validation import LOOP_TYPE_MAP
+
+    m = pd.read_csv(folder / "manifest.csv", usecols=["file", "loop_type", "integrating", "ts_s"])
+    jobs = [
+        (str(folder / f), float(ts), LOOP_TYPE_MAP.get(str(lt).lower(), "other"), bool(integ))
+        for f, lt, integ, ts in zip(
+            m["file"], m["loop_type"], m["integrating"], m["ts_s"], strict=True
+        )
+    ]
+    tag = "" if refit else "_norefit"
+    return _cached(cache / f"real{tag}.jsonl", lambda: (_real_one(j, refit) for j in jobs))
+
+
+def _auc(pos: np.ndarray, neg: np.ndarray) -> float:
+    if pos.size == 0 or neg.size == 0:
+        return math.nan
+    gt = (pos[:, None] > neg[None, :]).sum() + 0.5 * (pos[:, None] == neg[None, :]).sum()
+    return float(gt / (pos.size * neg.size))
+
+
+def _ks(a: np.ndarray, b: np.ndarray) -> float:
+    grid = np.union1d(a, b)
+    fa = np.searchsorted(np.sort(a), grid, side="right") / a.size
+    fb = np.searchsorted(np.sort(b), grid, side="right") / b.size
+    return float(np.max(np.abs(fa - fb)))
+
+
+def report(rows: list[dict], real: list[dict]) -> list[str]:
+    """The tables (markdown) of the module docstring."""
+    from stictiondiag.stiction.cause import CAUSES
+
+    def col(rs, k):
+        return np.array([float(r["features"][k] if k in r["features"] else r[k]) for r in rs])
+
+    pos = [r for r in rows if r["label"] == "valve"]
+    neg = [r for r in rows if r["label"] != "valve"]
+    groups = [
+        (g, [r for r in neg if r["generator"] == g])
+        for g in ("tuning", "external", "quantiser", "valve")
+    ]
+    head = ["all others", *(f"{g} ({len(n)})" for g, n in groups)]
+    lines = [
+        f"{len(rows)} loops with a cycle and a cause, {len(pos)} of them the valve's.",
+        "",
+        f"| feature | {' | '.join(head)} | shift |",
+        "|---" * (len(head) + 2) + "|",
+    ]
+    for k in (*FEATURES, "df_amplitude_ratio"):
+        cells = [_auc(col(pos, k), col(neg, k))]
+        cells += [_auc(col(pos, k), col(n, k)) for _, n in groups]
+        shift = _ks(col(rows, k), col(real, k)) if real else math.nan
+        lines.append(f"| `{k}` | " + " | ".join(f"{c:.2f}" for c in cells) + f" | {shift:.2f} |")
+    lines += ["", "| true \\ replay call | valve | tuning | external |", "|---|---|---|---|"]
+    for c in CAUSES:
+        rs = [r for r in rows if r["label"] == c]
+        calls = [replay_call(r["features"]) for r in rs]
+        lines.append(
+            f"| {c} ({len(rs)}) | "
+            + " | ".join(str(calls.count(k)) for k in ("valve", "tuning", "external"))
+            + " |"
+        )
+    head_s = np.array([r["head_s"] for r in rows])
+    rep_s = np.array([r["replay_s"] for r in rows])
+    lin_s = np.array([r["linear_s"] for r in rows])
+    n = np.array([r["n"] for r in rows], dtype=float)
+    both = rep_s + lin_s
+    lines += [
+        "",
+        "Cost per loop with a cycle (CPU seconds): steps 1-4 median "
+        f"{np.median(head_s):.3f}; replay median {np.median(rep_s):.3f} (90th percentile "
+        f"{np.percentile(rep_s, 90):.3f}); linear twin median {np.median(lin_s):.3f}; "
+        f"both over steps 1-4: median {np.median(both / head_s):.2f}; per 1000 samples: "
+        f"{1000 * np.median(both / n):.3f} s (records of {int(n.min())}-{int(n.max())} "
+        "samples; correlation of seconds with samples "
+        f"{np.corrcoef(both, n)[0, 1]:.2f}).",
+    ]
+    if real:
+        avail = np.mean(col(real, "replay_available"))
+        lines.append(
+            f"Real records with a cycle: {len(real)}; replay available on {avail:.2f}"
+            f" (simulated {np.mean(col(rows, 'replay_available')):.2f}); reproduced on"
+            f" {np.mean(col(real, 'replay_reproduces')):.2f} (simulated"
+            f" {np.mean(col(rows, 'replay_reproduces')):.2f}); linear twin cycles on"
+            f" {np.mean(col(real, 'linear_cycles')):.2f} (simulated"
+            f" {np.mean(col(rows, 'linear_cycles')):.2f})."
+        )
+    return lines
+
+
+#: The shipped cause model's penalty (``docs/calibration.md``, cause model) [-].
+CAUSE_C = 0.1
+
+
+def model_lines(train: list[dict], test: list[dict]) -> list[str]:
+    """Would the probe's features help the cause model?  The documented gate
+    (``scripts/train_cause.py``, :func:`describing_gate`: a candidate joins the
+    compact set when its area under the ROC curve for the valve on the *training*
+    loops lies at least 0.1 from 0.5), then the softmax model of the compact set and
+    ``df_amplitude_ratio`` (the shipped set) fitted on the training loops without and
+    with the features that pass, both measured on the held-out loops: accuracy of the
+    most likely cause and area under the ROC curve of P(valve).  The held-out stick
+    models are left out of both, as in ``scripts/train_cause.py``."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from train_cause import COMPACT, DF_SEPARATION, HELD_OUT, fit_softmax, roc_auc
+
+    from stictiondiag.stiction.cause import CAUSES
+    from stictiondiag.stiction.cause_model import apply_model
+
+    train = [r for r in train if r["valve"] not in HELD_OUT and "evidence" in r]
+    test = [r for r in test if r["valve"] not in HELD_OUT and "evidence" in r]
+    if not train or not test:
+        return []
+    y_tr = np.array([r["label"] == "valve" for r in train], dtype=int)
+    gate = {k: roc_auc(y_tr, np.array([r["features"][k] for r in train])) for k in FEATURES}
+    joined = tuple(k for k, v in gate.items() if abs(v - 0.5) >= DF_SEPARATION)
+    base = (*COMPACT, "df_amplitude_ratio")
+
+    def xy(rows, names):
+        X = np.array([[float({**r["evidence"], **r["features"]}[k]) for k in names] for r in rows])
+        return X, np.array([CAUSES.index(r["label"]) for r in rows], dtype=int)
+
+    lines = [
+        "",
+        f"Gate on the training loops ({len(train)}): "
+        + ", ".join(f"`{k}` {v:.2f}" for k, v in gate.items())
+        + f"; joined: {', '.join(joined) or 'none'}.",
+        "",
+        "| cause model (C = 0.1) | held-out accuracy | held-out AUC of P(valve) |",
+        "|---|---|---|",
+    ]
+    for label, names in (("shipped set", base), ("shipped set + joined", base + joined)):
+        Xtr, ytr = xy(train, names)
+        Xte, yte = xy(test, names)
+        P = apply_model(fit_softmax(Xtr, ytr, CAUSE_C), Xte)
+        acc = float(np.mean(P.argmax(axis=1) == yte))
+        auc = roc_auc((yte == 0).astype(int), P[:, 0])
+        lines.append(f"| {label} ({len(names)} features) | {acc:.2f} | {auc:.2f} |")
+    lines.append(f"Held-out loops (stick models {', '.join(HELD_OUT)} left out): {len(test)}.")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seed", type=int, default=12)
+    ap.add_argument("--n", type=int, default=250)
+    ap.add_argument("--offset", type=int, default=0)
+    ap.add_argument("--cache", type=Path, default=Path("replay_probe"))
+    ap.add_argument("--real", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--train-seed", type=int, default=None)
+    ap.add_argument("--n-train", type=int, default=250)
+    ap.add_argument(
+        "--no-refit",
+        dest="refit",
+        action="store_false",
+        help="replay the open-loop fit only (no closed-loop refit of S, J and the process)",
+    )
+    a = ap.parse_args(argv)
+    t0 = time.time()
+    rows = sim_rows(a.seed, a.n, a.offset, a.cache, a.refit)
+    real = real_rows(a.real, a.cache, a.refit) if a.real else []
+    lines = report(rows, real)
+    if a.train_seed is not None:
+        train = sim_rows(a.train_seed, a.n_train, 0, a.cache, a.refit)
+        lines += model_lines(train, rows)
+    print("\n".join(lines))
+    print(f"({(time.time() - t0) / 60:.1f} min)")
+    if a.out:
+        a.out.write_text(json.dumps({"sim": rows, "real": real}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
