@@ -43,8 +43,8 @@ def main(argv: list[str] | None = None) -> int:
             fit = estimate_loop(tags).fit
             if fit.method != "hammerstein":
                 continue
-            g = (fit.details or {}).get("process_gains", {})
-            kp = float(g.get("direct", 0.0)) + float(g.get("lag", 0.0))
+            lp = fit.linear_part
+            kp = 0.0 if lp is None else float(lp.direct_gain) + float(lp.lag_gain)
             kc = identify_controller(tags.sp, tags.pv, tags.op, float(tags.ts)).controller.gain
         except StictionError as exc:
             print(f"{r['loop']:8s} not analysed: {exc}")

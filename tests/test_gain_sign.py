@@ -87,8 +87,8 @@ def _family_fits(seed: int):
 
 
 def _gain(fit) -> float:
-    g = fit.details["process_gains"]
-    return float(g["direct"] + g["lag"])
+    lp = fit.linear_part
+    return float(lp.direct_gain + lp.lag_gain)
 
 
 def test_the_sign_recovers_a_sticky_valve_the_free_fit_misses():

@@ -45,7 +45,9 @@ from stictiondiag.core.errors import DataError
 #: 6: and so are its valve model and the valve's state where the model starts.
 #: 7: and its drift comparison and disturbance model (a fit without mv).
 #: 8: the stiction fit's result types live in ``stiction.fit_result``.
-SCHEMA_VERSION = 8
+#: 9: a fit without mv's linear part is a typed field (``StictionFit.linear_part``),
+#: and the closed-loop refit holds its processes as typed models.
+SCHEMA_VERSION = 9
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

@@ -182,6 +182,33 @@ class DisturbanceChoice:
 
 
 @dataclass(frozen=True)
+class LinearPart:
+    """The linear process of a fit without mv (the Hammerstein model's linear block).
+
+    Attributes
+    ----------
+    structure : str
+        ``integrating`` or ``self-regulating``.
+    dead_time_s : float
+        Dead time [s].
+    time_constant_s : float
+        Time constant of the lag [s].
+    direct_gain, lag_gain : float
+        Gains of the direct and the lagged valve column, in the fit's units (pv scaled
+        to unit variance per cycle travel of op) [-].
+    gain_units : float
+        pv units per % of op [per sample, integrating] for one unit of the gains.
+    """
+
+    structure: str
+    dead_time_s: float
+    time_constant_s: float
+    direct_gain: float
+    lag_gain: float
+    gain_units: float
+
+
+@dataclass(frozen=True)
 class StictionFit:
     """Estimated stiction parameters of the data-driven model (Section 5.1).
 
@@ -228,6 +255,8 @@ class StictionFit:
     disturbance : DisturbanceChoice or None
         The disturbance model the fit without mv used, and why; None for the mv
         method.
+    linear_part : LinearPart or None
+        The linear process of a fit without mv; None for the mv method.
     """
 
     S: float
@@ -249,6 +278,7 @@ class StictionFit:
     valve_start: ValveStart | None = None
     drift: DriftComparison | None = None
     disturbance: DisturbanceChoice | None = None
+    linear_part: LinearPart | None = None
 
     def determinacy_of(self, sym: str) -> Determinacy | None:
         """How well the data determine ``sym`` (``"S"`` or ``"J"``); None when the
@@ -321,6 +351,13 @@ class StictionFit:
         words = {"S": self.S_determinacy, "J": self.J_determinacy}
         if any(w is not None for w in words.values()):
             out["determinacy"] = {k: w.value for k, w in words.items() if w is not None}
+        if self.linear_part is not None:
+            lp = self.linear_part
+            out["structure"] = lp.structure
+            out["dead_time_s"] = lp.dead_time_s
+            out["time_constant_s"] = lp.time_constant_s
+            out["process_gains"] = {"direct": lp.direct_gain, "lag": lp.lag_gain}
+            out["gain_units"] = lp.gain_units
         if self.gain_sign is not None:
             out["gain_sign"] = self.gain_sign.to_dict()
         if self.drift is not None:

@@ -162,6 +162,7 @@ from stictiondiag.core.filters import median_filter_nearest
 from stictiondiag.stiction.fit_result import (
     DisturbanceChoice,
     DriftComparison,
+    LinearPart,
     StictionFit,
     ValveStart,
 )
@@ -497,17 +498,11 @@ def _details(
     n_par = NCOL + 5  # linear columns; S, J, dead time, time constant, offset
     return {
         "play_width": variant.play_width * scale,
-        "structure": setup.structure,
         "period_samples": setup.period,
         "row_stride": setup.stride,
         "rows_left_out": n_left_out,
-        "dead_time_s": delay * dt,
         "dead_time_interval_s": [iv.dead_time[0] * dt, iv.dead_time[1] * dt],
         "linear_valve_dead_time_s": float(lin_delay) * dt,
-        "time_constant_s": tau * dt,
-        "process_gains": {"direct": float(theta[0]), "lag": float(theta[1])},
-        # pv units per unit of op [per sample, integrating] for one unit of the gains.
-        "gain_units": setup.pv_unit / scale,
         "highpass_corner_s": HIGHPASS_PERIODS * setup.period * dt,
         "search_limit": setup.S_max * scale,
         "fitted_samples": list(fitted),
@@ -778,6 +773,8 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         note=_note(integrating, flow_loop),
     )
     det = determinacy(S_hat, S_iv, iv.S_open, J_hat, J_iv, J_open)
+    k_dir, k_lag = float(theta[0]), float(theta[1])  # the direct and the lagged valve column
+    linear = LinearPart(setup.structure, delay * dt, tau * dt, k_dir, k_lag, setup.pv_unit / scale)
     return StictionFit(
         S=S_hat,
         J=J_hat,
@@ -796,5 +793,6 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         gain_sign=signs,
         valve_model=variant.name,
         drift=drift,
+        linear_part=linear,
         valve_start=ValveStart(first + prob.k_start, offset * scale, float(prob.d_start)),
     )
