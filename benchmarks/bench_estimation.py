@@ -136,7 +136,7 @@ def run(n_cases: int, seed: int, n_samples: int) -> list[dict]:
                     "J_in": J_iv is not None and J_iv[0] <= case["J"] <= J_iv[1],
                     "seconds": secs,
                     "n": case["op"].size,
-                    "model": fit.details.get("valve_model"),
+                    "model": fit.valve_model,
                     "verdict": verdict.status,
                 }
             )

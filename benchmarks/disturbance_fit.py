@@ -254,8 +254,8 @@ def run_case(args: tuple[dict, tuple[str, ...]]) -> list[dict]:
             covered=bool(lo <= case["S"] <= hi),
             S_excludes_zero=bool(lo > 0),
         )
-        row["chosen"] = fit.details["disturbance_model"]["model"]
-        row["improvement_drift"] = fit.details["drift_model"]["improvement"]
+        row["chosen"] = None if fit.disturbance is None else fit.disturbance.model
+        row["improvement_drift"] = fit.improvement_drift
         rows.append(row)
     hammerstein.DRIFT_CUTOFF = default_cutoff
     return rows

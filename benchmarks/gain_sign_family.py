@@ -59,9 +59,9 @@ def one_loop(seed: int) -> dict | None:
         return None
     row = {"sticky": loop.sticky, "S": loop.truth["S"], "J": loop.truth["J"]}
     for name, fit in (("free", free), ("signed", est.fit)):
-        g = fit.details["process_gains"]
-        row[name] = (float(g["direct"] + g["lag"]), fit.S, fit.J, fit.improvement or 0.0)
-    row["required"] = est.fit.details["gain_sign"]["required"]
+        lp = fit.linear_part
+        row[name] = (float(lp.direct_gain + lp.lag_gain), fit.S, fit.J, fit.improvement or 0.0)
+    row["required"] = 0 if est.fit.gain_sign is None else est.fit.gain_sign.required
     for key, sp in (("sp", loop.sp), ("no_sp", None)):
         try:
             cf = identify_controller(sp, loop.pv, loop.op, loop.ts)

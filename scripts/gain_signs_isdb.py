@@ -9,7 +9,7 @@ fit's scaled units: only its sign is compared) and the PI gain identified from s
 and op (:func:`stictiondiag.identification.controller.identify_controller`), and
 counts the loops whose signs would make the loop a positive-feedback one.  Since the
 fit holds its gain to the controller's sign where that sign is well determined
-(``details["gain_sign"]``), it also prints the sign held (0: free) and counts the
+(``StictionFit.gain_sign``), it also prints the sign held (0: free) and counts the
 fits that found no valve output driving pv with that sign (a gain of zero).  The
 labels are not read.
 """
@@ -43,16 +43,16 @@ def main(argv: list[str] | None = None) -> int:
             fit = estimate_loop(tags).fit
             if fit.method != "hammerstein":
                 continue
-            g = (fit.details or {}).get("process_gains", {})
-            kp = float(g.get("direct", 0.0)) + float(g.get("lag", 0.0))
+            lp = fit.linear_part
+            kp = 0.0 if lp is None else float(lp.direct_gain) + float(lp.lag_gain)
             kc = identify_controller(tags.sp, tags.pv, tags.op, float(tags.ts)).controller.gain
         except StictionError as exc:
             print(f"{r['loop']:8s} not analysed: {exc}")
             continue
         flip = bool(np.sign(kp) * np.sign(kc) < 0)
-        signs = (fit.details or {}).get("gain_sign") or {}
-        required = int(signs.get("required", 0))
-        none_fits = not signs.get("consistent_fit", True)
+        signs = fit.gain_sign
+        required = 0 if signs is None else int(signs.required)
+        none_fits = signs is not None and not signs.consistent_fit
         n += 1
         opposite += flip
         held += required != 0

@@ -95,13 +95,13 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         choudhury_hos,
         horch_cross_correlation,
     )
+    from stictiondiag.stiction.fit_result import Determinacy, StictionFit
     from stictiondiag.stiction.hammerstein import fit_hammerstein
     from stictiondiag.stiction.segments import (
         Segments,
         estimate_from_mv,
         segment_valve,
     )
-    from stictiondiag.stiction.valvefit import Determinacy, StictionFit
     from stictiondiag.stiction.verdict import (
         Verdict,
         stiction_verdict,
@@ -187,7 +187,7 @@ _LAZY: dict[str, str] = {
     "run_from_estimate": "analysis",
     "diagnose_gap_tags": "analysis",
     "diagnose_gap_file": "analysis",
-    "Determinacy": "stiction.valvefit",
+    "Determinacy": "stiction.fit_result",
     "atomic_path": "core.atomic",
     "write_atomic": "core.atomic",
     "BicoherenceResult": "stiction.classic",
@@ -205,7 +205,7 @@ _LAZY: dict[str, str] = {
     "DataError": "core.errors",
     "StictionError": "core.errors",
     "UsageError": "core.errors",
-    "StictionFit": "stiction.valvefit",
+    "StictionFit": "stiction.fit_result",
     "Verdict": "stiction.verdict",
     "stiction_verdict": "stiction.verdict",
     "GapDiagnosis": "gap.diagnose",

@@ -82,9 +82,9 @@ from stictiondiag.signals.oscillation import (
     dominant_period,
 )
 from stictiondiag.stiction.cause import find_cycle
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import Segments, estimate_from_mv, segment_valve
-from stictiondiag.stiction.valvefit import StictionFit
 from stictiondiag.stiction.verdict import Verdict, stiction_verdict, verdict_features
 
 __all__ = [
@@ -501,7 +501,7 @@ def estimate_stiction(tags: Tags, segments: Segments | None = None) -> StictionF
     From the stick and slip segments of the mv-op plot when mv is recorded (Figs. 3
     and 6), otherwise from the valve model and a linear process fitted together to
     op and pv (Section 5.3.1), its process gain of the sign the identified
-    controller needs (``details["gain_sign"]``, with the R^2 of the controller's
+    controller needs (``StictionFit.gain_sign``, with the R^2 of the controller's
     law).  ``segments``: :func:`segment_valve` of op, mv and ts when the caller has
     it already.
     """
@@ -520,8 +520,9 @@ def estimate_stiction(tags: Tags, segments: Segments | None = None) -> StictionF
         flow_loop=tags.loop_type in FLOW_LIKE,
         gain_sign=sign,
     )
-    signs = {**fit.details["gain_sign"], "controller_fit_r2": r2}
-    return replace(fit, details={**fit.details, "gain_sign": signs})
+    if fit.gain_sign is None:
+        return fit
+    return replace(fit, gain_sign=replace(fit.gain_sign, controller_fit_r2=r2))
 
 
 def _or_warn(what: str, warnings: list[str], step: Callable[[], _T]) -> _T | None:

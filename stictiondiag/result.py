@@ -27,7 +27,7 @@ from stictiondiag.replay.metrics import replay_metrics
 from stictiondiag.row import LoopRow
 from stictiondiag.signals.kpis import LoopKpis
 from stictiondiag.signals.oscillation import Oscillation
-from stictiondiag.stiction.valvefit import StictionFit
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.verdict import Verdict
 
 if TYPE_CHECKING:
@@ -176,7 +176,6 @@ class Analysis:
         s_int = list(to_plain(fit.S_interval) or [None, None])
         j_int = list(to_plain(fit.J_interval) or [None, None])
         probs = to_plain(verdict.cause_probabilities)
-        words = (fit.details or {}).get("determinacy") or {}
         return LoopRow(
             loop=self.loop,
             source=str(tags.source),
@@ -204,8 +203,8 @@ class Analysis:
             S_hi=s_int[1],
             J_lo=j_int[0],
             J_hi=j_int[1],
-            S_determinacy=to_plain(words.get("S")),
-            J_determinacy=to_plain(words.get("J")),
+            S_determinacy=to_plain(fit.S_determinacy),
+            J_determinacy=to_plain(fit.J_determinacy),
             method=fit.method,
             replay_fit_pv=None if rep is None else plain_float(rep.measures.pv.fit_pct),
             replay_period_error_pct=(

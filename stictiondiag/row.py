@@ -72,7 +72,7 @@ class LoopRow:
         Their intervals [same units].
     S_determinacy, J_determinacy : str or None
         How well the data determine them (the words of
-        :class:`~stictiondiag.stiction.valvefit.Determinacy`).
+        :class:`~stictiondiag.stiction.fit_result.Determinacy`).
     method : str or None
         How S and J were estimated.
     replay_fit_pv : float or None
@@ -198,10 +198,10 @@ class LoopRow:
 
     def poorly_determined(self, sym: str) -> bool:
         """The data determine ``sym`` poorly (the rule of
-        :func:`stictiondiag.stiction.valvefit.poorly_determined`)."""
+        :func:`stictiondiag.stiction.fit_result.poorly_determined`)."""
         # Imported here: the valve fit's module brings numba, which reading a row does
         # not otherwise need.
-        from stictiondiag.stiction.valvefit import Determinacy, poorly_determined
+        from stictiondiag.stiction.fit_result import Determinacy, poorly_determined
 
         value, lo, hi = self.estimate(sym)
         words = self.S_determinacy if sym == "S" else self.J_determinacy

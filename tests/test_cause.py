@@ -15,8 +15,8 @@ from stictiondiag.stiction.cause import (
     direct_stick_slip,
     find_cycle,
 )
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.probability import FEATURES
-from stictiondiag.stiction.valvefit import StictionFit
 from stictiondiag.stiction.verdict import stiction_verdict
 
 

@@ -7,7 +7,7 @@ from typed_results import make_analysis, make_gap
 
 from stictiondiag.apps.findings import findings_of, param_text
 from stictiondiag.replay.compensation import Compensation
-from stictiondiag.stiction.valvefit import Determinacy
+from stictiondiag.stiction.fit_result import Determinacy
 
 COMPENSATION = Compensation(
     applicable=True,

@@ -87,8 +87,8 @@ def _family_fits(seed: int):
 
 
 def _gain(fit) -> float:
-    g = fit.details["process_gains"]
-    return float(g["direct"] + g["lag"])
+    lp = fit.linear_part
+    return float(lp.direct_gain + lp.lag_gain)
 
 
 def test_the_sign_recovers_a_sticky_valve_the_free_fit_misses():
@@ -99,9 +99,9 @@ def test_the_sign_recovers_a_sticky_valve_the_free_fit_misses():
     loop, signed, free = _family_fits(20210)
     S, J = loop.truth["S"], loop.truth["J"]
     assert _gain(free) < 0.0 and abs(free.S - S) > 0.5
-    assert signed.details["gain_sign"]["required"] == 1
-    assert signed.details["gain_sign"]["consistent_fit"]
-    assert signed.details["gain_sign"]["controller_fit_r2"] > 0.99
+    gs = signed.gain_sign
+    assert gs is not None and gs.required == 1 and gs.consistent_fit
+    assert gs.controller_fit_r2 is not None and gs.controller_fit_r2 > 0.99
     assert _gain(signed) > 0.0
     assert signed.S == pytest.approx(S, abs=0.2)
     assert signed.J == pytest.approx(J, abs=0.2)
@@ -112,9 +112,9 @@ def test_no_sign_when_the_controller_law_explains_little():
     law, R^2 0.08): the controller's sign is not well determined, so the fit is the
     free one, to the last bit, and says that no sign was held."""
     _, signed, free = _family_fits(20054)
-    gs = signed.details["gain_sign"]
-    assert gs["required"] == 0 and not gs["binding_at_estimate"]
-    assert gs["controller_fit_r2"] < SIGN_MIN_R2
+    gs = signed.gain_sign
+    assert gs is not None and gs.required == 0 and not gs.binding_at_estimate
+    assert gs.controller_fit_r2 is not None and gs.controller_fit_r2 < SIGN_MIN_R2
     assert (signed.S, signed.J, signed.cost) == (free.S, free.J, free.cost)
 
 
@@ -123,7 +123,7 @@ def test_no_fit_of_the_right_sign_is_reported_as_undetermined():
     the controller's sign, so the fitted gain is zero; the fit says so and S and J
     are not claimed (intervals over the whole search range)."""
     _, signed, _ = _family_fits(20260)
-    assert signed.details["gain_sign"]["required"] == 1
-    assert not signed.details["gain_sign"]["consistent_fit"]
+    assert signed.gain_sign is not None and signed.gain_sign.required == 1
+    assert not signed.gain_sign.consistent_fit
     assert _gain(signed) == 0.0
     assert signed.poorly_determined("S") and signed.poorly_determined("J")

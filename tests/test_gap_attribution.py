@@ -6,6 +6,7 @@ import pytest
 
 from stictiondiag.gap.attribution import LARGE_GAP_PCT, GapCause, attribute_gap
 from stictiondiag.gap.diagnose import Candidate, GapDiagnosis
+from stictiondiag.models.processes import FOPTD
 from stictiondiag.replay.refit import ClosedLoopRefit
 
 
@@ -15,8 +16,8 @@ def _refit(accepted, c0, c1, S0=2.0, J0=0.5, S1=3.0, J1=1.0):
         J_open_loop=J0,
         S=S1 if accepted else S0,
         J=J1 if accepted else J0,
-        process_open_loop={},
-        process={},
+        process_open_loop=FOPTD(1.0, 10.0),
+        process=FOPTD(1.0, 10.0),
         cost_open_loop=c0,
         cost=c1,
         accepted=accepted,

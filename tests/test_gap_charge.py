@@ -59,3 +59,71 @@ def test_historian_rounding_of_pv_is_named_on_an_integrating_loop():
     q = next(c for c in g.candidates if c.effect == "quantization")
     assert q.params["pv_step"] == pytest.approx(truth["pv_quantum"], rel=1e-3)
     assert g.after < 10.0 < g.before
+
+
+def test_mv_missed_by_its_rounding_alone_is_evidence_for_quantization():
+    """mv rounded to 1.0 % of span (and pv at the instrument) on a loop whose base
+    replay misses mv by its rounding almost alone: the quantization takes mv's held-out
+    error from 470 to 11 (normalised), which a floor holding the rounding variance a
+    second time (459) counted as no evidence, so a miscalibration that takes it to 188
+    was named (gap 28.9 to 19.3 %).  The rounding accounted for, the floor of what is
+    left is the rounding variance's own sampling error over mv's 19 effectively
+    independent errors (a fifth of it): quantization is named and the gap falls below
+    10 % (measured 4.0 %)."""
+    case = generate_case("quantization", 8005)
+    truth = case.truth["effect_parameters"]
+    assert truth["quantised"] == "both" and truth["pv_resolution"] == "instrument"
+    d = case.data
+    tags = Tags.from_arrays(
+        d.pv.values, d.op.values, mv=d.mv.values, sp=d.sp.values, ts=case.truth["ts"]
+    )
+    g = diagnose_gap(tags)
+    assert g.effect == "quantization"
+    q = next(c for c in g.candidates if c.effect == "quantization")
+    assert q.params["mv_step"] == pytest.approx(truth["mv_quantum_pct"], rel=1e-3)
+    assert g.after < 10.0 and g.before > 20.0
+
+
+def test_untested_slip_signature_on_a_quantised_mv():
+    """Too few measured slips leave a valve-side signature untested: the replay decides
+    alone (p 0), except on a quantised mv (p 1), whose rounding a more flexible valve
+    follows on held-out blocks too."""
+    import numpy as np
+
+    from stictiondiag.gap.effects.signatures import slips_differ, untested_p
+
+    t = np.arange(2000.0)
+    smooth = 50.0 + 5.0 * np.sin(t / 50.0)
+    assert untested_p(smooth) == 0.0
+    assert untested_p(np.round(smooth)) == 1.0  # on a grid of 1 % of span
+    assert untested_p(None) == 0.0
+    slips = {
+        "travel": np.array([1.0, 2.0]),
+        "J": np.array([0.5, 0.6]),
+        "reversal": np.array([True, True]),
+    }
+    a, b = np.array([True, False]), np.array([False, True])
+    assert slips_differ(slips, a, b) == 0.0
+    assert slips_differ(slips, a, b, untested=1.0) == 1.0
+    assert slips_differ(None, a, b, untested=1.0) == 1.0
+
+
+def test_quantised_mv_without_measured_slips_is_not_a_time_varying_valve():
+    """mv rounded to 1.4 % of span on a valve of S 2 %: the segmentation measures no
+    slip, so the change of stiction could not be tested, and the replay alone named
+    ``time_varying_stiction`` (a drift over the record, gap 34 to 23 %) against the
+    quantization (34 to 25 %).  On a quantised mv the slips must show the change:
+    quantization is named, its step the hidden one."""
+    case = generate_case("quantization", 8032)
+    truth = case.truth["effect_parameters"]
+    assert truth["quantised"] == "mv"
+    d = case.data
+    tags = Tags.from_arrays(
+        d.pv.values, d.op.values, mv=d.mv.values, sp=d.sp.values, ts=case.truth["ts"]
+    )
+    g = diagnose_gap(tags)
+    assert g.effect == "quantization"
+    tvs = next(c for c in g.candidates if c.effect == "time_varying_stiction")
+    assert tvs.params["slips_differ_p"] == 1.0 and not tvs.accepted
+    q = next(c for c in g.candidates if c.effect == "quantization")
+    assert q.params["mv_step"] == pytest.approx(truth["mv_quantum_pct"], rel=1e-3)

@@ -61,7 +61,8 @@ def test_concentration_loop_recovers_S_and_J():
     assert fit.improvement > 0.9
     # The process dead time of Eq. 3 is 10 s; a time constant of the first-order
     # basis absorbs part of it, so it is found within a few samples.
-    assert fit.details["dead_time_s"] == pytest.approx(10.0, abs=3.0)
+    assert fit.linear_part is not None
+    assert fit.linear_part.dead_time_s == pytest.approx(10.0, abs=3.0)
 
 
 def test_level_loop_with_noise():
@@ -77,7 +78,7 @@ def test_level_loop_with_noise():
     # the process gain (Eq. 4); 0.6 % for it.
     assert fit.S == pytest.approx(3.0, abs=0.5)
     assert fit.J == pytest.approx(1.0, abs=0.6)
-    assert fit.details["structure"] == "integrating"
+    assert fit.linear_part is not None and fit.linear_part.structure == "integrating"
 
 
 def test_flow_loop():
@@ -88,7 +89,7 @@ def test_flow_loop():
     # The flow lag (0.5 s) is one sample; 0.3 % as above.
     assert fit.S == pytest.approx(4.0, abs=0.3)
     assert fit.J == pytest.approx(2.0, abs=0.3)
-    assert fit.details["structure"] == "self-regulating"
+    assert fit.linear_part is not None and fit.linear_part.structure == "self-regulating"
     assert "flow loop" in fit.details["note"]
 
 
@@ -189,7 +190,8 @@ def test_units_rescale_S_and_J_and_nothing_else():
     assert b.J == pytest.approx(2.0 * a.J, rel=1e-9)
     assert b.S_scaled == pytest.approx(a.S_scaled, rel=1e-9)
     assert b.cost == pytest.approx(a.cost, rel=1e-9)
-    assert b.details["dead_time_s"] == a.details["dead_time_s"]
+    assert a.linear_part is not None and b.linear_part is not None
+    assert b.linear_part.dead_time_s == a.linear_part.dead_time_s
     assert c.S == pytest.approx(a.S, rel=1e-9)
     assert c.J == pytest.approx(a.J, rel=1e-9)
     assert c.cost == pytest.approx(a.cost, rel=1e-9)
@@ -326,10 +328,10 @@ def test_drift_states_find_the_sticky_valve_under_a_drifting_load():
     dr = fit_hammerstein(op, pv, 1.0, integrating=False, flow_loop=False, disturbance="drift")
     assert dr.S == pytest.approx(3.0, abs=0.5)
     assert dr.improvement > hp.improvement
-    assert dr.details["disturbance_model"]["model"] == "drift"
+    assert dr.disturbance is not None and dr.disturbance.model == "drift"
     # The drift comparison refits the linear part at the same parameters: the same
     # cost up to the compiled kernel's ridge on a near-empty column (measured 7e-5).
-    assert dr.details["drift_model"]["cost"] == pytest.approx(dr.cost, rel=1e-3)
+    assert dr.drift is not None and dr.drift.cost == pytest.approx(dr.cost, rel=1e-3)
 
 
 def test_drift_states_do_not_make_a_healthy_drifting_loop_look_sticky():
@@ -343,9 +345,13 @@ def test_drift_states_do_not_make_a_healthy_drifting_loop_look_sticky():
 def test_auto_disturbance_model_says_what_it_chose():
     op, pv, dt = loop("concentration", 5.0, 2.0)
     fit = fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False)
-    chosen = fit.details["disturbance_model"]
-    assert chosen["model"] in ("highpass", "drift")
-    assert chosen["reason"]
-    json.dumps(fit.to_dict())
+    chosen = fit.disturbance
+    assert chosen is not None and chosen.model in ("highpass", "drift")
+    assert chosen.reason
+    # The JSON keeps the choice under details, as it did when details held it.
+    assert json.loads(json.dumps(fit.to_dict()))["details"]["disturbance_model"] == {
+        "model": chosen.model,
+        "reason": chosen.reason,
+    }
     with pytest.raises(ValueError, match="disturbance"):
         fit_hammerstein(op, pv, dt, integrating=False, flow_loop=False, disturbance="kalman")

@@ -191,13 +191,13 @@ def test_valve_zoom_draws_S_and_J_at_a_slip():
 
 def test_poorly_determined_parameters_are_marked_on_the_figures():
     from stictiondiag.plotting.valve import plot_valve_zoom
-    from stictiondiag.stiction.valvefit import Determinacy, StictionFit
+    from stictiondiag.stiction.fit_result import Determinacy, StictionFit
 
     def fit_of(S, S_iv, det_S, J=5.78, J_iv=(2.89, 5.78), det_J=Determinacy.OPEN):
         return StictionFit(
             S=S, J=J, S_scaled=S, J_scaled=J, S_interval=S_iv, J_interval=J_iv,
             method="hammerstein", mv_model=np.zeros(3), n_slips=0, cost=1.0,
-            linear_cost=1.0, details={"determinacy": {"S": det_S.value, "J": det_J.value}},
+            linear_cost=1.0, S_determinacy=det_S, J_determinacy=det_J,
         )  # fmt: skip
 
     fit = fit_of(0.5, (0.0, 1.7), Determinacy.WELL)

@@ -19,6 +19,7 @@ from stictiondiag.apps.family import (
     loop_features,
     stiction_share,
 )
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.probability import (
     BASE_FEATURES,
     CANDIDATES,
@@ -31,7 +32,6 @@ from stictiondiag.stiction.probability import (
     stiction_probability,
 )
 from stictiondiag.stiction.probability_evidence import CONTINUOUS, NEUTRAL
-from stictiondiag.stiction.valvefit import StictionFit
 from stictiondiag.stiction.verdict import (
     NO_STICTION_LEVEL,
     STICTION_LEVEL,

@@ -28,6 +28,7 @@ from stictiondiag.models.processes import (
 from stictiondiag.models.valve import choudhury_model
 from stictiondiag.replay.closed_loop import Replay, nrmse, replay
 from stictiondiag.replay.cycles import cycle_shape, waveform_similarity
+from stictiondiag.stiction.fit_result import ValveStart
 
 N = 10_000
 DT = 0.1
@@ -105,7 +106,7 @@ def test_replay_starts_where_the_fitted_valve_starts():
     sim = loop_data("concentration", S, J)
     mv_model = choudhury_model(sim.op, S, J)
     mv_model[:start] = mv_model[start]
-    fit = SimpleNamespace(S=S, J=J, mv_model=mv_model, details={"start_sample": start})
+    fit = SimpleNamespace(S=S, J=J, mv_model=mv_model, valve_start=ValveStart(start, 0.0, 0.0))
     rep = replay(Tags.from_arrays(sim.pv, sim.op, sp=sim.sp, ts=DT), fit)
     assert rep.n == N - start
     assert rep.time[0] == pytest.approx(start * DT)
@@ -351,10 +352,8 @@ def test_replay_starts_in_the_fitted_valve_state(direction, slips):
     mv_model[:start] = mv_model[start]
     # The two outcomes differ here (the valve of the record is not moving at start).
     assert abs(mv_model[start] - (sim.op[start] - (S - J) / 2.0)) > 0.5
-    details = {"start_sample": start, "start_offset": 3.0}
-    if direction is not None:
-        details["start_direction"] = direction
-    fit = SimpleNamespace(S=S, J=J, mv_model=mv_model, details=details)
+    valve_start = ValveStart(start, 3.0, 0.0 if direction is None else direction)
+    fit = SimpleNamespace(S=S, J=J, mv_model=mv_model, valve_start=valve_start)
     loop = LOOP_PARAMETERS["concentration"]
     rep = replay(
         Tags.from_arrays(sim.pv, sim.op, sp=sim.sp, ts=DT),

@@ -14,7 +14,7 @@ import pytest
 from stictiondiag.analysis import Analysis, AnalysisConfig, analyze_file
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.schema import SCHEMA_VERSION, decode, dumps, encode, loads
-from stictiondiag.stiction.valvefit import Determinacy
+from stictiondiag.stiction.fit_result import Determinacy
 
 SAMPLES = sorted((Path(__file__).resolve().parents[1] / "sample_data").glob("*.csv"))
 

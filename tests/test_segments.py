@@ -162,7 +162,7 @@ def test_units_rescale_S_and_J_and_nothing_else():
     assert np.allclose(b.S_interval, 2.0 * np.asarray(a.S_interval), rtol=1e-9)
     assert b.n_slips == a.n_slips
     assert b.improvement == pytest.approx(a.improvement, rel=1e-9)
-    assert b.details["valve_model"] == a.details["valve_model"]
+    assert b.valve_model == a.valve_model
 
 
 def test_to_dict_is_json():

@@ -13,7 +13,7 @@ from stictiondiag.gap.diagnose import Candidate, GapDiagnosis
 from stictiondiag.io.tags import Tags
 from stictiondiag.result import Analysis
 from stictiondiag.signals.oscillation import Oscillation
-from stictiondiag.stiction.valvefit import StictionFit
+from stictiondiag.stiction.fit_result import Determinacy, StictionFit
 from stictiondiag.stiction.verdict import Verdict
 
 #: The decision levels the tests' verdicts carry in their evidence [-].
@@ -92,7 +92,6 @@ def make_analysis(
         loop_type_source=loop_type_source,
         op_scale=op_scale,
     )
-    det = {sym: word for sym, word in zip(("S", "J"), determinacy, strict=True) if word}
     fit = StictionFit(
         S=S,
         J=J,
@@ -105,7 +104,8 @@ def make_analysis(
         n_slips=4,
         cost=1.0,
         linear_cost=2.0,
-        details={"determinacy": det},
+        S_determinacy=Determinacy.of(determinacy[0]),
+        J_determinacy=Determinacy.of(determinacy[1]),
     )
     verdict = Verdict(
         status=status,

@@ -16,7 +16,7 @@
 * what the sim-to-real gap diagnosis found (:mod:`stictiondiag.gap`);
 * what the data cannot tell.
 
-Everything is read from the typed parts (:class:`~stictiondiag.stiction.valvefit.StictionFit`,
+Everything is read from the typed parts (:class:`~stictiondiag.stiction.fit_result.StictionFit`,
 :class:`~stictiondiag.stiction.verdict.Verdict`, ...), never from text or string keys of
 the JSON, so a field added to a result is a field of its class here too.
 """
@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 from stictiondiag.core.serialize import plain_float
 from stictiondiag.stiction.cause import ACTIONS, CAUSE_WORDS
-from stictiondiag.stiction.valvefit import Determinacy, StictionFit
+from stictiondiag.stiction.fit_result import Determinacy, StictionFit
 from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL, Verdict
 
 if TYPE_CHECKING:

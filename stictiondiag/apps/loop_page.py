@@ -2,7 +2,7 @@
 
 :func:`render_loop_html` takes the :class:`~stictiondiag.result.Analysis` itself (as
 run, or as read back with :meth:`~stictiondiag.result.Analysis.from_json`) and reads
-its typed parts: the tags, the :class:`~stictiondiag.stiction.valvefit.StictionFit`,
+its typed parts: the tags, the :class:`~stictiondiag.stiction.fit_result.StictionFit`,
 the :class:`~stictiondiag.stiction.verdict.Verdict`, the
 :class:`~stictiondiag.replay.closed_loop.Replay` with its
 :class:`~stictiondiag.replay.metrics.ReplayMetrics`, the
@@ -44,7 +44,7 @@ if TYPE_CHECKING:
     from stictiondiag.identification.process_result import ProcessFit
     from stictiondiag.replay.closed_loop import Replay
     from stictiondiag.result import Analysis
-    from stictiondiag.stiction.valvefit import StictionFit
+    from stictiondiag.stiction.fit_result import StictionFit
 
 __all__ = ["VERDICT_CLASSES", "render_loop_html"]
 

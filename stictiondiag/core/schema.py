@@ -41,7 +41,13 @@ from stictiondiag.core.errors import DataError
 #: 2: the replay holds its identified process and controller once, as typed fits.
 #: 3: one process fit for both objectives, its extras typed (``ProcessFit.detail``).
 #: 4: the replay's record, per-signal measures and settings typed (``replay.result``).
-SCHEMA_VERSION = 4
+#: 5: a stiction fit's determinacy and gain sign are typed fields, not in ``details``.
+#: 6: and so are its valve model and the valve's state where the model starts.
+#: 7: and its drift comparison and disturbance model (a fit without mv).
+#: 8: the stiction fit's result types live in ``stiction.fit_result``.
+#: 9: a fit without mv's linear part is a typed field (``StictionFit.linear_part``),
+#: and the closed-loop refit holds its processes as typed models.
+SCHEMA_VERSION = 9
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

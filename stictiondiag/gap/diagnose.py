@@ -373,9 +373,12 @@ def diagnose_gap(
     scores = {"none": Score(base_total, True, 0.0, np.zeros(n_blocks))}
     evidences = {"none": 0.0}
     floors = evidence_floors(ctx, held.blocks, n_blocks)
+    white = evidence_floors(ctx, held.blocks, n_blocks, rounding=False)
     for name, ef in fits.items():
         scores[name] = score_candidate(name, ef, errors, ctx, base, candidate_share(ctx, ef, share))
-        evidences[name] = evidence(ef, name, errors, n_eff, scores[name].gain_by_block, floors)
+        evidences[name] = evidence(
+            ef, name, errors, n_eff, scores[name].gain_by_block, floors, white
+        )
 
     sel = select_winner(ctx, base, fits, errors, scores, evidences)
     winner = sel.winner

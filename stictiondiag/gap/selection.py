@@ -443,7 +443,15 @@ def score_candidate(
     return Score(score, accepted, score - float(total1.sum()), d)
 
 
-def evidence_floors(ctx: ReplayContext, blocks: np.ndarray, n_blocks: int) -> dict:
+#: Relative standard error of a mean of squared rounding errors, per effectively
+#: independent error: ``sqrt(Var(e^2)) / E(e^2)`` for ``e`` uniform on a step,
+#: ``sqrt(q^4 (1/80 - 1/144)) / (q^2/12) = sqrt(4/5)``.
+ROUNDING_SQUARE_SPREAD = math.sqrt(0.8)
+
+
+def evidence_floors(
+    ctx: ReplayContext, blocks: np.ndarray, n_blocks: int, rounding: bool = True
+) -> dict:
     """Least held-out error each signal's replay can be judged to reach, per block [-].
 
     A replay cannot be told to be better than the data resolve: per sample, the larger
@@ -451,13 +459,15 @@ def evidence_floors(ctx: ReplayContext, blocks: np.ndarray, n_blocks: int) -> di
     variance ``q^2/12`` (``q`` the step of a quantised signal,
     :func:`stictiondiag.gap.effects.quantization.detect_quantization`, else the
     spacing of double-precision numbers at the signal's size), normalised like the
-    held-out errors and summed over each block's judged samples.
+    held-out errors and summed over each block's judged samples.  With ``rounding``
+    False, the white noise and the spacing of double-precision numbers only: the
+    floor of what is left once the rounding is accounted for (see :func:`evidence`).
     """
     judged = np.bincount(blocks, ctx.w_eval, minlength=n_blocks)
     floors = {}
     for s, norm in ctx.norm.items():
         x = np.asarray(getattr(ctx.sig, s), dtype=float)
-        q = detect_quantization(x)
+        q = detect_quantization(x) if rounding else None
         step = q[0] if q is not None else np.finfo(float).eps * float(np.max(np.abs(x)))
         per_sample = max(noise_variance(x), step * step / 12.0)
         floors[s] = judged * per_sample / norm
@@ -465,7 +475,13 @@ def evidence_floors(ctx: ReplayContext, blocks: np.ndarray, n_blocks: int) -> di
 
 
 def evidence(
-    ef: EffectFit, name: str, held: dict, n_eff: dict, d: np.ndarray, floors: dict
+    ef: EffectFit,
+    name: str,
+    held: dict,
+    n_eff: dict,
+    d: np.ndarray,
+    floors: dict,
+    white: dict | None = None,
 ) -> float:
     """Held-out evidence for a candidate in the units of the Bayesian information
     criterion.
@@ -478,6 +494,15 @@ def evidence(
     floor (:func:`evidence_floors`): an effect that brings a signal's held-out error
     to its noise floor (a quantised signal's rounding explained) gains the whole
     ratio of the base's error to the floor, instead of dropping out of the sum.
+
+    A candidate that accounts for a signal's rounding (``ef.explained``: the
+    quantization) leaves an error with the rounding taken out, so that error is not
+    held at a floor that holds the rounding a second time: its floor is the white
+    noise (``white``, :func:`evidence_floors` without rounding) or what the rounding
+    variance is known to, its sampling error over the ``n_eff`` effectively
+    independent errors (:data:`ROUNDING_SQUARE_SPREAD`), whichever is larger.  With
+    the rounding in the floor, an mv whose base replay misses it by its rounding
+    alone, 97 % of the error, counted as no evidence at all.
     """
     kept = _kept_blocks(ef, d)
     sigs = [s for s in ef.predictions if s in held["none"]]
@@ -485,7 +510,11 @@ def evidence(
     for s in sigs:
         floor = float(floors[s][kept].sum())
         e0 = max(float(held["none"][s][kept].sum()), floor)
-        e1 = max(float(held[name][s][kept].sum()), floor)
+        floor1 = floor
+        if white is not None and ef.explained.get(s, 0.0) > 0.0:
+            spread = floor * ROUNDING_SQUARE_SPREAD / math.sqrt(max(n_eff[s], 1.0))
+            floor1 = min(floor, max(float(white[s][kept].sum()), spread))
+        e1 = max(float(held[name][s][kept].sum()), floor1)
         if e0 > 0.0 and e1 > 0.0:
             ev += n_eff[s] * math.log(e0 / e1)
     if sigs:

@@ -123,7 +123,7 @@ def plot_phase(
         cycles (default: :data:`WINDOW_DEFAULT` samples).
     poorly : sequence of str
         The parameters (``"S"``, ``"J"``) the fit determines poorly
-        (:meth:`stictiondiag.stiction.valvefit.StictionFit.poorly_determined`),
+        (:meth:`stictiondiag.stiction.fit_result.StictionFit.poorly_determined`),
         marked in the mv-op title.
 
     Returns

@@ -22,7 +22,7 @@ The replay starts from the data's own state:
 - the valve: at the first clear extreme of op, where a sticky valve's state is
   known (it slipped on the way there and is stuck when op turns, Figs. 12 and 14).
   Without a recorded mv that is where the stiction fit's valve model starts
-  (``fit.details["start_sample"]``), and the replayed valve takes the fit's state
+  (``fit.valve_start``), and the replayed valve takes the fit's state
   there: its position, the op at which it stuck (``start_offset`` back from the
   extreme) and the direction of its last movement (``start_direction``), so it
   breaks away where the fitted valve does, J on in the same direction or S back
@@ -275,11 +275,9 @@ def _replay_record(tags, fit) -> _Record:
     start, direction, back = 0, 0.0, 0.0
     why = "where the fitted valve model starts"
     if mv_rec is None:
-        details = getattr(fit, "details", None)
-        if isinstance(details, dict):
-            start = int(details.get("start_sample") or 0)
-            direction = float(details.get("start_direction") or 0.0)
-            back = max(float(details.get("start_offset") or 0.0), 0.0)
+        vs = getattr(fit, "valve_start", None)
+        if vs is not None:
+            start, direction, back = int(vs.sample), float(vs.direction), max(float(vs.offset), 0.0)
     elif S > 0.0:
         osc_op = detect_oscillation(op, dt)
         if osc_op.present and osc_op.period_s:

@@ -167,9 +167,9 @@ class ClosedLoopRefit:
         The open-loop fit's S and J [% of span].
     S, J : float
         The refitted S and J [% of span] (the open-loop ones when not ``accepted``).
-    process_open_loop, process : dict
-        The process before and after (``to_dict`` of the model: gain, time constant
-        [s], dead time [s]).
+    process_open_loop, process : FOPTD or Integrating
+        The process before and after: gain [pv units / % of span] (integrating: per
+        second), time constant [s], dead time [s].
     cost_open_loop, cost : float
         Cycle mismatch of the replay (module docstring) before and after [-].
     accepted : bool
@@ -184,8 +184,8 @@ class ClosedLoopRefit:
     J_open_loop: float
     S: float
     J: float
-    process_open_loop: dict
-    process: dict
+    process_open_loop: FOPTD | Integrating
+    process: FOPTD | Integrating
     cost_open_loop: float
     cost: float
     accepted: bool
@@ -201,8 +201,8 @@ class ClosedLoopRefit:
             "J_open_loop": to_plain(self.J_open_loop),
             "S": to_plain(self.S),
             "J": to_plain(self.J),
-            "process_open_loop": to_plain(self.process_open_loop),
-            "process": to_plain(self.process),
+            "process_open_loop": to_plain(self.process_open_loop.to_dict()),
+            "process": to_plain(self.process.to_dict()),
             "cost_open_loop": to_plain(self.cost_open_loop),
             "cost": to_plain(self.cost),
             "accepted": bool(self.accepted),
@@ -383,8 +383,8 @@ def _done(start, found, cost0, cost, terms, sims, accepted, reason) -> ClosedLoo
         J_open_loop=start.J,
         S=found.S,
         J=found.J,
-        process_open_loop=start.process.to_dict(),
-        process=found.process.to_dict(),
+        process_open_loop=start.process,
+        process=found.process,
         cost_open_loop=cost0,
         cost=cost,
         accepted=accepted,
@@ -465,8 +465,8 @@ def refine_loop(
                 J,
                 S,
                 J,
-                pf.process.to_dict(),
-                pf.process.to_dict(),
+                pf.process,
+                pf.process,
                 cost,
                 cost,
                 False,
@@ -497,7 +497,7 @@ def refine_loop(
     result = refit_closed_loop(start, evaluate, dt, valve_fixed=fixed, candidates=cands)
     if not result.accepted:
         return result, pf
-    new = with_process(pf, _refitted_process(result, pf.process), dt)
+    new = with_process(pf, result.process, dt)
     # The search measures cycles by their crossings; the refit must also cycle by
     # the autocorrelation (Thornhill et al. 2003) wherever the open-loop fit did.
 
@@ -509,7 +509,7 @@ def refine_loop(
                 result,
                 S=start.S,
                 J=start.J,
-                process=start.process.to_dict(),
+                process=start.process,
                 cost=result.cost_open_loop,
                 accepted=False,
                 reason="the refit's replay would lose the cycle the open-loop fit's has",
@@ -529,10 +529,3 @@ def refine_loop(
         drift_time_constant=None,
     )
     return result, replace(new, detail=oe)
-
-
-def _refitted_process(result: ClosedLoopRefit, template: FOPTD | Integrating):
-    p = result.process
-    if isinstance(template, FOPTD):
-        return FOPTD(gain=p["gain"], time_constant=p["time_constant_s"], dead_time=p["dead_time_s"])
-    return Integrating(gain=p["gain"], dead_time=p["dead_time_s"])

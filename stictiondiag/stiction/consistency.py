@@ -13,7 +13,7 @@ loop with a cycle (stage 1 of :mod:`stictiondiag.stiction.cause`):
   part of the Hammerstein fit that gave S and J (a direct part and a first-order lag
   behind a dead time, integrating for a level loop,
   :class:`stictiondiag.models.processes.SampledLag`, its gains brought back to pv
-  units per % of op by ``details["gain_units"]``); the PI controller is
+  units per % of op by ``StictionFit.linear_part.gain_units``); the PI controller is
   :func:`stictiondiag.identification.controller.identify_controller` of sp, pv, op.
   A P-only law (no significant integral term) is taken as a PI whose integral time is
   :data:`P_ONLY_PERIODS` observed periods, which leaves the loop's response at the
@@ -62,7 +62,7 @@ from stictiondiag.identification.controller import identify_controller
 from stictiondiag.models.describing import predict_limit_cycle, stability_margins
 from stictiondiag.models.processes import PI, SampledLag
 from stictiondiag.signals.oscillation import fundamental_amplitude
-from stictiondiag.stiction.valvefit import StictionFit
+from stictiondiag.stiction.fit_result import StictionFit
 
 #: The features of this module, in order.
 FEATURES: tuple[str, ...] = (
@@ -125,17 +125,16 @@ N_FREQUENCIES = 3000
 def fitted_process(fit: StictionFit, dt: float, integrating: bool) -> SampledLag | None:
     """The linear part of a Hammerstein fit in pv units per % of op
     (:class:`~stictiondiag.models.processes.SampledLag`); None for another fit."""
-    d = fit.details or {}
-    gains, units = d.get("process_gains"), d.get("gain_units")
-    if fit.method != "hammerstein" or not gains or units is None or not math.isfinite(units):
+    lp = fit.linear_part
+    if fit.method != "hammerstein" or lp is None or not math.isfinite(lp.gain_units):
         return None
     return SampledLag(
-        direct_gain=float(gains["direct"]) * float(units),
-        lag_gain=float(gains["lag"]) * float(units),
-        time_constant=float(d.get("time_constant_s", 0.0)),
-        dead_time=float(d.get("dead_time_s", dt)),
+        direct_gain=float(lp.direct_gain) * float(lp.gain_units),
+        lag_gain=float(lp.lag_gain) * float(lp.gain_units),
+        time_constant=float(lp.time_constant_s),
+        dead_time=float(lp.dead_time_s),
         sample_time=float(dt),
-        integrating=d.get("structure") == "integrating" or bool(integrating),
+        integrating=lp.structure == "integrating" or bool(integrating),
     )
 
 

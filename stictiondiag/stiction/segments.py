@@ -39,9 +39,9 @@ from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.core.stats import bootstrap_median_ci, median_small
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.resolution import resolution, resolution_details
 from stictiondiag.stiction.valvefit import (
-    StictionFit,
     block_sse,
     cost_threshold,
     cycle_samples,
@@ -600,7 +600,6 @@ def _mv_fit_details(
     S_all, J_all, C_all, S_ls, J_ls, cost = searches[best][1]
     (S_iv, J_iv), (S_hi_edge, J_hi_edge) = intervals, hi_edges
     return {
-        "valve_model": variant.name,
         "play_width": variant.play_width,
         "bias": bias,
         "least_squares": {
@@ -716,12 +715,12 @@ def estimate_from_mv(
     seg_cost = _segment_cost(op, mv, searches[best][0], ev, (k0, k_start, d_start))
 
     period = cycle_samples(op)
+    det = determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge)
     details = {
         **_mv_fit_details(
             variant, bias, searches, best, (S_iv, J_iv), (S_hi_edge, J_hi_edge), n_eff
         ),
         "segments": _segments_details(segs, ev, S_ci, J_ci, seg_cost),
-        "determinacy": determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge),
         "interval_method": (
             "hull of the 95 % profile-cost interval of the least-squares fit (F test, "
             "effective samples) and the 95 % bootstrap interval of the median over slips"
@@ -751,4 +750,7 @@ def estimate_from_mv(
         cost=cost,
         linear_cost=linear_cost,
         details=details,
+        S_determinacy=det["S"],
+        J_determinacy=det["J"],
+        valve_model=variant.name,
     )

@@ -11,8 +11,9 @@ of two ways:
 * from ``op`` and ``pv`` alone (:func:`stictiondiag.stiction.hammerstein.fit_hammerstein`): the
   valve model in series with a linear process (a Hammerstein model), fitted together.
 
-Both return a :class:`StictionFit`; :func:`stictiondiag.stiction.verdict.stiction_verdict`
-then asks the question of Section 5.3.
+Both return a :class:`~stictiondiag.stiction.fit_result.StictionFit`;
+:func:`stictiondiag.stiction.verdict.stiction_verdict` then asks the question of
+Section 5.3.
 
 This module holds what the two estimators share: the compiled batch evaluation
 of the valve model over many (S, J) pairs, the effective number of independent
@@ -24,16 +25,15 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
-from dataclasses import dataclass, field
-from enum import StrEnum
+from dataclasses import dataclass
 
 import numpy as np
 
 from stictiondiag.core.filters import median_filter_nearest
 from stictiondiag.core.jit import jit
 from stictiondiag.core.robust import MAD_TO_STD, robust_std, second_difference_noise_std
-from stictiondiag.core.serialize import to_plain as _plain
 from stictiondiag.models.valve import _choudhury_next, _kano_next
+from stictiondiag.stiction.fit_result import Determinacy
 
 #: Width of the play operator that keeps noise reversals of op away from the valve
 #: model, in robust noise standard deviations of op (see :func:`valve_variants`).
@@ -41,159 +41,6 @@ PLAY_WIDTH_SIGMAS = 4.0
 
 #: Coverage of the reported S and J intervals (profile-cost intervals, F test).
 INTERVAL_LEVEL = 0.95
-
-
-# --------------------------------------------------------------------------------------
-# Result dataclasses
-# --------------------------------------------------------------------------------------
-
-
-class Determinacy(StrEnum):
-    """How well the data determine S or J (:func:`determinacy`).
-
-    The value is the phrase the JSON and the reports carry; code reads the member
-    (``Determinacy(text)``, :attr:`poor`, :attr:`open`), never the words.
-    """
-
-    WELL = "well determined"
-    MODERATE = "moderately determined"
-    POOR = "poorly determined"
-    OPEN = "poorly determined (interval reaches the search limit)"
-
-    @property
-    def poor(self) -> bool:
-        """Values across the interval fit the data alike: poorly determined."""
-        return self in (Determinacy.POOR, Determinacy.OPEN)
-
-    @property
-    def open(self) -> bool:
-        """The interval reaches the search limit: the data give no upper bound."""
-        return self is Determinacy.OPEN
-
-    @classmethod
-    def of(cls, value: object) -> Determinacy | None:
-        """The member for a JSON value (None for a missing or unknown one)."""
-        try:
-            return cls(str(value)) if value is not None else None
-        except ValueError:
-            return None
-
-
-def poorly_determined(determinacy: Determinacy | None, value, interval) -> bool:
-    """The data determine a parameter poorly: its :class:`Determinacy` says so,
-    unless estimate and interval are all zero (a zero estimate cannot pass the
-    width-to-value test of :func:`determinacy`; the data pin it at zero).  The one
-    rule of the figures and the findings (:meth:`StictionFit.poorly_determined`) and of
-    the report's index (:meth:`stictiondiag.row.LoopRow.poorly_determined`)."""
-    if determinacy is None or not determinacy.poor:
-        return False
-    values = [value, *(interval or (None, None))]
-    return not all(isinstance(v, int | float) and v == 0 for v in values)
-
-
-@dataclass(frozen=True)
-class StictionFit:
-    """Estimated stiction parameters of the data-driven model (Section 5.1).
-
-    Attributes
-    ----------
-    S : float
-        Deadband plus stickband [% of op span].
-    J : float
-        Slip jump [% of op span] (the model's output axis is in the units of op).
-    S_scaled, J_scaled : float
-        S and J divided by the standard deviation of op [units of scaled op, as in the
-        mean-centred unit-variance plots of Section 3].
-    S_interval, J_interval : tuple of float, or None
-        Interval [% of op span] of the values the data cannot tell apart from the
-        estimate (see ``details["interval_method"]``); None when not determined.
-    method : str
-        ``"mv_segments"`` (valve position recorded) or ``"hammerstein"`` (op and pv).
-    mv_model : ndarray
-        Fitted valve position for the recorded op [% of span].
-    n_slips : int
-        Number of slips (breakaways) of the fitted valve over the record [-].
-    cost : float
-        Sum of squared residuals of the stiction model (mv fit: [% of span]^2;
-        Hammerstein fit: [scaled pv]^2, pv scaled to unit variance).
-    linear_cost : float
-        The same cost with a linear valve (S = J = 0), fitted the same way.
-    details : dict
-        Method-specific, JSON-able diagnostics: both estimates of the mv method,
-        determinacy, the valve model variant, per-cycle costs used by the verdict.
-    """
-
-    S: float
-    J: float
-    S_scaled: float
-    J_scaled: float
-    S_interval: tuple[float, float] | None
-    J_interval: tuple[float, float] | None
-    method: str
-    mv_model: np.ndarray = field(repr=False)
-    n_slips: int
-    cost: float
-    linear_cost: float
-    details: dict = field(default_factory=dict, repr=False)
-
-    def determinacy_of(self, sym: str) -> Determinacy | None:
-        """How well the data determine ``sym`` (``"S"`` or ``"J"``); None when the
-        estimator did not say."""
-        return Determinacy.of(((self.details or {}).get("determinacy") or {}).get(sym))
-
-    def poorly_determined(self, sym: str) -> bool:
-        """``sym`` is poorly determined (:func:`poorly_determined`)."""
-        return poorly_determined(
-            self.determinacy_of(sym), getattr(self, sym), getattr(self, f"{sym}_interval")
-        )
-
-    @property
-    def valve_family(self) -> str:
-        """The flowchart of the fitted valve, ``"choudhury"`` (Fig. 10) or ``"kano"``
-        (Kano et al. 2004), with or without the play operator against op's noise
-        (``details["valve_model"]``); ``"choudhury"`` when the fit does not say.  The
-        replay runs the valve that was fitted."""
-        name = str((self.details or {}).get("valve_model", "choudhury"))
-        return "kano" if name.startswith("kano") else "choudhury"
-
-    @property
-    def improvement(self) -> float | None:
-        """Fraction of the linear valve's residual removed by the stiction model [-]."""
-        if not (self.linear_cost > 0 and math.isfinite(self.linear_cost)):
-            return None
-        return 1.0 - self.cost / self.linear_cost
-
-    @property
-    def improvement_drift(self) -> float | None:
-        """The improvement with drift states estimated alongside both valves [-].
-
-        Hammerstein fit only (``details["drift_model"]``, see "The disturbance
-        model" in :mod:`stictiondiag.stiction.hammerstein`): the share of the linear
-        valve's residual the stiction model removes once slow load, set-point and
-        operating-point drifts are fitted too.  None without it.
-        """
-        dm = (self.details or {}).get("drift_model") or {}
-        value = dm.get("improvement")
-        return None if value is None else float(value)
-
-    def to_dict(self) -> dict:
-        """JSON-able summary (no time series; ``mv_model`` is left out)."""
-        return _plain(
-            {
-                "S": self.S,
-                "J": self.J,
-                "S_scaled": self.S_scaled,
-                "J_scaled": self.J_scaled,
-                "S_interval": None if self.S_interval is None else list(self.S_interval),
-                "J_interval": None if self.J_interval is None else list(self.J_interval),
-                "method": self.method,
-                "n_slips": self.n_slips,
-                "cost": self.cost,
-                "linear_cost": self.linear_cost,
-                "improvement": self.improvement,
-                "details": self.details,
-            }
-        )
 
 
 # --------------------------------------------------------------------------------------

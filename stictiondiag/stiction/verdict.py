@@ -46,6 +46,7 @@ from stictiondiag.stiction.cause import (
 from stictiondiag.stiction.cause_model import cause_probabilities
 from stictiondiag.stiction.consistency import FILL as DF_FILL
 from stictiondiag.stiction.consistency import REPLAY_FEATURES, REPLAY_FILL, describing_features
+from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.probability import (
     classic_votes,
@@ -55,7 +56,6 @@ from stictiondiag.stiction.probability import (
     part_name,
     stiction_probability,
 )
-from stictiondiag.stiction.valvefit import StictionFit
 
 
 @dataclass(frozen=True)
@@ -403,7 +403,7 @@ def split_half_estimates(fit: StictionFit, data) -> tuple[float, float, float, f
                 integrating=bool(getattr(data, "integrating", False)),
                 flow_loop=str(getattr(data, "loop_type", "")) in _FLOW_TYPES,
                 period_s=float(period) * dt,
-                gain_sign=int(((fit.details or {}).get("gain_sign") or {}).get("required", 0)),
+                gain_sign=0 if fit.gain_sign is None else int(fit.gain_sign.required),
             )
         except (StictionError, ValueError, FloatingPointError, np.linalg.LinAlgError):
             return None

@@ -20,6 +20,7 @@ from stictiondiag.gap.effects.search import WIDE_STAGES, grid_search_nd, needle_
 from stictiondiag.gap.effects.signatures import (
     SLIP_TEST_P,
     slips_differ,
+    untested_p,
 )
 from stictiondiag.gap.effects.valve import (
     demand_travel,
@@ -68,10 +69,11 @@ def fit_asymmetry(
         for pair in ((0, 1), (2, 3)):
             x, _ = needle_search(cost, x, pair, lower, upper, rel=0.03, zooms=1, n_grid=11)
     mv_hat, _ = prob.series(valve_rows(x[0], x[1], x[2], x[3])[0])
+    untested = untested_p(ctx.sig.mv)
     p_slips = (
-        slips_differ(ctx.slips, ctx.slips["direction"] > 0, ctx.slips["direction"] < 0)
+        slips_differ(ctx.slips, ctx.slips["direction"] > 0, ctx.slips["direction"] < 0, untested)
         if ctx.slips is not None
-        else 0.0
+        else untested
     )
     return EffectFit(
         supported=p_slips < SLIP_TEST_P,

@@ -24,6 +24,7 @@ from stictiondiag.gap.effects.signatures import (
     one_sided,
     signature_test,
     testable_slips,
+    untested_p,
 )
 from stictiondiag.gap.effects.valve import (
     ValveProblem,
@@ -153,8 +154,8 @@ def fit_miscalibration(
             p_slope = one_sided(p_slope, (slip_slope - 1.0) * (slope - 1.0) > 0.0)
         else:
             # Too few measured slips to test (as for :func:`slips_differ`): the
-            # replay decides alone.
-            p_slope = 0.0
+            # replay decides alone, except on a quantised mv (:func:`untested_p`).
+            p_slope = untested_p(ctx.sig.mv)
     return EffectFit(
         effect="miscalibration",
         variant="slope_offset",

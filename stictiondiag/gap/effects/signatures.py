@@ -101,10 +101,37 @@ def testable_slips(slips: dict | None):
     return x, y, d, n_blocks
 
 
-def slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
+def untested_p(mv: np.ndarray | None) -> float:
+    """p-value of a valve-side signature that too few measured slips leave untested.
+
+    0 as a rule: the replay decides alone (its held-out gain, the penalty and the
+    block count of :mod:`stictiondiag.gap.selection`).  1 on a quantised mv
+    (:func:`stictiondiag.gap.effects.quantization.detect_quantization`): there the
+    rounding is most of the replay's mv error and persists from one sample to the
+    next, so a more flexible valve (thresholds that change during the record or by
+    direction, a slope, a curve) follows it on the held-out blocks as well, and the
+    segmentation, which reads the rounding's steps, measures few slips or none.  The
+    effect must then be shown by the slips measured.
+    """
+    from stictiondiag.gap.effects.quantization import detect_quantization
+
+    return 1.0 if detect_quantization(mv) is not None else 0.0
+
+
+def slips_comparable(slips: dict, a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether :func:`slips_differ` can compare the slips in ``a`` and ``b``: three or
+    more measured on each side, in the demand travel at reversals or in the jump."""
+    for mask in (slips["reversal"], np.ones(slips["J"].size, dtype=bool)):
+        if int(np.sum(a & mask)) >= 3 and int(np.sum(b & mask)) >= 3:
+            return True
+    return False
+
+
+def slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray, untested: float = 0.0) -> float:
     """Smallest p-value of two-sided rank tests that the slips in ``a`` and ``b`` differ,
-    in the demand travel at reversals (S) or in the jump (J); 0 when there are too
-    few measured slips to test (fewer than three on a side: the replay decides alone).
+    in the demand travel at reversals (S) or in the jump (J); ``untested`` when there
+    are too few measured slips to test (fewer than three on a side; 0: the replay
+    decides alone, see :func:`untested_p`).
 
     Thresholds are fitted on the whole record, where a replay that is more flexible
     can fall in step with a few more slips by chance; the slips measured one by one
@@ -115,7 +142,7 @@ def slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
     )
 
     if slips is None:
-        return 0.0
+        return untested
     p = 1.0
     tested = False
     for key, mask in (("travel", slips["reversal"]), ("J", np.ones(slips["J"].size, dtype=bool))):
@@ -123,7 +150,7 @@ def slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray) -> float:
         if x.size >= 3 and y.size >= 3:
             tested = True
             p = min(p, float(mannwhitneyu(x, y, alternative="two-sided").pvalue))
-    return p if tested else 0.0
+    return p if tested else untested
 
 
 def slip_rate_differs(times: np.ndarray, t1: float, t2: float, n: int) -> float:

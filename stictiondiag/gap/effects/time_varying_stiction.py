@@ -22,7 +22,9 @@ from stictiondiag.gap.effects.search import TVS_STAGES, grid_search_nd, needle_s
 from stictiondiag.gap.effects.signatures import (
     SLIP_TEST_P,
     slip_rate_differs,
+    slips_comparable,
     slips_differ,
+    untested_p,
 )
 from stictiondiag.gap.effects.valve import (
     ValveProblem,
@@ -56,14 +58,20 @@ def change_sides(times: np.ndarray, t1: float, t2: float, n: int) -> tuple:
     return early, late
 
 
-def _slips_test(slips: dict, t1: float, t2: float, n: int) -> float:
+def _slips_test(slips: dict, t1: float, t2: float, n: int, untested: float = 0.0) -> float:
     """p-value that the slips differ across a change of stiction between samples t1
     and t2: their sizes by rank (:func:`slips_differ` on :func:`change_sides`); when
     fewer than three are measured before t1 or after t2, also their rate
     (:func:`slip_rate_differs`), the smaller of the two p-values doubled
-    (Bonferroni: either test may carry the change)."""
+    (Bonferroni: either test may carry the change).
+
+    ``untested`` (:func:`untested_p`) 1: the change must be shown by the slips
+    measured; where too few are measured to compare their sizes, their rate alone
+    decides (1 when it cannot be tested either), not the replay alone."""
     times = slips["time"]
     early, late = change_sides(times, t1, t2, n)
+    if untested >= 1.0 and not slips_comparable(slips, early, late):
+        return slip_rate_differs(times, t1, t2, n)
     p = slips_differ(slips, early, late)
     drift = t1 <= 0.0 and t2 >= n - 1
     if drift or min(int(np.sum(times < t1)), int(np.sum(times > t2))) >= 3:
@@ -252,10 +260,12 @@ def fit_time_varying_stiction(
         x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3]
     )[0]
     mv_hat, _ = prob.series(row, h)
+    # Too few measured slips: the replay decides alone, except on a quantised mv.
+    untested = untested_p(ctx.sig.mv)
     if ctx.slips is not None:
-        p_slips = _slips_test(ctx.slips, t1, t2, n)
+        p_slips = _slips_test(ctx.slips, t1, t2, n, untested)
     else:
-        p_slips = 0.0
+        p_slips = untested
     if t1 <= 0.0 and t2 >= n - 1:
         variant, n_params = "drift", 2
     elif t2 - t1 < 1.0:

@@ -30,6 +30,7 @@ from stictiondiag.gap.effects.signatures import (
     one_sided,
     signature_test,
     testable_slips,
+    untested_p,
 )
 from stictiondiag.gap.effects.valve import (
     affine_map,
@@ -224,8 +225,9 @@ def fit_valve_characteristic(
             # Convex (curvature > 0, both families) means more gain above the middle.
             p_gain = one_sided(p_gain, gain_change * params["curvature"] > 0.0)
         else:
-            # Too few measured slips to test: the replay decides alone.
-            p_gain = 0.0
+            # Too few measured slips to test: the replay decides alone, except on a
+            # quantised mv (:func:`untested_p`).
+            p_gain = untested_p(ctx.sig.mv)
         params = {**params, "gain_change": gain_change, "gain_change_p": p_gain}
         supported = p_gain < SIGNATURE_P
     return EffectFit(

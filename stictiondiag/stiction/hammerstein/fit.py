@@ -99,9 +99,9 @@ cycle), which halves the improvement of noisy sticky loops (median 0.27 -> 0.11)
 Under heavy drift they cut the S error on both draws that ran them (1.41 -> 0.72
 and 1.50 -> 0.62 % of span, seeds 3 and 11) but separated better on one only (AUC
 0.73 -> 0.83 and 0.86 -> 0.83).  The search therefore stays on the high-pass, which detects most and separates as well as any, and the drift states
-are reported beside it: ``details["drift_model"]`` holds both valves refitted with the
+are reported beside it: ``StictionFit.drift`` holds both valves refitted with the
 drift states at their fitted valve parameters, dead times and time constants (its
-improvement is :attr:`stictiondiag.stiction.valvefit.StictionFit.improvement_drift`,
+improvement is :attr:`stictiondiag.stiction.fit_result.StictionFit.improvement_drift`,
 with block costs for a bootstrap).  As a statistic of its own it separates no
 better than the high-pass improvement: AUC 0.95, 0.95 and 0.90 against 0.93, 0.96
 and 0.93 on seeds 3, 5 and 11, winning under some disturbances and losing under
@@ -130,7 +130,7 @@ noise, coloured loads, healthy valves under external oscillations) and prints ho
 often the interval holds the true S.
 Without mv the breakaway point S trades off against the process dead time, and J
 against the process gain when the valve never moves smoothly (then J is reported
-unbounded); ``details["determinacy"]`` says "poorly determined" when the interval is
+unbounded); ``StictionFit.S_determinacy`` says "poorly determined" when the interval is
 wide or reaches the search limit.
 
 Known limit: a noisy op fed to a valve that sticks at every noise reversal (Kano's
@@ -159,6 +159,13 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.filters import median_filter_nearest
+from stictiondiag.stiction.fit_result import (
+    DisturbanceChoice,
+    DriftComparison,
+    LinearPart,
+    StictionFit,
+    ValveStart,
+)
 from stictiondiag.stiction.hammerstein.columns import NCOL, highpass, lag
 from stictiondiag.stiction.hammerstein.kernels import Problem
 from stictiondiag.stiction.hammerstein.search import (
@@ -174,7 +181,6 @@ from stictiondiag.stiction.hammerstein.search import (
     refine,
 )
 from stictiondiag.stiction.valvefit import (
-    StictionFit,
     ValveVariant,
     block_sse,
     cost_threshold,
@@ -477,7 +483,6 @@ def _details(
     theta: np.ndarray,
     lin_delay: int,
     iv: _Intervals,
-    determined: dict,
     residuals: tuple[np.ndarray, np.ndarray],
     moving_fraction: float,
     J_confounded: bool,
@@ -492,27 +497,16 @@ def _details(
     resid, lin_resid = residuals
     n_par = NCOL + 5  # linear columns; S, J, dead time, time constant, offset
     return {
-        "valve_model": variant.name,
         "play_width": variant.play_width * scale,
-        "structure": setup.structure,
         "period_samples": setup.period,
         "row_stride": setup.stride,
         "rows_left_out": n_left_out,
-        "dead_time_s": delay * dt,
         "dead_time_interval_s": [iv.dead_time[0] * dt, iv.dead_time[1] * dt],
         "linear_valve_dead_time_s": float(lin_delay) * dt,
-        "time_constant_s": tau * dt,
-        "process_gains": {"direct": float(theta[0]), "lag": float(theta[1])},
-        # pv units per unit of op [per sample, integrating] for one unit of the gains.
-        "gain_units": setup.pv_unit / scale,
         "highpass_corner_s": HIGHPASS_PERIODS * setup.period * dt,
         "search_limit": setup.S_max * scale,
-        "start_sample": fitted[0] + prob.k_start,
         "fitted_samples": list(fitted),
-        "start_offset": offset * scale,
-        "start_direction": float(prob.d_start),
         "cost_by_valve_model_coarse": start.coarse_costs,
-        "determinacy": determined,
         "interval_method": INTERVAL_METHOD,
         "effective_samples": iv.n_eff,
         "effective_samples_residual": iv.n_eff_residual,
@@ -534,7 +528,9 @@ def _details(
     }
 
 
-def _drift_comparison(setup: FitSetup, block: int, stiction: tuple, linear: tuple) -> dict:
+def _drift_comparison(
+    setup: FitSetup, block: int, stiction: tuple, linear: tuple
+) -> DriftComparison:
     """Both valves compared with drift states estimated alongside, at their fitted
     valve parameters, dead times and time constants (see "The disturbance model").
 
@@ -551,18 +547,15 @@ def _drift_comparison(setup: FitSetup, block: int, stiction: tuple, linear: tupl
         0.0, 0.0, ValveVariant("linear", False), linear[0], 0.0, linear[1]
     )
     cost, linear_cost = float(np.sum(resid**2)), float(np.sum(lin_resid**2))
-    return {
-        "n_states": int(prob.D.shape[1]),
-        "cutoff_cycles": DRIFT_CUTOFF,
-        "cost": cost,
-        "linear_cost": linear_cost,
-        "improvement": 1.0 - cost / linear_cost if linear_cost > 0 else None,
-        "effective_samples": effective_samples(resid),
-        "block_sse": {
-            "stiction": block_sse(resid, block).tolist(),
-            "linear": block_sse(lin_resid, block).tolist(),
-        },
-    }
+    return DriftComparison(
+        n_states=int(prob.D.shape[1]),
+        cutoff_cycles=DRIFT_CUTOFF,
+        cost=cost,
+        linear_cost=linear_cost,
+        effective_samples=effective_samples(resid),
+        block_sse_stiction=block_sse(resid, block),
+        block_sse_linear=block_sse(lin_resid, block),
+    )
 
 
 def _n_drift_states(prob: Problem, period: int) -> int:
@@ -627,11 +620,11 @@ def fit_hammerstein(
         Disturbance model (see "The disturbance model" in the module docstring):
         the high-pass alone (default, chosen by measurement), drift states estimated
         alongside, or drift states only when the high-pass fit's residual calls for
-        them (:func:`drift_called_for`); ``details["disturbance_model"]`` says which.
+        them (:func:`drift_called_for`); ``StictionFit.disturbance`` says which.
     gain_sign : {0, 1, -1}
         Sign the process gain (pv per op) must have, for both valves: the
         controller's (:func:`stictiondiag.identification.controller.loop_gain_sign`);
-        0: free.  ``details["gain_sign"]``: see :func:`.search.gain_sign_evidence`.
+        0: free.  ``StictionFit.gain_sign``: see :func:`.search.gain_sign_evidence`.
 
     Returns
     -------
@@ -639,9 +632,9 @@ def fit_hammerstein(
         ``method="hammerstein"``; costs are sums of squared residuals of the
         high-passed, unit-variance pv.  ``details`` holds the linear part (dead time,
         basis), the valve model variant, determinacy and per-cycle costs;
-        ``details["drift_model"]`` both valves refitted with drift states (number of
+        ``drift`` both valves refitted with drift states (number of
         states, costs, improvement, per-cycle costs, effective samples) and
-        ``details["disturbance_model"]`` the model the search used and why.
+        ``disturbance`` the model the search used and why.
 
     Notes
     -----
@@ -671,9 +664,7 @@ def fit_hammerstein(
         chosen, why = drift_called_for(fit)
         if chosen == "drift":
             fit = _fit_one(op, pv, dt, integrating, flow_loop, period_s, "drift", gain_sign)
-    return replace(
-        fit, details={**fit.details, "disturbance_model": {"model": chosen, "reason": why}}
-    )
+    return replace(fit, disturbance=DisturbanceChoice(model=chosen, reason=why))
 
 
 def drift_called_for(fit: StictionFit) -> tuple[str, str]:
@@ -689,9 +680,9 @@ def drift_called_for(fit: StictionFit) -> tuple[str, str]:
     model's residual, not the linear valve's: a sticky valve's slips leave a slow
     misfit in a linear valve's residual that drift states would explain away.
     """
-    dm = fit.details.get("drift_model") or {}
-    m, c0, c1 = int(dm.get("n_states", 0)), float(fit.cost), float(dm.get("cost", 0.0))
-    n = float(dm.get("effective_samples", 0.0))
+    dm = fit.drift
+    m, c1, n = (0, 0.0, 0.0) if dm is None else (dm.n_states, dm.cost, dm.effective_samples)
+    m, c0, c1, n = int(m), float(fit.cost), float(c1), float(n)
     if m == 0 or not (c1 > 0 and c0 > 0 and n > m + 1):
         return "highpass", "no drift states fit this record"
     gain, penalty = n * math.log(c0 / c1), m * math.log(n)
@@ -742,7 +733,7 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
     J_confounded = moving_fraction < MIN_MOVING_FRACTION and S_hat > 0
     J_iv, J_open = ((0.0, setup.S_max), True) if J_confounded else (iv.J, iv.J_open)
     signs = gain_sign_evidence(prob, theta, (S_hat, J_hat, start.variant, delay, offset, tau))
-    if not signs["consistent_fit"]:  # no valve drives pv with the sign: S, J unknown
+    if not signs.consistent_fit:  # no valve drives pv with the sign: S, J unknown
         iv = replace(iv, S=(0.0, setup.S_max), S_open=True)
         J_iv, J_open = (0.0, setup.S_max), True
 
@@ -774,14 +765,16 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         theta=theta,
         lin_delay=lin_delay,
         iv=iv,
-        determined=determinacy(S_hat, S_iv, iv.S_open, J_hat, J_iv, J_open),
         residuals=(resid, lin_resid),
         moving_fraction=moving_fraction,
         J_confounded=J_confounded,
         block=block,
         n_left_out=n_left_out,
-        note={"drift_model": drift, "gain_sign": signs, **_note(integrating, flow_loop)},
+        note=_note(integrating, flow_loop),
     )
+    det = determinacy(S_hat, S_iv, iv.S_open, J_hat, J_iv, J_open)
+    k_dir, k_lag = float(theta[0]), float(theta[1])  # the direct and the lagged valve column
+    linear = LinearPart(setup.structure, delay * dt, tau * dt, k_dir, k_lag, setup.pv_unit / scale)
     return StictionFit(
         S=S_hat,
         J=J_hat,
@@ -795,4 +788,11 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         cost=cost,
         linear_cost=linear_cost,
         details=details,
+        S_determinacy=det["S"],
+        J_determinacy=det["J"],
+        gain_sign=signs,
+        valve_model=variant.name,
+        drift=drift,
+        linear_part=linear,
+        valve_start=ValveStart(first + prob.k_start, offset * scale, float(prob.d_start)),
     )

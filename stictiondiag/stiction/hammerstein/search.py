@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stictiondiag.stiction.fit_result import GainSign
 from stictiondiag.stiction.hammerstein.kernels import Problem
 from stictiondiag.stiction.valvefit import ValveVariant, valve_variants
 
@@ -326,8 +327,8 @@ def fit_linear(setup: FitSetup, tau, tau_range) -> tuple[float, int, float]:
     return lin_best
 
 
-def gain_sign_evidence(prob: Problem, theta: np.ndarray, estimate: tuple) -> dict:
-    """What the sign of the process gain did to the fit (``details["gain_sign"]``).
+def gain_sign_evidence(prob: Problem, theta: np.ndarray, estimate: tuple) -> GainSign:
+    """What the sign of the process gain did to the fit (``StictionFit.gain_sign``).
 
     ``theta`` are the linear part's parameters at the estimate ``estimate`` (S, J,
     variant, dead time, start offset, time constant, in the search's units).
@@ -354,8 +355,8 @@ def gain_sign_evidence(prob: Problem, theta: np.ndarray, estimate: tuple) -> dic
         S, J, variant, delay, offset, tau = estimate
         _, free, *_ = prob.residual(S, J, variant, delay, offset, tau, gain_sign=0)
         binding = bool(float(free[0] + free[1]) * required < 0.0)
-    return {
-        "required": required,
-        "binding_at_estimate": binding,
-        "consistent_fit": bool(required == 0 or gain != 0.0),
-    }
+    return GainSign(
+        required=required,
+        binding_at_estimate=binding,
+        consistent_fit=bool(required == 0 or gain != 0.0),
+    )
