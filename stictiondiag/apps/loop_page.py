@@ -508,7 +508,7 @@ def render_loop_html(
     reasons = a.verdict.reasons
     if reasons:
         parts.append("<ul>" + "".join(f"<li>{_text(r)}</li>" for r in reasons) + "</ul>")
-    parts.append(_json_details("verdict evidence", to_plain(a.verdict.evidence)))
+    parts.append(_json_details("verdict evidence", a.verdict.evidence.to_dict()))
     parts += _parameters_section(a)
     parts.append('<h2 id="warnings">Data-quality warnings</h2>')
     parts.append(
