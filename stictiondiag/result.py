@@ -268,7 +268,7 @@ class Analysis:
             from stictiondiag.plotting.replay import plot_replay
 
             rep = self.replay
-            metrics = to_plain(replay_metrics(rep).to_dict())
+            metrics = replay_metrics(rep)
             builders["reconstruction"] = lambda: plot_replay(rep, metrics=metrics)
         if self.gap is not None:
             # Upward (plotting is above the results): imported only when a figure is asked for.
