@@ -55,7 +55,12 @@ from stictiondiag.stiction.probability import (
     part_name,
     stiction_probability,
 )
-from stictiondiag.stiction.verdict_result import CONFIDENCE_FORMULA, Verdict, VerdictEvidence
+from stictiondiag.stiction.verdict_result import (
+    CONFIDENCE_FORMULA,
+    Verdict,
+    VerdictEvidence,
+    VerdictStatus,
+)
 
 # --------------------------------------------------------------------------------------
 # The verdict
@@ -450,7 +455,7 @@ def _cause_reading(probs: CauseReading) -> str:
 
 def _decide(
     P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib, fit
-) -> tuple[str, bool | None, float, Cause | None, str]:
+) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
     """The decision: status, detected, confidence, cause and the headline reason.
 
     Without a limit cycle, stick-slip seen directly (``direct``) calls stiction and
@@ -459,37 +464,37 @@ def _decide(
     (:func:`hidden_text`) becomes inconclusive, saying why (P kept).
     """
     status, detected, confidence, cause, head = _call(P, cycle, direct, stage2, contrib)
-    hidden = hidden_text(fit) if status == "stiction" else None
+    hidden = hidden_text(fit) if status is VerdictStatus.STICTION else None
     if hidden:
-        return "inconclusive", None, P, None, f"{hidden}; {head}"
+        return VerdictStatus.INCONCLUSIVE, None, P, None, f"{hidden}; {head}"
     return status, detected, confidence, cause, head
 
 
 def _call(
     P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib
-) -> tuple[str, bool | None, float, Cause | None, str]:
+) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
     """:func:`_decide` on the evidence alone, before the record's resolution."""
     for_text = _evidence_words(contrib, +1)
     against_text = _evidence_words(contrib, -1)
     if not cycle.present and direct:
         head = f"stick-slip without a limit cycle: {direct} (P(stiction) = {P:.2f})"
-        return "stiction", True, P, Cause.VALVE, head
+        return VerdictStatus.STICTION, True, P, Cause.VALVE, head
     if not cycle.present:
         head = f"{NO_CYCLE_REASON} (P that the valve has friction = {P:.2f})"
-        return "no_stiction", False, 1.0 - min(P, 0.5), Cause.NONE, head
+        return VerdictStatus.NO_STICTION, False, 1.0 - min(P, 0.5), Cause.NONE, head
     if P > STICTION_LEVEL:
         head = f"P(stiction) = {P:.2f} (above {STICTION_LEVEL:g}): {for_text}"
-        return "stiction", True, P, Cause.VALVE, head
+        return VerdictStatus.STICTION, True, P, Cause.VALVE, head
     if P < NO_STICTION_LEVEL:
         cause = stage2.runner_up(Cause.VALVE)[0] if stage2 is not None else None
         head = f"P(stiction) = {P:.2f} (below {NO_STICTION_LEVEL:g}): {against_text}"
-        return "no_stiction", False, 1.0 - P, cause, head
+        return VerdictStatus.NO_STICTION, False, 1.0 - P, cause, head
     levels = f"levels {NO_STICTION_LEVEL:g} and {STICTION_LEVEL:g}"
     head = (
         f"P(stiction) = {P:.2f}, between the {levels}: the evidence is split "
         f"(for: {for_text}; against: {against_text})"
     )
-    return "inconclusive", None, P, None, head
+    return VerdictStatus.INCONCLUSIVE, None, P, None, head
 
 
 def _improvement_text(
@@ -509,9 +514,13 @@ def _improvement_text(
     )
 
 
-def _unbounded_s_notes(status: str, fit: StictionFit) -> tuple[str, ...]:
+def _unbounded_s_notes(status: VerdictStatus, fit: StictionFit) -> tuple[str, ...]:
     """A no-stiction verdict's caveat when the record does not bound S from above."""
-    if status == "no_stiction" and fit.S_interval is not None and fit.S_interval[1] >= RULE_OUT_S:
+    if (
+        status is VerdictStatus.NO_STICTION
+        and fit.S_interval is not None
+        and fit.S_interval[1] >= RULE_OUT_S
+    ):
         return (
             f"the record does not bound S: stiction up to {fit.S_interval[1]:.3g} % of span "
             "cannot be excluded from these data alone",
