@@ -223,11 +223,11 @@ def run_case(case: dict) -> dict:
         J_width=float(j_hi - j_lo),
         J_confounded=bool(fit.details.get("J_confounded_with_gain")),
         verdict=verdict.status,
-        support=float(verdict.evidence.get("support", math.nan)),
+        support=float(verdict.evidence.support),
         improvement=float(fit.improvement) if fit.improvement is not None else math.nan,
         n_slips=int(fit.n_slips),
-        oscillating=bool(verdict.evidence.get("oscillation_pv"))
-        or bool(verdict.evidence.get("oscillation_op")),
+        # A cycle found in pv or op (a short record's unconfirmed cycle names no signal).
+        oscillating=verdict.cycle is not None and verdict.cycle.signal is not None,
     )
     return row
 

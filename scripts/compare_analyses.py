@@ -4,7 +4,9 @@ For a change that must not alter results (a refactor, a faster kernel), this run
 ``stiction analyze FILE --json`` on every sample loop with the code of both
 revisions and lists every field that differs: numbers beyond a relative tolerance,
 strings, keys present on one side only.  ``source`` (the path given) and timing
-fields are ignored.
+fields are ignored, and so is ``schema_version``: a change of the encoding is
+printed once on a line of its own, since the version differs on every loop while
+the results may all be the same.
 
     python scripts/compare_analyses.py --base HEAD~3            # sample_data/*.csv
     python scripts/compare_analyses.py --base main --no-gap --rtol 1e-6 FILE ...
@@ -26,7 +28,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-IGNORED = {"source", "elapsed_s", "timing", "analysed_at", "created"}
+IGNORED = {"source", "elapsed_s", "timing", "analysed_at", "created", "schema_version"}
 
 
 def run_analyze(tree: Path, loop: Path, out: Path, extra: list[str]) -> dict:
@@ -100,9 +102,11 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         try:
             n_diff = 0
+            versions: set[tuple] = set()
             for loop in files:
                 a = run_analyze(base, loop, Path(tmp) / f"base-{loop.stem}.json", extra)
                 b = run_analyze(ROOT, loop, Path(tmp) / f"this-{loop.stem}.json", extra)
+                versions.add((a.get("schema_version"), b.get("schema_version")))
                 diff = differences(a, b, args.rtol, args.atol)
                 n_diff += bool(diff)
                 print(f"{loop.name}: {'same' if not diff else f'{len(diff)} fields differ'}")
@@ -110,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"  {line}")
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(base)])
+    for old, new in sorted(versions, key=str):
+        if old != new:
+            print(f"schema_version: {old} in the base, {new} in this checkout (not compared)")
     print(f"{len(files) - n_diff} of {len(files)} loops give the same JSON (rtol {args.rtol:g})")
     return 1 if n_diff else 0
 

@@ -70,7 +70,7 @@ def _verdicts() -> None:
             blind = analyze(rebuilt, config=AnalysisConfig(gap=False))
             print(f"  {deadbands[0]:.2f} / {deadbands[1]:.2f}  {'op banded' if band else 'held':9s}"
                   f"  {result.verdict.status:12s} S {result.fit.S:.3f}  J {result.fit.J:.3f}"
-                  f"  P {result.verdict.evidence['probability']:.2f}"
+                  f"  P {result.verdict.evidence.p_friction:.2f}"
                   f"  (deadbands not known: {blind.verdict.status}, S {blind.fit.S:.3f})",
                   flush=True)  # fmt: skip
 

@@ -101,9 +101,9 @@ def _sim_one(seed: int, refit: bool = False) -> dict | None:
         "generator": loop.truth["generator"],
         "valve": loop.truth["valve"],
         "n": int(est.tags.n),
-        "df_amplitude_ratio": float(v.evidence["features"]["df_amplitude_ratio"]),
+        "df_amplitude_ratio": float(v.evidence.features["df_amplitude_ratio"]),
         "features": feats,
-        "evidence": {k: float(x) for k, x in v.evidence["features"].items()},
+        "evidence": {k: float(x) for k, x in v.evidence.features.items()},
         "head_s": t_head,
         **cost,
     }
@@ -127,7 +127,7 @@ def _real_one(args: tuple[str, float, str, bool], refit: bool = False) -> dict |
     return {
         "file": Path(path).name,
         "n": int(est.tags.n),
-        "df_amplitude_ratio": float(v.evidence["features"]["df_amplitude_ratio"]),
+        "df_amplitude_ratio": float(v.evidence.features["df_amplitude_ratio"]),
         "features": feats,
         **cost,
     }

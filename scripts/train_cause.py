@@ -109,10 +109,10 @@ def _one(seed: int, generator: str | None = None) -> dict | None:
         "valve": t["valve"],
         "kind": t["kind"],
         "shape": t["shape"],
-        "features": v.evidence["features"],
+        "features": v.evidence.features,
         "cycle": bool(v.cycle.present) if v.cycle is not None else None,
-        "direct": v.evidence.get("direct_stick_slip"),
-        "p_friction": v.evidence.get("p_friction", v.probability),
+        "direct": v.evidence.direct_stick_slip,
+        "p_friction": v.evidence.p_friction,
     }
 
 
@@ -155,7 +155,7 @@ def _real_one(args: tuple[str, float, str, bool]) -> dict | None:
     except StictionError:
         return None
     v = a.verdict
-    return {"features": v.evidence["features"], "cycle": bool(v.cycle and v.cycle.present)}
+    return {"features": v.evidence.features, "cycle": bool(v.cycle and v.cycle.present)}
 
 
 def real_rows(folder: Path, cache: Path, workers: int) -> list[dict]:

@@ -102,10 +102,8 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
         estimate_from_mv,
         segment_valve,
     )
-    from stictiondiag.stiction.verdict import (
-        Verdict,
-        stiction_verdict,
-    )
+    from stictiondiag.stiction.verdict import stiction_verdict
+    from stictiondiag.stiction.verdict_result import Verdict
 
 __version__ = "0.1.0"
 
@@ -206,7 +204,7 @@ _LAZY: dict[str, str] = {
     "StictionError": "core.errors",
     "UsageError": "core.errors",
     "StictionFit": "stiction.fit_result",
-    "Verdict": "stiction.verdict",
+    "Verdict": "stiction.verdict_result",
     "stiction_verdict": "stiction.verdict",
     "GapDiagnosis": "gap.diagnose",
     "diagnose_gap": "gap.diagnose",

@@ -85,7 +85,8 @@ from stictiondiag.stiction.cause import find_cycle
 from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import Segments, estimate_from_mv, segment_valve
-from stictiondiag.stiction.verdict import Verdict, stiction_verdict, verdict_features
+from stictiondiag.stiction.verdict import stiction_verdict, verdict_features
+from stictiondiag.stiction.verdict_result import Verdict
 
 __all__ = [
     "FIGURE_DPI",

@@ -28,7 +28,7 @@ from stictiondiag.row import LoopRow
 from stictiondiag.signals.kpis import LoopKpis
 from stictiondiag.signals.oscillation import Oscillation
 from stictiondiag.stiction.fit_result import StictionFit
-from stictiondiag.stiction.verdict import Verdict
+from stictiondiag.stiction.verdict_result import Verdict
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -175,7 +175,7 @@ class Analysis:
         tags, fit, verdict, rep = self.tags, self.fit, self.verdict, self.replay
         s_int = list(to_plain(fit.S_interval) or [None, None])
         j_int = list(to_plain(fit.J_interval) or [None, None])
-        probs = to_plain(verdict.cause_probabilities)
+        probs = verdict.cause_probabilities
         return LoopRow(
             loop=self.loop,
             source=str(tags.source),
@@ -193,10 +193,10 @@ class Analysis:
             detected=to_plain(verdict.detected),
             confidence=to_plain(verdict.confidence),
             probability=to_plain(verdict.probability),
-            cause=verdict.cause,
-            runner_up=verdict.runner_up,
-            cause_model=max(probs, key=lambda c: float(probs[c])) if probs else None,
-            p_valve_cause=(probs or {}).get("valve"),
+            cause=None if verdict.cause is None else verdict.cause.value,
+            runner_up=None if verdict.runner_up is None else verdict.runner_up.value,
+            cause_model=probs.ranked()[0].value if probs is not None else None,
+            p_valve_cause=probs.valve if probs is not None else None,
             S=to_plain(fit.S),
             J=to_plain(fit.J),
             S_lo=s_int[0],
@@ -268,7 +268,7 @@ class Analysis:
             from stictiondiag.plotting.replay import plot_replay
 
             rep = self.replay
-            metrics = to_plain(replay_metrics(rep).to_dict())
+            metrics = replay_metrics(rep)
             builders["reconstruction"] = lambda: plot_replay(rep, metrics=metrics)
         if self.gap is not None:
             # Upward (plotting is above the results): imported only when a figure is asked for.

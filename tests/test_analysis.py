@@ -417,7 +417,7 @@ def test_record_short_of_three_cycles_is_analysed_with_a_warning(conc):
     a = analyze(tags, config=NO_GAP)
     assert not a.oscillation.present
     assert any(w.startswith("short record") and "export at least" in w for w in a.warnings)
-    assert a.verdict.evidence["short_record"] is True
+    assert a.verdict.evidence.short_record is True
     # The sticky valve (S = 5 %) is not called healthy.  The fit covers less than two
     # one-cycle blocks, too few for the bootstrap to measure consistency, and the
     # verdict says so; whether it calls stiction is up to the calibrated probability.

@@ -125,8 +125,8 @@ def test_a_cycle_is_decided_by_P_with_the_cause_model_read_beside_it(
     )
     assert (v.status, v.cause) == (status, cause)
     assert v.probability == pytest.approx(p_friction, abs=1e-9)
-    assert sum(v.cause_probabilities.values()) == pytest.approx(1.0, abs=1e-9)
-    assert v.evidence["p_friction"] == pytest.approx(p_friction, abs=1e-9)
+    assert sum(v.cause_probabilities.to_dict().values()) == pytest.approx(1.0, abs=1e-9)
+    assert v.evidence.p_friction == pytest.approx(p_friction, abs=1e-9)
     top = max(probs, key=probs.get)
     reading = next(r for r in v.reasons if r.startswith("cause model"))
     assert f"most likely {CAUSE_WORDS[top]} ({probs[top]:.2f})" in reading

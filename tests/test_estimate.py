@@ -73,9 +73,9 @@ def test_sticky_valve_with_mv_is_stiction():
     assert v.detected is True
     # Every cycle shows the same stick-slip, so every bootstrap resample improves
     # on the linear valve by far more than 10 %.
-    assert v.evidence["support"] == 1.0
+    assert v.evidence.support == 1.0
     assert v.confidence == v.probability > STICTION_LEVEL
-    assert v.evidence["improvement"] > 0.9
+    assert v.evidence.improvement > 0.9
     json.dumps(v.to_dict(), allow_nan=False)
 
 
@@ -85,7 +85,7 @@ def test_sticky_valve_without_mv_is_stiction():
     v = verdict_for(fit, op, pv, dt)
     assert v.status == "stiction"
     # As above: the improvement is large in every cycle.
-    assert v.evidence["support"] > 0.95
+    assert v.evidence.support > 0.95
 
 
 def test_linear_valve_cycling_under_a_load_is_no_stiction():

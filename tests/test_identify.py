@@ -554,3 +554,25 @@ def test_loop_type_lag_at_the_top_of_the_range_is_an_integrator(monkeypatch):
     monkeypatch.setattr(proc, "MIN_SPAN_SAMPLES", 0)
     decided, why = infer_integrating(tags)
     assert decided is True and "top of the range searched" in why
+
+
+def test_solve_normal_survives_a_singular_system_in_its_batch():
+    """A batch of normal equations with one singular system (two coinciding
+    regressors) is solved, not refused: numpy's batched solve raises for the whole
+    batch, which reached a user as a traceback from ``analyze``.  The regular system
+    keeps its exact solution (to rounding, 1e-12), and the singular one gets the
+    least-norm solution, whose fitted values are still the least-squares ones."""
+    from stictiondiag.identification.output_error import solve_normal
+
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(50, 2))
+    Xs = np.column_stack([X[:, 0], X[:, 0]])  # two identical columns: singular
+    y = X @ np.array([1.5, -0.5]) + 0.01 * rng.normal(size=50)
+    A = np.stack([X.T @ X, Xs.T @ Xs])
+    g = np.stack([X.T @ y, Xs.T @ y])
+    mse, beta = solve_normal(A, g, float(y @ y), 50)
+    assert np.allclose(beta[0], np.linalg.solve(X.T @ X, X.T @ y), rtol=1e-12, atol=1e-12)
+    # Least norm on the singular system: the two equal coefficients share the slope.
+    b1 = float(X[:, 0] @ y / (X[:, 0] @ X[:, 0]))
+    assert np.allclose(beta[1], [b1 / 2, b1 / 2], rtol=1e-9)
+    assert np.all(np.isfinite(mse))

@@ -298,9 +298,9 @@ def test_features_are_those_of_the_analysis():
     for seed in (7006, 7002):
         loop = family_loop(seed)
         a = analyze(loop.tags(), config=AnalysisConfig(gap=False, replay=False))
-        assert a.verdict.evidence["features"] == loop_features(loop)
+        assert a.verdict.evidence.features == loop_features(loop)
         # The continuous statistics stay in the loop's record, though not in the model.
-        assert set(CANDIDATES) <= set(a.verdict.evidence["features"])
+        assert set(CANDIDATES) <= set(a.verdict.evidence.features)
 
 
 # --------------------------------------------------------------------------------------

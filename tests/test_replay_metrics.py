@@ -59,14 +59,16 @@ def test_period_amplitude_and_waveform_of_a_replay():
     # One-period windows of the data's period (100 samples) hold both extremes of
     # the 110-sample replay cycle in more than half of the windows: the median is
     # the full amplitude, to the 1 s sampling of the sine peaks (< 0.1 %).
-    assert m.amplitude_error_pct["pv"] == pytest.approx(-20.0, abs=0.1)
+    assert m.agreement("pv").amplitude_error_pct == pytest.approx(-20.0, abs=0.1)
     # Same measure for both: the drifting op and the clean replay agree to the drift
     # over one period (1 % of span, half of it on the half range: 10 % of 5).
-    assert abs(m.amplitude_error_pct["op"]) <= 10.0 + 1e-9
-    assert m.waveform == {"pv": 0.97, "op": 0.95} and m.nrmse["pv"] == 1.4
+    assert abs(m.agreement("op").amplitude_error_pct) <= 10.0 + 1e-9
+    assert {s.signal: s.waveform for s in m.signals} == {"pv": 0.97, "op": 0.95}
+    assert m.agreement("pv").nrmse == 1.4 and m.agreement("mv") is None
     d = m.to_dict()
     assert d["amplitude"]["pv"]["data"] == pytest.approx(1.0, abs=1e-3)
-    line = render_metrics(d)
+    assert d["waveform"] == {"pv": 0.97, "op": 0.95} and d["nrmse"]["op"] == 1.2
+    line = render_metrics(m)
     assert line.startswith("period +10 % (110 s against 100 s); amplitude pv -20 %")
     assert "waveform agreement [1 = same] pv 0.97, op 0.95" in line
     assert set(m.to_pandas()["signal"]) == {"pv", "op"}
@@ -78,8 +80,8 @@ def test_replay_that_does_not_cycle():
     cyc = np.sin(2 * np.pi * np.arange(n) / 100)
     m = replay_metrics(_replay(cyc, flat, cyc, flat, 100.0, None))
     assert m.period_error_pct is None
-    assert m.amplitude_error_pct["pv"] == pytest.approx(-100.0)
-    assert render_metrics(m.to_dict()).startswith("period: the replay does not cycle")
+    assert m.agreement("pv").amplitude_error_pct == pytest.approx(-100.0)
+    assert render_metrics(m).startswith("period: the replay does not cycle")
 
 
 def test_sample_level_loop_amplitudes_are_compared_by_one_measure():
@@ -99,9 +101,9 @@ def test_sample_level_loop_amplitudes_are_compared_by_one_measure():
     m = replay_metrics(a.replay)
     assert abs(m.period_error_pct) < 10.0
     for name in ("pv", "op", "mv"):
-        assert abs(m.amplitude_error_pct[name]) < 10.0, (name, m.amplitude[name])
+        assert abs(m.agreement(name).amplitude_error_pct) < 10.0, m.agreement(name)
     window = int(round(m.period_data_s / a.replay.dt))
-    assert m.amplitude["op"]["data"] == cycle_amplitude(a.replay.data.op, window)
+    assert m.agreement("op").amplitude_data == cycle_amplitude(a.replay.data.op, window)
 
 
 # ------------------------------------------------------------------ cycle reproduction

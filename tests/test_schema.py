@@ -33,6 +33,8 @@ def test_every_sample_analysis_round_trips(path):
     assert type(b) is Analysis and type(b.fit) is type(a.fit)
     assert b.to_json() == text
     assert b.verdict.status == a.verdict.status and b.fit.S == a.fit.S
+    assert type(b.verdict.evidence) is type(a.verdict.evidence)
+    assert b.verdict.cause is a.verdict.cause and b.verdict.runner_up is a.verdict.runner_up
     assert np.array_equal(b.tags.pv, a.tags.pv) and b.tags.pv.dtype == a.tags.pv.dtype
     # The summary every renderer reads is the same from the decoded object.
     assert b.to_dict() == a.to_dict()

@@ -7,17 +7,45 @@ analysis.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from stictiondiag.gap.diagnose import Candidate, GapDiagnosis
 from stictiondiag.io.tags import Tags
 from stictiondiag.result import Analysis
 from stictiondiag.signals.oscillation import Oscillation
+from stictiondiag.stiction.cause import Cycle
 from stictiondiag.stiction.fit_result import Determinacy, StictionFit
-from stictiondiag.stiction.verdict import Verdict
+from stictiondiag.stiction.verdict_result import Verdict, VerdictEvidence
 
 #: The decision levels the tests' verdicts carry in their evidence [-].
 LEVELS = {"stiction_level": 0.7, "no_stiction_level": 0.3}
+
+
+def make_evidence(p=0.97, *, has_mv=True, oscillating=True, **fields) -> VerdictEvidence:
+    """A verdict's evidence with P(friction) ``p``, the :data:`LEVELS` and a cycle when
+    ``oscillating``; any other field as given."""
+    cycle = Cycle(oscillating, "pv" if oscillating else None, 1000.0, 1.0, 10.0)
+    evidence = VerdictEvidence(
+        p_friction=p,
+        cause_probabilities=None,
+        features={},
+        contributions={},
+        improvement=0.5,
+        improvement_interval=(0.4, 0.6),
+        support=1.0,
+        min_improvement=0.1,
+        n_blocks=10,
+        has_mv=has_mv,
+        short_record=False,
+        cycle=cycle,
+        direct_stick_slip=None,
+        classic={},
+        valve_level=0.6,
+        **LEVELS,
+    )
+    return dataclasses.replace(evidence, **fields)
 
 
 def make_gap(effect="quantization", before=0.5, after=0.2, shrink_pct=60.0, candidates=()):
@@ -63,7 +91,7 @@ def make_analysis(
     determinacy=("well determined", "well determined"),
     method="mv_segments",
     reasons=(),
-    evidence=None,
+    evidence: dict | None = None,
     has_mv=True,
     loop_type="level",
     loop_type_source="",
@@ -112,7 +140,7 @@ def make_analysis(
         detected={"stiction": True, "no_stiction": False}.get(status),
         confidence=p if status != "no_stiction" else 1 - p,
         reasons=tuple(reasons),
-        evidence={**LEVELS, "has_mv": has_mv, **(evidence or {})},
+        evidence=make_evidence(p, has_mv=has_mv, oscillating=oscillating, **(evidence or {})),
         probability=p,
     )
     osc = Oscillation(oscillating, 1000.0 if oscillating else None, 1.0, 5.0, 10.0)

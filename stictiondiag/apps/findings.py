@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from stictiondiag.core.serialize import plain_float
-from stictiondiag.stiction.cause import ACTIONS, CAUSE_WORDS
+from stictiondiag.stiction.cause import ACTIONS, CAUSE_WORDS, Cause
 from stictiondiag.stiction.fit_result import Determinacy, StictionFit
-from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL, Verdict
+from stictiondiag.stiction.verdict_result import Verdict
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -206,11 +206,7 @@ def param_text(fit: StictionFit, sym: str, *, unit: str = " %") -> str:
 def decision_levels(verdict: Verdict) -> tuple[float, float]:
     """The levels on P(stiction) the verdict decided with: below the first no
     stiction, above the second stiction [-]."""
-    ev = verdict.evidence or {}
-    return (
-        float(ev.get("no_stiction_level", NO_STICTION_LEVEL)),
-        float(ev.get("stiction_level", STICTION_LEVEL)),
-    )
+    return verdict.evidence.no_stiction_level, verdict.evidence.stiction_level
 
 
 def probability_text(verdict: Verdict) -> str:
@@ -218,10 +214,9 @@ def probability_text(verdict: Verdict) -> str:
     reading after it for a loop with a cycle and no mv (``; cause model: the valve
     (P 0.72), runner-up: the controller's tuning (P 0.15)``), or ``no limit
     cycle`` for a loop without one."""
-    ev = verdict.evidence or {}
     probs = verdict.cause_probabilities
-    if str(verdict.cause) == "none":
-        pf = plain_float(ev.get("p_friction"))
+    if verdict.cause == Cause.NONE:
+        pf = plain_float(verdict.evidence.p_friction)
         return "no limit cycle" + (
             f"; P(the valve has friction) = {pf:.2f}" if pf is not None else ""
         )
@@ -229,12 +224,11 @@ def probability_text(verdict: Verdict) -> str:
     p = plain_float(verdict.probability)
     p_text = "n/a" if p is None else f"{p:.2f}"
     text = f"P(stiction) = {p_text} (decision levels {lo:g} and {hi:g})"
-    if probs and not ev.get("has_mv"):
-        ranked = sorted(probs, key=lambda c: -float(probs[c]))
-        top, second = ranked[0], ranked[1]
+    if probs is not None and not verdict.evidence.has_mv:
+        top, second = probs.ranked()[:2]
         text += (
-            f"; cause model: {CAUSE_WORDS[top]} (P {float(probs[top]):.2f}), "
-            f"runner-up: {CAUSE_WORDS[second]} (P {float(probs[second]):.2f})"
+            f"; cause model: {CAUSE_WORDS[top]} (P {probs.p(top):.2f}), "
+            f"runner-up: {CAUSE_WORDS[second]} (P {probs.p(second):.2f})"
         )
     return text
 
@@ -371,7 +365,7 @@ def _limits(a: Analysis, poorly: list[str]) -> list[str]:
         )
     if not tags.loop_type_source and tags.loop_type in (None, "other"):
         out.append("the loop type was not given: the replay chose the process structure by fit")
-    if (a.verdict.evidence or {}).get("short_record"):
+    if a.verdict.evidence.short_record:
         out.append("the record is short: a missing cycle is not taken as evidence")
     out.append(
         "the cause of the friction (packing, actuator, positioner) and the valve's "

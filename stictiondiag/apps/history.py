@@ -110,7 +110,7 @@ def cause_of(row: LoopRow, analysis: Analysis | None) -> str | None:
     verdict_cause = None if analysis is None else analysis.verdict.cause
     for value in (row.cause, verdict_cause, row.gap_effect):
         if isinstance(value, str) and value:
-            return value
+            return str(value)
     return None
 
 

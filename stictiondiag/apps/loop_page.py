@@ -268,7 +268,7 @@ def _param_card(a: Analysis, sym: str, label: str) -> str:
 
 
 def _waveform_text(m: ReplayMetrics) -> str:
-    return ", ".join(f"{k} {_num(plain_float(v), '.2f')}" for k, v in m.waveform.items())
+    return ", ".join(f"{s.signal} {_num(plain_float(s.waveform), '.2f')}" for s in m.signals)
 
 
 def _cards(a: Analysis, metrics: ReplayMetrics | None) -> str:
@@ -374,11 +374,11 @@ def _parameters_section(a: Analysis) -> list[str]:
 
 def _amplitude_text(m: ReplayMetrics) -> str:
     parts = []
-    for k, v in m.amplitude.items():
-        err = plain_float(m.amplitude_error_pct.get(k))
+    for s in m.signals:
+        err = plain_float(s.amplitude_error_pct)
         err_text = f" ({err:+.0f} %)" if err is not None else ""
-        data, rep = plain_float(v.get("data")), plain_float(v.get("replay"))
-        parts.append(f"{k} {_num(data)} / {_num(rep)}{err_text}")
+        data, rep = plain_float(s.amplitude_data), plain_float(s.amplitude_replay)
+        parts.append(f"{s.signal} {_num(data)} / {_num(rep)}{err_text}")
     return escape(", ".join(parts)) or "n/a"
 
 
@@ -508,7 +508,7 @@ def render_loop_html(
     reasons = a.verdict.reasons
     if reasons:
         parts.append("<ul>" + "".join(f"<li>{_text(r)}</li>" for r in reasons) + "</ul>")
-    parts.append(_json_details("verdict evidence", to_plain(a.verdict.evidence)))
+    parts.append(_json_details("verdict evidence", a.verdict.evidence.to_dict()))
     parts += _parameters_section(a)
     parts.append('<h2 id="warnings">Data-quality warnings</h2>')
     parts.append(

@@ -89,8 +89,18 @@ def highpass(x: np.ndarray, b: float) -> np.ndarray:
 
 
 def solve_normal(A: np.ndarray, g: np.ndarray, yy: np.ndarray | float, rows: np.ndarray | int):
-    """Batched least squares from normal equations; mean squared error per batch."""
-    beta = np.linalg.solve(A, g[..., None])[..., 0]
+    """Batched least squares from normal equations; mean squared error per batch.
+
+    A singular system in the batch (regressors that coincide: a dead time or pole at
+    which the lag response equals the free response, on a record that barely moves)
+    is solved by the pseudo-inverse, its least-norm solution, instead of failing the
+    whole batch: numpy's batched solve raises for the batch when any one of its
+    systems is singular.  The regular systems get the same solution either way.
+    """
+    try:
+        beta = np.linalg.solve(A, g[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        beta = (np.linalg.pinv(A) @ g[..., None])[..., 0]
     return (yy - np.einsum("...i,...i->...", beta, g)) / rows, beta
 
 

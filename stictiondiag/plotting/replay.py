@@ -21,6 +21,7 @@ from stictiondiag.plotting.canvas import (
     text_width,
     ytick_room,
 )
+from stictiondiag.replay.metrics import ReplayMetrics
 
 DATA_STYLE = {"color": "0.15", "lw": 0.8, "zorder": 3}
 REPLAY_STYLE = {"color": "tab:orange", "lw": 1.8, "alpha": 0.85, "zorder": 2}
@@ -46,12 +47,13 @@ def _default_window(replay) -> float:
     return min(duration, 8.0 * period)
 
 
-def _signal_title(name: str, replay, metrics: dict | None) -> str:
+def _signal_title(name: str, replay, metrics: ReplayMetrics | None) -> str:
     """Panel title: amplitude error and waveform agreement from ``metrics``
     (:mod:`stictiondiag.replay.metrics`), else the replay's fit and waveform."""
-    if metrics:
-        err = (metrics.get("amplitude_error_pct") or {}).get(name)
-        wave = (metrics.get("waveform") or {}).get(name)
+    if metrics is not None:
+        s = metrics.agreement(name)
+        err = None if s is None else plain_float(s.amplitude_error_pct)
+        wave = None if s is None else plain_float(s.waveform)
         amp = "n/a" if err is None else f"{err:+.0f} %"
         return f"{name}: amplitude {amp}, waveform agreement {_fmt(wave, '.2f')}"
     m = replay.measures.by_signal().get(name)
@@ -66,7 +68,7 @@ def plot_replay(
     *,
     window: float | None = None,
     title: str | None = None,
-    metrics: dict | None = None,
+    metrics: ReplayMetrics | None = None,
 ) -> Figure:
     """Overlay of a :class:`~stictiondiag.replay.closed_loop.Replay` and the recorded data.
 
@@ -80,8 +82,8 @@ def plot_replay(
         use the whole record.
     title : str, optional
         Figure title; default names S, J, the periods and the pv fit.
-    metrics : dict, optional
-        ``ReplayMetrics.to_dict()`` (:mod:`stictiondiag.replay.metrics`): the panels
+    metrics : ReplayMetrics, optional
+        :func:`stictiondiag.replay.metrics.replay_metrics` of the replay: the panels
         then show period error, amplitude error and waveform agreement.
 
     Returns
@@ -165,7 +167,7 @@ def plot_replay(
 _FLOWCHARTS = {"choudhury": "Choudhury, Fig. 10", "kano": "Kano et al."}
 
 
-def _summary(replay, metrics: dict | None = None) -> str:
+def _summary(replay, metrics: ReplayMetrics | None = None) -> str:
     """The text of the last panel: valve, controller, process, periods, amplitudes
     (by the one measure of ``metrics`` for data and replay, when given)."""
     pf, cf = replay.process_fit, replay.controller_fit
@@ -190,14 +192,21 @@ def _summary(replay, metrics: dict | None = None) -> str:
         f"period [s]: data {_fmt(replay.period_data_s)}, "
         f"replay {_fmt(replay.period_replay_s)} ({replay.period_signal})"
     )
-    if metrics:
-        per = metrics.get("period_error_pct")
+    amplitudes: list[tuple[str, float | None, float | None]] = []
+    if metrics is not None:
+        per = plain_float(metrics.period_error_pct)
         lines.append(f"period error: {'n/a' if per is None else format(per, '+.0f') + ' %'}")
-    amplitudes = (metrics or {}).get("amplitude") or replay.measures.to_dict()["amplitude"]
-    for name, amp in amplitudes.items():
-        lines.append(
-            f"amplitude {name}: data {_fmt(amp.get('data'))}, replay {_fmt(amp.get('replay'))}"
-        )
+        amplitudes = [
+            (s.signal, plain_float(s.amplitude_data), plain_float(s.amplitude_replay))
+            for s in metrics.signals
+        ]
+    if not amplitudes:
+        amplitudes = [
+            (name, m.amplitude_data, m.amplitude_replay)
+            for name, m in replay.measures.by_signal().items()
+        ]
+    for name, data, rep in amplitudes:
+        lines.append(f"amplitude {name}: data {_fmt(data)}, replay {_fmt(rep)}")
     return "\n".join(lines)
 
 

@@ -26,7 +26,7 @@ at a time, from a :class:`~stictiondiag.replay.closed_loop.Replay`:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -72,6 +72,33 @@ def _pct_error(model: float | None, data: float | None) -> float | None:
 
 
 @dataclass(frozen=True)
+class SignalAgreement:
+    """One signal's agreement of a replay with its data.
+
+    Attributes
+    ----------
+    signal : str
+        ``pv``, ``op`` or ``mv``.
+    amplitude_data, amplitude_replay : float or None
+        Half peak-to-peak [units of the signal: pv units, or % of span for op and
+        mv], both by :func:`cycle_amplitude` with the data's period.
+    amplitude_error_pct : float or None
+        ``100 (A_replay / A_data - 1)`` [%].
+    waveform : float or None
+        Correlation of the phase-aligned average cycles [-].
+    nrmse : float or None
+        NRMSE of the replay [-] (phase-sensitive).
+    """
+
+    signal: str
+    amplitude_data: float | None
+    amplitude_replay: float | None
+    amplitude_error_pct: float | None
+    waveform: float | None
+    nrmse: float | None
+
+
+@dataclass(frozen=True)
 class ReplayMetrics:
     """Period, amplitude and waveform agreement of a replay with its data.
 
@@ -83,41 +110,40 @@ class ReplayMetrics:
         Oscillation periods [s]; None where the signal does not oscillate.
     period_error_pct : float or None
         ``100 (T_replay / T_data - 1)`` [%].
-    amplitude : dict
-        Signal -> ``{"data", "replay"}`` half peak-to-peak [units of the signal: pv
-        units, or % of span for op and mv], both by :func:`cycle_amplitude` with the
-        data's period.
-    amplitude_error_pct : dict
-        Signal -> ``100 (A_replay / A_data - 1)`` [%].
-    waveform : dict
-        Signal -> correlation of the phase-aligned average cycles [-].
-    nrmse : dict
-        Signal -> NRMSE of the replay [-] (phase-sensitive).
+    signals : tuple of SignalAgreement
+        Amplitude, waveform and NRMSE of each replayed signal, in the replay's order.
     """
 
     period_signal: str
     period_data_s: float | None
     period_replay_s: float | None
     period_error_pct: float | None
-    amplitude: dict = field(default_factory=dict)
-    amplitude_error_pct: dict = field(default_factory=dict)
-    waveform: dict = field(default_factory=dict)
-    nrmse: dict = field(default_factory=dict)
+    signals: tuple[SignalAgreement, ...] = ()
+
+    def agreement(self, name: str) -> SignalAgreement | None:
+        """The agreement of signal ``name`` (``pv``, ``op``, ``mv``); None when not
+        replayed."""
+        return next((s for s in self.signals if s.signal == name), None)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able dict."""
+        """JSON-able dict (per-signal figures keyed by signal)."""
         return {
             "period_signal": self.period_signal,
             "period_data_s": plain_float(self.period_data_s),
             "period_replay_s": plain_float(self.period_replay_s),
             "period_error_pct": plain_float(self.period_error_pct),
             "amplitude": {
-                k: {side: plain_float(v.get(side)) for side in ("data", "replay")}
-                for k, v in self.amplitude.items()
+                s.signal: {
+                    "data": plain_float(s.amplitude_data),
+                    "replay": plain_float(s.amplitude_replay),
+                }
+                for s in self.signals
             },
-            "amplitude_error_pct": {k: plain_float(v) for k, v in self.amplitude_error_pct.items()},
-            "waveform": {k: plain_float(v) for k, v in self.waveform.items()},
-            "nrmse": {k: plain_float(v) for k, v in self.nrmse.items()},
+            "amplitude_error_pct": {
+                s.signal: plain_float(s.amplitude_error_pct) for s in self.signals
+            },
+            "waveform": {s.signal: plain_float(s.waveform) for s in self.signals},
+            "nrmse": {s.signal: plain_float(s.nrmse) for s in self.signals},
             "amplitude_measure": "median over one-period windows of half the range",
         }
 
@@ -127,41 +153,40 @@ class ReplayMetrics:
 
         rows = [
             {
-                "signal": name,
-                "amplitude_data": amp.get("data"),
-                "amplitude_replay": amp.get("replay"),
-                "amplitude_error_pct": self.amplitude_error_pct.get(name),
-                "waveform": self.waveform.get(name),
-                "nrmse": self.nrmse.get(name),
+                "signal": s.signal,
+                "amplitude_data": s.amplitude_data,
+                "amplitude_replay": s.amplitude_replay,
+                "amplitude_error_pct": s.amplitude_error_pct,
+                "waveform": s.waveform,
+                "nrmse": s.nrmse,
             }
-            for name, amp in self.amplitude.items()
+            for s in self.signals
         ]
         return pd.DataFrame(rows)
 
     def text(self) -> str:
         """One line: period error, amplitude errors and waveform agreement."""
-        return render_metrics(self.to_dict())
+        return render_metrics(self)
 
 
 def _signed(v, unit: str = " %") -> str:
     return "n/a" if v is None else f"{v:+.0f}{unit}"
 
 
-def render_metrics(m: dict) -> str:
-    """One line from :meth:`ReplayMetrics.to_dict`."""
-    per = m.get("period_error_pct")
-    d, r = m.get("period_data_s"), m.get("period_replay_s")
+def render_metrics(m: ReplayMetrics) -> str:
+    """One line: period error, amplitude errors and waveform agreement (a figure that
+    is not finite reads ``n/a``)."""
+    per = plain_float(m.period_error_pct)
+    d, r = plain_float(m.period_data_s), plain_float(m.period_replay_s)
     if per is not None:
         period = f"period {_signed(per)} ({r:.4g} s against {d:.4g} s)"
     elif d is not None:
         period = "period: the replay does not cycle"
     else:
         period = "period: the data do not cycle"
-    amp = ", ".join(f"{k} {_signed(v)}" for k, v in (m.get("amplitude_error_pct") or {}).items())
-    wave = ", ".join(
-        f"{k} {'n/a' if v is None else format(v, '.2f')}"
-        for k, v in (m.get("waveform") or {}).items()
-    )
+    amp = ", ".join(f"{s.signal} {_signed(plain_float(s.amplitude_error_pct))}" for s in m.signals)
+    waves = ((s.signal, plain_float(s.waveform)) for s in m.signals)
+    wave = ", ".join(f"{k} {'n/a' if v is None else format(v, '.2f')}" for k, v in waves)
     return f"{period}; amplitude {amp or 'n/a'}; waveform agreement [1 = same] {wave or 'n/a'}"
 
 
@@ -171,21 +196,18 @@ def replay_metrics(rep) -> ReplayMetrics:
     window = None if not d else int(round(float(d) / float(rep.dt)))
     pairs = rep.data.pairs(rep)
     by = rep.measures.by_signal()
-    amplitude: dict[str, dict] = {}
-    errors: dict[str, float | None] = {}
+    signals = []
     for name, (y, yr) in pairs.items():
         a_d, a_r = cycle_amplitude(y, window), cycle_amplitude(yr, window)
-        amplitude[name] = {"data": a_d, "replay": a_r}
-        errors[name] = _pct_error(a_r, a_d)
+        signals.append(
+            SignalAgreement(name, a_d, a_r, _pct_error(a_r, a_d), by[name].waveform, by[name].nrmse)
+        )
     return ReplayMetrics(
         period_signal=rep.period_signal,
         period_data_s=d,
         period_replay_s=r,
         period_error_pct=_pct_error(r, d),
-        amplitude=amplitude,
-        amplitude_error_pct=errors,
-        waveform={k: by[k].waveform for k in pairs},
-        nrmse={k: by[k].nrmse for k in pairs},
+        signals=tuple(signals),
     )
 
 

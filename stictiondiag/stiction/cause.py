@@ -30,8 +30,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 
 from stictiondiag.core.serialize import to_plain
+
+
+class Cause(StrEnum):
+    """Why a loop oscillates: the causes of stage 2 and ``none`` (no limit cycle).
+
+    The value is the word the JSON carries; code compares members, never words.
+    """
+
+    VALVE = "valve"
+    TUNING = "tuning"
+    EXTERNAL = "external"
+    OTHER = "other"
+    NONE = "none"
+
 
 #: The causes of stage 2, in the order of the model's classes.
 CAUSES: tuple[str, ...] = ("valve", "tuning", "external", "other")
@@ -98,6 +113,48 @@ class Cycle:
                 "short_record": self.short_record,
             }
         )
+
+
+@dataclass(frozen=True)
+class CauseReading:
+    """Stage 2: P of each cause of the cycle [-], summing to 1, from the cause model
+    (:func:`stictiondiag.stiction.cause_model.cause_probabilities`).
+
+    Attributes
+    ----------
+    valve, tuning, external, other : float
+        P that the valve (stiction or dead band), the controller's tuning, an
+        external oscillating disturbance, or quantisation or another non-valve
+        nonlinearity causes the cycle [-].
+    """
+
+    valve: float
+    tuning: float
+    external: float
+    other: float
+
+    @classmethod
+    def of(cls, probs: dict[str, float]) -> CauseReading:
+        """The reading of the cause model's ``{cause: P}`` (keys :data:`CAUSES`)."""
+        return cls(**{c: float(probs[c]) for c in CAUSES})
+
+    def p(self, cause: Cause | str) -> float:
+        """P of one cause of stage 2 [-]."""
+        return float(getattr(self, Cause(cause).value))
+
+    def ranked(self) -> tuple[Cause, ...]:
+        """The causes of stage 2, most likely first (ties in :data:`CAUSES` order)."""
+        return tuple(sorted((Cause(c) for c in CAUSES), key=lambda c: -self.p(c)))
+
+    def runner_up(self, first: Cause | str | None) -> tuple[Cause, float]:
+        """The most likely cause other than ``first``, with its P [-] (ties: the later
+        cause in :data:`CAUSES` order)."""
+        rest = sorted(((self.p(c), Cause(c)) for c in CAUSES if c != first), reverse=True)
+        return rest[0][1], rest[0][0]
+
+    def to_dict(self) -> dict[str, float]:
+        """``{cause: P}`` in :data:`CAUSES` order."""
+        return {c: self.p(c) for c in CAUSES}
 
 
 def find_cycle(oscillation, oscillation_op, *, short_record: bool) -> Cycle:

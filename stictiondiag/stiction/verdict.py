@@ -29,15 +29,14 @@ into a :class:`Verdict`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from stictiondiag.core.errors import StictionError
-from stictiondiag.core.serialize import to_plain as _plain
 from stictiondiag.stiction.cause import (
     CAUSE_WORDS,
     NO_CYCLE_REASON,
+    Cause,
+    CauseReading,
     Cycle,
     cycle_text,
     direct_stick_slip,
@@ -56,73 +55,7 @@ from stictiondiag.stiction.probability import (
     part_name,
     stiction_probability,
 )
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """Is the oscillation caused by valve stiction?
-
-    Attributes
-    ----------
-    status : str
-        ``"stiction"``, ``"no_stiction"`` or ``"inconclusive"``.
-    detected : bool or None
-        True for stiction, False for no stiction, None when inconclusive.
-    confidence : float
-        Support for ``status`` in [0, 1], measured from the data (see
-        :func:`stiction_verdict` for the formula); for ``"inconclusive"`` it is the
-        support for stiction, which fell between the decision levels.
-    reasons : tuple of str
-        Human-readable reasons, most important first.
-    evidence : dict
-        The measured quantities behind the decision (JSON-able).
-    probability : float or None
-        Calibrated P(stiction) [-] (:mod:`stictiondiag.stiction.probability`).
-    cause : str or None
-        Why the loop oscillates (:mod:`stictiondiag.stiction.cause`): ``"none"`` (no
-        limit cycle), ``"valve"``, ``"tuning"``, ``"external"``, ``"other"``; None when
-        the verdict cannot name one.
-    cycle : Cycle or None
-        Stage 1: the limit cycle found, if any.
-    cause_probabilities : dict or None
-        Stage 2: P of each cause of the cycle [-] (None without a cycle or without
-        the cause model).
-    runner_up : str or None
-        The second most likely cause.
-
-    ``probability`` is P(the valve causes the cycle) when stage 2 decides (a cycle,
-    no mv), 0 for a loop without a cycle and without direct stick-slip, else the
-    friction model's P(stiction) (kept in ``evidence["p_friction"]`` in every case).
-    """
-
-    status: str
-    detected: bool | None
-    confidence: float
-    reasons: tuple[str, ...]
-    evidence: dict = field(default_factory=dict, repr=False)
-    probability: float | None = None
-    cause: str | None = None
-    cycle: Cycle | None = None
-    cause_probabilities: dict[str, float] | None = None
-    runner_up: str | None = None
-
-    def to_dict(self) -> dict:
-        return _plain(
-            {
-                "status": self.status,
-                "verdict": self.status,
-                "detected": self.detected,
-                "confidence": self.confidence,
-                "probability": self.probability,
-                "cause": self.cause,
-                "cause_probabilities": self.cause_probabilities,
-                "runner_up": self.runner_up,
-                "cycle": None if self.cycle is None else self.cycle.to_dict(),
-                "reasons": list(self.reasons),
-                "evidence": self.evidence,
-            }
-        )
-
+from stictiondiag.stiction.verdict_result import CONFIDENCE_FORMULA, Verdict, VerdictEvidence
 
 # --------------------------------------------------------------------------------------
 # The verdict
@@ -489,21 +422,15 @@ def verdict_features(
 VALVE_LEVEL = 0.6
 
 
-def _cause_probabilities(features: dict, cause_model: dict | None) -> dict[str, float] | None:
+def _cause_probabilities(features: dict, cause_model: dict | None) -> CauseReading | None:
     """Stage 2's P of each cause, None when the cause model is not installed."""
     try:
-        return cause_probabilities(features, cause_model)
+        return CauseReading.of(cause_probabilities(features, cause_model))
     except StictionError:
         return None
 
 
-def _runner_up(probs: dict[str, float], first: str | None) -> tuple[str, float]:
-    """The most likely cause other than ``first``, with its P."""
-    rest = sorted(((p, c) for c, p in probs.items() if c != first), reverse=True)
-    return rest[0][1], rest[0][0]
-
-
-def _cause_reading(probs: dict[str, float]) -> str:
+def _cause_reading(probs: CauseReading) -> str:
     """Stage 2's reading in words: the most likely cause of the cycle and the
     runner-up, by the cause model (:mod:`stictiondiag.stiction.cause_model`).
 
@@ -513,28 +440,18 @@ def _cause_reading(probs: dict[str, float]) -> str:
     verdict of a loop with a cycle follows P(stiction) and the cause model's
     probabilities stand beside it as evidence.
     """
-    top = max(probs, key=lambda c: probs[c])
-    second, p2 = _runner_up(probs, top)
+    top = probs.ranked()[0]
+    second, p2 = probs.runner_up(top)
     return (
         f"cause model (simulated loops only, not yet borne out on plant data): most likely "
-        f"{CAUSE_WORDS[top]} ({probs[top]:.2f}), runner-up {CAUSE_WORDS[second]} ({p2:.2f}); "
-        f"P(the valve causes the cycle) = {probs['valve']:.2f}"
+        f"{CAUSE_WORDS[top]} ({probs.p(top):.2f}), runner-up {CAUSE_WORDS[second]} ({p2:.2f}); "
+        f"P(the valve causes the cycle) = {probs.valve:.2f}"
     )
 
 
-#: How the verdict's confidence follows from P, as the evidence states it.
-CONFIDENCE_FORMULA = (
-    "P = calibrated logistic model of the features (stictiondiag.stiction."
-    "probability, fitted on simulated loops); confidence = P (stiction, "
-    "inconclusive) or 1 - P (no stiction); without a limit cycle, "
-    "max(1 - P, 0.5) for no stiction (stage 1 answers the question of the "
-    "cycle, P only whether the valve has friction)"
-)
-
-
 def _decide(
-    P: float, cycle, direct: str | None, stage2: dict[str, float] | None, contrib, fit
-) -> tuple[str, bool | None, float, str | None, str]:
+    P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib, fit
+) -> tuple[str, bool | None, float, Cause | None, str]:
     """The decision: status, detected, confidence, cause and the headline reason.
 
     Without a limit cycle, stick-slip seen directly (``direct``) calls stiction and
@@ -550,22 +467,22 @@ def _decide(
 
 
 def _call(
-    P: float, cycle, direct: str | None, stage2: dict[str, float] | None, contrib
-) -> tuple[str, bool | None, float, str | None, str]:
+    P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib
+) -> tuple[str, bool | None, float, Cause | None, str]:
     """:func:`_decide` on the evidence alone, before the record's resolution."""
     for_text = _evidence_words(contrib, +1)
     against_text = _evidence_words(contrib, -1)
     if not cycle.present and direct:
         head = f"stick-slip without a limit cycle: {direct} (P(stiction) = {P:.2f})"
-        return "stiction", True, P, "valve", head
+        return "stiction", True, P, Cause.VALVE, head
     if not cycle.present:
         head = f"{NO_CYCLE_REASON} (P that the valve has friction = {P:.2f})"
-        return "no_stiction", False, 1.0 - min(P, 0.5), "none", head
+        return "no_stiction", False, 1.0 - min(P, 0.5), Cause.NONE, head
     if P > STICTION_LEVEL:
         head = f"P(stiction) = {P:.2f} (above {STICTION_LEVEL:g}): {for_text}"
-        return "stiction", True, P, "valve", head
+        return "stiction", True, P, Cause.VALVE, head
     if P < NO_STICTION_LEVEL:
-        cause = _runner_up(stage2, "valve")[0] if stage2 is not None else None
+        cause = stage2.runner_up(Cause.VALVE)[0] if stage2 is not None else None
         head = f"P(stiction) = {P:.2f} (below {NO_STICTION_LEVEL:g}): {against_text}"
         return "no_stiction", False, 1.0 - P, cause, head
     levels = f"levels {NO_STICTION_LEVEL:g} and {STICTION_LEVEL:g}"
@@ -686,27 +603,26 @@ def stiction_verdict(
     if not cycle.present:
         direct = direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
     status, detected, confidence, cause, head = _decide(P, cycle, direct, stage2, contrib, fit)
-    evidence = {
-        "probability": P,
-        "p_friction": P,
-        "cause_probabilities": stage2,
-        "valve_level": VALVE_LEVEL,
-        "features": features,
-        "contributions": {k: t for k, t, _ in contrib},
-        "stiction_level": STICTION_LEVEL,
-        "no_stiction_level": NO_STICTION_LEVEL,
-        "improvement": f,
-        "improvement_interval": list(f_iv),
-        "support": support,
-        "min_improvement": min_improvement,
-        "n_blocks": int(n_blocks),
-        "has_mv": has_mv,
-        "short_record": bool(short_record),
-        "cycle": cycle.to_dict(),
-        "direct_stick_slip": direct,
-        "classic": classic,
-        "confidence_formula": CONFIDENCE_FORMULA,
-    }
+    evidence = VerdictEvidence(
+        p_friction=P,
+        cause_probabilities=stage2,
+        features=features,
+        contributions={k: t for k, t, _ in contrib},
+        improvement=f,
+        improvement_interval=(f_iv[0], f_iv[1]),
+        support=support,
+        min_improvement=min_improvement,
+        n_blocks=int(n_blocks),
+        has_mv=has_mv,
+        short_record=bool(short_record),
+        cycle=cycle,
+        direct_stick_slip=direct,
+        classic=classic,
+        stiction_level=STICTION_LEVEL,
+        no_stiction_level=NO_STICTION_LEVEL,
+        valve_level=VALVE_LEVEL,
+        confidence_formula=CONFIDENCE_FORMULA,
+    )
     reasons = (
         head,
         *_unbounded_s_notes(status, fit),
@@ -728,5 +644,5 @@ def stiction_verdict(
         cause=cause,
         cycle=cycle,
         cause_probabilities=stage2,
-        runner_up=_runner_up(stage2, cause)[0] if stage2 is not None else None,
+        runner_up=stage2.runner_up(cause)[0] if stage2 is not None else None,
     )

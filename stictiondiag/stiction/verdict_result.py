@@ -1,0 +1,191 @@
+"""The verdict's result types: :class:`Verdict` and the evidence behind it
+(:class:`VerdictEvidence`), filled by :func:`stictiondiag.stiction.verdict.stiction_verdict`.
+
+They live apart from the decision so that the renderers, the saved results and the
+decision read one typed object (the verdict module is long enough on its own).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from stictiondiag.core.serialize import to_plain as _plain
+from stictiondiag.stiction.cause import Cause, CauseReading, Cycle
+
+#: How the verdict's confidence follows from P, as the evidence states it.
+CONFIDENCE_FORMULA = (
+    "P = calibrated logistic model of the features (stictiondiag.stiction."
+    "probability, fitted on simulated loops); confidence = P (stiction, "
+    "inconclusive) or 1 - P (no stiction); without a limit cycle, "
+    "max(1 - P, 0.5) for no stiction (stage 1 answers the question of the "
+    "cycle, P only whether the valve has friction)"
+)
+
+
+@dataclass(frozen=True)
+class VerdictEvidence:
+    """The measured quantities behind a verdict, and the levels it was decided with.
+
+    ``features``, ``contributions`` and ``classic`` stay mappings by name: they are
+    the probability model's input vector and its terms, whose names the fitted model
+    lists (:func:`stictiondiag.stiction.probability.part_features`), not a fixed set.
+
+    Attributes
+    ----------
+    p_friction : float
+        The friction model's P(stiction) [-] (:mod:`stictiondiag.stiction.probability`),
+        in every case (the verdict's ``probability`` is 0 for a loop without a cycle
+        and without direct stick-slip).  The JSON writes it as ``probability`` too.
+    cause_probabilities : CauseReading or None
+        Stage 2's P of each cause of the cycle [-]; None without a cycle or without
+        the cause model.
+    features : dict of str to float
+        The probability model's features of the loop
+        (:func:`stictiondiag.stiction.verdict.verdict_features`) [units per feature].
+    contributions : dict of str to float
+        Each feature's term in the log-odds relative to the training mean [-],
+        largest first.
+    improvement : float
+        Share of the linear valve's residual the stiction model removes [-].
+    improvement_interval : (float, float)
+        2.5 and 97.5 percentiles of the improvement over the cycle resamples [-].
+    support : float
+        Share of resamples whose improvement exceeds ``min_improvement`` [-].
+    min_improvement : float
+        Improvement that counts as material [-].
+    n_blocks : int
+        Cycle blocks the support was measured over [-].
+    has_mv : bool
+        The valve position was recorded.
+    short_record : bool
+        The record holds fewer cycles than the oscillation test needs.
+    cycle : Cycle
+        Stage 1: the limit cycle found, if any.
+    direct_stick_slip : str or None
+        The direct evidence of stick-slip in a loop without a cycle, in words.
+    classic : dict of str to float or None
+        The classic tests' calls (+1, 0, -1) and statistics, by name
+        (:func:`stictiondiag.stiction.probability.classic_votes`).
+    stiction_level, no_stiction_level : float
+        P(stiction) above which the verdict is ``stiction``, below which
+        ``no_stiction`` [-].
+    valve_level : float
+        P(the valve causes the cycle) at which the cause model would call stiction
+        [-] (recorded, not decided on).
+    confidence_formula : str
+        How the confidence follows from P.
+    """
+
+    p_friction: float
+    cause_probabilities: CauseReading | None
+    features: dict[str, float]
+    contributions: dict[str, float]
+    improvement: float
+    improvement_interval: tuple[float, float]
+    support: float
+    min_improvement: float
+    n_blocks: int
+    has_mv: bool
+    short_record: bool
+    cycle: Cycle
+    direct_stick_slip: str | None
+    classic: dict[str, float | None]
+    stiction_level: float
+    no_stiction_level: float
+    valve_level: float
+    confidence_formula: str = CONFIDENCE_FORMULA
+
+    def to_dict(self) -> dict:
+        """JSON-able dict, under the keys the verdict's JSON has always had."""
+        cause = self.cause_probabilities
+        return _plain(
+            {
+                "probability": self.p_friction,
+                "p_friction": self.p_friction,
+                "cause_probabilities": None if cause is None else cause.to_dict(),
+                "valve_level": self.valve_level,
+                "features": self.features,
+                "contributions": self.contributions,
+                "stiction_level": self.stiction_level,
+                "no_stiction_level": self.no_stiction_level,
+                "improvement": self.improvement,
+                "improvement_interval": list(self.improvement_interval),
+                "support": self.support,
+                "min_improvement": self.min_improvement,
+                "n_blocks": int(self.n_blocks),
+                "has_mv": self.has_mv,
+                "short_record": bool(self.short_record),
+                "cycle": self.cycle.to_dict(),
+                "direct_stick_slip": self.direct_stick_slip,
+                "classic": self.classic,
+                "confidence_formula": self.confidence_formula,
+            }
+        )
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Is the oscillation caused by valve stiction?
+
+    Attributes
+    ----------
+    status : str
+        ``"stiction"``, ``"no_stiction"`` or ``"inconclusive"``.
+    detected : bool or None
+        True for stiction, False for no stiction, None when inconclusive.
+    confidence : float
+        Support for ``status`` in [0, 1], measured from the data (see
+        :func:`~stictiondiag.stiction.verdict.stiction_verdict` for the formula); for
+        ``"inconclusive"`` it is the support for stiction, which fell between the
+        decision levels.
+    reasons : tuple of str
+        Human-readable reasons, most important first.
+    evidence : VerdictEvidence
+        The measured quantities behind the decision.
+    probability : float or None
+        Calibrated P(stiction) [-] (:mod:`stictiondiag.stiction.probability`).
+    cause : Cause or None
+        Why the loop oscillates (:mod:`stictiondiag.stiction.cause`): ``none`` (no
+        limit cycle), ``valve``, ``tuning``, ``external``, ``other``; None when
+        the verdict cannot name one.
+    cycle : Cycle or None
+        Stage 1: the limit cycle found, if any.
+    cause_probabilities : CauseReading or None
+        Stage 2: P of each cause of the cycle [-] (None without a cycle or without
+        the cause model).
+    runner_up : Cause or None
+        The second most likely cause.
+
+    ``probability`` is P(the valve causes the cycle) when stage 2 decides (a cycle,
+    no mv), 0 for a loop without a cycle and without direct stick-slip, else the
+    friction model's P(stiction) (kept in ``evidence.p_friction`` in every case).
+    """
+
+    status: str
+    detected: bool | None
+    confidence: float
+    reasons: tuple[str, ...]
+    evidence: VerdictEvidence = field(repr=False)
+    probability: float | None = None
+    cause: Cause | None = None
+    cycle: Cycle | None = None
+    cause_probabilities: CauseReading | None = None
+    runner_up: Cause | None = None
+
+    def to_dict(self) -> dict:
+        probs = self.cause_probabilities
+        return _plain(
+            {
+                "status": self.status,
+                "verdict": self.status,
+                "detected": self.detected,
+                "confidence": self.confidence,
+                "probability": self.probability,
+                "cause": self.cause,
+                "cause_probabilities": None if probs is None else probs.to_dict(),
+                "runner_up": self.runner_up,
+                "cycle": None if self.cycle is None else self.cycle.to_dict(),
+                "reasons": list(self.reasons),
+                "evidence": self.evidence.to_dict(),
+            }
+        )
