@@ -158,21 +158,21 @@ def hidden_text(fit: StictionFit) -> str | None:
     """Why S and J cannot be told from the record: they lie within what its resolution
     (a quantised mv, the deadband of a compressed archive) makes of a healthy valve
     (:func:`stictiondiag.stiction.resolution.hidden_by_resolution`); None otherwise."""
-    res = (fit.details or {}).get("resolution")
-    if not res or not res.get("within"):
+    res = fit.resolution
+    if res is None or not res.within:
         return None
     # The quantum is named where it, not the archive, sets mv's resolution.
-    quantised = res["mv_quantum"] > res["mv_deadband"]
-    parts = [f"mv quantised in steps of {res['mv_quantum']:.3g} %"] if quantised else []
+    quantised = res.mv_quantum > res.mv_deadband
+    parts = [f"mv quantised in steps of {res.mv_quantum:.3g} %"] if quantised else []
     parts += [
-        f"{role} archived with a {res[role + '_deadband']:.3g} % deadband"
-        for role in ("mv", "op")
-        if res[role + "_deadband"]
+        f"{role} archived with a {band:.3g} % deadband"
+        for role, band in (("mv", res.mv_deadband), ("op", res.op_deadband))
+        if band
     ]
     return (
         f"S = {fit.S:.2g} % and J = {fit.J:.2g} % of span are within what the record can "
         f"hide ({', '.join(parts)}: a healthy valve recorded so shows stick-slip up to "
-        f"S = {res['S_hidden']:.2g} % and J = {res['J_hidden']:.2g} %); stiction this small "
+        f"S = {res.S_hidden:.2g} % and J = {res.J_hidden:.2g} %); stiction this small "
         "cannot be told from these data: export every sample (no compression) to decide"
     )
 
@@ -323,7 +323,7 @@ def split_half_estimates(fit: StictionFit, data) -> tuple[float, float, float, f
     pv = np.asarray(data.pv, dtype=float)
     dt = float(data.ts)
     h = op.size // 2
-    period = (fit.details or {}).get("period_samples")
+    period = fit.period_samples
     if not period or not period > 0 or h < HALF_MIN_CYCLES * float(period):
         return None
     out = []
@@ -371,10 +371,9 @@ def verdict_features(
     computes with the replay (:func:`stictiondiag.replay.reproduction.reproduction_features`,
     in :meth:`stictiondiag.analysis.LoopEstimate.verdict`); without them, and for a
     loop without a cycle, their "no replay" values."""
-    d = fit.details or {}
-    blocks = d.get("block_sse") or {}
-    bs = np.asarray(blocks.get("stiction", []), dtype=float)
-    bl = np.asarray(blocks.get("linear", []), dtype=float)
+    blocks = fit.block_costs
+    bs = np.asarray([] if blocks is None else blocks.stiction, dtype=float)
+    bl = np.asarray([] if blocks is None else blocks.linear, dtype=float)
     if bs.size == 0:
         bs, bl = np.array([fit.cost]), np.array([fit.linear_cost])
     support, f, f_iv = improvement_support(bs, bl, min_improvement, seed=seed)
@@ -597,7 +596,7 @@ def stiction_verdict(
     )
     P = stiction_probability(features, has_mv, model)
     contrib = _contributions(features, has_mv, model)
-    n_blocks = len(((fit.details or {}).get("block_sse") or {}).get("stiction", [])) or 1
+    n_blocks = (0 if fit.block_costs is None else len(fit.block_costs.stiction)) or 1
     stage2 = _cause_probabilities(features, cause_model) if cycle.present else None
     direct = None
     if not cycle.present:
