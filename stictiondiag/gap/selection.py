@@ -67,12 +67,15 @@ class Measure:
         """The part of a signal's rounding variance ``explained`` [units^2] that its
         noise floor does not hold already, normalised [-].
 
-        The floor is measured on the recorded, rounded signal: on a signal that moves
-        by a step or more nearly every sample the rounding errors are independent and
-        the white noise (:func:`noise_variance`) holds all of ``q^2/12``; on one held
-        between steps it holds none (its floor is 0).  The floor is taken to hold as
-        much of the rounding as it can, up to ``q^2/12``, so the rounding counts once:
-        the signal's error is floored at the larger of the two, never at their sum.
+        Each floor is measured on the recorded, rounded signal.  mv's white noise
+        (:func:`noise_variance`) holds all of ``q^2/12`` when mv moves by a step or
+        more nearly every sample (independent rounding errors) and none when it is
+        held between steps (its floor is 0); pv's floor, from the noise model of the
+        process replay fitted to the rounded pv, rises with the rounding by about
+        ``q^2/12`` whether pv moves every sample or is held between steps.  The floor
+        is taken to hold as much of the rounding as it can, up to ``q^2/12``, so the
+        rounding counts once: the signal's error is floored at the larger of the two,
+        never at their sum.
         """
         return max(explained - self.floor.get(name, 0.0), 0.0) / self.norm[name]
 
