@@ -240,10 +240,8 @@ def run_case(args: tuple[dict, tuple[str, ...]]) -> list[dict]:
             row.update(error=str(exc))
             rows.append(row)
             continue
-        blocks = fit.details["block_sse"]
-        P, f, _ = improvement_support(
-            np.asarray(blocks["stiction"]), np.asarray(blocks["linear"]), MIN_IMPROVEMENT
-        )
+        blocks = fit.block_costs
+        P, f, _ = improvement_support(blocks.stiction, blocks.linear, MIN_IMPROVEMENT)
         lo, hi = fit.S_interval
         row.update(
             seconds=time.perf_counter() - t0,

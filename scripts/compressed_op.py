@@ -88,7 +88,7 @@ def main() -> None:
             for band in (False, True):
                 op_r, mv_r, found = _rebuilt(t, op, mv, deadband, deadband, band)
                 fit = estimate_from_mv(op_r, mv_r, ts, deadband=found)
-                hidden = (fit.details.get("resolution") or {}).get("within")
+                hidden = fit.resolution is not None and fit.resolution.within
                 cells.append(f"{fit.S:5.2f} / {fit.J:4.2f}{'*' if hidden else ' '}")
             print(f"{name:22s} {deadband:8.2f}  {plain.S:5.2f} / {plain.J:4.2f}  "
                   f"{cells[0]:>14s}  {cells[1]:>14s}", flush=True)  # fmt: skip

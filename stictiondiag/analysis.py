@@ -86,7 +86,7 @@ from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import Segments, estimate_from_mv, segment_valve
 from stictiondiag.stiction.verdict import stiction_verdict, verdict_features
-from stictiondiag.stiction.verdict_result import Verdict
+from stictiondiag.stiction.verdict_result import Verdict, VerdictStatus
 
 __all__ = [
     "FIGURE_DPI",
@@ -404,7 +404,7 @@ def run_from_estimate(est: LoopEstimate, *, config: AnalysisConfig | None = None
 
     # 5b. Variable-integral compensation of the replayed loop (Section 6.4).
     comp = None
-    if config.compensation and rep is not None and verdict.status != "no_stiction":
+    if config.compensation and rep is not None and verdict.status != VerdictStatus.NO_STICTION:
         replayed_loop = rep
         comp = _or_warn(
             "compensation not tried",

@@ -189,7 +189,7 @@ class Analysis:
             duration_s=float(tags.n * tags.ts),
             oscillating=bool(self.oscillation.present),
             period_s=plain_float(self.oscillation.period_s),
-            verdict=verdict.status,
+            verdict=verdict.status.value,
             detected=to_plain(verdict.detected),
             confidence=to_plain(verdict.confidence),
             probability=to_plain(verdict.probability),

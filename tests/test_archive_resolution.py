@@ -101,11 +101,11 @@ def test_healthy_valve_from_a_held_archive_is_not_called_sticky(deadbands):
     tags = read_frame(_healthy_wide(deadbands), time="time", loop_type="flow")
     result = analyze(tags, config=AnalysisConfig(gap=False))
     assert result.verdict.status != "stiction"
-    res = result.fit.details["resolution"]
+    res = result.fit.resolution
     r = deadbands["op"] + deadbands["mv"]
     # 1 %: the estimated deadbands are just above the true ones (test above).
-    assert res["S_hidden"] == pytest.approx(2 * r, rel=0.01)
-    assert result.fit.S <= res["S_hidden"] and result.fit.J <= res["J_hidden"]
+    assert res.S_hidden == pytest.approx(2 * r, rel=0.01)
+    assert result.fit.S <= res.S_hidden and result.fit.J <= res.J_hidden
     # The deadbands and the verdict survive the JSON round trip of the whole analysis.
     back = Analysis.from_json(result.to_json())
     assert back.tags.archive_deadband == tags.archive_deadband
@@ -159,7 +159,7 @@ def test_sticky_valve_well_above_the_deadband_is_still_found(tmp_path, deadband)
     assert tags.archive_deadband["mv"] == pytest.approx(deadband, rel=0.05)
     result = analyze(tags, config=AnalysisConfig(gap=False))
     assert result.verdict.status == "stiction"
-    assert result.fit.details["resolution"]["within"] is False
+    assert result.fit.resolution.within is False
     assert result.fit.S == pytest.approx(5.0, abs=2 * (2 * deadband))
     assert result.fit.J == pytest.approx(2.5, abs=0.3)
     assert result.fit.S_interval[0] <= 5.0 <= result.fit.S_interval[1]

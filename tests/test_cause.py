@@ -15,7 +15,7 @@ from stictiondiag.stiction.cause import (
     direct_stick_slip,
     find_cycle,
 )
-from stictiondiag.stiction.fit_result import StictionFit
+from stictiondiag.stiction.fit_result import BlockCosts, StictionFit
 from stictiondiag.stiction.probability import FEATURES
 from stictiondiag.stiction.verdict import stiction_verdict
 
@@ -42,7 +42,7 @@ def _fit():
         n_slips=6,
         cost=6.0,
         linear_cost=8.0,
-        details={"block_sse": {"stiction": np.ones(6), "linear": 8.0 / 6.0 * np.ones(6)}},
+        block_costs=BlockCosts(10, np.ones(6), 8.0 / 6.0 * np.ones(6)),
     )
 
 

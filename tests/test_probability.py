@@ -19,7 +19,7 @@ from stictiondiag.apps.family import (
     loop_features,
     stiction_share,
 )
-from stictiondiag.stiction.fit_result import StictionFit
+from stictiondiag.stiction.fit_result import BlockCosts, StictionFit
 from stictiondiag.stiction.probability import (
     BASE_FEATURES,
     CANDIDATES,
@@ -322,7 +322,7 @@ def _fit():
         n_slips=6,
         cost=6.0,
         linear_cost=6.0,
-        details={"block_sse": {"stiction": blocks.tolist(), "linear": blocks.tolist()}},
+        block_costs=BlockCosts(10, blocks, blocks),
     )
 
 

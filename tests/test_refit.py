@@ -81,3 +81,35 @@ def test_with_recorded_mv_the_valve_is_kept_and_the_process_refined():
     assert (rep.S, rep.J) == (1.5, 0.6)
     assert rep.settings.refit is not None
     assert rep.settings.refit.S == 1.5 and rep.settings.refit.J == 0.6
+
+
+def test_a_process_fit_of_the_wrong_gain_sign_is_refitted_to_the_cycle():
+    """The no-cycle basin: a process fit whose gain has the sign opposite to the
+    controller's replays a positive-feedback loop that runs away, and no S, J or
+    step of the compass search near it cycles.  The describing-function starts hold
+    the negative feedback of a loop that cycles about its set point (Section 6)."""
+    from dataclasses import replace
+
+    from stictiondiag.replay.closed_loop import _replay_models, _replay_record, _replay_simulate
+    from stictiondiag.replay.refit import refine_loop, with_process
+
+    sim = _loop(5.0, 2.0)
+    tags = Tags.from_arrays(sim.pv, sim.op, sp=sim.sp, ts=DT)
+    rec = _replay_record(tags, SimpleNamespace(S=5.0, J=2.0, mv_model=sim.mv))
+    cf, pf, _ = _replay_models(rec, None, None, None, None, None)
+    bad = with_process(pf, replace(pf.process, gain=-pf.process.gain), DT)
+
+    def simulate(p, s, j):
+        return _replay_simulate(rec, cf, p, s, j, "choudhury", 0.0, 0)
+
+    before = cycle_reproduction(rec.pv, simulate(bad, 5.0, 2.0).pv, DT)
+    res, new = refine_loop(rec, bad, 5.0, 2.0, simulate, controller=cf.controller)
+    after = cycle_reproduction(rec.pv, simulate(new, res.S, res.J).pv, DT)
+    # Measured: before, the replay runs away (no cycle); after, period +4 %, amplitude
+    # +10 %, the process gain back to the loop's sign (3.0).  Without the sign held
+    # by the starts the search ends without a cycle (cost 2.99).  Asserted: the
+    # issue's 20 % / 35 % reproduction, the gain's sign and size within 20 %.
+    assert before.period_replay_s is None
+    assert res.accepted and res.simulations <= MAX_SIMULATIONS + 2
+    assert after.reproduced, after.reason
+    assert res.process.gain == pytest.approx(pf.process.gain, rel=0.2)

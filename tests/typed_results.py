@@ -17,7 +17,7 @@ from stictiondiag.result import Analysis
 from stictiondiag.signals.oscillation import Oscillation
 from stictiondiag.stiction.cause import Cycle
 from stictiondiag.stiction.fit_result import Determinacy, StictionFit
-from stictiondiag.stiction.verdict_result import Verdict, VerdictEvidence
+from stictiondiag.stiction.verdict_result import Verdict, VerdictEvidence, VerdictStatus
 
 #: The decision levels the tests' verdicts carry in their evidence [-].
 LEVELS = {"stiction_level": 0.7, "no_stiction_level": 0.3}
@@ -136,7 +136,7 @@ def make_analysis(
         J_determinacy=Determinacy.of(determinacy[1]),
     )
     verdict = Verdict(
-        status=status,
+        status=VerdictStatus(status),
         detected={"stiction": True, "no_stiction": False}.get(status),
         confidence=p if status != "no_stiction" else 1 - p,
         reasons=tuple(reasons),

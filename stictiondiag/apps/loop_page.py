@@ -349,7 +349,7 @@ def _parameters_section(a: Analysis) -> list[str]:
             f"<td class='num'>{_num(plain_float(scaled))}</td>"
             f"<td{cls}>{_text(determinacy(fit, sym))}</td></tr>"
         )
-    interval_note = (fit.details or {}).get("interval_method")
+    interval_note = fit.interval_method
     units = _text(_units(a))
     improvement = plain_float(fit.improvement)
     return [

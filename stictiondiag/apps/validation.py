@@ -142,7 +142,7 @@ def _half_summary(tags) -> dict:
         return {"verdict": "error", "error": str(exc).splitlines()[0]}
     fit = a.fit
     return {
-        "verdict": a.verdict.status,
+        "verdict": a.verdict.status.value,
         "probability": a.verdict.probability,
         "S": float(fit.S),
         "S_interval": None if fit.S_interval is None else [float(v) for v in fit.S_interval],

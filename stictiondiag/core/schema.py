@@ -47,8 +47,9 @@ from stictiondiag.core.errors import DataError
 #: 8: the stiction fit's result types live in ``stiction.fit_result``.
 #: 9: a fit without mv's linear part is a typed field (``StictionFit.linear_part``),
 #: and the closed-loop refit holds its processes as typed models.
-#: 10: the verdict's evidence is typed (``VerdictEvidence``), its causes enums
-#: (``Cause``) and the cause model's reading a ``CauseReading``.
+#: 10: the verdict's evidence is typed (``VerdictEvidence``), its status and causes
+#: enums (``VerdictStatus``, ``Cause``) and the cause model's reading a ``CauseReading``; a stiction fit's
+#: period, interval method, block costs and archive resolution are typed fields.
 SCHEMA_VERSION = 10
 
 #: The package whose classes :func:`decode` rebuilds.

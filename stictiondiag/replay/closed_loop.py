@@ -541,7 +541,7 @@ def replay(
     refit : bool
         Refine S, J and the process by closed-loop simulation when the open-loop
         fit's replay does not reproduce the recorded cycle
-        (:mod:`stictiondiag.replay.refit`; at most 60 more O(n) simulations).  The
+        (:mod:`stictiondiag.replay.refit`; at most 62 more O(n) simulations).  The
         replay then uses the refitted loop; ``settings.refit`` holds both.
     action : {"direct", "reverse"}, optional
         Declared controller action: fixes the sign of the identified controller gain.

@@ -36,24 +36,32 @@ and the process.  With a recorded mv, S and J are measured from the valve's own
 stick and slip segments (Figs. 3 and 6) and are kept too: the process alone is
 refined.
 
-Starts: the open-loop fit, and the describing function's prediction
-(:func:`df_start`, Section 6): the J/S whose predicted cycle has the recorded
-period, scaled to the recorded op amplitude.  Both are simulated; the search
-starts from the better.
+Starts: the open-loop fit, and the describing function's predictions
+(:func:`df_starts`, Section 6): for each case of Section 5.1 (deadband, undershoot,
+no offset, overshoot) the J/S whose predicted cycle has the period nearest the
+recorded one, S scaled so that the predicted op amplitude is the recorded one.  S
+is thus seeded from op's swing, not from the open-loop fit: a fit with S near 0, or
+one whose replay settles, sits in a basin where no small step cycles, and the
+search could not leave it from there.  The starts hold the process gain at the
+controller's sign (a loop cycling about its set point has negative feedback), and
+where no ratio predicts the recorded period within about 10 %, one more start moves
+the process's dead time to where the phase condition of Eq. 5 meets it.  Each start
+is simulated once; the search starts from the best of all.
 
 Search: a compass search in the logarithms of S, J + j0 (``j0`` a small floor so a
 zero J can grow), the process gain and time constant, and in the dead time [samples],
-from the open-loop fit, each step tried up and down, halved when no step helps,
+from the best start, each step tried up and down, halved when no step helps,
 stopped after :data:`MAX_SIMULATIONS` simulations or when the steps are below
 :data:`MIN_STEP`.  The refit is kept only when it lowers the cost by
 :data:`MIN_IMPROVEMENT`; otherwise the open-loop fit stands.
 
-Cost: at most :data:`MAX_SIMULATIONS` + 3 closed-loop simulations (the search, the
-describing function's start, and the check that an accepted refit cycles wherever
-the open-loop fit did), each O(n) in the record length n, and the cycle measures
-of each: the autocorrelation's period, O(n log n) by FFT, everything else O(n).
-Linear in n up to that logarithm; the describing function's start does not depend
-on n.
+Cost: at most :data:`MAX_SIMULATIONS` + 2 closed-loop simulations (the starts, at
+most five, and the search share :data:`MAX_SIMULATIONS`; two more check that an
+accepted refit cycles wherever the open-loop fit did), each O(n) in the record
+length n, and the cycle measures of each: the autocorrelation's period, O(n log n)
+by FFT, everything else O(n).  Linear in n up to that logarithm.  The starts add
+at most 9 + 15 describing-function solutions on coarse grids, whose cost does not
+depend on n.
 """
 
 from __future__ import annotations
@@ -69,7 +77,7 @@ from stictiondiag.core.serialize import to_plain
 from stictiondiag.identification.numerics import r_squared
 from stictiondiag.identification.process_result import OutputErrorFit, ProcessFit
 from stictiondiag.models.describing import predict_limit_cycle
-from stictiondiag.models.processes import FOPTD, PI, Integrating
+from stictiondiag.models.processes import FOPTD, PI, Integrating, open_loop_response
 from stictiondiag.replay.cycles import _up_crossings, waveform_similarity
 from stictiondiag.replay.metrics import _cycle_period
 from stictiondiag.signals.oscillation import _detrend_by_cycles
@@ -314,8 +322,8 @@ def refit_closed_loop(
     state and returns :func:`cycle_cost` of the replay; it is called at most
     :data:`MAX_SIMULATIONS` times (each O(n)).  ``valve_fixed`` keeps S and J
     (measured from a recorded mv) and refines the process alone.  ``candidates``
-    are further starting points (the describing function's, :func:`df_start`): each
-    is simulated once, and the search starts from the best of all.  See the module
+    are further starting points (the describing function's, :func:`df_starts`): each
+    is put on the search's grid, simulated once, and the search starts from the best of all.  See the module
     docstring.
     """
     j0 = J_FLOOR_FRACTION * max(start.S, 0.1)
@@ -329,11 +337,15 @@ def refit_closed_loop(
     x = _to_vector(start, j0, dt)
     step = _steps(start, dt, valve_fixed)
     best, best_terms = cost0, terms0
+    template = start  # the process structure and gain sign the search keeps
     for cand in candidates:
+        # On the search's grid (the dead time in whole samples), so that the start
+        # simulated is the one the search and the result hold.
+        cand = _from_vector(_to_vector(cand, j0, dt), cand, j0, dt)
         c, t = evaluate(cand)
         sims += 1
         if math.isfinite(c) and c < best:
-            x, best, best_terms = _to_vector(cand, j0, dt), c, t
+            x, best, best_terms, template = _to_vector(cand, j0, dt), c, t, cand
     while sims < MAX_SIMULATIONS:
         improved = False
         for i in range(x.size):
@@ -344,7 +356,7 @@ def refit_closed_loop(
                 trial[i] += sgn * step[i]
                 if i == 4 and trial[4] < -0.5:
                     continue
-                c, t = evaluate(_from_vector(trial, start, j0, dt))
+                c, t = evaluate(_from_vector(trial, template, j0, dt))
                 sims += 1
                 if math.isfinite(c) and c < best:
                     x, best, best_terms, improved = trial, c, t, True
@@ -356,7 +368,7 @@ def refit_closed_loop(
             step[4] = float(round(step[4])) if step[4] >= 1.0 else 0.0
             if np.all(step[:4] < MIN_STEP) and step[4] == 0.0:
                 break
-    found = _from_vector(x, start, j0, dt)
+    found = _from_vector(x, template, j0, dt)
     if valve_fixed:  # exactly the measured S and J, not their round trip through logs
         found = replace(found, S=start.S, J=start.J)
     accepted = best < (1.0 - MIN_IMPROVEMENT) * cost0
@@ -394,45 +406,156 @@ def _done(start, found, cost0, cost, terms, sims, accepted, reason) -> ClosedLoo
     )
 
 
-#: Ratios J/S the describing-function start tries [-] (Section 6: the period of the
-#: predicted cycle depends on J/S alone, its amplitude scales with S).
-DF_RATIOS = (0.0, 0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0)
+#: Ratios J/S the describing-function starts try [-] (Section 6: the period of the
+#: predicted cycle depends on J/S alone, its amplitude scales with S), grouped by the
+#: cases of Section 5.1: deadband (J = 0), undershoot (J < S), no offset (J = S) and
+#: overshoot (J > S).
+DF_CASES: dict[str, tuple[float, ...]] = {
+    "deadband": (0.0,),
+    "undershoot": (0.1, 0.25, 0.5, 0.75),
+    "no offset": (1.0,),
+    "overshoot": (1.5, 2.0),
+}
+#: All ratios, in order [-].
+DF_RATIOS = tuple(r for case in DF_CASES.values() for r in case)
+#: When the best describing-function start's predicted period misses the recorded
+#: one by more than this (log units, about 10 %), one more start has the dead time
+#: moved to where the phase condition meets the recorded period [-].
+PHASE_MISS = 0.1
 
 
-def df_start(
+@dataclass(frozen=True)
+class Cycle:
+    """A stable cycle the describing function predicts: period [s], angular
+    frequency [rad/s] and op amplitude X_m [% of span]."""
+
+    period_s: float
+    frequency_rad_s: float
+    amplitude_op: float
+
+
+def _predict(process, controller: PI, ratio: float) -> Cycle | None:
+    """The describing function's stable cycle at S = 1, J = ``ratio`` (period [s],
+    op amplitude X_m [% of span]), or None."""
+    try:
+        pred = predict_limit_cycle(
+            process, controller, 1.0, ratio, n_amplitudes=120, n_frequencies=3000
+        )
+    except (StictionError, ArithmeticError, ValueError):
+        return None
+    if not (pred.limit_cycle and pred.stable and pred.period_s and pred.amplitude_op):
+        return None
+    return Cycle(float(pred.period_s), float(pred.frequency_rad_s or 0.0), float(pred.amplitude_op))
+
+
+def _phase_shift(process, controller: PI, w_pred: float, w_rec: float) -> float | None:
+    """Dead time to add [s] so that the loop's phase at the recorded frequency
+    ``w_rec`` is the phase it has at the predicted one ``w_pred`` (Eq. 5's phase
+    condition then meets the recorded period at about the same ``-1/N``): a dead
+    time ``d`` adds ``-w d`` to the phase.  None when no dead time >= 0 does."""
+    g = open_loop_response(process, controller, np.array([w_pred, w_rec]))
+    lag = float(np.angle(g[0] / g[1]))  # arg G0(w_pred) - arg G0(w_rec), wrapped
+    add = -lag / w_rec
+    if not math.isfinite(add) or process.dead_time + add < 0.0:
+        return None
+    return add
+
+
+#: Total dead times, as fractions of the recorded period, the phase start tries when
+#: the open-loop process predicts no cycle near the recorded period [-]: a stiction
+#: cycle's period is a few times the loop's dead time plus lag (Section 6).
+DEAD_TIME_FRACTIONS = (0.05, 0.1, 0.2, 0.35)
+#: J/S of the phase start when no ratio predicts a cycle with the open-loop process:
+#: one per case of Section 5.1 that holds a slip jump [-].
+PHASE_RATIOS = (0.5, 1.0, 1.5)
+
+
+def _phase_start(
+    process, controller: PI, period_s: float, found: list
+) -> tuple[FOPTD | Integrating, float, Cycle] | None:
+    """The process with its dead time moved to where the phase condition of Eq. 5
+    meets the recorded period [s], with the J/S and the predicted cycle there; None
+    when no dead time tried predicts a stable cycle.  Tried: the dead time of
+    :func:`_phase_shift` from the best prediction (``found``, sorted), and the total
+    dead times :data:`DEAD_TIME_FRACTIONS` of the period; J/S the best prediction's,
+    else :data:`PHASE_RATIOS`.  At most 15 describing-function solutions."""
+    w_rec = 2 * math.pi / period_s
+    deads = [f * period_s for f in DEAD_TIME_FRACTIONS]
+    ratios: tuple[float, ...] = PHASE_RATIOS
+    if found:
+        _, r, pred = found[0]
+        ratios = (r,)
+        add = _phase_shift(process, controller, pred.frequency_rad_s, w_rec)
+        if add is not None:
+            deads.insert(0, process.dead_time + add)
+    best = None
+    for r in ratios:
+        for d in deads:
+            proc = replace(process, dead_time=d)
+            pred = _predict(proc, controller, r)
+            if pred is None:
+                continue
+            miss = abs(math.log(pred.period_s / period_s))
+            if best is None or miss < best[0]:
+                best = (miss, (proc, r, pred))
+    return None if best is None else best[1]
+
+
+def df_starts(
     start: LoopParameters, controller: PI, period_s: float, op_amplitude: float
-) -> LoopParameters | None:
-    """The describing function's starting point (Section 6, Eq. 5), no simulation.
+) -> tuple[LoopParameters, ...]:
+    """The describing function's starting points (Section 6, Eq. 5), no simulation.
 
     For the open-loop fit's process and the identified controller, the limit cycle
     predicted from ``G0(i w) = -1/N(X_m)`` has a period that depends on J/S alone
-    and an op amplitude ``X_m`` proportional to S.  The ratio of :data:`DF_RATIOS`
-    whose stable predicted cycle has the period nearest the recorded ``period_s``
-    [s] is taken, and S and J scaled so that ``X_m`` is the recorded op amplitude
-    [% of span].  None when no ratio predicts a stable cycle.  Cost independent of
-    the record length (a few describing-function solutions on coarse grids).
+    and an op amplitude ``X_m`` proportional to S.  For each case of Section 5.1
+    (:data:`DF_CASES`) whose ratios predict a stable cycle, the ratio with the
+    period nearest the recorded ``period_s`` [s] gives one start, S and J scaled so
+    that ``X_m`` is the recorded op amplitude [% of span]: S is seeded from op's
+    swing, not from the open-loop fit, so a fit with S near 0 (a replay without a
+    cycle, whose neighbourhood holds none either) still has starts that cycle.  The
+    starts are ordered by their period's miss; where the best one misses by more
+    than :data:`PHASE_MISS`, a twin of it has the process's dead time moved so that
+    the phase condition of Eq. 5 holds at the recorded period
+    (:func:`_phase_shift`), its S and J scaled to the recorded amplitude again.
+    At most ``len(DF_CASES) + 1`` starts; empty when no ratio predicts a stable
+    cycle.  Cost independent of the record length (at most ``len(DF_RATIOS) + 1``
+    describing-function solutions on coarse grids).
     """
 
     if not (math.isfinite(controller.integral_time) and op_amplitude > 0 and period_s > 0):
-        return None
-    best: tuple[float, float, float] | None = None
-    for r in DF_RATIOS:
-        try:
-            pred = predict_limit_cycle(
-                start.process, controller, 1.0, r, n_amplitudes=120, n_frequencies=3000
-            )
-        except (StictionError, ArithmeticError, ValueError):
-            continue
-        if not (pred.limit_cycle and pred.stable and pred.period_s and pred.amplitude_op):
-            continue
-        miss = abs(math.log(pred.period_s / period_s))
-        if best is None or miss < best[0]:
-            best = (miss, r, float(pred.amplitude_op))
-    if best is None:
-        return None
-    _, r, xm = best
-    scale = op_amplitude / xm  # X_m is proportional to S at a fixed J/S
-    return LoopParameters(S=scale, J=r * scale, process=start.process)
+        return ()
+    process = start.process
+    if process.gain * controller.gain < 0.0:
+        # A loop that cycles about its set point has negative feedback: its process
+        # gain has the controller's sign.  A fit of the other sign (a poorly
+        # determined process, pv and op cycling nearly in quadrature) replays a
+        # loop that runs away or saturates, and no J/S makes it cycle.
+        process = replace(process, gain=-process.gain)
+    found: list[tuple[float, float, Cycle]] = []
+    for ratios in DF_CASES.values():
+        best: tuple[float, float, Cycle] | None = None
+        for r in ratios:
+            pred = _predict(process, controller, r)
+            if pred is None:
+                continue
+            miss = abs(math.log(pred.period_s / period_s))
+            if best is None or miss < best[0]:
+                best = (miss, r, pred)
+        if best is not None:
+            found.append(best)
+    found.sort(key=lambda b: b[0])
+    out = []
+    for _, r, pred in found:
+        scale = op_amplitude / pred.amplitude_op  # X_m is proportional to S at fixed J/S
+        out.append(LoopParameters(S=scale, J=r * scale, process=process))
+    if not found or found[0][0] > PHASE_MISS:
+        moved = _phase_start(process, controller, period_s, found)
+        if moved is not None:
+            proc, r, pred = moved
+            scale = op_amplitude / pred.amplitude_op
+            out.append(LoopParameters(S=scale, J=r * scale, process=proc))
+    return tuple(out)
 
 
 def with_process(pf, process: FOPTD | Integrating, dt: float):
@@ -455,10 +578,11 @@ def refine_loop(
     dt = float(rec.dt)
     data = (recorded_cycle(rec.pv, dt), recorded_cycle(rec.op, dt))
     start = LoopParameters(S=float(S), J=float(J), process=pf.process)
-    if data[0].period_s is None or not S > 0.0:
+    sticky = S > 0.0 or J > 0.0  # a slip jump alone is stiction too (Section 5.1)
+    if data[0].period_s is None or not sticky:
         cost = math.nan
         terms: dict = {}
-        why = "the recorded pv does not cycle" if S > 0.0 else "the fitted valve has no stiction"
+        why = "the recorded pv does not cycle" if sticky else "the fitted valve has no stiction"
         return (
             ClosedLoopRefit(
                 S,
@@ -490,10 +614,9 @@ def refine_loop(
     fixed = rec.mv is not None
     cands: tuple[LoopParameters, ...] = ()
     if not fixed and controller is not None and data[1].period_s is not None:
-        df = df_start(
+        cands = df_starts(
             start, controller, data[0].period_s, cycle_spread(rec.op, data[0].period_s, dt)
         )
-        cands = () if df is None else (df,)
     result = refit_closed_loop(start, evaluate, dt, valve_fixed=fixed, candidates=cands)
     if not result.accepted:
         return result, pf

@@ -170,7 +170,7 @@ def describing_features(fit: StictionFit, data, period_s: float | None) -> dict[
         return out
     dt = float(data.ts)
     if not (period_s and period_s > 0 and math.isfinite(period_s)):
-        p = (fit.details or {}).get("period_samples")
+        p = fit.period_samples
         period_s = float(p) * dt if p else None
     if not period_s:
         return out

@@ -174,6 +174,63 @@ class DriftComparison:
 
 
 @dataclass(frozen=True)
+class BlockCosts:
+    """Both valves' residual sums of squares per block of about one cycle: what the
+    verdict's block bootstrap resamples
+    (:func:`stictiondiag.stiction.verdict.improvement_support`).
+
+    Attributes
+    ----------
+    samples : int
+        Block length [samples].
+    stiction, linear : ndarray
+        Sum of squared residuals of the stiction and of the linear valve per block
+        [units of ``StictionFit.cost``].
+    """
+
+    samples: int
+    stiction: np.ndarray
+    linear: np.ndarray
+
+
+@dataclass(frozen=True)
+class ArchiveResolution:
+    """What the record's resolution hides of a valve fitted on mv
+    (:func:`stictiondiag.stiction.resolution.archive_resolution`): a quantised mv or
+    the deadband of a compressed archive make a healthy valve look like stick-slip.
+
+    Attributes
+    ----------
+    mv_quantum : float
+        Step of mv's values [% of span].
+    mv_deadband, op_deadband : float
+        Archive deadbands of mv and op [% of span].
+    S_hidden, J_hidden : float
+        Largest S and J a healthy valve so recorded shows [% of span].
+    within : bool
+        The fitted S and J lie within them.
+    """
+
+    mv_quantum: float
+    mv_deadband: float
+    op_deadband: float
+    S_hidden: float
+    J_hidden: float
+    within: bool
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (``details["resolution"]`` of the JSON)."""
+        return {
+            "mv_quantum": self.mv_quantum,
+            "mv_deadband": self.mv_deadband,
+            "op_deadband": self.op_deadband,
+            "S_hidden": self.S_hidden,
+            "J_hidden": self.J_hidden,
+            "within": bool(self.within),
+        }
+
+
+@dataclass(frozen=True)
 class DisturbanceChoice:
     """The disturbance model a fit without mv used (``highpass`` or ``drift``) and why."""
 
@@ -223,7 +280,7 @@ class StictionFit:
         mean-centred unit-variance plots of Section 3].
     S_interval, J_interval : tuple of float, or None
         Interval [% of op span] of the values the data cannot tell apart from the
-        estimate (see ``details["interval_method"]``); None when not determined.
+        estimate (see ``interval_method``); None when not determined.
     method : str
         ``"mv_segments"`` (valve position recorded) or ``"hammerstein"`` (op and pv).
     mv_model : ndarray
@@ -257,6 +314,16 @@ class StictionFit:
         method.
     linear_part : LinearPart or None
         The linear process of a fit without mv; None for the mv method.
+    period_samples : float or None
+        The cycle period that set the time scales of a fit without mv [samples];
+        None for the mv method.
+    interval_method : str or None
+        How ``S_interval`` and ``J_interval`` were found, in words.
+    block_costs : BlockCosts or None
+        Both valves' residuals per cycle block; None when the estimator gave none.
+    resolution : ArchiveResolution or None
+        What the record's resolution hides (mv method, an archive or S and J within
+        it); None otherwise.
     """
 
     S: float
@@ -279,6 +346,10 @@ class StictionFit:
     drift: DriftComparison | None = None
     disturbance: DisturbanceChoice | None = None
     linear_part: LinearPart | None = None
+    period_samples: float | None = None
+    interval_method: str | None = None
+    block_costs: BlockCosts | None = None
+    resolution: ArchiveResolution | None = None
 
     def determinacy_of(self, sym: str) -> Determinacy | None:
         """How well the data determine ``sym`` (``"S"`` or ``"J"``); None when the
@@ -367,4 +438,16 @@ class StictionFit:
                 "model": self.disturbance.model,
                 "reason": self.disturbance.reason,
             }
+        if self.period_samples is not None:
+            out["period_samples"] = self.period_samples
+        if self.interval_method is not None:
+            out["interval_method"] = self.interval_method
+        if self.block_costs is not None:
+            out["block_samples"] = self.block_costs.samples
+            out["block_sse"] = {
+                "stiction": np.asarray(self.block_costs.stiction).tolist(),
+                "linear": np.asarray(self.block_costs.linear).tolist(),
+            }
+        if self.resolution is not None:
+            out["resolution"] = self.resolution.to_dict()
         return out

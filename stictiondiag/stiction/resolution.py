@@ -17,12 +17,14 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from stictiondiag.stiction.fit_result import ArchiveResolution
+
 __all__ = [
     "MAX_ARCHIVE_DEADBAND_PCT",
     "hidden_by_resolution",
     "quantum",
     "resolution",
-    "resolution_details",
+    "archive_resolution",
 ]
 
 #: Largest held step [% of span] read as an archive's compression deadband.  Historians
@@ -105,13 +107,14 @@ def hidden_by_resolution(mv: np.ndarray, deadband: Mapping[str, float] | None) -
     }
 
 
-def resolution_details(
+def archive_resolution(
     mv: np.ndarray, deadband: Mapping[str, float] | None, S: float, J: float
-) -> dict:
-    """``details["resolution"]`` (:func:`hidden_by_resolution`, and whether S and J lie
-    within it): given when the record is an archive or S and J are within it."""
+) -> ArchiveResolution | None:
+    """What the record's resolution hides (:func:`hidden_by_resolution`) and whether
+    S and J lie within it: given when the record is an archive or S and J are within
+    it, None otherwise."""
     hidden = hidden_by_resolution(mv, deadband)
     within = hidden["J_hidden"] > 0 and S <= hidden["S_hidden"] and J <= hidden["J_hidden"]
     if not (within or hidden["mv_deadband"] or hidden["op_deadband"]):
-        return {}  # a record of every sample, S and J resolved: details as before
-    return {"resolution": {**hidden, "within": bool(within)}}
+        return None  # a record of every sample, S and J resolved
+    return ArchiveResolution(**hidden, within=bool(within))

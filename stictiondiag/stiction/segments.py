@@ -39,8 +39,8 @@ from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.core.stats import bootstrap_median_ci, median_small
-from stictiondiag.stiction.fit_result import StictionFit
-from stictiondiag.stiction.resolution import resolution, resolution_details
+from stictiondiag.stiction.fit_result import BlockCosts, StictionFit
+from stictiondiag.stiction.resolution import archive_resolution, resolution
 from stictiondiag.stiction.valvefit import (
     block_sse,
     cost_threshold,
@@ -661,7 +661,7 @@ def estimate_from_mv(
     deadband : mapping, optional
         Role -> deadband of the exception archive op and mv were rebuilt from [% of
         span] (:attr:`stictiondiag.io.tags.Tags.archive_deadband`).  S and J within
-        what it can hide are marked in ``details["resolution"]``
+        what it can hide are marked in ``StictionFit.resolution``
         (:func:`~stictiondiag.stiction.resolution.hidden_by_resolution`), and the verdict
         does not call them stiction.
 
@@ -721,21 +721,11 @@ def estimate_from_mv(
             variant, bias, searches, best, (S_iv, J_iv), (S_hi_edge, J_hi_edge), n_eff
         ),
         "segments": _segments_details(segs, ev, S_ci, J_ci, seg_cost),
-        "interval_method": (
-            "hull of the 95 % profile-cost interval of the least-squares fit (F test, "
-            "effective samples) and the 95 % bootstrap interval of the median over slips"
-        ),
         "burn_in_samples": k0,
-        "block_samples": period,
-        "block_sse": {
-            "stiction": block_sse(resid, period, k0).tolist(),
-            "linear": block_sse(lin_resid, period, k0).tolist(),
-        },
         "noise_cost": noise_cost,
         "n_parameters": {"stiction": 3, "linear": 1},
         "effective_samples": n_eff,
         "n_samples": n - k0,
-        **resolution_details(mv, deadband, S_ls, J_ls),
     }
     return StictionFit(
         S=S_ls,
@@ -753,4 +743,12 @@ def estimate_from_mv(
         S_determinacy=det["S"],
         J_determinacy=det["J"],
         valve_model=variant.name,
+        interval_method=(
+            "hull of the 95 % profile-cost interval of the least-squares fit (F test, "
+            "effective samples) and the 95 % bootstrap interval of the median over slips"
+        ),
+        block_costs=BlockCosts(
+            period, block_sse(resid, period, k0), block_sse(lin_resid, period, k0)
+        ),
+        resolution=archive_resolution(mv, deadband, S_ls, J_ls),
     )

@@ -55,7 +55,12 @@ from stictiondiag.stiction.probability import (
     part_name,
     stiction_probability,
 )
-from stictiondiag.stiction.verdict_result import CONFIDENCE_FORMULA, Verdict, VerdictEvidence
+from stictiondiag.stiction.verdict_result import (
+    CONFIDENCE_FORMULA,
+    Verdict,
+    VerdictEvidence,
+    VerdictStatus,
+)
 
 # --------------------------------------------------------------------------------------
 # The verdict
@@ -158,21 +163,21 @@ def hidden_text(fit: StictionFit) -> str | None:
     """Why S and J cannot be told from the record: they lie within what its resolution
     (a quantised mv, the deadband of a compressed archive) makes of a healthy valve
     (:func:`stictiondiag.stiction.resolution.hidden_by_resolution`); None otherwise."""
-    res = (fit.details or {}).get("resolution")
-    if not res or not res.get("within"):
+    res = fit.resolution
+    if res is None or not res.within:
         return None
     # The quantum is named where it, not the archive, sets mv's resolution.
-    quantised = res["mv_quantum"] > res["mv_deadband"]
-    parts = [f"mv quantised in steps of {res['mv_quantum']:.3g} %"] if quantised else []
+    quantised = res.mv_quantum > res.mv_deadband
+    parts = [f"mv quantised in steps of {res.mv_quantum:.3g} %"] if quantised else []
     parts += [
-        f"{role} archived with a {res[role + '_deadband']:.3g} % deadband"
-        for role in ("mv", "op")
-        if res[role + "_deadband"]
+        f"{role} archived with a {band:.3g} % deadband"
+        for role, band in (("mv", res.mv_deadband), ("op", res.op_deadband))
+        if band
     ]
     return (
         f"S = {fit.S:.2g} % and J = {fit.J:.2g} % of span are within what the record can "
         f"hide ({', '.join(parts)}: a healthy valve recorded so shows stick-slip up to "
-        f"S = {res['S_hidden']:.2g} % and J = {res['J_hidden']:.2g} %); stiction this small "
+        f"S = {res.S_hidden:.2g} % and J = {res.J_hidden:.2g} %); stiction this small "
         "cannot be told from these data: export every sample (no compression) to decide"
     )
 
@@ -323,7 +328,7 @@ def split_half_estimates(fit: StictionFit, data) -> tuple[float, float, float, f
     pv = np.asarray(data.pv, dtype=float)
     dt = float(data.ts)
     h = op.size // 2
-    period = (fit.details or {}).get("period_samples")
+    period = fit.period_samples
     if not period or not period > 0 or h < HALF_MIN_CYCLES * float(period):
         return None
     out = []
@@ -371,10 +376,9 @@ def verdict_features(
     computes with the replay (:func:`stictiondiag.replay.reproduction.reproduction_features`,
     in :meth:`stictiondiag.analysis.LoopEstimate.verdict`); without them, and for a
     loop without a cycle, their "no replay" values."""
-    d = fit.details or {}
-    blocks = d.get("block_sse") or {}
-    bs = np.asarray(blocks.get("stiction", []), dtype=float)
-    bl = np.asarray(blocks.get("linear", []), dtype=float)
+    blocks = fit.block_costs
+    bs = np.asarray([] if blocks is None else blocks.stiction, dtype=float)
+    bl = np.asarray([] if blocks is None else blocks.linear, dtype=float)
     if bs.size == 0:
         bs, bl = np.array([fit.cost]), np.array([fit.linear_cost])
     support, f, f_iv = improvement_support(bs, bl, min_improvement, seed=seed)
@@ -451,7 +455,7 @@ def _cause_reading(probs: CauseReading) -> str:
 
 def _decide(
     P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib, fit
-) -> tuple[str, bool | None, float, Cause | None, str]:
+) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
     """The decision: status, detected, confidence, cause and the headline reason.
 
     Without a limit cycle, stick-slip seen directly (``direct``) calls stiction and
@@ -460,37 +464,37 @@ def _decide(
     (:func:`hidden_text`) becomes inconclusive, saying why (P kept).
     """
     status, detected, confidence, cause, head = _call(P, cycle, direct, stage2, contrib)
-    hidden = hidden_text(fit) if status == "stiction" else None
+    hidden = hidden_text(fit) if status is VerdictStatus.STICTION else None
     if hidden:
-        return "inconclusive", None, P, None, f"{hidden}; {head}"
+        return VerdictStatus.INCONCLUSIVE, None, P, None, f"{hidden}; {head}"
     return status, detected, confidence, cause, head
 
 
 def _call(
     P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib
-) -> tuple[str, bool | None, float, Cause | None, str]:
+) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
     """:func:`_decide` on the evidence alone, before the record's resolution."""
     for_text = _evidence_words(contrib, +1)
     against_text = _evidence_words(contrib, -1)
     if not cycle.present and direct:
         head = f"stick-slip without a limit cycle: {direct} (P(stiction) = {P:.2f})"
-        return "stiction", True, P, Cause.VALVE, head
+        return VerdictStatus.STICTION, True, P, Cause.VALVE, head
     if not cycle.present:
         head = f"{NO_CYCLE_REASON} (P that the valve has friction = {P:.2f})"
-        return "no_stiction", False, 1.0 - min(P, 0.5), Cause.NONE, head
+        return VerdictStatus.NO_STICTION, False, 1.0 - min(P, 0.5), Cause.NONE, head
     if P > STICTION_LEVEL:
         head = f"P(stiction) = {P:.2f} (above {STICTION_LEVEL:g}): {for_text}"
-        return "stiction", True, P, Cause.VALVE, head
+        return VerdictStatus.STICTION, True, P, Cause.VALVE, head
     if P < NO_STICTION_LEVEL:
         cause = stage2.runner_up(Cause.VALVE)[0] if stage2 is not None else None
         head = f"P(stiction) = {P:.2f} (below {NO_STICTION_LEVEL:g}): {against_text}"
-        return "no_stiction", False, 1.0 - P, cause, head
+        return VerdictStatus.NO_STICTION, False, 1.0 - P, cause, head
     levels = f"levels {NO_STICTION_LEVEL:g} and {STICTION_LEVEL:g}"
     head = (
         f"P(stiction) = {P:.2f}, between the {levels}: the evidence is split "
         f"(for: {for_text}; against: {against_text})"
     )
-    return "inconclusive", None, P, None, head
+    return VerdictStatus.INCONCLUSIVE, None, P, None, head
 
 
 def _improvement_text(
@@ -510,9 +514,13 @@ def _improvement_text(
     )
 
 
-def _unbounded_s_notes(status: str, fit: StictionFit) -> tuple[str, ...]:
+def _unbounded_s_notes(status: VerdictStatus, fit: StictionFit) -> tuple[str, ...]:
     """A no-stiction verdict's caveat when the record does not bound S from above."""
-    if status == "no_stiction" and fit.S_interval is not None and fit.S_interval[1] >= RULE_OUT_S:
+    if (
+        status is VerdictStatus.NO_STICTION
+        and fit.S_interval is not None
+        and fit.S_interval[1] >= RULE_OUT_S
+    ):
         return (
             f"the record does not bound S: stiction up to {fit.S_interval[1]:.3g} % of span "
             "cannot be excluded from these data alone",
@@ -597,7 +605,7 @@ def stiction_verdict(
     )
     P = stiction_probability(features, has_mv, model)
     contrib = _contributions(features, has_mv, model)
-    n_blocks = len(((fit.details or {}).get("block_sse") or {}).get("stiction", [])) or 1
+    n_blocks = (0 if fit.block_costs is None else len(fit.block_costs.stiction)) or 1
     stage2 = _cause_probabilities(features, cause_model) if cycle.present else None
     direct = None
     if not cycle.present:

@@ -8,6 +8,7 @@ decision read one typed object (the verdict module is long enough on its own).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 from stictiondiag.core.serialize import to_plain as _plain
 from stictiondiag.stiction.cause import Cause, CauseReading, Cycle
@@ -20,6 +21,14 @@ CONFIDENCE_FORMULA = (
     "max(1 - P, 0.5) for no stiction (stage 1 answers the question of the "
     "cycle, P only whether the valve has friction)"
 )
+
+
+class VerdictStatus(StrEnum):
+    """The verdict: the value is the word the JSON carries; code compares members."""
+
+    STICTION = "stiction"
+    NO_STICTION = "no_stiction"
+    INCONCLUSIVE = "inconclusive"
 
 
 @dataclass(frozen=True)
@@ -129,8 +138,8 @@ class Verdict:
 
     Attributes
     ----------
-    status : str
-        ``"stiction"``, ``"no_stiction"`` or ``"inconclusive"``.
+    status : VerdictStatus
+        ``stiction``, ``no_stiction`` or ``inconclusive``.
     detected : bool or None
         True for stiction, False for no stiction, None when inconclusive.
     confidence : float
@@ -161,7 +170,7 @@ class Verdict:
     friction model's P(stiction) (kept in ``evidence.p_friction`` in every case).
     """
 
-    status: str
+    status: VerdictStatus
     detected: bool | None
     confidence: float
     reasons: tuple[str, ...]

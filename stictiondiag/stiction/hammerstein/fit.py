@@ -160,6 +160,7 @@ import numpy as np
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.filters import median_filter_nearest
 from stictiondiag.stiction.fit_result import (
+    BlockCosts,
     DisturbanceChoice,
     DriftComparison,
     LinearPart,
@@ -486,7 +487,6 @@ def _details(
     residuals: tuple[np.ndarray, np.ndarray],
     moving_fraction: float,
     J_confounded: bool,
-    block: int,
     n_left_out: int,
     note: dict,
 ) -> dict:
@@ -498,7 +498,6 @@ def _details(
     n_par = NCOL + 5  # linear columns; S, J, dead time, time constant, offset
     return {
         "play_width": variant.play_width * scale,
-        "period_samples": setup.period,
         "row_stride": setup.stride,
         "rows_left_out": n_left_out,
         "dead_time_interval_s": [iv.dead_time[0] * dt, iv.dead_time[1] * dt],
@@ -507,7 +506,6 @@ def _details(
         "search_limit": setup.S_max * scale,
         "fitted_samples": list(fitted),
         "cost_by_valve_model_coarse": start.coarse_costs,
-        "interval_method": INTERVAL_METHOD,
         "effective_samples": iv.n_eff,
         "effective_samples_residual": iv.n_eff_residual,
         # White measurement noise on pv, in the units of the cost (pv scaled to unit
@@ -518,11 +516,6 @@ def _details(
         "J_confounded_with_gain": bool(J_confounded),
         "n_samples": int(resid.size),
         "n_parameters": {"stiction": n_par, "linear": n_par - 2},
-        "block_samples": block,
-        "block_sse": {
-            "stiction": block_sse(resid, block).tolist(),
-            "linear": block_sse(lin_resid, block).tolist(),
-        },
         "n_evaluations": int(search.n_eval),
         **note,
     }
@@ -768,7 +761,6 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         residuals=(resid, lin_resid),
         moving_fraction=moving_fraction,
         J_confounded=J_confounded,
-        block=block,
         n_left_out=n_left_out,
         note=_note(integrating, flow_loop),
     )
@@ -795,4 +787,7 @@ def _fit_one(op, pv, dt, integrating, flow_loop, period_s, disturbance, sign) ->
         drift=drift,
         linear_part=linear,
         valve_start=ValveStart(first + prob.k_start, offset * scale, float(prob.d_start)),
+        period_samples=setup.period,
+        interval_method=INTERVAL_METHOD,
+        block_costs=BlockCosts(block, block_sse(resid, block), block_sse(lin_resid, block)),
     )
