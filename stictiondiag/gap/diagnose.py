@@ -385,8 +385,19 @@ def diagnose_gap(
     runner = sel.order[1] if len(sel.order) > 1 else None
     n_judged = max(float(ctx.w_eval.sum()), 1.0)
 
-    def as_gap(per_signal: dict, extra: float = 0.0) -> float:
-        tot = sum(sel.measure.excess(s, float(v.sum()) / n_judged) for s, v in per_signal.items())
+    def as_gap(per_signal: dict, extra: float = 0.0, explained: dict | None = None) -> float:
+        # Held-out errors have a candidate's rounding variance taken out in full; as on
+        # the record, only the part the noise floor does not hold counts.
+        meas, expl = sel.measure, explained or {}
+        tot = sum(
+            meas.excess(
+                s,
+                float(v.sum()) / n_judged
+                + expl.get(s, 0.0) / ctx.norm[s]
+                - meas.rounding_left(s, expl.get(s, 0.0)),
+            )
+            for s, v in per_signal.items()
+        )
         return 100.0 * math.sqrt(max(tot + extra / n_judged, 0.0))
 
     cands = []
@@ -400,8 +411,10 @@ def diagnose_gap(
                 shrink_pct=100.0 * (sel.before - after_c) / sel.before if sel.before > 0 else 0.0,
                 params=to_plain(dict(ef.params)),
                 n_params=ef.n_params,
-                heldout=as_gap(errors[name]),
-                penalised_score=as_gap(errors[name], scores[name].penalty_excess),
+                heldout=as_gap(errors[name], explained=ef.explained),
+                penalised_score=as_gap(
+                    errors[name], scores[name].penalty_excess, explained=ef.explained
+                ),
                 accepted=scores[name].accepted and name not in sel.excluded,
             )
         )

@@ -63,6 +63,22 @@ class Measure:
     def excess(self, name: str, value: float) -> float:
         return max(value - self.floor[name] / self.norm[name], 0.0)
 
+    def rounding_left(self, name: str, explained: float) -> float:
+        """The part of a signal's rounding variance ``explained`` [units^2] that its
+        noise floor does not hold already, normalised [-].
+
+        Each floor is measured on the recorded, rounded signal.  mv's white noise
+        (:func:`noise_variance`) holds all of ``q^2/12`` when mv moves by a step or
+        more nearly every sample (independent rounding errors) and none when it is
+        held between steps (its floor is 0); pv's floor, from the noise model of the
+        process replay fitted to the rounded pv, rises with the rounding by about
+        ``q^2/12`` whether pv moves every sample or is held between steps.  The floor
+        is taken to hold as much of the rounding as it can, up to ``q^2/12``, so the
+        rounding counts once: the signal's error is floored at the larger of the two,
+        never at their sum.
+        """
+        return max(explained - self.floor.get(name, 0.0), 0.0) / self.norm[name]
+
     def gap(self, per_signal: dict) -> float:
         """Gap [%] from each signal's normalised mean squared error."""
         return 100.0 * math.sqrt(sum(self.excess(s, v) for s, v in per_signal.items()))
@@ -634,7 +650,9 @@ def record_gaps(meas: Measure, ctx: ReplayContext, base: BaseFit, fits: dict) ->
     for name, ef in fits.items():
         per = dict(per_base)
         for s_, p in ef.predictions.items():
-            per[s_] = meas.nmse(s_, p, getattr(sig, s_)) - ef.explained.get(s_, 0.0) / ctx.norm[s_]
+            per[s_] = meas.nmse(s_, p, getattr(sig, s_)) - meas.rounding_left(
+                s_, ef.explained.get(s_, 0.0)
+            )
         afters[name] = meas.gap(per)
     return before, afters
 
