@@ -14,6 +14,7 @@ from stictiondiag import UsageError, choudhury_model
 from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
+    Absence,
     autocorrelation,
     detect_oscillation,
     dominant_period,
@@ -95,7 +96,7 @@ def test_decaying_transient_is_not_an_oscillation():
     x = 5.0 * np.exp(-T / 150.0) * np.sin(2 * np.pi * T / 50.0)
     osc = detect_oscillation(x, DT)
     assert not osc.present
-    assert "decaying" in osc.reason
+    assert "decaying" in osc.reason and osc.absence is Absence.DECAYING
     assert osc.period_s is None and osc.amplitude is None
 
 
@@ -123,6 +124,11 @@ def test_too_few_cycles():
     osc = detect_oscillation(x, DT)
     assert not osc.present
     assert MIN_CYCLES == 3.0
+    # Each reason comes with its category, which code reads (not the reason's words):
+    # 2.5 cycles leave the autocorrelation 4 zero crossings, 2.8 enough for a period.
+    assert osc.absence is Absence.FEW_CROSSINGS
+    osc = detect_oscillation(np.sin(2 * np.pi * T / (1000.0 / 2.8)), DT)
+    assert osc.absence is Absence.FEW_CYCLES and osc.reason.startswith("only 2.8 cycles")
 
 
 def test_trend_does_not_mask_oscillation():
@@ -141,7 +147,7 @@ def test_trend_does_not_mask_oscillation():
 def test_degenerate_signals_do_not_crash(x):
     osc = detect_oscillation(x, 1.0)
     assert not osc.present
-    assert osc.reason
+    assert osc.reason and osc.absence in (Absence.FEW_SAMPLES, Absence.CONSTANT, Absence.RAMP)
     json.dumps(osc.to_dict())
 
 

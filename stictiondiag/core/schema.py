@@ -49,7 +49,8 @@ from stictiondiag.core.errors import DataError
 #: and the closed-loop refit holds its processes as typed models.
 #: 10: the verdict's evidence is typed (``VerdictEvidence``), its status and causes
 #: enums (``VerdictStatus``, ``Cause``) and the cause model's reading a ``CauseReading``; a stiction fit's
-#: period, interval method, block costs and archive resolution are typed fields.
+#: period, interval method, block costs and archive resolution are typed fields;
+#: an oscillation's absence is a category (``Absence``).
 SCHEMA_VERSION = 10
 
 #: The package whose classes :func:`decode` rebuilds.

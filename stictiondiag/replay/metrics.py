@@ -34,6 +34,7 @@ import numpy as np
 from stictiondiag.core.serialize import plain_float
 from stictiondiag.signals.oscillation import (
     REGULARITY_THRESHOLD,
+    Absence,
     detect_oscillation,
     dominant_period,
 )
@@ -292,10 +293,9 @@ def _cycle_period(x: np.ndarray, dt: float) -> tuple[float | None, str]:
     osc = detect_oscillation(x, dt)
     if osc.present:
         return osc.period_s, ""
-    reason = str(osc.reason)
-    if reason.startswith("only ") and (osc.regularity or 0.0) >= REGULARITY_THRESHOLD:
+    if osc.absence is Absence.FEW_CYCLES and (osc.regularity or 0.0) >= REGULARITY_THRESHOLD:
         return dominant_period(x, dt), ""
-    return None, reason
+    return None, str(osc.reason)
 
 
 def cycle_reproduction(data: np.ndarray, replayed: np.ndarray, dt: float) -> CycleReproduction:

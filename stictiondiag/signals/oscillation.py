@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -83,6 +84,19 @@ DETREND_CONVERGED = 0.05
 MAX_REGULARITY = 1.0e6
 
 
+class Absence(StrEnum):
+    """Why :func:`detect_oscillation` reports no oscillation: code compares the
+    member, never the words of ``Oscillation.reason``."""
+
+    FEW_SAMPLES = "few_samples"
+    CONSTANT = "constant"
+    RAMP = "ramp"
+    FEW_CROSSINGS = "few_crossings"
+    IRREGULAR = "irregular"
+    FEW_CYCLES = "few_cycles"
+    DECAYING = "decaying"
+
+
 @dataclass(frozen=True)
 class Oscillation:
     """Result of :func:`detect_oscillation`.
@@ -103,7 +117,9 @@ class Oscillation:
     n_cycles : float or None
         Record length divided by the period [-]; None when no oscillation is present.
     reason : str or None
-        Why no oscillation is reported (None when one is present).
+        Why no oscillation is reported, in words (None when one is present).
+    absence : Absence or None
+        The same as a category (None when one is present).
     """
 
     present: bool
@@ -112,6 +128,7 @@ class Oscillation:
     regularity: float | None
     n_cycles: float | None
     reason: str | None = None
+    absence: Absence | None = None
 
     def to_dict(self) -> dict:
         """JSON-able dict (plain floats or None)."""
@@ -125,8 +142,8 @@ class Oscillation:
         }
 
 
-def _absent(reason: str, regularity: float | None = None) -> Oscillation:
-    return Oscillation(False, None, None, regularity, None, reason)
+def _absent(absence: Absence, reason: str, regularity: float | None = None) -> Oscillation:
+    return Oscillation(False, None, None, regularity, None, reason, absence)
 
 
 def _interpolate_nans(x: np.ndarray) -> np.ndarray:
@@ -338,18 +355,19 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
     x = _interpolate_nans(x)
     n = x.size
     if n < MIN_SAMPLES:
-        return _absent(f"too few samples ({n} < {MIN_SAMPLES})")
+        return _absent(Absence.FEW_SAMPLES, f"too few samples ({n} < {MIN_SAMPLES})")
     if np.ptp(x) == 0:
-        return _absent("constant signal")
+        return _absent(Absence.CONSTANT, "constant signal")
     xd = detrend_linear(x)
     if np.ptp(xd) <= 1e-12 * max(1.0, float(np.max(np.abs(x)))):
-        return _absent("signal is a pure ramp")
+        return _absent(Absence.RAMP, "signal is a pure ramp")
     crossings, periods = _acf_periods(xd)
     xd, crossings, periods = _refine_detrend(x, xd, crossings, periods)
     if periods.size < MIN_PERIOD_ESTIMATES:
         return _absent(
+            Absence.FEW_CROSSINGS,
             f"autocorrelation has {crossings.size} zero crossings, "
-            f"need {MIN_PERIOD_ESTIMATES + 2} for a regular oscillation"
+            f"need {MIN_PERIOD_ESTIMATES + 2} for a regular oscillation",
         )
     mean_tp = float(periods.mean())
     std_tp = float(periods.std(ddof=1))
@@ -357,10 +375,16 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
     n_cycles = n / mean_tp
     if regularity <= REGULARITY_THRESHOLD:
         return _absent(
-            f"irregular: regularity {regularity:.2f} <= {REGULARITY_THRESHOLD}", regularity
+            Absence.IRREGULAR,
+            f"irregular: regularity {regularity:.2f} <= {REGULARITY_THRESHOLD}",
+            regularity,
         )
     if n_cycles < MIN_CYCLES:
-        return _absent(f"only {n_cycles:.1f} cycles in the record (< {MIN_CYCLES})", regularity)
+        return _absent(
+            Absence.FEW_CYCLES,
+            f"only {n_cycles:.1f} cycles in the record (< {MIN_CYCLES})",
+            regularity,
+        )
 
     xs = xd
     sigma = second_difference_noise_std(xd, min_samples=5)
@@ -373,6 +397,7 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
     late = float(np.median(ranges[-third:]))
     if early > 0 and late < MIN_SUSTAIN_RATIO * early:
         return _absent(
+            Absence.DECAYING,
             f"decaying: late cycles are {late / early:.2f} of the early ones "
             f"(< {MIN_SUSTAIN_RATIO})",
             regularity,
