@@ -4,6 +4,10 @@ Left: time trends of pv (with sp), op and mv, data and replay overlaid.  Right: 
 mv-op map of the data (recorded mv, or the stiction fit's ``mv_model`` when mv is not
 recorded) and of the replay, the valve signature of Section 5.3 of Choudhury,
 Thornhill & Shah (2005), and the pv-op map of both.
+
+The replay and its :class:`~stictiondiag.replay.metrics.ReplayMetrics` are read by
+attribute, not imported: ``Replay.plot`` imports this module, which therefore
+imports nothing from the replay layer.
 """
 
 from __future__ import annotations
@@ -21,7 +25,6 @@ from stictiondiag.plotting.canvas import (
     text_width,
     ytick_room,
 )
-from stictiondiag.replay.metrics import ReplayMetrics
 
 DATA_STYLE = {"color": "0.15", "lw": 0.8, "zorder": 3}
 REPLAY_STYLE = {"color": "tab:orange", "lw": 1.8, "alpha": 0.85, "zorder": 2}
@@ -47,7 +50,7 @@ def _default_window(replay) -> float:
     return min(duration, 8.0 * period)
 
 
-def _signal_title(name: str, replay, metrics: ReplayMetrics | None) -> str:
+def _signal_title(name: str, replay, metrics) -> str:
     """Panel title: amplitude error and waveform agreement from ``metrics``
     (:mod:`stictiondiag.replay.metrics`), else the replay's fit and waveform."""
     if metrics is not None:
@@ -68,7 +71,7 @@ def plot_replay(
     *,
     window: float | None = None,
     title: str | None = None,
-    metrics: ReplayMetrics | None = None,
+    metrics=None,
 ) -> Figure:
     """Overlay of a :class:`~stictiondiag.replay.closed_loop.Replay` and the recorded data.
 
@@ -167,7 +170,7 @@ def plot_replay(
 _FLOWCHARTS = {"choudhury": "Choudhury, Fig. 10", "kano": "Kano et al."}
 
 
-def _summary(replay, metrics: ReplayMetrics | None = None) -> str:
+def _summary(replay, metrics=None) -> str:
     """The text of the last panel: valve, controller, process, periods, amplitudes
     (by the one measure of ``metrics`` for data and replay, when given)."""
     pf, cf = replay.process_fit, replay.controller_fit
