@@ -34,7 +34,8 @@ not foresee, from the noise model of the best process replay
 replay's error on held-out data.  The winner's floor is no higher than its own error
 on the record unless the base replay's floor is (a load tracking retuned to follow a
 tone the effect does not model claims that tone as unforeseeable load).  A quantised signal's rounding error (``q^2/12``)
-counts as explained once quantization is added.
+counts as explained once quantization is added, as far as the floor, measured on the
+rounded signal, does not hold it already (:meth:`stictiondiag.gap.selection.Measure.rounding_left`).
 
 Attribution
 -----------
