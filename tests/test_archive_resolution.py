@@ -4,8 +4,8 @@ A healthy valve archived with an exception deadband ``d`` is a staircase whose s
 and slip are the archive's: held at each reversal until it has moved back ``d`` past
 the last archived value (up to ``2 d`` of op travel), then a step of about ``d``.  The
 reader carries each held tag's deadband (``Tags.archive_deadband``) to the valve fit,
-which marks S and J within it (``details["resolution"]``); the verdict then says so
-instead of calling stiction.  The archives are written by the project itself
+which marks S and J within it (``StictionFit.resolution``, an ``ArchiveResolution``);
+the verdict then says so instead of calling stiction.  The archives are written by the project itself
 (stictiondiag.io.compression) from the bundled samples.
 """
 
