@@ -54,16 +54,7 @@ from stictiondiag.stiction.consistency import REPLAY_FEATURES as FEATURES  # noq
 def head_verdict(est):
     """Step 4 without the reproduction (its cost is measured apart): the verdict the
     chain gives, its replay features left at their "no replay" values."""
-    from stictiondiag.stiction.verdict import stiction_verdict
-
-    return stiction_verdict(
-        est.fit,
-        est.oscillation,
-        oscillation_op=est.oscillation_op,
-        has_mv=est.tags.mv is not None,
-        short_record=bool(est.short_record),
-        data=est.tags,
-    )
+    return est.verdict(with_reproduction=False)
 
 
 def replay_features(est, refit: bool = False) -> tuple[dict, dict]:

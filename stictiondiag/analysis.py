@@ -254,8 +254,10 @@ class LoopEstimate:
             return None
         return reproduction_features(self.tags, self.fit, known=self.structure)[0]
 
-    def verdict(self) -> Verdict:
-        """Step 4: the verdict on this estimate (with :attr:`reproduction`)."""
+    def verdict(self, *, with_reproduction: bool = True) -> Verdict:
+        """Step 4: the verdict on this estimate, with :attr:`reproduction` (or,
+        ``with_reproduction=False``, its "no replay" values: what a measurement of
+        the reproduction's own cost compares with)."""
         return stiction_verdict(
             self.fit,
             self.oscillation,
@@ -263,7 +265,7 @@ class LoopEstimate:
             has_mv=self.tags.mv is not None,
             short_record=bool(self.short_record),
             data=self.tags,
-            reproduction=self.reproduction,
+            reproduction=self.reproduction if with_reproduction else None,
         )
 
     def features(self) -> tuple[dict, tuple[float, float, tuple[float, float]], dict]:
