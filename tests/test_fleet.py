@@ -165,3 +165,23 @@ def test_fleet_and_loop_pages_render_in_a_real_browser(three_scans, tmp_path):
     m = re.search(r'data-images-loaded="(\d+)/(\d+)"', dom)
     assert m is not None and m.group(1) == m.group(2) and int(m.group(2)) >= 2
     assert '<svg class="history"' in dom and "Content Security Policy" not in log
+
+
+def test_the_cause_column_says_undecided_not_the_gap_effect_for_an_inconclusive_loop():
+    """An inconclusive verdict names no cause of the cycle; the cell used to fall back
+    to the gap's effect, so a loop with a plain cycle read "none" (as if it did not
+    oscillate).  A loop without a cycle reads "no cycle"."""
+    from stictiondiag.apps.scan_page import scan_html
+
+    rows = [
+        {"loop": "osc", "verdict": "inconclusive", "probability": 0.5, "gap_effect": "none"},
+        {"loop": "flat", "verdict": "no_stiction", "probability": 0.0, "cause": "none"},
+        {"loop": "sticky", "verdict": "stiction", "probability": 0.9, "cause": "valve"},
+    ]
+    page = scan_html(rank(rows))
+    cells = {
+        name: page.split(f">{name}</a>")[1].split("</tr>")[0] for name in ("osc", "flat", "sticky")
+    }
+    assert "<td>undecided</td>" in cells["osc"] and "<td>none</td>" not in cells["osc"]
+    assert "<td>no cycle</td>" in cells["flat"]
+    assert "<td>valve</td>" in cells["sticky"]

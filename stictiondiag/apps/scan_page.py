@@ -112,6 +112,23 @@ def _text(v) -> str:
     return "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v)
 
 
+#: How a cause of the cycle reads in the fleet table (the verdict's own word otherwise).
+_CAUSE_WORDS = {"none": "no cycle"}
+
+
+def _cause_text(r: LoopRow, verdict: str) -> str:
+    """The cause cell: the verdict's cause of the cycle; ``undecided`` for an
+    inconclusive verdict, which names none (the gap's effect is another question: why
+    the replay departs from the data, so it does not stand in for it); a row of an
+    older scan without a cause keeps its gap effect."""
+    cause = _text(r.cause)
+    if cause:
+        return _CAUSE_WORDS.get(cause, cause)
+    if verdict == "inconclusive":
+        return "undecided"
+    return _text(r.gap_effect)
+
+
 def _row(r: LoopRow, file_names: dict | None) -> str:
     loop = _text(r.loop)
     name = (file_names or {}).get(loop) or _safe_name(loop)
@@ -131,7 +148,7 @@ def _row(r: LoopRow, file_names: dict | None) -> str:
         cells.append(f"<td colspan='9'>{escape(_text(r.error))}</td>")
     else:
         scale = " <span class='warn'>(op units)</span>" if r.op_scale == "unknown" else ""
-        cause = _text(r.cause) or _text(r.gap_effect)
+        cause = _cause_text(r, verdict)
         cells += [
             f"<td class='num'>{_num(r.probability, '.2f')}</td>",
             f"<td>{escape(cause)}</td>",
@@ -180,7 +197,8 @@ def scan_html(table: pd.DataFrame, file_names: dict | None = None) -> str:
         '<p class="muted">S: deadband + stickband, J: slip jump (Choudhury, Thornhill &amp; '
         "Shah 2005), with the interval of values the data cannot tell apart; "
         "&ldquo;(op units)&rdquo;: op was not in % of span, so S and J are in op's own units. "
-        "Cause: what the analysis names as the cause of the cycle. KPIs (Desborough &amp; "
+        "Cause: what the analysis names as the cause of the cycle (undecided where the "
+        "verdict is inconclusive; no cycle where the loop does not oscillate). KPIs (Desborough &amp; "
         "Miller 2002): op travel and reversals per day, time at the op limits, the Harris "
         "index where the dead time was identified, the service factor where the mode is "
         "recorded; definitions in each loop's JSON. Notes and warnings are on the loop "
