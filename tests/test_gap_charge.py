@@ -9,7 +9,6 @@ import pytest
 from stictiondiag.gap.context import build_context, signals_of
 from stictiondiag.gap.diagnose import diagnose_gap
 from stictiondiag.gap.selection import bic_gain, signals_charge
-from stictiondiag.io.tags import Tags
 from stictiondiag.models.synthetic import generate_case
 
 
@@ -54,10 +53,7 @@ def test_historian_rounding_of_pv_is_named_on_an_integrating_loop():
     case = generate_case("quantization", 2748678367)
     truth = case.truth["effect_parameters"]
     assert truth["quantised"] == "pv" and truth["pv_resolution"] == "historian"
-    d = case.data
-    tags = Tags.from_arrays(
-        d.pv.values, d.op.values, mv=d.mv.values, sp=d.sp.values, ts=case.truth["ts"]
-    )
+    tags = case.tags()
     g = diagnose_gap(tags)
     assert g.effect == "quantization"
     q = next(c for c in g.candidates if c.effect == "quantization")
@@ -80,10 +76,7 @@ def test_mv_missed_by_its_rounding_alone_is_evidence_for_quantization():
     case = generate_case("quantization", 8005)
     truth = case.truth["effect_parameters"]
     assert truth["quantised"] == "both" and truth["pv_resolution"] == "instrument"
-    d = case.data
-    tags = Tags.from_arrays(
-        d.pv.values, d.op.values, mv=d.mv.values, sp=d.sp.values, ts=case.truth["ts"]
-    )
+    tags = case.tags()
     g = diagnose_gap(tags)
     assert g.effect == "quantization"
     q = next(c for c in g.candidates if c.effect == "quantization")
@@ -124,10 +117,7 @@ def test_quantised_mv_without_measured_slips_is_not_a_time_varying_valve():
     case = generate_case("quantization", 8032)
     truth = case.truth["effect_parameters"]
     assert truth["quantised"] == "mv"
-    d = case.data
-    tags = Tags.from_arrays(
-        d.pv.values, d.op.values, mv=d.mv.values, sp=d.sp.values, ts=case.truth["ts"]
-    )
+    tags = case.tags()
     g = diagnose_gap(tags)
     assert g.effect == "quantization"
     tvs = next(c for c in g.candidates if c.effect == "time_varying_stiction")

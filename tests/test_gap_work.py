@@ -26,13 +26,6 @@ N = 2000  # short records keep the file fast; the hidden effects are strong enou
 MV_ONLY = ("actuator_lag", "miscalibration", "asymmetry", "time_varying_stiction")
 
 
-def _tags(case):
-    d = case.data
-    return Tags.from_arrays(
-        d.pv.values, d.op.values, mv=d.mv.values, sp=d.sp.values, ts=case.truth["ts"]
-    )
-
-
 @pytest.fixture(scope="module")
 def disturbed():
     """A loop with an external oscillation: its valve replay is within the mv noise."""
@@ -40,8 +33,8 @@ def disturbed():
 
 
 def test_skipped_effects_leave_the_diagnosis_as_the_full_one(disturbed):
-    g = diagnose_gap(_tags(disturbed))
-    full = diagnose_gap(_tags(disturbed), fit_all=True)
+    g = diagnose_gap(disturbed.tags())
+    full = diagnose_gap(disturbed.tags(), fit_all=True)
     assert set(g.within_noise) == set(MV_ONLY)
     assert not ({c.effect for c in g.candidates} & set(MV_ONLY))
     # The same effect and the same gap before and after, to the last bit: the effects
@@ -59,13 +52,13 @@ def test_a_hidden_valve_effect_is_not_skipped():
     # A miscalibrated positioner puts mv off the two-parameter replay by far more than
     # its noise: every valve effect is fitted and the right one named.
     case = generate_case("miscalibration", 3, n_samples=N)
-    g = diagnose_gap(_tags(case))
+    g = diagnose_gap(case.tags())
     assert g.within_noise == ()
     assert g.effect == "miscalibration"
 
 
 def test_within_noise_is_the_excess_of_the_gap(disturbed):
-    sig = signals_of(_tags(disturbed))
+    sig = signals_of(disturbed.tags())
     ctx = build_context(sig, **_starting_point(None, sig))
     base = fit_base(ctx, ctx.w_eval)
     assert mv_within_noise(ctx, base)
@@ -80,7 +73,7 @@ def test_within_noise_is_the_excess_of_the_gap(disturbed):
 
 
 def test_screened_peaks_give_the_full_search_frequency(disturbed, monkeypatch):
-    sig = signals_of(_tags(disturbed))
+    sig = signals_of(disturbed.tags())
     ctx = build_context(sig, **_starting_point(None, sig))
     base = fit_base(ctx, ctx.w_eval)
     screened = ed.fit_external_disturbance(ctx, ctx.w_eval, base)
@@ -173,7 +166,7 @@ def test_shared_segments_give_the_same_diagnosis():
     from stictiondiag.stiction.segments import segment_valve
 
     case = generate_case("miscalibration", 3, n_samples=N)
-    tags = _tags(case)
+    tags = case.tags()
     segs = segment_valve(tags.op, tags.mv, tags.ts)
     own = diagnose_gap(tags)
     shared = diagnose_gap(tags, segments=segs)
@@ -194,7 +187,7 @@ def test_a_refitted_process_is_judged_at_the_base_horizon(disturbed):
     the effect (a healthy loop was named external_disturbance for it)."""
     from stictiondiag.gap.effects.base import fit_process
 
-    sig = signals_of(_tags(disturbed))
+    sig = signals_of(disturbed.tags())
     ctx = build_context(sig, **_starting_point(None, sig))
     base = fit_base(ctx, ctx.w_eval)
     h = base.process.prediction.model.horizon

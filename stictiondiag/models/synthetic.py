@@ -89,6 +89,7 @@ import pyarrow.csv as pa_csv
 from stictiondiag.core.atomic import write_atomic
 from stictiondiag.core.errors import UsageError
 from stictiondiag.core.serialize import to_plain
+from stictiondiag.io.tags import Tags
 from stictiondiag.models.synthetic_effects import (
     PILOT_EFFECTS,
     PRE_RUN_EFFECTS,
@@ -156,6 +157,19 @@ class SyntheticCase:
     data: pd.DataFrame
     truth: dict
     hidden: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def tags(self, *, with_mv: bool = True) -> Tags:
+        """The record as the tool reads a loop (:class:`~stictiondiag.io.tags.Tags`), in
+        memory: the generated values unrounded (the benchmark's files hold six
+        decimals), mv only ``with_mv``, the truth's sample time [s]."""
+        d = self.data
+        return Tags.from_arrays(
+            d.pv.values,
+            d.op.values,
+            mv=d.mv.values if with_mv else None,
+            sp=d.sp.values,
+            ts=self.truth["ts"],
+        )
 
 
 def generate_case(
