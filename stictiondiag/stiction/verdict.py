@@ -488,11 +488,17 @@ def stiction_verdict(
         valve_level=VALVE_LEVEL,
         confidence_formula=CONFIDENCE_FORMULA,
     )
-    reasons = (
-        head,
-        *_unbounded_s_notes(status, fit),
+    caveats = _unbounded_s_notes(status, fit)
+    # The two stages in words, and the cause the reading ranks after the one named.
+    stages = (
         *((cause_reading_text(stage2),) if stage2 is not None and not has_mv else ()),
         cycle_text(cycle),
+    )
+    runner_up = stage2.runner_up(cause)[0] if stage2 is not None else None
+    reasons = (
+        head,
+        *caveats,
+        *stages,
         _improvement_text(f, f_iv, support, min_improvement, n_blocks),
         _fit_text(fit, has_mv, str(getattr(data, "op_scale", "percent"))),
         _osc_text("pv", oscillation),
@@ -509,5 +515,5 @@ def stiction_verdict(
         cause=cause,
         cycle=cycle,
         cause_probabilities=stage2,
-        runner_up=stage2.runner_up(cause)[0] if stage2 is not None else None,
+        runner_up=runner_up,
     )
