@@ -27,11 +27,8 @@ import math
 
 import numpy as np
 
-from stictiondiag.identification.numerics import (
-    delayed,
-    fractional_delay_wls,
-    golden_section,
-)
+from stictiondiag.core.filters import delayed
+from stictiondiag.identification.numerics import fractional_delay_wls, golden_section
 from stictiondiag.identification.predictor_kernels import (
     _prediction_errors,
     _prediction_errors_rows,

@@ -240,7 +240,7 @@ def _wdot(x, w, y):  # pragma: no cover - compiled
 @jit
 def _shifted_wdot(x, si, y, sj, w):  # pragma: no cover - compiled
     """``sum_k (x[k - si] w[k]) y[k - sj]`` with ``x`` and ``y`` held at their first
-    value before the record starts (:func:`~stictiondiag.identification.numerics.delayed`),
+    value before the record starts (:func:`~stictiondiag.core.filters.delayed`),
     summed as :func:`_wdot` sums.  O(n)."""
     n = w.shape[0]
     k0 = min(max(si, sj), n)
