@@ -280,6 +280,9 @@ class LoopEstimate:
             self.oscillation_op,
             short_record=bool(self.short_record),
             data=self.tags,
+            cycle=find_cycle(
+                self.oscillation, self.oscillation_op, short_record=bool(self.short_record)
+            ),
             reproduction=self.reproduction,
         )
 

@@ -243,7 +243,7 @@ class Analysis:
 
         Keyword arguments go to :func:`stictiondiag.plotting.analysis.plot_phase`.
         """
-        # Upward (plotting is above the results): imported only when a figure is asked for.
+        # Imported when a figure is asked for: callers that want numbers skip matplotlib.
         from stictiondiag.plotting.analysis import plot_phase
 
         options: dict[str, Any] = {
@@ -264,14 +264,14 @@ class Analysis:
         if zoom is not None:
             builders["valve_zoom"] = zoom
         if self.replay is not None:
-            # Upward (plotting is above the results): imported only when a figure is asked for.
+            # Imported when a figure is asked for: callers that want numbers skip matplotlib.
             from stictiondiag.plotting.replay import plot_replay
 
             rep = self.replay
             metrics = replay_metrics(rep)
             builders["reconstruction"] = lambda: plot_replay(rep, metrics=metrics)
         if self.gap is not None:
-            # Upward (plotting is above the results): imported only when a figure is asked for.
+            # Imported when a figure is asked for: callers that want numbers skip matplotlib.
             from stictiondiag.plotting.gap import plot_gap_breakdown, plot_gap_replay
 
             gap = self.gap
@@ -282,7 +282,7 @@ class Analysis:
     def _valve_zoom_builder(self) -> Callable[[], Figure] | None:
         """The ``valve_zoom`` figure's builder, None without a valve signal or a
         finite S and J."""
-        # Upward (plotting is above the results): imported only when a figure is asked for.
+        # Imported when a figure is asked for: callers that want numbers skip matplotlib.
         from stictiondiag.plotting.valve import plot_valve_zoom
 
         tags, fit = self.tags, self.fit
@@ -320,7 +320,7 @@ class Analysis:
         UsageError
             ``folder`` cannot be written.
         """
-        # Upward (plotting is above the results): imported only when a figure is asked for.
+        # Imported when a figure is asked for: callers that want numbers skip matplotlib.
         from stictiondiag.plotting import save_png
 
         return [

@@ -243,12 +243,12 @@ def test_plot_nyquist_df_marks_the_intersections():
     import matplotlib.pyplot as plt
     from matplotlib.figure import Figure
 
-    from stictiondiag.plotting.describing import plot_nyquist_df
+    from stictiondiag.models.describing import limit_cycle_diagram
 
     params = LOOP_PARAMETERS["concentration"]
-    fig = plot_nyquist_df(
+    fig = limit_cycle_diagram(
         params["process"], params["controller"], {"deadband": (5, 0), "J=2": (5, 2)}
-    )
+    ).plot()
     try:
         assert isinstance(fig, Figure)
         ax = fig.axes[0]

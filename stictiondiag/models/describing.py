@@ -32,6 +32,7 @@ Notes on the paper's text (see also REFERENCE.md):
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -454,6 +455,112 @@ def predict_limit_cycle(
         J=J,
         solutions=tuple(solutions),
     )
+
+
+@dataclass(frozen=True)
+class DescribingCurve:
+    """The ``-1/N(X_m)`` locus of one (S, J) case, with its limit cycles.
+
+    Attributes
+    ----------
+    label : str
+        Name of the case in a legend.
+    S, J : float
+        Stiction parameters [% of span].
+    amplitude_op : ndarray
+        Controller-output amplitudes ``X_m`` of the locus [% of span], from ``S/2`` up.
+    locus : ndarray of complex
+        ``-1/N(X_m)`` [-] at those amplitudes (where ``N`` is not 0).
+    prediction : LimitCyclePrediction
+        The cycles where ``G0(i w)`` meets the locus (Eq. 5).
+    at_g0 : tuple of complex
+        ``G0(i w)`` [-] at each solution's frequency, in the order of
+        ``prediction.solutions``: where the intersections stand on the diagram.
+    """
+
+    label: str
+    S: float
+    J: float
+    amplitude_op: np.ndarray
+    locus: np.ndarray
+    prediction: LimitCyclePrediction
+    at_g0: tuple[complex, ...]
+
+
+@dataclass(frozen=True)
+class LimitCycleDiagram:
+    """The graphical solution of ``G0(i w) = -1/N(X_m)`` (Section 6.4, Fig. 17).
+
+    Attributes
+    ----------
+    frequency_rad_s : ndarray
+        Angular frequencies of the open-loop response [rad/s].
+    g0 : ndarray of complex
+        Open-loop response ``G0(i w)`` of process times PI controller [-].
+    curves : tuple of DescribingCurve
+        One ``-1/N`` locus per (S, J) case.
+    """
+
+    frequency_rad_s: np.ndarray
+    g0: np.ndarray
+    curves: tuple[DescribingCurve, ...]
+
+    def plot(self, **kwargs):
+        """Nyquist diagram of ``G0`` with the ``-1/N`` loci and their cycles (Fig. 17).
+
+        Keyword arguments go to :func:`stictiondiag.plotting.describing.plot_nyquist_df`.
+        """
+        # Imported only when a figure is asked for: matplotlib's start-up is not paid
+        # by a caller that only wants the numbers.
+        from stictiondiag.plotting.describing import plot_nyquist_df
+
+        return plot_nyquist_df(self, **kwargs)
+
+
+def _cases(cases) -> list[tuple[str, float, float]]:
+    if isinstance(cases, Mapping):
+        items = [(str(k), *v) for k, v in cases.items()]
+    else:
+        items = [(f"S = {s:g}, J = {j:g}", s, j) for s, j in cases]
+    return [(label, float(s), float(j)) for label, s, j in items]
+
+
+def limit_cycle_diagram(
+    process: FOPTD | Integrating | SampledLag,
+    controller: PI,
+    cases: Iterable[tuple[float, float]] | Mapping[str, tuple[float, float]],
+) -> LimitCycleDiagram:
+    """``G0(i w)`` and the ``-1/N(X_m)`` loci of several (S, J) cases (Fig. 17).
+
+    Parameters
+    ----------
+    process : FOPTD, Integrating or SampledLag
+        Process model (Eq. 3, Table 3).
+    controller : PI
+        PI controller.
+    cases : iterable of (S, J) or mapping label -> (S, J)
+        Stiction parameters [% of span] whose loci are drawn.
+
+    Returns
+    -------
+    LimitCycleDiagram
+        Its ``.plot()`` draws the figure; each curve's ``prediction`` gives the
+        cycles of :func:`predict_limit_cycle`.
+    """
+    w = np.logspace(-4, 2, 20000)
+    curves = []
+    for label, S, J in _cases(cases):
+        S, J = _check_sj(S, J)
+        Xm = S / 2.0 + np.logspace(-8, 4, 4000) * max(S, J, 1e-9)
+        N = describing_function(Xm, S, J)
+        ok = np.abs(N) > 0
+        pred = predict_limit_cycle(process, controller, S, J)
+        at_g0 = tuple(
+            complex(open_loop_response(process, controller, np.asarray(sol.frequency_rad_s)))
+            for sol in pred.solutions
+        )
+        curves.append(DescribingCurve(label, S, J, Xm[ok], -1.0 / N[ok], pred, at_g0))
+    return LimitCycleDiagram(w, open_loop_response(process, controller, w), tuple(curves))
 
 
 def _loeb_stable(process, controller, S, J, w, x) -> bool:

@@ -124,7 +124,7 @@ class Simulation:
 
         Keyword arguments go to :func:`stictiondiag.plotting.simulation.plot_simulation`.
         """
-        # Upward (plotting is above the results): imported only when a figure is asked for.
+        # Imported when a figure is asked for: callers that want numbers skip matplotlib.
         from stictiondiag.plotting.simulation import plot_simulation
 
         return plot_simulation(self, **kwargs)

@@ -7,32 +7,15 @@ plane; their intersections (Eq. 5) are the predicted limit cycles (Section 6.4).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from stictiondiag.models.describing import (
-    describing_function,
-    predict_limit_cycle,
-)
-from stictiondiag.models.processes import open_loop_response
 from stictiondiag.plotting import pyplot
 
 
-def _cases(cases) -> list[tuple[str, float, float]]:
-    if isinstance(cases, Mapping):
-        items = [(str(k), *v) for k, v in cases.items()]
-    else:
-        items = [(f"S = {s:g}, J = {j:g}", s, j) for s, j in cases]
-    return [(label, float(s), float(j)) for label, s, j in items]
-
-
 def plot_nyquist_df(
-    process,
-    controller,
-    cases: Iterable[tuple[float, float]] | Mapping[str, tuple[float, float]],
+    diagram,
     *,
     ax: Axes | None = None,
     xlim: tuple[float, float] = (-3.0, 0.5),
@@ -43,12 +26,9 @@ def plot_nyquist_df(
 
     Parameters
     ----------
-    process : FOPTD or Integrating
-        Process model.
-    controller : PI
-        PI controller.
-    cases : iterable of (S, J) or mapping label -> (S, J)
-        Stiction parameters [% of span] whose ``-1/N`` curves are drawn.
+    diagram : LimitCycleDiagram
+        From :func:`stictiondiag.models.describing.limit_cycle_diagram` (read by
+        attribute: this module imports nothing from the models).
     ax : Axes, optional
         Draw into these axes; default a new figure.
     xlim, ylim : (float, float)
@@ -67,25 +47,17 @@ def plot_nyquist_df(
         fig, ax = plt.subplots(figsize=(6, 6))
     else:
         fig = ax.figure
-    w = np.logspace(-4, 2, 20000)
-    g0 = open_loop_response(process, controller, w)
+    g0 = diagram.g0
     # Only the part near the plotted region: the integrator sends G0 to infinity.
     inside = (np.abs(g0) < 10 * max(abs(xlim[0]), abs(ylim[0]), 1.0)).nonzero()[0]
     ax.plot(g0.real[inside], g0.imag[inside], color="k", lw=1.5, label="G0(iw)")
 
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for k, (label, S, J) in enumerate(_cases(cases)):
+    for k, curve in enumerate(diagram.curves):
         color = colors[k % len(colors)]
-        half = S / 2.0
-        scale = max(S, J, 1e-9)
-        Xm = half + np.logspace(-8, 4, 4000) * scale
-        N = describing_function(Xm, S, J)
-        ok = np.abs(N) > 0
-        c = -1.0 / N[ok]
-        ax.plot(c.real, c.imag, ls=":", lw=1.8, color=color, label=f"-1/N, {label}")
-        pred = predict_limit_cycle(process, controller, S, J)
-        for sol in pred.solutions:
-            g = complex(open_loop_response(process, controller, np.asarray(sol.frequency_rad_s)))
+        c = curve.locus
+        ax.plot(c.real, c.imag, ls=":", lw=1.8, color=color, label=f"-1/N, {curve.label}")
+        for sol, g in zip(curve.prediction.solutions, curve.at_g0, strict=True):
             ax.plot(
                 g.real,
                 g.imag,

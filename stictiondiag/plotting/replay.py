@@ -16,7 +16,6 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from stictiondiag.core.serialize import plain_float
-from stictiondiag.models.processes import FOPTD
 from stictiondiag.plotting.canvas import (
     decimate,
     new_figure,
@@ -181,7 +180,7 @@ def _summary(replay, metrics=None) -> str:
         f"controller: Kc = {_num(ctrl.gain)}, Ti = {_num(ctrl.integral_time)} s"
         f" (R2 {_num(cf.fit_r2, '.3f')})",
     ]
-    if isinstance(proc, FOPTD):
+    if proc.kind == "foptd":
         lines.append(
             f"process: K = {_num(proc.gain)}, tau = {_num(proc.time_constant)}"
             f" s, theta = {_num(proc.dead_time)} s"

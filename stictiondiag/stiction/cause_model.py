@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from stictiondiag.core.errors import StictionError
-from stictiondiag.stiction.cause import CAUSES
+from stictiondiag.stiction.cause import CAUSES, CauseReading
 
 #: The fitted model, written by ``scripts/train_cause.py``.
 MODEL_FILE = Path(__file__).with_name("cause_model.json")
@@ -78,3 +78,11 @@ def cause_probabilities(features: dict, model: dict | None = None) -> dict[str, 
     model = model or load_cause_model()
     p = apply_model(model, design(features, model["features"]))[0]
     return {c: float(v) for c, v in zip(CAUSES, p, strict=True)}
+
+
+def read_causes(features: dict, model: dict | None = None) -> CauseReading | None:
+    """Stage 2's reading of a loop with a cycle; None when no cause model is installed."""
+    try:
+        return CauseReading.of(cause_probabilities(features, model))
+    except StictionError:
+        return None

@@ -290,3 +290,122 @@ def stiction_probability(features: dict, has_mv: bool, model: dict | None = None
     name = part_name(features, has_mv)
     part = model["parts"][name]
     return float(apply_part(part, design_row(features, part_features(model, name)))[0])
+
+
+# --------------------------------------------------------------------------------------
+# P in words: what weighed for and against
+# --------------------------------------------------------------------------------------
+
+#: Words for each feature's state: (high or 1, low or 0); for the classic tests' calls
+#: (stiction, undecided, no stiction).
+_FEATURE_WORDS = {
+    "improvement": (
+        "the stiction model fits much better than a linear valve",
+        "the stiction model hardly fits better than a linear valve",
+    ),
+    "support": (
+        "the improvement holds over the cycles",
+        "the improvement does not hold over the cycles",
+    ),
+    "s_excludes_zero": ("S is told apart from 0", "S cannot be told apart from 0"),
+    "s_open": ("S's interval reaches the search limit", "S is bounded"),
+    "s_low_share": (
+        "the smallest S the data allow is a large share of op's travel",
+        "the data allow a small or no S compared with op's travel",
+    ),
+    "oscillating": ("the loop oscillates", "no regular oscillation"),
+    "regularity": ("the cycle is regular", "the cycle is irregular"),
+    "short_record": ("the record is short", "the record is long enough"),
+    "halves_s_low": (
+        "each half of the record insists on a large S",
+        "one half of the record allows a small or no S",
+    ),
+    "halves_s_agree": (
+        "the two halves of the record insist on the same S",
+        "the two halves of the record do not insist on the same S",
+    ),
+    "halves_improvement": (
+        "the stiction model fits better in both halves",
+        "the stiction model does not fit better in one half",
+    ),
+    "halves_missing": ("the halves could not be fitted", "both halves were fitted"),
+    "he_si": (
+        "the cycle of the integrated signal is triangular (He et al.'s index)",
+        "the cycle of the integrated signal is sinusoidal (He et al.'s index)",
+    ),
+    "horch_phase": (
+        "op and pv are out of phase as behind a sticky valve (Horch's index)",
+        "op and pv are in phase as behind a linear valve (Horch's index)",
+    ),
+    "horch_d2_kurtosis": (
+        "pv's second derivative is spiky (Horch 2000)",
+        "pv's second derivative is smooth (Horch 2000)",
+    ),
+    "choudhury_nli": (
+        "the bicoherence finds the loop nonlinear",
+        "the bicoherence finds it linear",
+    ),
+    "choudhury_ngi": (
+        "the control error is non-Gaussian",
+        "the control error is near Gaussian",
+    ),
+    "ellipse_axis_ratio": ("the pv-op plot is an open ellipse", "the pv-op plot is a narrow band"),
+    "ellipse_share": (
+        "the pv-op ellipse is wide along op",
+        "the pv-op ellipse is narrow along op",
+    ),
+    "kano_rho": ("the valve proxy sticks while op moves", "the valve proxy follows op"),
+    "rossi_scali_delta_e": (
+        "pv's cycle is relay-like (Rossi & Scali)",
+        "pv's cycle is sinusoidal (Rossi & Scali)",
+    ),
+    "pv_odd_harmonics": ("pv's cycle has strong odd harmonics", "pv's cycle is nearly sinusoidal"),
+    "op_odd_harmonics": ("op's cycle has strong odd harmonics", "op's cycle is nearly sinusoidal"),
+    "pv_slope_kurtosis": ("pv moves in jumps", "pv moves smoothly"),
+    "op_slope_kurtosis": ("op moves in jumps", "op moves smoothly"),
+    "horch": "Horch's test",
+    "choudhury": "the bicoherence test (with its pv-op ellipse)",
+    "he": "He et al.'s shape test",
+    "rossi_scali": "Rossi & Scali's shape test",
+    "kano": "Kano et al.'s stuck-section test",
+}
+
+_CALLS = {1.0: "says stiction", -1.0: "says no stiction", 0.0: "is undecided or does not apply"}
+
+
+def _feature_text(name: str, value: float, mean: float, term: float = 0.0) -> str:
+    """Words for one feature's value.  A test's call that pushes the log-odds the
+    other way from what it says (the model weighs it against its own call, given
+    the evidence it overlaps with) is marked so, not listed bare on the opposite
+    side."""
+    words = _FEATURE_WORDS[name]
+    if isinstance(words, str):
+        call = float(value)
+        text = f"{words} {_CALLS.get(call, 'is undecided')}"
+        if call != 0.0 and call * term < 0:
+            text += " (weighed the other way, given the evidence it overlaps with)"
+        return text
+    if name == "regularity" and value == 0.0:
+        return "no cycle whose regularity could be measured"
+    binary = name in ("s_excludes_zero", "s_open", "oscillating", "short_record", "halves_missing")
+    high = value > 0.5 if binary else value > mean
+    return words[0 if high else 1]
+
+
+def contributions(features: dict, has_mv: bool, model: dict) -> list[tuple[str, float, str]]:
+    """Why P is what it is: each feature's term in the log-odds relative to the
+    training mean, with its words, largest first."""
+    name = part_name(features, has_mv)
+    part = model["parts"][name]
+    terms = []
+    for i, k in enumerate(part_features(model, name)):
+        t = part["coef"][i] * (features[k] - part["mean"][i]) / part["scale"][i]
+        terms.append((k, float(t), _feature_text(k, features[k], part["mean"][i], t)))
+    return sorted(terms, key=lambda kv: -abs(kv[1]))
+
+
+def evidence_words(contrib: list[tuple[str, float, str]], sign: int, n: int = 3) -> str:
+    """The ``n`` largest terms of :func:`contributions` that push P up (``sign`` +1)
+    or down (-1), in words."""
+    words = [w for _, t, w in contrib if t * sign > 0.05]
+    return "; ".join(words[:n]) if words else "nothing in particular"

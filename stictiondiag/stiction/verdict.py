@@ -33,26 +33,26 @@ import numpy as np
 
 from stictiondiag.core.errors import StictionError
 from stictiondiag.stiction.cause import (
-    CAUSE_WORDS,
     NO_CYCLE_REASON,
     Cause,
     CauseReading,
     Cycle,
+    cause_reading_text,
     cycle_text,
     direct_stick_slip,
     find_cycle,
 )
-from stictiondiag.stiction.cause_model import cause_probabilities
+from stictiondiag.stiction.cause_model import read_causes
 from stictiondiag.stiction.consistency import FILL as DF_FILL
 from stictiondiag.stiction.consistency import REPLAY_FEATURES, REPLAY_FILL, describing_features
 from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.probability import (
     classic_votes,
+    contributions,
     evidence_features,
+    evidence_words,
     load_model,
-    part_features,
-    part_name,
     stiction_probability,
 )
 from stictiondiag.stiction.verdict_result import (
@@ -182,119 +182,6 @@ def hidden_text(fit: StictionFit) -> str | None:
     )
 
 
-#: Words for each feature's state: (high or 1, low or 0); for the classic tests' calls
-#: (stiction, undecided, no stiction).
-_FEATURE_WORDS = {
-    "improvement": (
-        "the stiction model fits much better than a linear valve",
-        "the stiction model hardly fits better than a linear valve",
-    ),
-    "support": (
-        "the improvement holds over the cycles",
-        "the improvement does not hold over the cycles",
-    ),
-    "s_excludes_zero": ("S is told apart from 0", "S cannot be told apart from 0"),
-    "s_open": ("S's interval reaches the search limit", "S is bounded"),
-    "s_low_share": (
-        "the smallest S the data allow is a large share of op's travel",
-        "the data allow a small or no S compared with op's travel",
-    ),
-    "oscillating": ("the loop oscillates", "no regular oscillation"),
-    "regularity": ("the cycle is regular", "the cycle is irregular"),
-    "short_record": ("the record is short", "the record is long enough"),
-    "halves_s_low": (
-        "each half of the record insists on a large S",
-        "one half of the record allows a small or no S",
-    ),
-    "halves_s_agree": (
-        "the two halves of the record insist on the same S",
-        "the two halves of the record do not insist on the same S",
-    ),
-    "halves_improvement": (
-        "the stiction model fits better in both halves",
-        "the stiction model does not fit better in one half",
-    ),
-    "halves_missing": ("the halves could not be fitted", "both halves were fitted"),
-    "he_si": (
-        "the cycle of the integrated signal is triangular (He et al.'s index)",
-        "the cycle of the integrated signal is sinusoidal (He et al.'s index)",
-    ),
-    "horch_phase": (
-        "op and pv are out of phase as behind a sticky valve (Horch's index)",
-        "op and pv are in phase as behind a linear valve (Horch's index)",
-    ),
-    "horch_d2_kurtosis": (
-        "pv's second derivative is spiky (Horch 2000)",
-        "pv's second derivative is smooth (Horch 2000)",
-    ),
-    "choudhury_nli": (
-        "the bicoherence finds the loop nonlinear",
-        "the bicoherence finds it linear",
-    ),
-    "choudhury_ngi": (
-        "the control error is non-Gaussian",
-        "the control error is near Gaussian",
-    ),
-    "ellipse_axis_ratio": ("the pv-op plot is an open ellipse", "the pv-op plot is a narrow band"),
-    "ellipse_share": (
-        "the pv-op ellipse is wide along op",
-        "the pv-op ellipse is narrow along op",
-    ),
-    "kano_rho": ("the valve proxy sticks while op moves", "the valve proxy follows op"),
-    "rossi_scali_delta_e": (
-        "pv's cycle is relay-like (Rossi & Scali)",
-        "pv's cycle is sinusoidal (Rossi & Scali)",
-    ),
-    "pv_odd_harmonics": ("pv's cycle has strong odd harmonics", "pv's cycle is nearly sinusoidal"),
-    "op_odd_harmonics": ("op's cycle has strong odd harmonics", "op's cycle is nearly sinusoidal"),
-    "pv_slope_kurtosis": ("pv moves in jumps", "pv moves smoothly"),
-    "op_slope_kurtosis": ("op moves in jumps", "op moves smoothly"),
-    "horch": "Horch's test",
-    "choudhury": "the bicoherence test (with its pv-op ellipse)",
-    "he": "He et al.'s shape test",
-    "rossi_scali": "Rossi & Scali's shape test",
-    "kano": "Kano et al.'s stuck-section test",
-}
-
-_CALLS = {1.0: "says stiction", -1.0: "says no stiction", 0.0: "is undecided or does not apply"}
-
-
-def _feature_text(name: str, value: float, mean: float, term: float = 0.0) -> str:
-    """Words for one feature's value.  A test's call that pushes the log-odds the
-    other way from what it says (the model weighs it against its own call, given
-    the evidence it overlaps with) is marked so, not listed bare on the opposite
-    side."""
-    words = _FEATURE_WORDS[name]
-    if isinstance(words, str):
-        call = float(value)
-        text = f"{words} {_CALLS.get(call, 'is undecided')}"
-        if call != 0.0 and call * term < 0:
-            text += " (weighed the other way, given the evidence it overlaps with)"
-        return text
-    if name == "regularity" and value == 0.0:
-        return "no cycle whose regularity could be measured"
-    binary = name in ("s_excludes_zero", "s_open", "oscillating", "short_record", "halves_missing")
-    high = value > 0.5 if binary else value > mean
-    return words[0 if high else 1]
-
-
-def _contributions(features: dict, has_mv: bool, model: dict) -> list[tuple[str, float, str]]:
-    """Each feature's term in the log-odds relative to the training mean, with its
-    words, largest first."""
-    name = part_name(features, has_mv)
-    part = model["parts"][name]
-    terms = []
-    for i, k in enumerate(part_features(model, name)):
-        t = part["coef"][i] * (features[k] - part["mean"][i]) / part["scale"][i]
-        terms.append((k, float(t), _feature_text(k, features[k], part["mean"][i], t)))
-    return sorted(terms, key=lambda kv: -abs(kv[1]))
-
-
-def _evidence_words(contrib: list[tuple[str, float, str]], sign: int, n: int = 3) -> str:
-    words = [w for _, t, w in contrib if t * sign > 0.05]
-    return "; ".join(words[:n]) if words else "nothing in particular"
-
-
 #: Loop types fitted as flow loops (``stictiondiag.analysis.FLOW_LIKE``, which this
 #: layer cannot import).
 _FLOW_TYPES = frozenset({"flow"})
@@ -361,7 +248,7 @@ def verdict_features(
     data=None,
     min_improvement: float = MIN_IMPROVEMENT,
     seed: int = 0,
-    cycle: Cycle | None = None,
+    cycle: Cycle,
     reproduction: dict | None = None,
 ) -> tuple[dict, tuple[float, float, tuple[float, float]], dict]:
     """The probability model's features of one loop, the improvement's support
@@ -370,8 +257,7 @@ def verdict_features(
     trained on (``scripts/train_probability.py``).  A loop with a cycle and without
     mv also gets the describing-function consistency of
     :mod:`stictiondiag.stiction.consistency` (the others its "no prediction" values).
-    ``cycle`` is :func:`~stictiondiag.stiction.cause.find_cycle`'s, found here if not
-    given.  ``reproduction``: the closed-loop reproduction's features
+    ``cycle`` is :func:`~stictiondiag.stiction.cause.find_cycle`'s (stage 1).  ``reproduction``: the closed-loop reproduction's features
     (:data:`~stictiondiag.stiction.consistency.REPLAY_FEATURES`), which the chain
     computes with the replay (:func:`stictiondiag.replay.reproduction.reproduction_features`,
     in :meth:`stictiondiag.analysis.LoopEstimate.verdict`); without them, and for a
@@ -396,8 +282,6 @@ def verdict_features(
     else:
         classic, op = {}, fit.mv_model
     halves = split_half_estimates(fit, data)
-    if cycle is None:
-        cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
     # Only a loop with a cycle has one to predict (a fit on mv gets the fill values).
     df = describing_features(fit, data, cycle.period_s) if cycle.present else dict(DF_FILL)
     features = evidence_features(
@@ -426,33 +310,6 @@ def verdict_features(
 VALVE_LEVEL = 0.6
 
 
-def _cause_probabilities(features: dict, cause_model: dict | None) -> CauseReading | None:
-    """Stage 2's P of each cause, None when the cause model is not installed."""
-    try:
-        return CauseReading.of(cause_probabilities(features, cause_model))
-    except StictionError:
-        return None
-
-
-def _cause_reading(probs: CauseReading) -> str:
-    """Stage 2's reading in words: the most likely cause of the cycle and the
-    runner-up, by the cause model (:mod:`stictiondiag.stiction.cause_model`).
-
-    The reading is shown, not decided on: on the ISDB the cause model's call
-    (stiction at P(valve) >= :data:`VALVE_LEVEL`) was less accurate than the
-    friction model's P (docs/isdb_validation.md, "What the data show"), so the
-    verdict of a loop with a cycle follows P(stiction) and the cause model's
-    probabilities stand beside it as evidence.
-    """
-    top = probs.ranked()[0]
-    second, p2 = probs.runner_up(top)
-    return (
-        f"cause model (simulated loops only, not yet borne out on plant data): most likely "
-        f"{CAUSE_WORDS[top]} ({probs.p(top):.2f}), runner-up {CAUSE_WORDS[second]} ({p2:.2f}); "
-        f"P(the valve causes the cycle) = {probs.valve:.2f}"
-    )
-
-
 def _decide(
     P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib, fit
 ) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
@@ -474,8 +331,8 @@ def _call(
     P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib
 ) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
     """:func:`_decide` on the evidence alone, before the record's resolution."""
-    for_text = _evidence_words(contrib, +1)
-    against_text = _evidence_words(contrib, -1)
+    for_text = evidence_words(contrib, +1)
+    against_text = evidence_words(contrib, -1)
     if not cycle.present and direct:
         head = f"stick-slip without a limit cycle: {direct} (P(stiction) = {P:.2f})"
         return VerdictStatus.STICTION, True, P, Cause.VALVE, head
@@ -604,9 +461,9 @@ def stiction_verdict(
         reproduction=reproduction,
     )
     P = stiction_probability(features, has_mv, model)
-    contrib = _contributions(features, has_mv, model)
+    contrib = contributions(features, has_mv, model)
     n_blocks = (0 if fit.block_costs is None else len(fit.block_costs.stiction)) or 1
-    stage2 = _cause_probabilities(features, cause_model) if cycle.present else None
+    stage2 = read_causes(features, cause_model) if cycle.present else None
     direct = None
     if not cycle.present:
         direct = direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
@@ -631,11 +488,17 @@ def stiction_verdict(
         valve_level=VALVE_LEVEL,
         confidence_formula=CONFIDENCE_FORMULA,
     )
+    caveats = _unbounded_s_notes(status, fit)
+    # The two stages in words, and the cause the reading ranks after the one named.
+    stages = (
+        *((cause_reading_text(stage2),) if stage2 is not None and not has_mv else ()),
+        cycle_text(cycle),
+    )
+    runner_up = stage2.runner_up(cause)[0] if stage2 is not None else None
     reasons = (
         head,
-        *_unbounded_s_notes(status, fit),
-        *((_cause_reading(stage2),) if stage2 is not None and not has_mv else ()),
-        cycle_text(cycle),
+        *caveats,
+        *stages,
         _improvement_text(f, f_iv, support, min_improvement, n_blocks),
         _fit_text(fit, has_mv, str(getattr(data, "op_scale", "percent"))),
         _osc_text("pv", oscillation),
@@ -652,5 +515,5 @@ def stiction_verdict(
         cause=cause,
         cycle=cycle,
         cause_probabilities=stage2,
-        runner_up=stage2.runner_up(cause)[0] if stage2 is not None else None,
+        runner_up=runner_up,
     )

@@ -1,0 +1,3 @@
+"""Applications built on the analysis: reports, plant scans, ISDB validation, the
+withheld-effect benchmark.
+"""

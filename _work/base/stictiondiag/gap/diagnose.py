@@ -1,0 +1,515 @@
+"""Sim-to-real gap: where the replay departs from the data, and which effect explains it.
+
+The two-parameter model of Choudhury, Thornhill & Shah (2005) (Section 5.1, Fig. 10,
+Eq. 4) never matches a real valve exactly.  :func:`diagnose_gap` measures the gap
+between the replay and the data, locates it (by signal, valve phase, frequency, time
+and feature), adds each unmodelled effect of the catalogue
+(:mod:`stictiondiag.gap.effects`) with its own fitted parameters, and names the effect
+that explains the gap, with the runner-up and how clearly it won.
+
+The gap measure
+---------------
+The replay is *driven*: every element of the loop is fed with its recorded input, so
+a departure shows in the element that causes it (:mod:`stictiondiag.gap.effects`):
+
+* mv: the valve model replayed from the recorded op (Section 5.1);
+* pv: the process (Eq. 3) driven by the recorded mv, predicted ``h`` samples ahead
+  (``h`` = dead time + time constant) with the unmeasured load tracked by a Kalman
+  filter, because plant loads that the controller answers are as large as the
+  cycle itself;
+* op: the PI controller replayed from the recorded sp and pv.
+
+For each signal ``s`` the mean squared replay error is divided by ``V_s``, the
+variance of the signal's cycle-scale part (the signal minus its slow part), and its
+noise floor ``N_s`` is taken off (mv: white measurement noise, ``(1.4826 MAD(diff
+mv))^2 / 2``; pv: see below; op: zero, the controller replays it exactly):
+
+    gap = 100 * sqrt( sum_s max(MSE_s / V_s - N_s / V_s, 0) )   [%]
+
+so ``gap`` is the part of the replay error that is not noise, in % of the RMS of the
+signals' cycle-scale movement; 0 means "within its noise".  For pv the floor is what a
+correct replay still misses at its horizon: measurement noise plus the load it could
+not foresee, from the noise model of the best process replay
+(:func:`stictiondiag.gap.effects.process_noise_floor`), and never below the best pv
+replay's error on held-out data.  A quantised signal's rounding error (``q^2/12``)
+counts as explained once quantization is added.
+
+Attribution
+-----------
+The record is cut into eight contiguous blocks; every candidate's smooth parameters
+(a lag's time constant, a miscalibration's slope and offset, a disturbance's
+amplitudes, the process gain and the controller) are fitted on the even blocks and
+judged on the odd ones, and the other way round, so an effect wins by predicting
+data it was not fitted on, not by flexibility.  Stiction thresholds (S and J, and
+those of the asymmetric and time-varying valves) are taken from the whole record: a
+replay is in step with the data only at the exact thresholds, and a refit on half
+the record would throw the other half out of step.  So is an installed
+characteristic's curvature (its form and curvature searched once, on the record; the
+gain and offset it feeds are refitted on each half).
+
+A candidate is accepted only when its improvement over the base model on the judged
+blocks (best and worst block left out) exceeds a penalty: twice the robust standard
+error of the block-by-block improvement, and the reduction of the base error that the
+Bayesian information criterion asks of its extra parameters, ``E0 (1 - exp(-k
+log(n_eff)/n_eff))`` for ``k`` parameters (``n_eff log(E0/E1) >= k log(n_eff)``; ``n_eff``:
+effectively independent residuals, the judged samples over the residuals' integrated
+autocorrelation time); when the log ratio of the blocks' errors, base against effect,
+passes the same two-standard-error test (free of the blocks' differing error sizes),
+the BIC reduction alone.  It must also beat that reduction, block by block, in at
+least two blocks and in at least as many blocks as it falls short of the base by as
+much (blocks it changes less count neither way: a change of stiction during the
+record leaves the rest of it as the base has it), and its own signature must be in
+the data, not only a smaller error: an external oscillation keeps its phase along the
+record; an asymmetric or time-varying valve has slips that differ by direction or by
+time; a miscalibrated positioner puts the valve after each slip on a line of slope
+other than 1 against the demand at the breakaway; an installed characteristic
+makes the loop's gain change with the operating point, which no linear process does
+(:func:`stictiondiag.gap.effects.slip_slope_test`,
+:func:`stictiondiag.gap.effects.gain_change_test`).  A signature with a direction is
+tested one-sided, in the direction of the fitted effect.  ``none`` wins when no
+candidate is accepted.  The accepted candidates are ranked by their held-out evidence
+in the units of the Bayesian information criterion: for each signal the effect
+changes, ``n_eff`` times the log ratio of the base's squared error to the effect's,
+less ``log(n_eff)`` per extra parameter.  A ratio, not the raw sum of squared errors:
+pv carries load that no replay foresees, so a small share of a large pv error must
+not outrank most of the mv error removed.  An effect is named only if adding
+it lowers the gap on the record; a gap of 0 (the replay within its noise) is
+``none``.  No threshold is tuned to a data
+generator: the penalties come from the data's own block-to-block scatter and
+residual correlation, and the signature checks are tests at 1 % (Rayleigh, rank,
+and t tests whose standard errors come from the scatter between blocks of the
+record, :func:`stictiondiag.gap.effects.signature_test`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stictiondiag.core.errors import DataError
+from stictiondiag.core.serialize import to_plain
+from stictiondiag.gap.breakdown import breakdown
+from stictiondiag.gap.context import (
+    LoopSignals,
+    ReplayContext,
+    build_context,
+    noise_variance,
+    signals_of,
+)
+from stictiondiag.gap.effects import EFFECT_MODELS, EFFECTS, REGISTRY, assessable_effects
+from stictiondiag.gap.effects.base import BaseFit, fit_base
+from stictiondiag.gap.selection import (
+    N_BLOCKS,
+    Measure,
+    Score,
+    choose_quantization,
+    combined_predictions,
+    effective_samples_of,
+    evidence,
+    evidence_floors,
+    heldout_errors,
+    margin,
+    rank_key,
+    score_candidate,
+    select_winner,
+)
+
+METRIC_NAME = "excess_nrmse"
+
+
+METRIC_DEFINITION = (
+    "100 * sqrt(sum over op, mv, pv of max(MSE_s - N_s, 0) / V_s) [%]: driven replay "
+    "(mv from recorded op, pv from recorded mv predicted dead time + time constant "
+    "ahead with the load tracked, op from recorded sp and pv); V_s the variance of the "
+    "signal's cycle-scale part, N_s its white-noise variance; 0 means within noise"
+)
+
+
+SIGNALS = ("op", "mv", "pv")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect added to the replay.
+
+    Attributes
+    ----------
+    effect : str
+        Effect name (see :data:`stictiondiag.gap.effects.EFFECTS`).
+    variant : str
+        Form that fitted best (e.g. ``step`` for a time-varying stiction).
+    after : float
+        Gap with the effect added, fitted on the whole record [%].
+    shrink_pct : float
+        Reduction of the gap [% of the gap before].
+    params : dict
+        Fitted parameters (units in the key names).
+    n_params : int
+        Parameters beyond the base model's.
+    heldout : float
+        Gap on held-out data (fitted on the other half) [%].
+    penalised_score : float
+        Held-out gap with the penalty for extra parameters added [%].
+    accepted : bool
+        The held-out improvement over the base model exceeds the penalty.
+    """
+
+    effect: str
+    variant: str
+    after: float
+    shrink_pct: float
+    params: dict
+    n_params: int
+    heldout: float
+    penalised_score: float
+    accepted: bool
+
+    def to_dict(self) -> dict:
+        return to_plain(
+            {
+                "effect": self.effect,
+                "variant": self.variant,
+                "after": self.after,
+                "shrink_pct": self.shrink_pct,
+                "params": self.params,
+                "n_params": self.n_params,
+                "heldout": self.heldout,
+                "penalised_score": self.penalised_score,
+                "accepted": self.accepted,
+            }
+        )
+
+
+@dataclass(frozen=True)
+class GapDiagnosis:
+    """Sim-to-real gap of a loop and the effect that explains it.
+
+    Attributes
+    ----------
+    metric : str
+        Name of the gap measure (:data:`METRIC_NAME`).
+    definition : str
+        Its definition (:data:`METRIC_DEFINITION`).
+    before : float
+        Gap of the two-parameter replay [%].
+    after : float
+        Gap with the winning effect added [%] (= before for ``none``).
+    shrink_pct : float
+        Reduction of the gap by the winning effect [% of before].
+    effect : str
+        The winning effect, ``none`` when the two-parameter model explains the data
+        to within its noise or no effect beats it on held-out data.
+    runner_up : str or None
+        Second-best candidate (accepted effects by evidence, then ``none``, then the
+        rest by penalised score).
+    margin : float
+        How clearly the winner won [%]: the share of the winner's penalised gain over
+        the base model that the runner-up does not reach (100 when the runner-up gains
+        nothing; between two accepted effects, the share of the winner's evidence the
+        runner-up lacks); for ``none``, how far the best candidate's penalised score lies
+        above the base model's error, in % of it.
+    candidates : tuple of Candidate
+        Every assessed effect, in the order of ``runner_up``.
+    breakdown : dict
+        Where the gap lies, before and after: by signal, valve phase, frequency,
+        time and feature (JSON-able).
+    not_assessed : tuple of str
+        Effects that cannot be assessed with the data (e.g. valve-side effects
+        without a recorded mv).
+    within_noise : tuple of str
+        Effects not fitted because they cannot lower the gap: they act on mv alone and
+        the base replay of mv is already within its noise (its excess is 0), so no
+        fit of theirs can be named (:func:`mv_within_noise`).
+    heldout_before : float
+        Gap of the two-parameter replay on held-out data [%] (the score of ``none``).
+    base : dict
+        The base replay's parameters: S and J [% of span], valve logic, process,
+        controller.
+    series : dict
+        Time series for plots: ``time`` [s], recorded ``op``, ``mv``, ``pv`` and the
+        replays ``<signal>_before`` and ``<signal>_after`` (None where absent).
+    """
+
+    metric: str
+    definition: str
+    before: float
+    after: float
+    shrink_pct: float
+    effect: str
+    runner_up: str | None
+    margin: float
+    candidates: tuple
+    breakdown: dict
+    not_assessed: tuple = ()
+    within_noise: tuple = ()
+    heldout_before: float = 0.0
+    base: dict = field(default_factory=dict)
+    series: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def to_dict(self) -> dict:
+        """JSON-able summary (no time series): the keys of ``gap`` in the analysis JSON."""
+        return to_plain(
+            {
+                "metric": self.metric,
+                "definition": self.definition,
+                "units": "%",
+                "before": self.before,
+                "after": self.after,
+                "shrink_pct": self.shrink_pct,
+                "effect": self.effect,
+                "runner_up": self.runner_up,
+                "margin": self.margin,
+                "candidates": [c.to_dict() for c in self.candidates],
+                "breakdown": self.breakdown,
+                "not_assessed": list(self.not_assessed),
+                "within_noise": list(self.within_noise),
+                "heldout_before": self.heldout_before,
+                "base": self.base,
+            }
+        )
+
+    def to_pandas(self):
+        """The recorded signals and the replays before and after, one row per sample."""
+        import pandas as pd
+
+        return pd.DataFrame({k: v for k, v in self.series.items() if v is not None})
+
+    def plot(self):
+        """Where the gap lies (:func:`stictiondiag.plotting.gap.plot_gap_breakdown`)."""
+        from stictiondiag.plotting.gap import plot_gap_breakdown
+
+        return plot_gap_breakdown(self)
+
+    def figures(self) -> dict:
+        """Figures by name: ``gap_breakdown`` and ``gap_replay``."""
+        from stictiondiag.plotting.gap import (
+            plot_gap_breakdown,
+            plot_gap_replay,
+        )
+
+        return {"gap_breakdown": plot_gap_breakdown(self), "gap_replay": plot_gap_replay(self)}
+
+
+def diagnose_gap(
+    tags,
+    fit=None,
+    replay=None,
+    *,
+    n_blocks: int = N_BLOCKS,
+    effects: tuple[str, ...] | None = None,
+    fit_all: bool = False,
+    segments=None,
+) -> GapDiagnosis:
+    """Measure and locate the sim-to-real gap and name the effect that explains it.
+
+    Parameters
+    ----------
+    tags : Tags
+        Loop data (:class:`stictiondiag.io.tags.Tags` or any object with ``op``, ``pv``,
+        ``mv``, ``sp`` arrays and ``ts``): op and mv in % of span, uniformly sampled.
+    fit : StictionFit, optional
+        Stiction estimate (:func:`stictiondiag.stiction.segments.estimate_from_mv` or
+        :func:`stictiondiag.stiction.hammerstein.fit_hammerstein`): S and J start the
+        searches; without mv its ``mv_model`` drives the process replay.
+    replay : Replay, optional
+        Closed-loop replay (:func:`stictiondiag.replay.closed_loop.replay`): its period and
+        amplitudes join the feature breakdown.
+    n_blocks : int
+        Validation blocks (even against odd), >= 4.
+    effects : tuple of str, optional
+        Effects to assess (default: all of :data:`stictiondiag.gap.effects.EFFECTS`
+        that the data allow).
+    fit_all : bool
+        Fit every assessable effect, also those that cannot lower the gap (by default
+        the effects acting on mv alone are skipped when the base replay of mv is
+        within its noise; the winner, the gap before and after and the shrink are the
+        same either way, only the losing candidates listed differ).
+    segments : Segments, optional
+        The stick and slip segments of the mv-op plot
+        (:func:`stictiondiag.stiction.segments.segment_valve` of the tags' op, mv and
+        ts) when the caller has them already, e.g. from the stiction estimate; they
+        are not computed again.
+
+    Returns
+    -------
+    GapDiagnosis
+
+    Raises
+    ------
+    DataError
+        Too short, gaps, constant op or pv.
+    """
+    sig = signals_of(tags)
+    n_blocks = max(int(n_blocks), 4)
+    ctx = build_context(sig, segments=segments, **_starting_point(fit, sig))
+    assessable, not_assessed = _assessable(sig, effects)
+
+    # Whole-record fits.
+    base = fit_base(ctx, ctx.w_eval)
+    within_noise = [] if fit_all else mv_only_within_noise(ctx, base, assessable)
+    fits = {}
+    for name in assessable:
+        if name in within_noise:
+            continue
+        ef = EFFECT_MODELS[name](ctx, ctx.w_eval, base)
+        if ef is not None:
+            fits[name] = ef
+
+    # Held-out errors, the per-parameter penalty of each signal (as for the Bayesian
+    # information criterion, with the effectively independent residuals of the base
+    # replay), penalised scores and evidence.
+    held = heldout_errors(ctx, base, fits, n_blocks, EFFECT_MODELS)
+    n_eff = effective_samples_of(ctx, base)
+    share = {s: math.log(v) / v for s, v in n_eff.items()}
+    choose_quantization(fits, held, share)
+    errors = held.errors
+    base_total = float(sum(v for v in errors["none"].values()).sum())
+    scores = {"none": Score(base_total, True, 0.0, np.zeros(n_blocks))}
+    evidences = {"none": 0.0}
+    floors = evidence_floors(ctx, held.blocks, n_blocks)
+    for name, ef in fits.items():
+        scores[name] = score_candidate(name, ef, errors, ctx, base, share)
+        evidences[name] = evidence(ef, name, errors, n_eff, scores[name].gain_by_block, floors)
+
+    sel = select_winner(ctx, base, fits, errors, scores, evidences)
+    winner = sel.winner
+    runner = sel.order[1] if len(sel.order) > 1 else None
+    n_judged = max(float(ctx.w_eval.sum()), 1.0)
+
+    def as_gap(per_signal: dict, extra: float = 0.0) -> float:
+        tot = sum(sel.measure.excess(s, float(v.sum()) / n_judged) for s, v in per_signal.items())
+        return 100.0 * math.sqrt(max(tot + extra / n_judged, 0.0))
+
+    cands = []
+    for name, ef in fits.items():
+        after_c = sel.afters[name]
+        cands.append(
+            Candidate(
+                effect=name,
+                variant=ef.variant,
+                after=after_c,
+                shrink_pct=100.0 * (sel.before - after_c) / sel.before if sel.before > 0 else 0.0,
+                params=to_plain(dict(ef.params)),
+                n_params=ef.n_params,
+                heldout=as_gap(errors[name]),
+                penalised_score=as_gap(errors[name], scores[name].penalty_excess),
+                accepted=scores[name].accepted and name not in sel.excluded,
+            )
+        )
+    cands.sort(key=lambda c: rank_key(scores, evidences)(c.effect))
+    after, shrink = sel.before, 0.0
+    if winner != "none":
+        win = next(c for c in cands if c.effect == winner)
+        after, shrink = win.after, win.shrink_pct
+
+    preds_before = base.predictions()
+    preds_after = combined_predictions(base, None if winner == "none" else fits[winner])
+    return GapDiagnosis(
+        metric=METRIC_NAME,
+        definition=METRIC_DEFINITION,
+        before=sel.before,
+        after=after,
+        shrink_pct=shrink,
+        effect=winner,
+        runner_up=runner,
+        margin=margin(winner, runner, scores, evidences),
+        candidates=tuple(cands),
+        breakdown=to_plain(
+            breakdown(sig, ctx, sel.measure, base, preds_before, preds_after, replay)
+        ),
+        not_assessed=tuple(not_assessed),
+        within_noise=tuple(within_noise),
+        heldout_before=as_gap(errors["none"]),
+        base=to_plain(_base_info(ctx, base, sel.measure.floor)),
+        series=_series(sig, preds_before, preds_after),
+    )
+
+
+def mv_within_noise(ctx: ReplayContext, base: BaseFit) -> bool:
+    """True when the base replay of mv is within its noise: its excess in the gap
+    (mean squared error on the judged samples less the white-noise variance of mv) is 0.
+
+    Computed as :func:`stictiondiag.gap.selection.record_gaps` computes it, so the
+    answer is exact: an effect that acts on mv alone then leaves every signal's excess
+    as the base has it or raises mv's, so its gap on the record is never below the
+    base's and :func:`select_winner` can never name it.
+    """
+    sig = ctx.sig
+    if sig.mv is None or base.valve is None:
+        return False
+    meas = Measure(norm=ctx.norm, floor={"mv": noise_variance(sig.mv)}, w=ctx.w_eval)
+    return meas.excess("mv", meas.nmse("mv", base.valve.mv, sig.mv)) == 0.0
+
+
+def mv_only_within_noise(ctx: ReplayContext, base: BaseFit, names) -> list[str]:
+    """The effects among ``names`` that act on mv alone (and explain no measurement
+    error), when the base replay of mv is within its noise (:func:`mv_within_noise`):
+    their fits cannot lower the gap, so they need not be made (their threshold
+    searches are most of the work of a loop with mv)."""
+    mv_only = [n for n in names if tuple(REGISTRY[n].acts_on) == ("mv",) and n != "quantization"]
+    if not mv_only or not mv_within_noise(ctx, base):
+        return []
+    return mv_only
+
+
+def _starting_point(fit, sig: LoopSignals) -> dict:
+    """S and J to start the searches from and, without a recorded mv, the modelled
+    valve output that drives the process (from a stiction estimate, if any)."""
+    start = None
+    mv_model = None
+    if fit is not None:
+        S, J = getattr(fit, "S", None), getattr(fit, "J", None)
+        if S is not None and J is not None and math.isfinite(S) and math.isfinite(J):
+            start = (float(S), float(J))
+        if sig.mv is None and getattr(fit, "mv_model", None) is not None:
+            mv_model = np.asarray(fit.mv_model, dtype=float) + sig.offset
+            if mv_model.size != sig.n:
+                mv_model = None
+    return {"start": start, "mv_model": mv_model}
+
+
+def _assessable(sig: LoopSignals, effects: tuple[str, ...] | None) -> tuple[list, list]:
+    """Effects to assess (those asked for that the data allow) and those the data do
+    not allow."""
+    assessable, not_assessed = assessable_effects(sig.mv is not None)
+    if effects is not None:
+        unknown = [e for e in effects if e not in EFFECTS]
+        if unknown:
+            raise DataError(f"unknown effect(s) {', '.join(unknown)}: use {', '.join(EFFECTS[1:])}")
+        assessable = [e for e in assessable if e in effects]
+    return assessable, not_assessed
+
+
+def _base_info(ctx: ReplayContext, base: BaseFit, floors: dict) -> dict:
+    """The base replay's parameters: valve, process, controller, noise floors."""
+    valve = base.valve
+    return {
+        "valve": None
+        if valve is None
+        else {
+            **valve.params,
+            "logic": "kano" if valve.kano else "choudhury",
+            "initial_direction": valve.initial_direction,
+        },
+        "process": {**base.process.params, "horizon_samples": base.process.model.horizon},
+        "controller": base.controller,
+        "noise_floor": {s: floors[s] / ctx.norm[s] for s in floors},
+        "judged_from_sample": int(np.argmax(ctx.w_eval > 0)),
+    }
+
+
+def _series(sig: LoopSignals, before: dict, after: dict) -> dict:
+    """Recorded signals and the replays before and after, for plots."""
+    series: dict[str, np.ndarray | None] = {"time": np.arange(sig.n) * sig.dt}
+    for s in SIGNALS:
+        # op and mv back in the units of the record (signals_of shifted them).
+        shift = sig.offset if s in ("op", "mv") else 0.0
+        for key, x in (
+            (s, getattr(sig, s)),
+            (f"{s}_before", before.get(s)),
+            (f"{s}_after", after.get(s)),
+        ):
+            series[key] = None if x is None else np.asarray(x) - shift
+    return series

@@ -1,0 +1,3 @@
+"""Identification of the linear parts of a loop from closed-loop data, and oscillation
+detection.
+"""

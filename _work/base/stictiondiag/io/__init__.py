@@ -1,0 +1,1 @@
+"""Reading control-loop tags (pv, op, mv, sp) from historian exports."""

@@ -1,0 +1,3 @@
+"""Signal analysis below the models: oscillation detection by the autocorrelation
+zero-crossing method.
+"""

@@ -1,0 +1,177 @@
+"""Why does the loop oscillate?  The verdict in two stages.
+
+Plant experts do not ask whether a valve has *any* friction; they ask why a loop
+oscillates (the ISDB comments name stiction, tight tuning, an external disturbance,
+quantisation, or no oscillation at all).  The verdict asks that question:
+
+**Stage 1, is there a cycle to explain?**  A sticky valve in a control loop with
+integral action makes a sustained limit cycle (Choudhury, Thornhill & Shah 2005,
+Sections 4.2.2 and 5.3), found by the oscillation test of
+:mod:`stictiondiag.signals.oscillation` in pv (or the control error) or op: its
+period, its regularity and the number of cycles the record holds
+(:func:`find_cycle`).  A record that shows two to three periods of a regular
+pattern, too few for the test, is *short* and counts as a cycle to explain.
+
+A loop without a cycle gets a definite answer: ``no_stiction``, cause ``none``, with
+the reason "no limit cycle: the valve is not driving an oscillation", S and J still
+reported.  Stick-slip without a cycle can still be called stiction where the
+evidence is direct (:func:`direct_stick_slip`): the recorded valve position's stick
+and slip phases, Kano et al.'s stuck sections, or a Hammerstein improvement that
+holds over the cycles and in both halves of the record.
+
+**Stage 2, what causes the cycle?**  One probability per cause (:data:`CAUSES`):
+the valve (stiction or dead band), the controller's tuning, an external oscillating
+disturbance, quantisation or another non-valve nonlinearity; from the model of
+:mod:`stictiondiag.stiction.cause_model`, fitted on simulated loops labelled by
+counterfactual twins (:mod:`stictiondiag.apps.family_causes`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from stictiondiag.core.serialize import to_plain
+
+#: The causes of stage 2, in the order of the model's classes.
+CAUSES: tuple[str, ...] = ("valve", "tuning", "external", "other")
+
+#: What to do for each cause (the findings and the report say it).
+ACTIONS: dict[str, str] = {
+    "valve": "inspect the valve: schedule a valve inspection (packing, actuator, positioner)",
+    "tuning": "retune: the loop cycles without the valve's help",
+    "external": "look upstream: the cycle comes from outside",
+    "other": "check the measurement: the cycle comes from a quantised or nonlinear signal",
+    "none": "nothing to do for the valve: the loop does not cycle",
+}
+
+#: Words for each cause.
+CAUSE_WORDS: dict[str, str] = {
+    "valve": "the valve (stiction or dead band)",
+    "tuning": "the controller's tuning",
+    "external": "an external oscillating disturbance",
+    "other": "quantisation or another non-valve nonlinearity",
+    "none": "no limit cycle",
+}
+
+#: The reason a loop without a cycle is not called stiction.
+NO_CYCLE_REASON = "no limit cycle: the valve is not driving an oscillation"
+
+
+@dataclass(frozen=True)
+class Cycle:
+    """Stage 1: the limit cycle the loop shows, if any.
+
+    Attributes
+    ----------
+    present : bool
+        A regular, sustained cycle in pv (or the control error) or op, or a short
+        record showing two to three periods of one.
+    signal : str or None
+        ``"pv"`` or ``"op"``: where the cycle was found (pv preferred), None without.
+    period_s : float or None
+        Its period [s].
+    regularity : float or None
+        Thornhill et al.'s regularity of that signal [-].
+    n_cycles : float or None
+        Periods the record holds [-].
+    short_record : bool
+        The record holds fewer periods than the oscillation test needs.
+    """
+
+    present: bool
+    signal: str | None
+    period_s: float | None
+    regularity: float | None
+    n_cycles: float | None
+    short_record: bool = False
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (period in s)."""
+        return to_plain(
+            {
+                "present": self.present,
+                "signal": self.signal,
+                "period_s": self.period_s,
+                "regularity": self.regularity,
+                "n_cycles": self.n_cycles,
+                "short_record": self.short_record,
+            }
+        )
+
+
+def find_cycle(oscillation, oscillation_op, *, short_record: bool) -> Cycle:
+    """Stage 1 from the oscillation test of pv (or the control error) and of op, and
+    the short-record check of :func:`stictiondiag.analysis.check_record_length`."""
+    for name, osc in (("pv", oscillation), ("op", oscillation_op)):
+        if osc is not None and getattr(osc, "present", False):
+            return Cycle(
+                True,
+                name,
+                getattr(osc, "period_s", None),
+                getattr(osc, "regularity", None),
+                getattr(osc, "n_cycles", None),
+                short_record,
+            )
+    if short_record:
+        return Cycle(True, None, None, None, None, True)
+    return Cycle(False, None, None, None, None, False)
+
+
+#: Lowest P(the valve has friction) of the friction model
+#: (:mod:`stictiondiag.stiction.probability`) that, with direct evidence, calls a
+#: loop without a cycle ``stiction`` [-]: its own stiction level, 0.7.
+DIRECT_LEVEL = 0.7
+
+#: Lowest bootstrap support over the cycles for the Hammerstein improvement to count
+#: as holding over the record [-].
+DIRECT_SUPPORT = 0.95
+
+
+def direct_stick_slip(
+    features: dict, has_mv: bool, p_friction: float, *, min_improvement: float
+) -> str | None:
+    """The direct evidence of stick-slip in a loop without a cycle, as a reason; None
+    when there is none.
+
+    Direct means seen in the valve's own movement, not inferred from a cycle: the
+    friction model (:mod:`stictiondiag.stiction.probability`) must favour friction
+    at least 7 to 3 (:data:`DIRECT_LEVEL`), and one of
+
+    * the valve position is recorded (its stick and slip phases are the evidence,
+      Figs. 3 and 6);
+    * Kano et al.'s test finds stuck sections (``kano`` +1);
+    * the stiction model beats a linear valve materially in at least
+      :data:`DIRECT_SUPPORT` of the cycle resamples and in both halves of the record
+      (``support``, ``halves_improvement`` above ``min_improvement``, the share of
+      the linear valve's residual that counts as material).
+    """
+    if not p_friction > DIRECT_LEVEL:
+        return None
+    if has_mv:
+        return "the recorded valve position sticks and slips"
+    if float(features.get("kano", 0.0)) > 0.5:
+        return "Kano et al.'s test finds the valve stuck while op moves"
+    if (
+        float(features.get("support", 0.0)) >= DIRECT_SUPPORT
+        and float(features.get("halves_missing", 1.0)) < 0.5
+        and float(features.get("halves_improvement", 0.0)) > min_improvement
+    ):
+        return "the stiction model beats a linear valve over the whole record and in both halves"
+    return None
+
+
+def cycle_text(cycle: Cycle) -> str:
+    """One line on the cycle of stage 1."""
+    if not cycle.present:
+        return "no limit cycle in pv, the control error or op"
+    if cycle.signal is None:
+        return "a cycle in a record too short to confirm it"
+    per = f"period {cycle.period_s:.4g} s" if cycle.period_s else "period unknown"
+    reg = (
+        f", regularity {cycle.regularity:.2g}"
+        if cycle.regularity is not None and math.isfinite(cycle.regularity)
+        else ""
+    )
+    n = f", {cycle.n_cycles:.1f} cycles in the record" if cycle.n_cycles else ""
+    return f"limit cycle in {cycle.signal} ({per}{reg}{n})"

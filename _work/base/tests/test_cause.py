@@ -1,0 +1,158 @@
+"""Stage 1 of the verdict (stictiondiag.stiction.cause): a loop without a limit cycle
+gets a definite answer, unless the valve's own movement shows stick-slip."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stictiondiag.stiction.cause import (
+    CAUSE_WORDS,
+    CAUSES,
+    NO_CYCLE_REASON,
+    direct_stick_slip,
+    find_cycle,
+)
+from stictiondiag.stiction.probability import FEATURES
+from stictiondiag.stiction.valvefit import StictionFit
+from stictiondiag.stiction.verdict import stiction_verdict
+
+
+class _Osc:
+    def __init__(self, present, period_s=None, regularity=None, n_cycles=None):
+        self.present = present
+        self.period_s = period_s
+        self.regularity = regularity
+        self.n_cycles = n_cycles
+        self.reason = None if present else "irregular"
+
+
+def _fit():
+    return StictionFit(
+        S=1.0,
+        J=0.5,
+        S_scaled=0.5,
+        J_scaled=0.25,
+        S_interval=(0.5, 1.5),
+        J_interval=(0.0, 1.0),
+        method="hammerstein",
+        mv_model=np.linspace(0.0, 10.0, 50),
+        n_slips=6,
+        cost=6.0,
+        linear_cost=8.0,
+        details={"block_sse": {"stiction": np.ones(6), "linear": 8.0 / 6.0 * np.ones(6)}},
+    )
+
+
+def _constant_model(p: float) -> dict:
+    # P(friction) = p whatever the features (zero coefficients).
+    part = {
+        "mean": [0.0] * len(FEATURES),
+        "scale": [1.0] * len(FEATURES),
+        "coef": [0.0] * len(FEATURES),
+        "intercept": math.log(p / (1 - p)),
+    }
+    return {"features": list(FEATURES), "parts": {"op_pv": part, "mv": part}}
+
+
+def test_cycle_found_in_pv_first_then_op():
+    c = find_cycle(_Osc(True, 100.0, 3.0, 12.0), _Osc(True, 50.0, 2.0, 24.0), short_record=False)
+    assert (c.present, c.signal, c.period_s, c.n_cycles) == (True, "pv", 100.0, 12.0)
+    c = find_cycle(_Osc(False), _Osc(True, 50.0, 2.0, 24.0), short_record=False)
+    assert (c.present, c.signal, c.period_s) == (True, "op", 50.0)
+
+
+def test_short_record_counts_as_a_cycle_to_explain():
+    # Two to three periods of a regular pattern: too few for the test, not a "no".
+    c = find_cycle(_Osc(False), _Osc(False), short_record=True)
+    assert c.present and c.short_record and c.signal is None
+
+
+def test_no_cycle_is_a_definite_no_stiction_with_its_reason():
+    # Even with P(friction) = 0.9 from the fit, no cycle and no direct evidence
+    # (support 1.0 but the split halves could not be fitted) means the valve
+    # drives no oscillation.
+    v = stiction_verdict(
+        _fit(), _Osc(False), oscillation_op=_Osc(False), model=_constant_model(0.9)
+    )
+    assert v.status == "no_stiction" and v.detected is False
+    assert v.cause == "none"
+    assert v.reasons[0].startswith(NO_CYCLE_REASON)
+    # S and J are still reported.
+    assert any(r.startswith("S = 1 %") for r in v.reasons)
+    assert 0.5 <= v.confidence <= 1.0
+    assert v.to_dict()["cycle"]["present"] is False
+
+
+def _constant_cause_model(probs: dict[str, float]) -> dict:
+    # P of each cause whatever the features (zero coefficients, log-P intercepts).
+    return {
+        "classes": list(CAUSES),
+        "features": ["improvement"],
+        "mean": [0.0],
+        "scale": [1.0],
+        "coef": [[0.0] * len(CAUSES)],
+        "intercept": [math.log(probs[c]) for c in CAUSES],
+    }
+
+
+@pytest.mark.parametrize(
+    ("p_friction", "probs", "status", "cause"),
+    [
+        # The cause model favours another cause: P(stiction) still decides.
+        (0.9, {"valve": 0.2, "tuning": 0.5, "external": 0.2, "other": 0.1}, "stiction", "valve"),
+        # P below the lower level: no stiction, the cause model's best other cause named.
+        (0.1, {"valve": 0.7, "tuning": 0.1, "external": 0.15, "other": 0.05}, "no_stiction",
+         "external"),
+        # Between the levels: undecided, whatever the cause model says.
+        (0.5, {"valve": 0.9, "tuning": 0.05, "external": 0.03, "other": 0.02}, "inconclusive",
+         None),
+    ],
+)  # fmt: skip
+def test_a_cycle_is_decided_by_P_with_the_cause_model_read_beside_it(
+    p_friction, probs, status, cause
+):
+    # A cycle without mv: the verdict follows P(stiction) against its levels, and the
+    # cause model's reading (top cause and runner-up) is reported as evidence.
+    v = stiction_verdict(
+        _fit(),
+        _Osc(True, 100.0, 3.0, 12.0),
+        oscillation_op=_Osc(False),
+        model=_constant_model(p_friction),
+        cause_model=_constant_cause_model(probs),
+    )
+    assert (v.status, v.cause) == (status, cause)
+    assert v.probability == pytest.approx(p_friction, abs=1e-9)
+    assert sum(v.cause_probabilities.values()) == pytest.approx(1.0, abs=1e-9)
+    assert v.evidence["p_friction"] == pytest.approx(p_friction, abs=1e-9)
+    top = max(probs, key=probs.get)
+    reading = next(r for r in v.reasons if r.startswith("cause model"))
+    assert f"most likely {CAUSE_WORDS[top]} ({probs[top]:.2f})" in reading
+
+
+@pytest.mark.parametrize(
+    ("features", "has_mv", "p", "called"),
+    [
+        ({}, True, 0.9, True),  # recorded mv: direct
+        ({}, True, 0.6, False),  # recorded mv, but friction not favoured 7 to 3
+        ({"kano": 1.0}, False, 0.8, True),  # stuck sections
+        ({"kano": 0.0}, False, 0.8, False),
+        (
+            {"support": 0.97, "halves_missing": 0.0, "halves_improvement": 0.3},
+            False,
+            0.8,
+            True,
+        ),
+        (  # one half does not improve: not over the whole record
+            {"support": 0.97, "halves_missing": 0.0, "halves_improvement": 0.05},
+            False,
+            0.8,
+            False,
+        ),
+    ],
+)
+def test_direct_stick_slip_rules(features, has_mv, p, called):
+    got = direct_stick_slip(features, has_mv, p, min_improvement=0.1)
+    assert (got is not None) is called
