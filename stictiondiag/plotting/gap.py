@@ -4,11 +4,12 @@
 time) and how each candidate effect scored; :func:`plot_gap_replay` shows the replay
 against the data before and after the winning effect, as time trends and as the
 mv-op plot that Section 5.3.1 of Choudhury et al. (2005) recommends for valve faults.
+Both read the diagnosis's typed parts by attribute (``breakdown``:
+:class:`stictiondiag.gap.breakdown.Breakdown`; ``series``:
+:class:`stictiondiag.gap.result.GapSeries`) without importing the gap layer.
 """
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -21,9 +22,6 @@ from stictiondiag.plotting.canvas import (
     text_width,
     ytick_room,
 )
-
-if TYPE_CHECKING:
-    from stictiondiag.gap.breakdown import ByFrequency, ByPhase, PerSignal, SignalGap, TimeGap
 
 _BEFORE = "tab:orange"
 _AFTER = "tab:green"
@@ -88,7 +86,7 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     return fig
 
 
-def _signal_panel(ax, sig: PerSignal[SignalGap]) -> None:
+def _signal_panel(ax, sig) -> None:
     """Gap per signal before and after, with each signal's noise floor."""
     names = sig.names()
     gaps = [g for _, g in sig.items()]
@@ -110,7 +108,7 @@ def _signal_panel(ax, sig: PerSignal[SignalGap]) -> None:
     ax.legend(fontsize=8)
 
 
-def _phase_signal(ph: ByPhase | None) -> str | None:
+def _phase_signal(ph) -> str | None:
     """The signal whose error the valve-phase panel shows: mv where its replay
     departs at all, else pv; None when neither does (the panel is left out and the
     summary says so)."""
@@ -123,7 +121,7 @@ def _phase_signal(ph: ByPhase | None) -> str | None:
     return None
 
 
-def _phase_panel(ax, ph: ByPhase, signal: str) -> None:
+def _phase_panel(ax, ph, signal: str) -> None:
     """Share of the ``signal`` replay error per valve phase (stuck, slip, moving,
     reversal)."""
     labels = [name for name, _ in ph.items()]
@@ -147,7 +145,7 @@ def _phase_panel(ax, ph: ByPhase, signal: str) -> None:
         )
 
 
-def _frequency_signals(fr: ByFrequency | None) -> tuple[list[str], list[str]]:
+def _frequency_signals(fr) -> tuple[list[str], list[str]]:
     """The signals with a replay error to split by frequency, and those whose replay
     is exact (no error: their shares are None, :mod:`stictiondiag.gap.breakdown`)."""
     if fr is None:
@@ -157,7 +155,7 @@ def _frequency_signals(fr: ByFrequency | None) -> tuple[list[str], list[str]]:
     return [s for s in present if s not in exact], exact
 
 
-def _frequency_panel(ax, fr: ByFrequency) -> None:
+def _frequency_panel(ax, fr) -> None:
     """Error energy at the fundamental, its harmonics and elsewhere, per signal; a
     signal whose replay is exact gets no bar and is named in words instead."""
     sigs, exact = _frequency_signals(fr)
@@ -186,7 +184,7 @@ def _frequency_panel(ax, fr: ByFrequency) -> None:
         ax.set_axis_off()
 
 
-def _time_panel(ax, tm: PerSignal[TimeGap]) -> None:
+def _time_panel(ax, tm) -> None:
     """Gap in the first and second half of the record, per signal; a signal with no
     gap in either half before or after gets no bars and is named in words."""
     labels, before, after, nil = [], [], [], []
