@@ -83,10 +83,10 @@ def test_screened_peaks_give_the_full_search_frequency(disturbed, monkeypatch):
     # the same computation: the same period and amplitudes (1e-12 relative allows
     # only rounding).
     assert screened.variant == full.variant
-    assert screened.params["period_s"] == pytest.approx(full.params["period_s"], rel=1e-12)
-    assert screened.params["amplitude"] == pytest.approx(full.params["amplitude"], rel=1e-12)
+    assert screened.params.period_s == pytest.approx(full.params.period_s, rel=1e-12)
+    assert screened.params.amplitude == pytest.approx(full.params.amplitude, rel=1e-12)
     # The hidden period, to 2 % (the fit's resolution on 2000 samples is finer).
-    assert screened.params["period_s"] == pytest.approx(
+    assert screened.params.period_s == pytest.approx(
         disturbed.truth["effect_parameters"]["period_s"], rel=0.02
     )
 
@@ -140,7 +140,7 @@ def test_slip_features_match_one_slip_at_a_time(seed):
     op = 50 + np.cumsum(rng.normal(0, 0.3, n)) + 5 * np.sin(np.arange(n) / 40)
     mv, phase = valve_replay(op, rng.uniform(0.5, 4), rng.uniform(0, 2))
     mv = mv + rng.normal(0, 0.05, n) * (seed % 2)
-    fast, slow = _slip_features(op, mv, phase), _slip_features_loop(op, mv, phase)
+    fast, slow = _slip_features(op, mv, phase).to_dict(), _slip_features_loop(op, mv, phase)
     assert fast["jump_up"] == slow["jump_up"] and fast["jump_down"] == slow["jump_down"]
     assert fast["corner_rise_samples"] == slow["corner_rise_samples"]
     # The slope's sums run in another order: rounding only (1e-12 relative).
@@ -150,7 +150,7 @@ def test_slip_features_match_one_slip_at_a_time(seed):
 def test_slip_features_without_slips_or_moves():
     op = np.linspace(40, 60, 500)
     phase = np.full(500, 1, dtype=np.int8)
-    f = _slip_features(op, op.copy(), phase)
+    f = _slip_features(op, op.copy(), phase).to_dict()
     assert f == {
         "jump_up": None,
         "jump_down": None,

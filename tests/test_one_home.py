@@ -18,6 +18,7 @@ HOMES = {
     "check_dt": "core/checks.py",
     "_check_dt": "core/checks.py",
     "_check_ts": "core/checks.py",
+    "as_signal": "core/checks.py",
     "plain_float": "core/serialize.py",
     "to_plain": "core/serialize.py",
     "_plain": "core/serialize.py",

@@ -24,6 +24,14 @@ def check_dt(dt, name: str = "sample time dt") -> float:
     return value
 
 
+def as_signal(x, name: str) -> np.ndarray:
+    """``x`` as a one-dimensional float array, else a one-line UsageError naming it."""
+    a = np.asarray(x, dtype=float)
+    if a.ndim != 1:
+        raise UsageError(f"{name} must be a one-dimensional signal")
+    return a
+
+
 def span_offset(*signals) -> float:
     """Shift that brings valve signals into the models' 0-100 % span [% of span].
 

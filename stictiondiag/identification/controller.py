@@ -32,12 +32,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from stictiondiag.core.checks import check_dt
+from stictiondiag.core.checks import as_signal, check_dt
 from stictiondiag.core.errors import DataError, StictionError, UsageError
 from stictiondiag.core.filters import lfilter1
 from stictiondiag.core.robust import robust_std
 from stictiondiag.core.serialize import to_plain
-from stictiondiag.identification.numerics import MIN_SAMPLES, as_signal, r_squared, wls
+from stictiondiag.identification.numerics import MIN_SAMPLES, r_squared, wls
 from stictiondiag.models.processes import PI
 
 #: Outlier trimming of the velocity-form fit: residuals beyond this many robust
@@ -175,6 +175,23 @@ def filtered_pv(pv: np.ndarray, time_constant: float, dt: float) -> np.ndarray:
     return lfilter1((1.0 - a,), -a, pv, zi=a * pv[0])
 
 
+def _checked_record(sp, pv, op, dt):
+    """The arguments of the controller fits checked once, at their entrance:
+    ``(dt, sp, pv, op)`` as a float and one-dimensional float arrays of one length
+    (``sp`` None when not recorded); bad input raises a one-line
+    :class:`UsageError`.  The fits' private steps take them as checked."""
+    dt = check_dt(dt)
+    pv = as_signal(pv, "pv")
+    op = as_signal(op, "op")
+    if pv.size != op.size:
+        raise UsageError(f"pv and op must have the same length, got {pv.size} and {op.size}")
+    if sp is not None:
+        sp = as_signal(sp, "sp")
+        if sp.size != pv.size:
+            raise UsageError(f"sp and pv must have the same length, got {sp.size} and {pv.size}")
+    return dt, sp, pv, op
+
+
 def identify_controller(
     sp: np.ndarray | None,
     pv: np.ndarray,
@@ -195,8 +212,7 @@ def identify_controller(
     Cost O(n): one fit per filter of the grid (12 with ``"auto"``), each at most
     :data:`TRIM_ROUNDS` least-squares fits and medians of the record's residuals.
     """
-    dt = check_dt(dt)
-    pv = as_signal(pv, "pv")
+    dt, sp, pv, op = _checked_record(sp, pv, op, dt)
     if pv_filter is None or (not isinstance(pv_filter, str) and not pv_filter > 0.0):
         return _identify_pi(sp, pv, op, dt)
     if not isinstance(pv_filter, str):
@@ -338,7 +354,8 @@ def controller_fit(
     kc, ti = float(controller.gain), float(controller.integral_time)
     if kc == 0.0 or not math.isfinite(kc) or not ti > 0.0:
         raise UsageError(f"controller needs a non-zero gain and Ti > 0, got Kc={kc}, Ti={ti}")
-    pv_f = filtered_pv(as_signal(pv, "pv"), pv_filter_time, check_dt(dt))
+    dt, sp, pv, op = _checked_record(sp, pv, op, dt)
+    pv_f = filtered_pv(pv, pv_filter_time, dt)
     fit = _ControllerData.build(sp, pv_f, op, dt).result(kc, ti, math.nan)
     return replace(fit, pv_filter_time=float(pv_filter_time))
 
@@ -357,20 +374,10 @@ class _ControllerData:
 
     @classmethod
     def build(cls, sp, pv, op, dt) -> _ControllerData:
-        dt = check_dt(dt)
-        pv = as_signal(pv, "pv")
-        op = as_signal(op, "op")
-        if pv.size != op.size:
-            raise UsageError(f"pv and op must have the same length, got {pv.size} and {op.size}")
+        """The data of arguments checked by :func:`_checked_record` (``pv`` possibly
+        filtered since)."""
         sp_assumed = sp is None
-        if sp_assumed:
-            sp_arr = np.full(pv.size, float(np.nanmean(pv)))
-        else:
-            sp_arr = as_signal(sp, "sp")
-            if sp_arr.size != pv.size:
-                raise UsageError(
-                    f"sp and pv must have the same length, got {sp_arr.size} and {pv.size}"
-                )
+        sp_arr = np.full(pv.size, float(np.nanmean(pv))) if sp_assumed else sp
         e = sp_arr - pv
         sat = saturated_samples(op)
         good = np.isfinite(e) & np.isfinite(op) & ~sat
@@ -442,9 +449,41 @@ def _lstsq_t(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float, np.ndarra
     return coef, t, resid
 
 
+@dataclass(frozen=True)
+class ControllerReplay:
+    """The PI law that replays a recorded op (:func:`fit_controller_replay`).
+
+    Attributes
+    ----------
+    gain : float
+        Kc [% of span / pv units].
+    integral_time_s : float or None
+        Ti [s]; None without integral action.
+    filter_time_s : float
+        Time constant of the first-order filter on pv [s] (0: none).
+    bias : float
+        op at zero error and zero integral [% of span].
+    """
+
+    gain: float
+    integral_time_s: float | None
+    filter_time_s: float
+    bias: float
+
+    def to_dict(self) -> dict:
+        return to_plain(
+            {
+                "gain": self.gain,
+                "integral_time_s": self.integral_time_s,
+                "filter_time_s": self.filter_time_s,
+                "bias": self.bias,
+            }
+        )
+
+
 def fit_controller_replay(
     sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: float, w: np.ndarray
-) -> tuple[np.ndarray, dict]:
+) -> tuple[np.ndarray, ControllerReplay]:
     """PI controller replay on a filtered measurement (Eq. 3).
 
     ``op = bias + Kc (e + (1/Ti) integral(e))``, ``e = sp - pv_f`` with ``pv_f`` a
@@ -469,9 +508,9 @@ def fit_controller_replay(
     -------
     op_hat : ndarray
         Replayed controller output [% of span].
-    params : dict
-        ``gain`` Kc [% / pv units], ``integral_time_s`` Ti [s] (None without integral
-        action), ``filter_time_s`` [s], ``bias`` [% of span].
+    params : ControllerReplay
+        Kc [% / pv units], Ti [s] (None without integral action), the pv filter's
+        time constant [s] and the bias [% of span].
     """
     n = op.size
     sp_fixed = sp is None
@@ -493,12 +532,9 @@ def fit_controller_replay(
     _, pred, coef, tf = best
     kc, ki = float(coef[1]), float(coef[2])
     ti = kc / ki if abs(ki) > 1e-12 and kc / ki > 0 else None
-    return pred, {
-        "gain": kc,
-        "integral_time_s": ti,
-        "filter_time_s": tf * dt,
-        "bias": float(coef[0]),
-    }
+    return pred, ControllerReplay(
+        gain=kc, integral_time_s=ti, filter_time_s=tf * dt, bias=float(coef[0])
+    )
 
 
 #: R^2 of the velocity-form PI law (:attr:`ControllerFit.fit_r2`) from which the

@@ -1,6 +1,6 @@
 """Small numerical tools shared by the process and controller fits and the gap searches.
 
-Signal checks, delayed copies of a signal, weighted linear least squares (with the
+Delayed copies of a signal, weighted linear least squares (with the
 one-signed pair of columns of a fractional dead time) and golden-section search, for
 the identification of the loop's linear blocks (Eq. 3 of Choudhury, Thornhill & Shah
 2005) and the parameter searches of the gap diagnosis.
@@ -13,18 +13,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from stictiondiag.core.errors import UsageError
 from stictiondiag.core.jit import jit
 
 #: Fewest usable samples for an identification.
 MIN_SAMPLES = 20
-
-
-def as_signal(x, name: str) -> np.ndarray:
-    a = np.asarray(x, dtype=float)
-    if a.ndim != 1:
-        raise UsageError(f"{name} must be a one-dimensional signal")
-    return a
 
 
 def r_squared(y: np.ndarray, y_hat: np.ndarray) -> float:

@@ -46,11 +46,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from stictiondiag.core.checks import check_dt
+from stictiondiag.core.checks import as_signal, check_dt
 from stictiondiag.core.errors import DataError, UsageError
 from stictiondiag.identification.numerics import (
     MIN_SAMPLES,
-    as_signal,
     delayed,
     r_squared,
 )

@@ -37,6 +37,7 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
+from stictiondiag.core.robust import second_difference_noise_std
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.core.stats import bootstrap_median_ci, median_small
 from stictiondiag.stiction.fit_result import BlockCosts, StictionFit
@@ -47,7 +48,6 @@ from stictiondiag.stiction.valvefit import (
     cycle_samples,
     determinacy,
     effective_samples,
-    noise_std,
     profile_interval,
     valve_run,
     valve_sse_batch,
@@ -382,8 +382,8 @@ def segment_valve(op: np.ndarray, mv: np.ndarray, dt: float, deadband: float = 0
     """
     op, mv, dt = _check_pair(op, mv, dt)
     span = float(max(np.ptp(op), np.ptp(mv)))
-    sig_mv = noise_std(mv)
-    sig_op = noise_std(op)
+    sig_mv = second_difference_noise_std(mv)
+    sig_op = second_difference_noise_std(op)
     q_mv = resolution(mv, deadband)
     h = max(STILL_BAND_SIGMAS * sig_mv, 1.01 * q_mv, 1e-9 * span)
     op_tol = max(4.0 * h, 6.0 * sig_op, 1e-9 * span)

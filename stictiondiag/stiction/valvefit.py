@@ -48,12 +48,6 @@ INTERVAL_LEVEL = 0.95
 # --------------------------------------------------------------------------------------
 
 
-def noise_std(x: np.ndarray) -> float:
-    """Robust standard deviation of white measurement noise on ``x`` [units of x]
-    (:func:`stictiondiag.core.robust.second_difference_noise_std`)."""
-    return second_difference_noise_std(x)
-
-
 @jit
 def play(x, width):
     """Play (backlash) operator of total ``width``: follows ``x`` at ``width/2`` behind,
@@ -128,7 +122,8 @@ def white_noise_std(x: np.ndarray) -> float:
     -2/3); those of a smooth signal with curvature do not (close to +1).  The noise
     is taken as present when the lag-1 autocorrelation of the second difference
     (winsorised at 5 robust deviations, so that slips do not dominate) is below
-    -0.25, and its level is then :func:`noise_std`.
+    -0.25, and its level is then
+    :func:`~stictiondiag.core.robust.second_difference_noise_std`.
     """
     d2 = np.diff(np.asarray(x, dtype=float), 2)
     if d2.size < 10:
@@ -141,7 +136,7 @@ def white_noise_std(x: np.ndarray) -> float:
     d = d - d.mean()
     den = float(np.dot(d, d))
     rho1 = float(np.dot(d[1:], d[:-1])) / den if den > 0 else 1.0
-    return noise_std(x) if rho1 < -0.25 else 0.0
+    return second_difference_noise_std(x) if rho1 < -0.25 else 0.0
 
 
 def valve_variants(op: np.ndarray) -> list[ValveVariant]:

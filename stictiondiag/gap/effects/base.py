@@ -17,14 +17,16 @@ departure is located in the element that causes it (Choudhury, Thornhill & Shah 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 
+from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.context import ReplayContext
 from stictiondiag.gap.effects.kernels import valve_replay
 from stictiondiag.gap.effects.valve import ValveFit, fit_valve
-from stictiondiag.identification.controller import fit_controller_replay
+from stictiondiag.identification.controller import ControllerReplay, fit_controller_replay
 from stictiondiag.identification.predictor import fit_predictor, process_noise_floor
 from stictiondiag.identification.process_result import ProcessFit, ProcessModel
 
@@ -63,7 +65,32 @@ class Effect:
 
 
 @dataclass(frozen=True)
-class EffectFit:
+class EffectParams:
+    """An effect's fitted parameters: each effect's own frozen subclass, units in the
+    field docs (``_s`` seconds, ``_pct`` % of span; S and J always in % of span).
+
+    :meth:`to_dict` writes the fields by name, in their order (the ``params`` of a
+    candidate in the gap's JSON); :attr:`SIGNATURE` names the field that holds the
+    p-value of the effect's signature test, if it has one.
+    """
+
+    #: The field holding the p-value of the signature test (None: no such test).
+    SIGNATURE: ClassVar[str | None] = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dict of the fields, in their order."""
+        return to_plain({f.name: getattr(self, f.name) for f in fields(self)})
+
+    def signature_p(self) -> float | None:
+        """The p-value of the signature test; None without one (or before it is run)."""
+        return None if self.SIGNATURE is None else getattr(self, self.SIGNATURE)
+
+
+P = TypeVar("P", bound=EffectParams)
+
+
+@dataclass(frozen=True)
+class EffectFit(Generic[P]):
     """One fitted candidate: the base replay with one effect added.
 
     Attributes
@@ -75,9 +102,8 @@ class EffectFit:
         ``time_varying_stiction``).
     n_params : int
         Parameters beyond the base model's.
-    params : dict
-        Fitted parameters, units in the key names (``_s`` seconds, ``_pct`` % of
-        span; S and J always in % of span).
+    params : EffectParams
+        Fitted parameters (the effect's own :class:`EffectParams`, units per field).
     predictions : dict
         Replayed signals this effect changes (``mv``, ``pv`` or ``op``) [their units].
     x : tuple
@@ -98,7 +124,7 @@ class EffectFit:
     effect: str
     variant: str
     n_params: int
-    params: dict
+    params: P
     predictions: dict
     x: tuple = ()
     process: ProcessFit | None = None
@@ -119,9 +145,9 @@ class BaseFit:
         Process replay driven by the recorded mv (or ``mv_model``).
     op : ndarray
         Controller replay [% of span].
-    controller : dict
-        Controller parameters (see
-        :func:`stictiondiag.identification.controller.fit_controller_replay`).
+    controller : ControllerReplay
+        The PI law that replays op
+        (:func:`stictiondiag.identification.controller.fit_controller_replay`).
     mv_model : ndarray
         Valve output of the two-parameter model [% of span].
     """
@@ -129,7 +155,7 @@ class BaseFit:
     valve: ValveFit | None
     process: ProcessFit
     op: np.ndarray
-    controller: dict
+    controller: ControllerReplay
     mv_model: np.ndarray
 
     def predictions(self) -> dict:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -277,6 +278,15 @@ def needle_sj(
     return best
 
 
+class ValveLogic(StrEnum):
+    """The stuck-phase logic of a replayed valve: the flowchart of Fig. 10
+    (Choudhury, Thornhill & Shah 2005) or Kano et al.'s (2004), which re-arms a stuck
+    valve on a reversal of the demand."""
+
+    CHOUDHURY = "choudhury"
+    KANO = "kano"
+
+
 @dataclass(frozen=True)
 class ValveFit:
     """The fitted two-parameter valve replay.
@@ -287,8 +297,8 @@ class ValveFit:
         Replayed valve position [% of span].
     phase : ndarray
         Valve phase codes of the stiction element (see :func:`valve_replay`).
-    params : dict
-        S and J [% of span].
+    S, J : float
+        Deadband plus stickband and slip jump [% of span].
     kano : bool
         Stuck-phase logic of Kano et al. (2004) instead of Fig. 10.
     initial_direction : float
@@ -297,9 +307,15 @@ class ValveFit:
 
     mv: np.ndarray
     phase: np.ndarray
-    params: dict
+    S: float
+    J: float
     kano: bool = False
     initial_direction: float = 0.0
+
+    @property
+    def logic(self) -> ValveLogic:
+        """The stuck-phase logic replayed."""
+        return ValveLogic.KANO if self.kano else ValveLogic.CHOUDHURY
 
 
 def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None) -> ValveFit:
@@ -361,7 +377,7 @@ def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None
     d0 = -1.0 if prob_neg.costs(valve_rows(x[0], x[1]))[0] < c else 1.0
     prob = ValveProblem.of(ctx, w, kano, d0)
     v, ph = prob.series(valve_rows(x[0], x[1])[0])
-    return ValveFit(v, ph, {"S": float(x[0]), "J": float(x[1])}, kano, d0)
+    return ValveFit(v, ph, float(x[0]), float(x[1]), kano, d0)
 
 
 def affine_map(v: np.ndarray, mv: np.ndarray, w: np.ndarray) -> tuple[float, float]:
@@ -388,13 +404,14 @@ def pick_problem(ctx, w, base, init, evaluate) -> ValveProblem:
     logic the better reading of the same data."""
     d0 = base.valve.initial_direction
     if init is not None:
-        return ValveProblem.of(ctx, w, init.params.get("logic") == "kano", d0)
+        return ValveProblem.of(ctx, w, init.params.logic is ValveLogic.KANO, d0)
     probs = [ValveProblem.of(ctx, w, k, d0) for k in (False, True)]
     return min(probs, key=evaluate)
 
 
-def logic_name(prob: ValveProblem) -> str:
-    return "kano" if prob.kano else "choudhury"
+def logic_name(prob: ValveProblem) -> ValveLogic:
+    """The stuck-phase logic of ``prob``."""
+    return ValveLogic.KANO if prob.kano else ValveLogic.CHOUDHURY
 
 
 def threshold_scale(*values: float) -> float:

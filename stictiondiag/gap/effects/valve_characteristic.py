@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from dataclasses import dataclass, replace
+from enum import StrEnum
 
 import numpy as np
 
@@ -21,6 +22,7 @@ from stictiondiag.gap.effects.base import (
     BaseFit,
     Effect,
     EffectFit,
+    EffectParams,
     fit_process,
     process_input,
     pv_noise_floor,
@@ -42,6 +44,49 @@ from stictiondiag.gap.effects.valve import (
 from stictiondiag.identification.numerics import golden_section
 from stictiondiag.identification.predictor import kalman_gains, process_regressors
 from stictiondiag.identification.process_result import ProcessFit
+
+
+class CurveFamily(StrEnum):
+    """The family of an installed characteristic (:func:`characteristic_curve`)."""
+
+    EXPONENTIAL = "exponential"
+    POWER = "power"
+
+
+class CharacteristicSide(StrEnum):
+    """Where the characteristic acts: between mv and the process (``process``), or
+    inside a flow-like recorded mv (``valve``)."""
+
+    PROCESS = "process"
+    VALVE = "valve"
+
+
+@dataclass(frozen=True)
+class CharacteristicParams(EffectParams):
+    """A non-linear installed characteristic.
+
+    Attributes
+    ----------
+    curvature : float
+        Its curvature [-] (:func:`characteristic_curve`; 0 is linear).
+    family : CurveFamily
+        Exponential or power.
+    side : CharacteristicSide
+        Process side or valve side.
+    gain_change : float or None
+        Change of the loop's gain with the operating point, measured in the data [-]
+        (NaN: too few slips to measure; None on part of the record).
+    gain_change_p : float or None
+        p-value of its test, one-sided in the direction of the curvature [-].
+    """
+
+    SIGNATURE = "gain_change_p"
+
+    curvature: float
+    family: CurveFamily
+    side: CharacteristicSide
+    gain_change: float | None = None
+    gain_change_p: float | None = None
 
 
 def characteristic_curve(x: np.ndarray, curvature: float, family: str) -> np.ndarray:
@@ -131,8 +176,11 @@ def gain_change_test(
 
 
 def fit_valve_characteristic(
-    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
-) -> EffectFit:
+    ctx: ReplayContext,
+    w: np.ndarray,
+    base: BaseFit,
+    init: EffectFit[CharacteristicParams] | None = None,
+) -> EffectFit[CharacteristicParams]:
     """A non-linear installed characteristic between valve position and flow.
 
     Process side: ``pv = G(f(mv))``, the curvature of ``f`` searched with the process
@@ -151,7 +199,7 @@ def fit_valve_characteristic(
         forms += ["valve_exponential", "valve_power"]
         valve, mv = base.recorded_valve(), recorded_mv(ctx)
         prob = base_problem(ctx, w, valve)
-        row = valve_rows(valve.params["S"], valve.params["J"])
+        row = valve_rows(valve.S, valve.J)
         base_mv_cost = float(prob.costs(row)[0])
     if init is not None:
         forms = [init.variant]
@@ -162,7 +210,7 @@ def fit_valve_characteristic(
             float,
             str,
             int,
-            dict[str, Any],
+            CharacteristicParams,
             dict[str, np.ndarray],
             ProcessFit | None,
             np.ndarray | None,
@@ -177,7 +225,7 @@ def fit_valve_characteristic(
                 return float(np.dot(w, (f.prediction.pv - pv) ** 2)) / var_pv
 
             if init is not None:
-                c = float(init.params["curvature"])
+                c = float(init.params.curvature)
                 cc = cost_pv(c)
             else:
                 c, cc = _search_curvature(cost_pv, family)
@@ -194,7 +242,7 @@ def fit_valve_characteristic(
                     cc,
                     form,
                     1,
-                    {"curvature": c, "family": family, "side": side},
+                    CharacteristicParams(c, CurveFamily(family), CharacteristicSide(side)),
                     {"pv": f.prediction.pv},
                     f,
                     ue,
@@ -206,7 +254,7 @@ def fit_valve_characteristic(
                 return float(prob.costs(row, affine=True, curvature=c, family=family)[0])
 
             if init is not None:
-                c = float(init.params["curvature"])
+                c = float(init.params.curvature)
                 cc = cost_mv(c)
             else:
                 c, cc = _search_curvature(cost_mv, family)
@@ -218,7 +266,7 @@ def fit_valve_characteristic(
                     cc + base_pv_cost - base_mv_cost,
                     form,
                     3,
-                    {"curvature": c, "family": family, "side": side},
+                    CharacteristicParams(c, CurveFamily(family), CharacteristicSide(side)),
                     {"mv": b + k * g},
                     None,
                     None,
@@ -227,15 +275,15 @@ def fit_valve_characteristic(
     _, variant, n_params, params, preds, proc, proc_u = min(results, key=lambda r: r[0])
     supported = True
     if init is None:
-        gain_change, p_gain = gain_change_test(ctx, w, base, params["side"])
+        gain_change, p_gain = gain_change_test(ctx, w, base, params.side)
         if math.isfinite(gain_change):
             # Convex (curvature > 0, both families) means more gain above the middle.
-            p_gain = one_sided(p_gain, gain_change * params["curvature"] > 0.0)
+            p_gain = one_sided(p_gain, gain_change * params.curvature > 0.0)
         else:
             # Too few measured slips to test: the replay decides alone, except on a
             # quantised mv (:func:`untested_p`).
             p_gain = untested_p(ctx.sig.mv)
-        params = {**params, "gain_change": gain_change, "gain_change_p": p_gain}
+        params = replace(params, gain_change=gain_change, gain_change_p=p_gain)
         supported = p_gain < SIGNATURE_P
     return EffectFit(
         effect="valve_characteristic",
@@ -244,7 +292,7 @@ def fit_valve_characteristic(
         supported=supported,
         params=params,
         predictions=preds,
-        x=(params["curvature"],),
+        x=(params.curvature,),
         process=proc,
         # proc_u is None exactly when proc is (the valve side).
         pv_floor=None
