@@ -81,6 +81,6 @@ def test_healthy_karnopp_integrating_loop_is_not_given_a_characteristic():
     assert case.truth["valve"]["base"] == "karnopp"
     g = diagnose_gap_tags(case.tags())
     vc = next(c for c in g.candidates if c.effect == "valve_characteristic")
-    assert vc.params["side"] == "process"
-    assert vc.params["gain_change_p"] == pytest.approx(0.156, abs=0.02)
+    assert vc.params.side == "process"
+    assert vc.params.gain_change_p == pytest.approx(0.156, abs=0.02)
     assert g.effect == "none"
