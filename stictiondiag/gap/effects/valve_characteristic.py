@@ -30,6 +30,7 @@ from stictiondiag.gap.effects.base import (
 from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.signatures import (
     SIGNATURE_P,
+    block_scale,
     one_sided,
     signature_test,
     testable_slips,
@@ -137,7 +138,10 @@ def gain_change_test(
     the range travelled against below it, whatever the shape of the curve.
     Process side (``u`` the process input): the hinge passes through the base
     process's dynamics, load tracking and prediction horizon, and its coefficient is
-    fitted to the base pv replay's errors.  Valve side (mv itself flow-like): the
+    fitted to the base pv replay's errors, each block of the record weighted by the
+    inverse of their variance there (:func:`block_scale`: the errors of a block with
+    an unforeseen load step are mostly that load, and unweighted they decide the
+    coefficient and its scatter).  Valve side (mv itself flow-like): the
     position after each slip against the demand at its breakaway and the hinge of it,
     with an offset per direction (as :func:`slip_slope_test`).  Returns the
     relative gain change and the two-sided p-value of :func:`signature_test` (the
@@ -156,7 +160,10 @@ def gain_change_test(
         x_h = process_regressors(h, model, k1, k2) @ base.process.prediction.coef[:2]
         r = sig.pv - base.process.prediction.pv
         others = np.column_stack([np.ones(sig.n), X_u])
-        return signature_test(x_h, -r, w, others=others)
+        # Weighted by each block's error variance: the blocks of unforeseen load
+        # steps must not decide the test (:func:`block_scale`).
+        g = block_scale(r, w)
+        return signature_test(x_h * g, -r * g, w, others=others * g[:, None])
     measured = testable_slips(ctx.slips)
     if measured is None:
         return math.nan, 1.0
