@@ -20,7 +20,7 @@ from stictiondiag.gap.effects.valve import fit_valve
 from stictiondiag.gap.effects.valve_characteristic import characteristic_curve, gain_change_test
 from stictiondiag.identification.controller import filtered_pv, fit_controller_replay
 from stictiondiag.identification.numerics import fractional_delay_wls, wls
-from stictiondiag.identification.predictor import prediction_variance_ratio
+from stictiondiag.identification.predictor_kernels import prediction_variance_ratio
 from stictiondiag.models.valve import (
     PHASE_MOVING,
     PHASE_REVERSAL,

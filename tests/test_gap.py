@@ -14,11 +14,11 @@ from stictiondiag.apps.benchmark import (
     CaseResult,
 )
 from stictiondiag.core.errors import DataError
-from stictiondiag.gap.context import noise_variance
 from stictiondiag.gap.diagnose import (
     GapDiagnosis,
     diagnose_gap,
 )
+from stictiondiag.gap.selection import noise_variance
 from stictiondiag.io.tags import Tags
 from stictiondiag.models.synthetic import generate_case
 

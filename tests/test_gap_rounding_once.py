@@ -8,10 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from stictiondiag.gap.context import build_context, noise_variance, signals_of
+from stictiondiag.gap.context import build_context, signals_of
 from stictiondiag.gap.diagnose import diagnose_gap
 from stictiondiag.gap.effects.base import fit_base, process_input, pv_noise_floor
 from stictiondiag.gap.effects.quantization import quantize
+from stictiondiag.gap.selection import noise_variance
 from stictiondiag.io.tags import Tags
 from stictiondiag.models.synthetic import generate_case
 

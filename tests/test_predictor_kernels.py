@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from stictiondiag.identification.numerics import delayed, fractional_delay_wls
-from stictiondiag.identification.predictor import kalman_gains
 from stictiondiag.identification.predictor_kernels import (
     _prediction_errors,
     _prediction_errors_rows,
+    kalman_gains,
     shifted_grams,
     shifted_pair_wls,
 )

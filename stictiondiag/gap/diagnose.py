@@ -91,21 +91,17 @@ import math
 
 import numpy as np
 
-from stictiondiag.core.errors import DataError
-from stictiondiag.gap.breakdown import PerSignal, breakdown
+from stictiondiag.gap.breakdown import breakdown
 from stictiondiag.gap.context import (
-    LoopSignals,
-    ReplayContext,
     build_context,
-    noise_variance,
     signals_of,
+    starting_point,
 )
-from stictiondiag.gap.effects import EFFECT_MODELS, EFFECTS, REGISTRY, assessable_effects
-from stictiondiag.gap.effects.base import BaseFit, fit_base
-from stictiondiag.gap.result import BaseValve, Candidate, GapBase, GapDiagnosis, GapSeries
+from stictiondiag.gap.effects import EFFECT_MODELS, assessable_effects
+from stictiondiag.gap.effects.base import fit_base
+from stictiondiag.gap.result import Candidate, GapBase, GapDiagnosis, GapSeries
 from stictiondiag.gap.selection import (
     N_BLOCKS,
-    Measure,
     Score,
     candidate_share,
     choose_quantization,
@@ -115,6 +111,7 @@ from stictiondiag.gap.selection import (
     evidence_floors,
     heldout_errors,
     margin,
+    mv_only_within_noise,
     rank_key,
     score_candidate,
     select_winner,
@@ -129,9 +126,6 @@ METRIC_DEFINITION = (
     "ahead with the load tracked, op from recorded sp and pv); V_s the variance of the "
     "signal's cycle-scale part, N_s its white-noise variance; 0 means within noise"
 )
-
-
-SIGNALS = ("op", "mv", "pv")
 
 
 def diagnose_gap(
@@ -185,8 +179,9 @@ def diagnose_gap(
     """
     sig = signals_of(tags)
     n_blocks = max(int(n_blocks), 4)
-    ctx = build_context(sig, segments=segments, **_starting_point(fit, sig))
-    assessable, not_assessed = _assessable(sig, effects)
+    start = starting_point(fit, sig)
+    ctx = build_context(sig, segments=segments, **start)
+    assessable, not_assessed = assessable_effects(sig.mv is not None, effects)
 
     # Whole-record fits.
     base = fit_base(ctx, ctx.w_eval)
@@ -262,7 +257,7 @@ def diagnose_gap(
         win = next(c for c in cands if c.effect == winner)
         after, shrink = win.after, win.shrink_pct
 
-    preds_before = base.predictions()
+    preds_before = base.predictions
     preds_after = combined_predictions(base, None if winner == "none" else fits[winner])
     return GapDiagnosis(
         metric=METRIC_NAME,
@@ -278,90 +273,6 @@ def diagnose_gap(
         not_assessed=tuple(not_assessed),
         within_noise=tuple(within_noise),
         heldout_before=as_gap(errors["none"]),
-        base=_base_info(ctx, base, sel.measure.floor),
-        series=_series(sig, preds_before, preds_after),
+        base=GapBase.of(ctx, base, sel.measure.floor),
+        series=GapSeries.of(sig, preds_before, preds_after),
     )
-
-
-def mv_within_noise(ctx: ReplayContext, base: BaseFit) -> bool:
-    """True when the base replay of mv is within its noise: its excess in the gap
-    (mean squared error on the judged samples less the white-noise variance of mv) is 0.
-
-    Computed as :func:`stictiondiag.gap.selection.record_gaps` computes it, so the
-    answer is exact: an effect that acts on mv alone then leaves every signal's excess
-    as the base has it or raises mv's, so its gap on the record is never below the
-    base's and :func:`select_winner` can never name it.
-    """
-    sig = ctx.sig
-    if sig.mv is None or base.valve is None:
-        return False
-    meas = Measure(norm=ctx.norm, floor={"mv": noise_variance(sig.mv)}, w=ctx.w_eval)
-    return meas.excess("mv", meas.nmse("mv", base.valve.mv, sig.mv)) == 0.0
-
-
-def mv_only_within_noise(ctx: ReplayContext, base: BaseFit, names) -> list[str]:
-    """The effects among ``names`` that act on mv alone (and explain no measurement
-    error), when the base replay of mv is within its noise (:func:`mv_within_noise`):
-    their fits cannot lower the gap, so they need not be made (their threshold
-    searches are most of the work of a loop with mv)."""
-    mv_only = [n for n in names if tuple(REGISTRY[n].acts_on) == ("mv",) and n != "quantization"]
-    if not mv_only or not mv_within_noise(ctx, base):
-        return []
-    return mv_only
-
-
-def _starting_point(fit, sig: LoopSignals) -> dict:
-    """S and J to start the searches from and, without a recorded mv, the modelled
-    valve output that drives the process (from a stiction estimate, if any)."""
-    start = None
-    mv_model = None
-    if fit is not None:
-        S, J = getattr(fit, "S", None), getattr(fit, "J", None)
-        if S is not None and J is not None and math.isfinite(S) and math.isfinite(J):
-            start = (float(S), float(J))
-        if sig.mv is None and getattr(fit, "mv_model", None) is not None:
-            mv_model = np.asarray(fit.mv_model, dtype=float) + sig.offset
-            if mv_model.size != sig.n:
-                mv_model = None
-    return {"start": start, "mv_model": mv_model}
-
-
-def _assessable(sig: LoopSignals, effects: tuple[str, ...] | None) -> tuple[list, list]:
-    """Effects to assess (those asked for that the data allow) and those the data do
-    not allow."""
-    assessable, not_assessed = assessable_effects(sig.mv is not None)
-    if effects is not None:
-        unknown = [e for e in effects if e not in EFFECTS]
-        if unknown:
-            raise DataError(f"unknown effect(s) {', '.join(unknown)}: use {', '.join(EFFECTS[1:])}")
-        assessable = [e for e in assessable if e in effects]
-    return assessable, not_assessed
-
-
-def _base_info(ctx: ReplayContext, base: BaseFit, floors: dict) -> GapBase:
-    """The base replay's parameters: valve, process, controller, noise floors."""
-    valve = base.valve
-    return GapBase(
-        valve=None
-        if valve is None
-        else BaseValve(valve.S, valve.J, valve.logic, valve.initial_direction),
-        process=base.process,
-        controller=base.controller,
-        noise_floor=PerSignal.of({s: floors[s] / ctx.norm[s] for s in floors}),
-        judged_from_sample=int(np.argmax(ctx.w_eval > 0)),
-    )
-
-
-def _series(sig: LoopSignals, before: dict, after: dict) -> GapSeries:
-    """Recorded signals and the replays before and after, for plots."""
-    series: dict[str, np.ndarray | None] = {"time": np.arange(sig.n) * sig.dt}
-    for s in SIGNALS:
-        # op and mv back in the units of the record (signals_of shifted them).
-        shift = sig.offset if s in ("op", "mv") else 0.0
-        for key, x in (
-            (s, getattr(sig, s)),
-            (f"{s}_before", before.get(s)),
-            (f"{s}_after", after.get(s)),
-        ):
-            series[key] = None if x is None else np.asarray(x) - shift
-    return GapSeries(**series)  # type: ignore[arg-type]

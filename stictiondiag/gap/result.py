@@ -17,7 +17,8 @@ import numpy as np
 
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.breakdown import Breakdown, PerSignal
-from stictiondiag.gap.effects.base import EffectParams
+from stictiondiag.gap.context import LoopSignals, ReplayContext
+from stictiondiag.gap.effects.base import BaseFit, EffectParams
 from stictiondiag.gap.effects.valve import ValveLogic
 from stictiondiag.identification.controller import ControllerReplay
 from stictiondiag.identification.process_result import ProcessFit
@@ -131,6 +132,21 @@ class GapBase:
     noise_floor: PerSignal[float]
     judged_from_sample: int
 
+    @classmethod
+    def of(cls, ctx: ReplayContext, base: BaseFit, floors: dict) -> GapBase:
+        """The parameters of the base fit ``base`` on the context ``ctx``, with the
+        noise floors ``floors`` [units^2] the gap was measured with."""
+        valve = base.valve
+        return cls(
+            valve=None
+            if valve is None
+            else BaseValve(valve.S, valve.J, valve.logic, valve.initial_direction),
+            process=base.process,
+            controller=base.controller,
+            noise_floor=PerSignal.of({s: floors[s] / ctx.norm[s] for s in floors}),
+            judged_from_sample=int(np.argmax(ctx.w_eval > 0)),
+        )
+
     def to_dict(self) -> dict:
         return {
             "valve": None if self.valve is None else self.valve.to_dict(),
@@ -168,6 +184,22 @@ class GapSeries:
     pv: np.ndarray
     pv_before: np.ndarray
     pv_after: np.ndarray
+
+    @classmethod
+    def of(cls, sig: LoopSignals, before: dict, after: dict) -> GapSeries:
+        """The recorded signals of ``sig`` and the replays ``before`` and ``after`` (by
+        signal name), op and mv shifted back into the units of the record."""
+        series: dict[str, np.ndarray | None] = {"time": np.arange(sig.n) * sig.dt}
+        for s in ("op", "mv", "pv"):
+            # op and mv back in the units of the record (signals_of shifted them).
+            shift = sig.offset if s in ("op", "mv") else 0.0
+            for key, x in (
+                (s, getattr(sig, s)),
+                (f"{s}_before", before.get(s)),
+                (f"{s}_after", after.get(s)),
+            ):
+                series[key] = None if x is None else np.asarray(x) - shift
+        return cls(**series)  # type: ignore[arg-type]
 
     def columns(self) -> dict[str, np.ndarray]:
         """The series present, by name, in field order."""
@@ -222,7 +254,7 @@ class GapDiagnosis:
         Effects not fitted because they cannot lower the gap: they act on mv alone and
         the base replay of mv is already within its noise (its excess is 0), so no
         fit of theirs can be named
-        (:func:`stictiondiag.gap.diagnose.mv_within_noise`).
+        (:func:`stictiondiag.gap.selection.mv_within_noise`).
     heldout_before : float
         Gap of the two-parameter replay on held-out data [%] (the score of ``none``).
     base : GapBase or None

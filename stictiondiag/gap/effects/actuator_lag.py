@@ -20,6 +20,7 @@ from stictiondiag.gap.effects.base import (
     EffectFit,
     EffectParams,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.search import WIDE_STAGES, grid_search_nd
 from stictiondiag.gap.effects.valve import (
     ValveLogic,
@@ -30,7 +31,6 @@ from stictiondiag.gap.effects.valve import (
     sj_wide,
     slip_medians,
     travel_seeds,
-    valve_rows,
 )
 from stictiondiag.identification.numerics import golden_section
 

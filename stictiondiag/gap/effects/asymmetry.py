@@ -19,6 +19,7 @@ from stictiondiag.gap.effects.base import (
     EffectFit,
     EffectParams,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.search import WIDE_STAGES, grid_search_nd, needle_search
 from stictiondiag.gap.effects.signatures import (
     SLIP_TEST_P,
@@ -31,7 +32,6 @@ from stictiondiag.gap.effects.valve import (
     logic_name,
     pick_problem,
     travel_seeds,
-    valve_rows,
 )
 
 

@@ -27,7 +27,8 @@ from stictiondiag.gap.context import ReplayContext
 from stictiondiag.gap.effects.kernels import valve_replay
 from stictiondiag.gap.effects.valve import ValveFit, fit_valve
 from stictiondiag.identification.controller import ControllerReplay, fit_controller_replay
-from stictiondiag.identification.predictor import fit_predictor, process_noise_floor
+from stictiondiag.identification.predictor import fit_predictor
+from stictiondiag.identification.predictor_kernels import process_noise_floor
 from stictiondiag.identification.process_result import ProcessFit, ProcessModel
 
 
@@ -150,6 +151,10 @@ class BaseFit:
         (:func:`stictiondiag.identification.controller.fit_controller_replay`).
     mv_model : ndarray
         Valve output of the two-parameter model [% of span].
+    predictions : dict
+        The replayed signals by name, ``op``, ``pv`` and (with a valve replay) ``mv``
+        [their units], as an :class:`EffectFit` carries those it changes (derived
+        from the fields above).
     """
 
     valve: ValveFit | None
@@ -157,13 +162,13 @@ class BaseFit:
     op: np.ndarray
     controller: ControllerReplay
     mv_model: np.ndarray
+    predictions: dict = field(init=False, repr=False, compare=False)
 
-    def predictions(self) -> dict:
-        """Replayed signals by name [their units]."""
-        out = {"op": self.op, "pv": self.process.prediction.pv}
+    def __post_init__(self) -> None:
+        preds = {"op": self.op, "pv": self.process.prediction.pv}
         if self.valve is not None:
-            out["mv"] = self.valve.mv
-        return out
+            preds["mv"] = self.valve.mv
+        object.__setattr__(self, "predictions", preds)
 
     def recorded_valve(self) -> ValveFit:
         """The valve replay, for the valve-side effects: they are fitted only on loops
@@ -171,6 +176,12 @@ class BaseFit:
         if self.valve is None:
             raise ValueError("the base fit has no valve replay: mv is not recorded")
         return self.valve
+
+    def pv_noise_floor(self, ctx: ReplayContext) -> float:
+        """The pv noise floor of the base process replay on the judged samples of
+        ``ctx`` [pv^2] (:func:`pv_noise_floor`)."""
+        u = process_input(ctx, self)
+        return pv_noise_floor(u, ctx, self.process)
 
 
 def fit_process(
@@ -214,7 +225,7 @@ def pv_noise_floor(
     u: np.ndarray, ctx: ReplayContext, fit: ProcessFit, extra: np.ndarray | None = None
 ) -> float:
     """The pv noise floor of a process replay on the judged samples of ``ctx`` [pv^2]
-    (:func:`stictiondiag.identification.predictor.process_noise_floor`)."""
+    (:func:`stictiondiag.identification.predictor_kernels.process_noise_floor`)."""
     return process_noise_floor(u, ctx.sig.pv, ctx.w_eval, fit, extra)
 
 

@@ -20,6 +20,7 @@ from stictiondiag.gap.effects.base import (
     EffectFit,
     EffectParams,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.search import needle_search
 from stictiondiag.gap.effects.signatures import (
     SIGNATURE_P,
@@ -39,7 +40,6 @@ from stictiondiag.gap.effects.valve import (
     sj_bounds,
     sj_wide,
     travel_seeds,
-    valve_rows,
 )
 
 

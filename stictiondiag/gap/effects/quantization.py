@@ -130,7 +130,7 @@ def fit_quantization(
     None when no signal is quantised.
     """
     preds, grids, explained = {}, {}, {}
-    base_preds = base.predictions()
+    base_preds = base.predictions
     for name in QUANTISED_SIGNALS:
         x = getattr(ctx.sig, name)
         q = detect_quantization(x)

@@ -22,6 +22,7 @@ from stictiondiag.gap.effects.base import (
     EffectFit,
     EffectParams,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.search import TVS_STAGES, grid_search_nd, needle_search
 from stictiondiag.gap.effects.signatures import (
     SLIP_TEST_P,
@@ -42,7 +43,6 @@ from stictiondiag.gap.effects.valve import (
     slip_medians,
     threshold_scale,
     travel_seeds,
-    valve_rows,
 )
 
 

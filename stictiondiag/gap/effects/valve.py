@@ -17,20 +17,16 @@ from enum import StrEnum
 import numpy as np
 
 from stictiondiag.gap.context import ReplayContext
-from stictiondiag.gap.effects.kernels import FAMILY_CODES, valve_series, valve_sse_batch
+from stictiondiag.gap.effects.kernels import (
+    FAMILY_CODES,
+    _rows_order,
+    valve_rows,
+    valve_series,
+    valve_sse_batch,
+)
 from stictiondiag.gap.effects.search import needle_search
 
 _CONSTANT = np.zeros(1)
-
-
-def _rows_order(m: int, order=None) -> np.ndarray:
-    """Evaluation order of ``m`` rows for :func:`valve_sse_batch` (default: as given)."""
-    if order is None:
-        return np.arange(m, dtype=np.int64)
-    order = np.ascontiguousarray(order, dtype=np.int64)
-    if order.shape != (m,):
-        raise ValueError(f"order must be a permutation of the {m} rows")
-    return order
 
 
 class ValveProblem:
@@ -84,7 +80,7 @@ class ValveProblem:
         keep=0,
         order=None,
     ):
-        """Normalised weighted squared mv error for every row of P (see ``_P_COLUMNS``).
+        """Normalised weighted squared mv error for every row of P (the columns of :func:`valve_rows`).
 
         Rows whose error exceeds ``bound`` (normalised) or the best row so far are
         abandoned early; their returned error is then only a lower bound.  With
@@ -154,36 +150,6 @@ def _rest_level_before_first_slip(ctx: ReplayContext) -> float:
         if k >= 4:
             return float(np.median(mv[max(k - 10, 0) : k - 1]))
     return float(np.median(mv[: max(min(3, mv.size // 100), 1)]))
-
-
-def valve_rows(
-    S_open,
-    J_open,
-    S_close=None,
-    J_close=None,
-    S_open_end=None,
-    J_open_end=None,
-    S_close_end=None,
-    J_close_end=None,
-    lag=None,
-):
-    """Parameter rows (``_P_COLUMNS``) from columns; missing ones default to symmetric,
-    constant in time and without lag."""
-    S_close = S_open if S_close is None else S_close
-    J_close = J_open if J_close is None else J_close
-    cols = [
-        S_open,
-        S_open if S_open_end is None else S_open_end,
-        S_close,
-        S_close if S_close_end is None else S_close_end,
-        J_open,
-        J_open if J_open_end is None else J_open_end,
-        J_close,
-        J_close if J_close_end is None else J_close_end,
-        0.0 if lag is None else lag,
-    ]
-    m = max(np.size(c) for c in cols)
-    return np.column_stack([np.broadcast_to(np.asarray(c, dtype=float), (m,)) for c in cols])
 
 
 def demand_travel(op: np.ndarray) -> float:

@@ -27,6 +27,7 @@ from stictiondiag.gap.effects.base import (
     process_input,
     pv_noise_floor,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.signatures import (
     SIGNATURE_P,
     block_scale,
@@ -39,10 +40,9 @@ from stictiondiag.gap.effects.valve import (
     affine_map,
     base_problem,
     recorded_mv,
-    valve_rows,
 )
 from stictiondiag.identification.numerics import golden_section
-from stictiondiag.identification.predictor import kalman_gains, process_regressors
+from stictiondiag.identification.predictor_kernels import kalman_gains, process_regressors
 from stictiondiag.identification.process_result import ProcessFit
 
 
