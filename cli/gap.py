@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from stictiondiag.core.atomic import atomic_path
+from stictiondiag.core.serialize import plain_float
 
 from .app import app
 from .common import check_output_file, compile_if_cold, emit, friendly_errors, info
@@ -32,40 +33,44 @@ from .options import (
     command_read_options,
 )
 
+if TYPE_CHECKING:
+    from stictiondiag.gap.result import GapDiagnosis
+
 
 def _fmt(x, spec: str = ".1f") -> str:
     return "n/a" if x is None else format(x, spec)
 
 
-def render_gap(d: dict) -> str:
-    """Readable summary of :meth:`GapDiagnosis.to_dict`."""
+def render_gap(g: GapDiagnosis) -> str:
+    """Readable summary of a :class:`~stictiondiag.gap.result.GapDiagnosis`."""
     lines = [
-        f"gap         {d['metric']}: before {_fmt(d['before'])} %, after {_fmt(d['after'])} % "
-        f"({_fmt(d['shrink_pct'], '.0f')} % shrink)",
-        f"effect      {d['effect']}  (runner-up {d['runner_up']}, margin {_fmt(d['margin'])} %)",
+        f"gap         {g.metric}: before {_fmt(plain_float(g.before))} %, "
+        f"after {_fmt(plain_float(g.after))} % ({_fmt(plain_float(g.shrink_pct), '.0f')} % shrink)",
+        f"effect      {g.effect}  (runner-up {g.runner_up}, margin {_fmt(plain_float(g.margin))} %)",
     ]
-    sig = (d.get("breakdown") or {}).get("signal") or {}
+    sig = [] if g.breakdown is None else g.breakdown.signal.items()
     if sig:
         lines.append(
             "by signal   "
-            + ", ".join(f"{s} {_fmt(v['before'])} -> {_fmt(v['after'])} %" for s, v in sig.items())
+            + ", ".join(
+                f"{s} {_fmt(plain_float(v.before))} -> {_fmt(plain_float(v.after))} %"
+                for s, v in sig
+            )
         )
     lines.append(
         "candidates  effect                 after %  shrink %  held-out %  score %  accepted"
     )
-    for c in d.get("candidates") or []:
+    for c in g.candidates:
         lines.append(
-            f"            {c['effect']:<22} {_fmt(c['after']):>7}  {_fmt(c['shrink_pct'], '.0f'):>8}"
-            f"  {_fmt(c['heldout']):>10}  {_fmt(c['penalised_score']):>7}  {'yes' if c['accepted'] else 'no'}"
+            f"            {c.effect:<22} {_fmt(plain_float(c.after)):>7}"
+            f"  {_fmt(plain_float(c.shrink_pct), '.0f'):>8}"
+            f"  {_fmt(plain_float(c.heldout)):>10}  {_fmt(plain_float(c.penalised_score)):>7}"
+            f"  {'yes' if c.accepted else 'no'}"
         )
-    if d.get("not_assessed"):
-        lines.append(
-            "not assessed " + ", ".join(d["not_assessed"]) + " (no valve position recorded)"
-        )
-    if d.get("within_noise"):
-        lines.append(
-            "not fitted  " + ", ".join(d["within_noise"]) + " (mv replay within its noise)"
-        )
+    if g.not_assessed:
+        lines.append("not assessed " + ", ".join(g.not_assessed) + " (no valve position recorded)")
+    if g.within_noise:
+        lines.append("not fitted  " + ", ".join(g.within_noise) + " (mv replay within its noise)")
     return "\n".join(lines)
 
 
@@ -109,8 +114,7 @@ def gap(
         options = command_read_options(locals())
         compile_if_cold()
         result = diagnose_gap_file(file, **options)
-        d = result.to_dict()
-        emit(d, render_gap(d), json_path)
+        emit(result.to_dict(), render_gap(result), json_path)
         if plot is not None:
             from stictiondiag.plotting import pyplot
 

@@ -19,7 +19,7 @@ import numpy as np
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.schema import SCHEMA_VERSION, dumps, loads
 from stictiondiag.core.serialize import plain_float, to_plain
-from stictiondiag.gap.diagnose import GapDiagnosis
+from stictiondiag.gap.result import GapDiagnosis
 from stictiondiag.io.tags import Tags
 from stictiondiag.replay import Replay
 from stictiondiag.replay.compensation import Compensation

@@ -69,7 +69,7 @@ def test_benchmark_command(tmp_path, monkeypatch):
     def fake_diagnose(path):
         effect = truths[path.name]
         named = "none" if effect == "quantization" else effect
-        g = GapDiagnosis("excess_nrmse", "", 10.0, 3.0, 70.0, named, None, 5.0, (), {})
+        g = GapDiagnosis("excess_nrmse", "", 10.0, 3.0, 70.0, named, None, 5.0, ())
         return g, "test"
 
     orig = syn.iter_benchmark

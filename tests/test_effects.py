@@ -20,7 +20,7 @@ from stictiondiag.gap.effects.valve import fit_valve
 from stictiondiag.gap.effects.valve_characteristic import characteristic_curve, gain_change_test
 from stictiondiag.identification.controller import filtered_pv, fit_controller_replay
 from stictiondiag.identification.numerics import fractional_delay_wls, wls
-from stictiondiag.identification.predictor import prediction_variance_ratio
+from stictiondiag.identification.predictor_kernels import prediction_variance_ratio
 from stictiondiag.models.valve import (
     PHASE_MOVING,
     PHASE_REVERSAL,
@@ -178,8 +178,8 @@ def test_fit_controller_recovers_pi():
     sig = LoopSignals(op=op, pv=pv, dt=1.0, sp=sp)
     pred, params = fit_controller_replay(sig.sp, sig.pv, sig.op, sig.dt, np.ones(n))
     # Noise-free PI data in the fitted form: exact to rounding.
-    assert params["gain"] == pytest.approx(Kc, rel=1e-6)
-    assert params["integral_time_s"] == pytest.approx(Ti, rel=1e-6)
+    assert params.gain == pytest.approx(Kc, rel=1e-6)
+    assert params.integral_time_s == pytest.approx(Ti, rel=1e-6)
     np.testing.assert_allclose(pred, np.clip(op, 0, 100), atol=1e-6)
 
 
@@ -211,8 +211,8 @@ def test_fit_valve_recovers_S_and_J():
     fit = fit_valve(ctx, ctx.w_eval)
     # The replay is in step with the data only near the true values: S and J within
     # 2 % (the noisy demand moves by about 0.05 % of span per sample).
-    assert fit.params["S"] == pytest.approx(3.0, rel=0.02)
-    assert fit.params["J"] == pytest.approx(2.0, rel=0.02)
+    assert fit.S == pytest.approx(3.0, rel=0.02)
+    assert fit.J == pytest.approx(2.0, rel=0.02)
 
 
 def test_assessable_effects_without_mv():
@@ -266,7 +266,7 @@ def test_quantization_explains_the_controller_error_of_a_historian_rounding(roun
     ctx = build_context(sig)
     base = fit_base(ctx, ctx.w_eval)
     ef = fit_quantization(ctx, ctx.w_eval, base)
-    assert ef is not None and ef.params["pv_step"] == pytest.approx(q, rel=1e-6)
+    assert ef is not None and ef.params.pv.step == pytest.approx(q, rel=1e-6)
     # One step read off the data: one parameter, whatever signals it explains.
     assert ef.n_params == 1
     w = ctx.w_eval

@@ -14,11 +14,11 @@ from stictiondiag.apps.benchmark import (
     CaseResult,
 )
 from stictiondiag.core.errors import DataError
-from stictiondiag.gap.context import noise_variance
 from stictiondiag.gap.diagnose import (
     GapDiagnosis,
     diagnose_gap,
 )
+from stictiondiag.gap.selection import noise_variance
 from stictiondiag.io.tags import Tags
 from stictiondiag.models.synthetic import generate_case
 
@@ -50,16 +50,16 @@ def test_names_a_withheld_miscalibration(miscal):
     # The slope is fitted from mv against op: within 10 % of the hidden calibration
     # gain (noise on mv and a Karnopp valve under the data-driven model).
     params = next(c.params for c in g.candidates if c.effect == "miscalibration")
-    assert params["slope"] == pytest.approx(
+    assert params.slope == pytest.approx(
         case.truth["effect_parameters"]["calibration_gain"], rel=0.1
     )
     # Its own signature is in the slips measured in the data: the position after each
     # slip against the breakaway demand has the hidden slope (within 10 %, as the
     # fitted slope), clearly (p far below the 1 % the diagnosis asks for).
-    assert params["slip_slope"] == pytest.approx(
+    assert params.slip_slope == pytest.approx(
         case.truth["effect_parameters"]["calibration_gain"], rel=0.1
     )
-    assert params["slip_slope_p"] < 1e-3
+    assert params.slip_slope_p < 1e-3
     # Adding the effect must remove most of the gap, and it must win on held-out data.
     assert g.shrink_pct > 50.0
     assert g.after < g.before
@@ -115,10 +115,10 @@ def test_base_valve_finds_j_of_a_stick_slip_valve():
     a fitted slope of 1.0001."""
     case = generate_case("none", 2891957045)
     g = diagnose_gap(_tags(case))
-    valve = g.to_dict()["base"]["valve"]
+    valve = g.base.valve
     # J within 0.05 % of span of the quasi-static truth 0.890: the replay is in step
     # with the recorded mv only near the exact threshold (a J on the coarse grid missed by 0.6 or more).
-    assert valve["J"] == pytest.approx(case.truth["J"], abs=0.05)
+    assert valve.J == pytest.approx(case.truth["J"], abs=0.05)
     assert g.effect == "none", [(c.effect, c.shrink_pct) for c in g.candidates]
 
 
@@ -150,8 +150,8 @@ def test_mean_centred_op_and_mv_give_the_same_diagnosis():
     assert g1.effect == g2.effect == "external_disturbance"
     assert g2.before == pytest.approx(g1.before, rel=1e-6)
     assert g2.after == pytest.approx(g1.after, rel=1e-6)
-    np.testing.assert_allclose(g2.series["op"], t.op - m, atol=1e-9)
-    np.testing.assert_allclose(g2.series["op_before"], g1.series["op_before"] - m, atol=1e-6)
+    np.testing.assert_allclose(g2.series.op, t.op - m, atol=1e-9)
+    np.testing.assert_allclose(g2.series.op_before, g1.series.op_before - m, atol=1e-6)
 
 
 def test_without_mv_valve_effects_are_not_assessed():
@@ -163,7 +163,7 @@ def test_without_mv_valve_effects_are_not_assessed():
         "valve_characteristic",
         "quantization",
     }
-    assert "mv" not in g.breakdown["signal"]
+    assert "mv" not in g.breakdown.signal.names()
 
 
 def test_bad_input_raises_data_error():
@@ -289,28 +289,28 @@ def test_quantization_keeps_the_steps_that_pay_for_themselves():
     assert g.effect == "quantization"
     q = next(c for c in g.candidates if c.effect == "quantization")
     # The step read from the data is the hidden one (to the 6 decimals of the CSV).
-    assert q.params["mv_step"] == pytest.approx(truth["mv_quantum_pct"], abs=1e-5)
-    assert q.params["pv_step"] == pytest.approx(truth["pv_quantum"], rel=1e-3)
+    assert q.params.mv.step == pytest.approx(truth["mv_quantum_pct"], abs=1e-5)
+    assert q.params.pv.step == pytest.approx(truth["pv_quantum"], rel=1e-3)
     assert q.n_params == 2
     assert g.shrink_pct > 20.0  # measured 37.5 %: most of mv's replay error is rounding
 
 
 def test_restrict_quantization_keeps_one_signal():
     from stictiondiag.gap.effects.base import EffectFit
-    from stictiondiag.gap.effects.quantization import restrict_quantization
+    from stictiondiag.gap.effects.quantization import (
+        QuantizationParams,
+        Rounding,
+        restrict_quantization,
+    )
 
     pred = np.zeros(3)
     ef = EffectFit(
         effect="quantization",
         variant="mv+pv+op",
         n_params=2,
-        params={
-            "mv_step": 0.6,
-            "mv_offset": 0.0,
-            "pv_step": 0.2,
-            "pv_offset": 0.1,
-            "op_from_pv_rounding": 0.05,
-        },
+        params=QuantizationParams(
+            mv=Rounding(0.6, 0.0), pv=Rounding(0.2, 0.1), op_from_pv_rounding=0.05
+        ),
         predictions={"mv": pred, "pv": pred, "op": pred},
         explained={"mv": 0.03, "pv": 0.2**2 / 12, "op": 0.05},
     )
@@ -344,7 +344,7 @@ def test_quantised_sample_loop_names_quantization():
     # shrinks by far more than half (measured 96 %; any other effect shrinks it < 15 %).
     assert g.shrink_pct > 80.0
     q = next(c for c in g.candidates if c.effect == "quantization")
-    assert q.params["mv_step"] == pytest.approx(1.0, rel=1e-9)  # the file's 1 % grid
+    assert q.params.mv.step == pytest.approx(1.0, rel=1e-9)  # the file's 1 % grid
     # Both accepted effects can carry negative evidence here; the margin is still a
     # share of the larger evidence, within [0, 100] % (it was 4e302 %, read as "%.1f"
     # it made the breakdown figure's summary too wide for the figure).

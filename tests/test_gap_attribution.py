@@ -5,7 +5,14 @@ from __future__ import annotations
 import pytest
 
 from stictiondiag.gap.attribution import LARGE_GAP_PCT, GapCause, attribute_gap
-from stictiondiag.gap.diagnose import Candidate, GapDiagnosis
+from stictiondiag.gap.breakdown import Breakdown, PerSignal, SignalGap
+from stictiondiag.gap.effects.base import EffectParams
+from stictiondiag.gap.effects.valve_characteristic import (
+    CharacteristicParams,
+    CharacteristicSide,
+    CurveFamily,
+)
+from stictiondiag.gap.result import Candidate, GapDiagnosis
 from stictiondiag.models.processes import FOPTD
 from stictiondiag.replay.refit import ClosedLoopRefit
 
@@ -32,7 +39,7 @@ def _candidate(effect, after, heldout=float("nan"), n_params=1, params=None):
         variant="",
         after=after,
         shrink_pct=0.0,
-        params=dict(params or {}),
+        params=params or EffectParams(),
         n_params=n_params,
         heldout=heldout,
         penalised_score=after,
@@ -51,7 +58,7 @@ def _gap(effect, before, after, not_assessed=(), candidates=(), breakdown=None, 
         runner_up=None,
         margin=0.0,
         candidates=tuple(candidates),
-        breakdown=breakdown or {},
+        breakdown=breakdown,
         not_assessed=tuple(not_assessed),
         heldout_before=heldout,
     )
@@ -84,11 +91,16 @@ def test_large_gap_without_effect_says_why_and_what_is_left_open():
 def test_large_gap_without_effect_names_the_failed_test_and_where_it_lies():
     """Issue 27: a gap over 50 % left with 'none' says why in words: where the gap
     lies, the closest candidate and which of its tests failed."""
-    sig = {"op": {"before": 5.0}, "pv": {"before": 70.0}, "mv": {"before": 1.0}}
+    before = {"op": 5.0, "pv": 70.0, "mv": 1.0}
 
     def text_of(after, heldout, p):
-        c = _candidate("valve_characteristic", after, heldout, 1, {"gain_change_p": p})
-        gap = _gap("none", 80.0, 80.0, candidates=[c], breakdown={"signal": sig}, heldout=65.0)
+        params = CharacteristicParams(
+            0.5, CurveFamily.EXPONENTIAL, CharacteristicSide.PROCESS, 0.1, gain_change_p=p
+        )
+        c = _candidate("valve_characteristic", after, heldout, 1, params)
+        sig = PerSignal.of({s: SignalGap(v, v, 0.0) for s, v in before.items()})
+        breakdown = Breakdown(signal=sig)
+        gap = _gap("none", 80.0, 80.0, candidates=[c], breakdown=breakdown, heldout=65.0)
         return attribute_gap(None, gap).text
 
     text = text_of(20.0, 60.0, 0.2)
@@ -98,6 +110,6 @@ def test_large_gap_without_effect_names_the_failed_test_and_where_it_lies():
     text = text_of(20.0, 70.0, 0.001)
     assert "does no better than the two-parameter replay (70 % against 65 %)" in text
     # No candidate lowers the record's gap, and the gap is in the controller's replay.
-    sig["op"]["before"] = 90.0
+    before["op"] = 90.0
     text = text_of(85.0, 70.0, 0.001)
     assert "in op, the controller's replay" in text and "no candidate lowers it" in text

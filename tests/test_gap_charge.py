@@ -57,9 +57,9 @@ def test_historian_rounding_of_pv_is_named_on_an_integrating_loop():
     g = diagnose_gap(tags)
     assert g.effect == "quantization"
     q = next(c for c in g.candidates if c.effect == "quantization")
-    assert q.params["pv_step"] == pytest.approx(truth["pv_quantum"], rel=1e-3)
+    assert q.params.pv.step == pytest.approx(truth["pv_quantum"], rel=1e-3)
     v_op = build_context(signals_of(tags)).norm["op"]
-    by_hand = 1e4 * q.params["op_from_pv_rounding"] / v_op
+    by_hand = 1e4 * q.params.op_from_pv_rounding / v_op
     assert g.before**2 - g.after**2 == pytest.approx(by_hand, rel=1e-9)
     assert 15.0 < g.after < 16.0 and 16.5 < g.before < 17.5
 
@@ -80,7 +80,7 @@ def test_mv_missed_by_its_rounding_alone_is_evidence_for_quantization():
     g = diagnose_gap(tags)
     assert g.effect == "quantization"
     q = next(c for c in g.candidates if c.effect == "quantization")
-    assert q.params["mv_step"] == pytest.approx(truth["mv_quantum_pct"], rel=1e-3)
+    assert q.params.mv.step == pytest.approx(truth["mv_quantum_pct"], rel=1e-3)
     assert g.after < 10.0 and g.before > 20.0
 
 
@@ -121,6 +121,6 @@ def test_quantised_mv_without_measured_slips_is_not_a_time_varying_valve():
     g = diagnose_gap(tags)
     assert g.effect == "quantization"
     tvs = next(c for c in g.candidates if c.effect == "time_varying_stiction")
-    assert tvs.params["slips_differ_p"] == 1.0 and not tvs.accepted
+    assert tvs.params.slips_differ_p == 1.0 and not tvs.accepted
     q = next(c for c in g.candidates if c.effect == "quantization")
-    assert q.params["mv_step"] == pytest.approx(truth["mv_quantum_pct"], rel=1e-3)
+    assert q.params.mv.step == pytest.approx(truth["mv_quantum_pct"], rel=1e-3)

@@ -8,10 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from stictiondiag.gap.context import build_context, noise_variance, signals_of
+from stictiondiag.gap.context import build_context, signals_of
 from stictiondiag.gap.diagnose import diagnose_gap
 from stictiondiag.gap.effects.base import fit_base, process_input, pv_noise_floor
 from stictiondiag.gap.effects.quantization import quantize
+from stictiondiag.gap.selection import noise_variance
 from stictiondiag.io.tags import Tags
 from stictiondiag.models.synthetic import generate_case
 
@@ -45,7 +46,7 @@ def test_rounding_of_an_mv_that_moves_every_sample_is_in_its_floor_already():
     assert floor > q * q / 12.0 * 10.0
     g = diagnose_gap(tags)
     quant = next(c for c in g.candidates if c.effect == "quantization")
-    assert quant.params["mv_step"] == pytest.approx(q, rel=1e-9)
+    assert quant.params.mv.step == pytest.approx(q, rel=1e-9)
     assert quant.after == pytest.approx(g.before, rel=1e-9)
     assert g.effect != "quantization"
 
@@ -63,7 +64,7 @@ def test_rounding_of_an_mv_held_between_steps_is_explained_in_full():
     by_hand = 1e4 * q * q / 12.0 / v_mv
     g = diagnose_gap(tags)
     quant = next(c for c in g.candidates if c.effect == "quantization")
-    assert g.base["noise_floor"]["mv"] == 0.0
+    assert g.base.noise_floor.mv == 0.0
     assert g.before**2 - quant.after**2 == pytest.approx(by_hand, rel=1e-6)
     assert by_hand == pytest.approx(21.0, rel=0.05)
 

@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 
 from stictiondiag.gap.breakdown import _slip_features
-from stictiondiag.gap.context import build_context, signals_of
-from stictiondiag.gap.diagnose import _starting_point, diagnose_gap, mv_within_noise
+from stictiondiag.gap.context import build_context, signals_of, starting_point
+from stictiondiag.gap.diagnose import diagnose_gap
 from stictiondiag.gap.effects import external_disturbance as ed
 from stictiondiag.gap.effects.base import fit_base
 from stictiondiag.gap.effects.kernels import valve_replay
+from stictiondiag.gap.selection import mv_within_noise
 from stictiondiag.io.tags import Tags
 from stictiondiag.models.synthetic import generate_case
 from stictiondiag.models.valve import PHASE_MOVING, PHASE_SLIP
@@ -59,7 +60,7 @@ def test_a_hidden_valve_effect_is_not_skipped():
 
 def test_within_noise_is_the_excess_of_the_gap(disturbed):
     sig = signals_of(disturbed.tags())
-    ctx = build_context(sig, **_starting_point(None, sig))
+    ctx = build_context(sig, **starting_point(None, sig))
     base = fit_base(ctx, ctx.w_eval)
     assert mv_within_noise(ctx, base)
     # The same replay against an mv moved by 3 noise deviations is not within noise.
@@ -68,13 +69,13 @@ def test_within_noise_is_the_excess_of_the_gap(disturbed):
             sig.pv, sig.op, mv=sig.mv + 3.0 * np.std(np.diff(sig.mv)), sp=sig.sp, ts=sig.dt
         )
     )
-    ctx2 = build_context(shifted, **_starting_point(None, shifted))
+    ctx2 = build_context(shifted, **starting_point(None, shifted))
     assert not mv_within_noise(ctx2, base)
 
 
 def test_screened_peaks_give_the_full_search_frequency(disturbed, monkeypatch):
     sig = signals_of(disturbed.tags())
-    ctx = build_context(sig, **_starting_point(None, sig))
+    ctx = build_context(sig, **starting_point(None, sig))
     base = fit_base(ctx, ctx.w_eval)
     screened = ed.fit_external_disturbance(ctx, ctx.w_eval, base)
     monkeypatch.setattr(ed, "REFINED_PEAKS", 99)
@@ -83,10 +84,10 @@ def test_screened_peaks_give_the_full_search_frequency(disturbed, monkeypatch):
     # the same computation: the same period and amplitudes (1e-12 relative allows
     # only rounding).
     assert screened.variant == full.variant
-    assert screened.params["period_s"] == pytest.approx(full.params["period_s"], rel=1e-12)
-    assert screened.params["amplitude"] == pytest.approx(full.params["amplitude"], rel=1e-12)
+    assert screened.params.period_s == pytest.approx(full.params.period_s, rel=1e-12)
+    assert screened.params.amplitude == pytest.approx(full.params.amplitude, rel=1e-12)
     # The hidden period, to 2 % (the fit's resolution on 2000 samples is finer).
-    assert screened.params["period_s"] == pytest.approx(
+    assert screened.params.period_s == pytest.approx(
         disturbed.truth["effect_parameters"]["period_s"], rel=0.02
     )
 
@@ -140,7 +141,7 @@ def test_slip_features_match_one_slip_at_a_time(seed):
     op = 50 + np.cumsum(rng.normal(0, 0.3, n)) + 5 * np.sin(np.arange(n) / 40)
     mv, phase = valve_replay(op, rng.uniform(0.5, 4), rng.uniform(0, 2))
     mv = mv + rng.normal(0, 0.05, n) * (seed % 2)
-    fast, slow = _slip_features(op, mv, phase), _slip_features_loop(op, mv, phase)
+    fast, slow = _slip_features(op, mv, phase).to_dict(), _slip_features_loop(op, mv, phase)
     assert fast["jump_up"] == slow["jump_up"] and fast["jump_down"] == slow["jump_down"]
     assert fast["corner_rise_samples"] == slow["corner_rise_samples"]
     # The slope's sums run in another order: rounding only (1e-12 relative).
@@ -150,7 +151,7 @@ def test_slip_features_match_one_slip_at_a_time(seed):
 def test_slip_features_without_slips_or_moves():
     op = np.linspace(40, 60, 500)
     phase = np.full(500, 1, dtype=np.int8)
-    f = _slip_features(op, op.copy(), phase)
+    f = _slip_features(op, op.copy(), phase).to_dict()
     assert f == {
         "jump_up": None,
         "jump_down": None,
@@ -188,7 +189,7 @@ def test_a_refitted_process_is_judged_at_the_base_horizon(disturbed):
     from stictiondiag.gap.effects.base import fit_process
 
     sig = signals_of(disturbed.tags())
-    ctx = build_context(sig, **_starting_point(None, sig))
+    ctx = build_context(sig, **starting_point(None, sig))
     base = fit_base(ctx, ctx.w_eval)
     h = base.process.prediction.model.horizon
     for target in (max(h - 3, 1), h + 3):

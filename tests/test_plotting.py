@@ -238,19 +238,24 @@ def test_gap_breakdown_layout_survives_a_summary_wider_than_the_figure():
 def _gap_stub(mv_share, pv_share):
     from types import SimpleNamespace
 
-    phase = {
-        p: {
-            "samples_pct": 25.0,
-            "mv_share_pct_before": mv_share,
-            "mv_share_pct_after": mv_share,
-            "pv_share_pct_before": pv_share,
-            "pv_share_pct_after": pv_share,
-        }
-        for p in ("stuck", "slip", "moving", "reversal")
-    }
-    signal = {s: {"before": 1.0, "after": 1.0, "noise_floor": 0.0} for s in ("op", "pv", "mv")}
+    from stictiondiag.gap.breakdown import (
+        Breakdown,
+        ByPhase,
+        PerSignal,
+        PhaseError,
+        PhaseShare,
+        SignalGap,
+    )
+
+    share = PhaseShare(
+        samples_pct=25.0,
+        mv=PhaseError(mv_share, None, mv_share, None),
+        pv=PhaseError(pv_share, None, pv_share, None),
+    )
+    phase = ByPhase(stuck=share, slip=share, moving=share, reversal=share)
+    signal = PerSignal.of({s: SignalGap(1.0, 1.0, 0.0) for s in ("op", "pv", "mv")})
     return SimpleNamespace(
-        breakdown={"signal": signal, "phase": phase},
+        breakdown=Breakdown(signal=signal, phase=phase),
         candidates=(),
         before=3.5,
         after=3.5,
@@ -281,13 +286,17 @@ def test_gap_frequency_panel_names_an_exact_replay_instead_of_empty_bars():
     """Issue 27: with mv replayed exactly (level_undershoot) mv's frequency shares are
     None, not zeros; the panel draws pv only and names mv in words, and with every
     replay exact the panel is left out and the summary says why."""
+    from dataclasses import replace
+
+    from stictiondiag.gap.breakdown import ByFrequency, FrequencyShares, PerSignal
     from stictiondiag.plotting.gap import plot_gap_breakdown
 
-    shares = {"fundamental_pct_before": 60.0, "harmonics_pct_before": 30.0}
-    shares["other_pct_before"] = 10.0
-    exact = dict.fromkeys(shares)
+    shares = FrequencyShares(60.0, 30.0, 10.0, 60.0, 30.0, 10.0)
+    exact = FrequencyShares(None, None, None, None, None, None)
     stub = _gap_stub(0.0, 25.0)
-    stub.breakdown["frequency"] = {"fundamental_period_s": 100.0, "pv": shares, "mv": exact}
+    stub.breakdown = replace(
+        stub.breakdown, frequency=ByFrequency(100.0, PerSignal(pv=shares, mv=exact))
+    )
     fig = plot_gap_breakdown(stub)
     ax = next(a for a in fig.axes if a.get_title().startswith("By frequency"))
     assert [t.get_text() for t in ax.get_xticklabels()] == ["pv"]
@@ -295,7 +304,9 @@ def test_gap_frequency_panel_names_an_exact_replay_instead_of_empty_bars():
     # The stacked bar of pv reaches 100 % (60 + 30 + 10): nothing is dropped from it.
     tops = [p.get_y() + p.get_height() for p in ax.patches]
     assert max(tops) == pytest.approx(100.0, abs=1e-9)
-    stub.breakdown["frequency"] = {"fundamental_period_s": 100.0, "pv": exact, "mv": exact}
+    stub.breakdown = replace(
+        stub.breakdown, frequency=ByFrequency(100.0, PerSignal(pv=exact, mv=exact))
+    )
     fig = plot_gap_breakdown(stub)
     assert not any(a.get_title().startswith("By frequency") for a in fig.axes)
     texts = [t.get_text() for a in fig.axes for t in a.texts]
@@ -316,8 +327,10 @@ def test_gap_breakdown_marks_an_exact_replay_by_frequency():
     meas = SimpleNamespace(w=np.ones(n))
     preds = {"mv": pv.copy(), "pv": pv + 0.1 * np.sin(2 * np.pi * t / 50.0)}
     fr = _by_frequency(sig, meas, preds, preds)
-    assert fr["mv"]["fundamental_pct_before"] is None
-    total = sum(fr["pv"][f"{p}_pct_before"] for p in ("fundamental", "harmonics", "other"))
+    assert fr.signals.mv.fundamental_pct_before is None
+    total = sum(
+        getattr(fr.signals.pv, f"{p}_pct_before") for p in ("fundamental", "harmonics", "other")
+    )
     assert total == pytest.approx(100.0, abs=1e-9)
     # The error is the second harmonic: nearly all of it lands there (leakage < 5 %).
-    assert fr["pv"]["harmonics_pct_before"] > 95.0
+    assert fr.signals.pv.harmonics_pct_before > 95.0

@@ -12,9 +12,8 @@ from stictiondiag.identification.predictor import (
     ProcessModel,
     _pair_sse,
     _structure_grid,
-    kalman_gains,
 )
-from stictiondiag.identification.predictor_kernels import _prediction_errors
+from stictiondiag.identification.predictor_kernels import _prediction_errors, kalman_gains
 
 
 def _plain_grid(u, pv, w):

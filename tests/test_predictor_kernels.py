@@ -8,10 +8,10 @@ import pytest
 
 from stictiondiag.core.filters import delayed
 from stictiondiag.identification.numerics import fractional_delay_wls
-from stictiondiag.identification.predictor import kalman_gains
 from stictiondiag.identification.predictor_kernels import (
     _prediction_errors,
     _prediction_errors_rows,
+    kalman_gains,
     shifted_grams,
     shifted_pair_wls,
 )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -18,10 +19,18 @@ from stictiondiag.apps.report import (
     render_index_html,
     render_markdown,
 )
+from stictiondiag.gap.effects.base import EffectParams
 
 ROOT = Path(__file__).resolve().parents[1]
 
 EVIL = "<script>alert('x')</script>"
+
+
+@dataclasses.dataclass(frozen=True)
+class _TextParams(EffectParams):
+    """Effect parameters holding a text, to check it is escaped."""
+
+    q: str
 
 
 def _analysis(name=EVIL, **fields):
@@ -36,7 +45,7 @@ def _analysis(name=EVIL, **fields):
         "names": {"pv": EVIL, "op": "FIC101.OP"},
         "loop_type": "flow",
         "reasons": [f"comment {EVIL}"],
-        "gap": make_gap(candidates=[make_candidate(EVIL, params={"q": EVIL})]),
+        "gap": make_gap(candidates=[make_candidate(EVIL, params=_TextParams(EVIL))]),
         "warnings": [f"gap at {EVIL}"],
     }
     return make_analysis(name, **{**values, **fields})

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from stictiondiag.identification.numerics import fractional_delay_wls, wls
-from stictiondiag.identification.predictor import _pair_sse, kalman_gains
+from stictiondiag.identification.predictor import _pair_sse
 from stictiondiag.identification.predictor_kernels import (
     _prediction_errors,
     _prediction_errors_rows,
+    kalman_gains,
 )
 from stictiondiag.stiction.hammerstein import columns as hc
 from stictiondiag.stiction.hammerstein import kernels as hk

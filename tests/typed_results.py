@@ -11,7 +11,8 @@ import dataclasses
 
 import numpy as np
 
-from stictiondiag.gap.diagnose import Candidate, GapDiagnosis
+from stictiondiag.gap.effects.base import EffectParams
+from stictiondiag.gap.result import Candidate, GapDiagnosis
 from stictiondiag.io.tags import Tags
 from stictiondiag.result import Analysis
 from stictiondiag.signals.oscillation import Oscillation
@@ -60,18 +61,17 @@ def make_gap(effect="quantization", before=0.5, after=0.2, shrink_pct=60.0, cand
         runner_up="none",
         margin=10.0,
         candidates=tuple(candidates),
-        breakdown={},
     )
 
 
-def make_candidate(effect, after=0.3, shrink_pct=40.0, params=None):
-    """One candidate effect of a gap diagnosis."""
+def make_candidate(effect, after=0.3, shrink_pct=40.0, params: EffectParams | None = None):
+    """One candidate effect of a gap diagnosis (parameters none unless given)."""
     return Candidate(
         effect=effect,
         variant="",
         after=after,
         shrink_pct=shrink_pct,
-        params=dict(params or {}),
+        params=params or EffectParams(),
         n_params=1,
         heldout=after,
         penalised_score=after,

@@ -33,13 +33,13 @@ from stictiondiag.apps.findings import (
     probability_text,
 )
 from stictiondiag.apps.pages import duration_text, html_num, html_page, html_text
-from stictiondiag.core.serialize import plain_float, to_plain
+from stictiondiag.core.serialize import plain_float
 from stictiondiag.models.processes import FOPTD
 from stictiondiag.replay.metrics import ReplayMetrics, replay_metrics
 from stictiondiag.result import clock_text
 
 if TYPE_CHECKING:
-    from stictiondiag.gap.diagnose import GapDiagnosis
+    from stictiondiag.gap.result import GapDiagnosis
     from stictiondiag.identification.controller import ControllerFit
     from stictiondiag.identification.process_result import ProcessFit
     from stictiondiag.replay.closed_loop import Replay
@@ -454,12 +454,13 @@ def _gap_section(gap: GapDiagnosis | None, has_replay: bool, images: dict[str, b
                     f"<tr><td>{_text(c.effect)}</td>"
                     f"<td class='num'>{_num(plain_float(c.after))}</td>"
                     f"<td class='num'>{_num(plain_float(c.shrink_pct), '.0f')}</td>"
-                    f"<td>{_param_text(to_plain(c.params))}</td></tr>"
+                    f"<td>{_param_text(c.params.to_dict())}</td></tr>"
                     for c in gap.candidates
                 )
                 + "</table>"
             )
-        parts.append(_json_details("gap breakdown", to_plain(gap.breakdown)))
+        if gap.breakdown is not None:
+            parts.append(_json_details("gap breakdown", gap.breakdown.to_dict()))
     elif has_replay:
         parts.append("<p>Not run.</p>")
     else:

@@ -51,7 +51,10 @@ from stictiondiag.core.errors import DataError
 #: enums (``VerdictStatus``, ``Cause``) and the cause model's reading a ``CauseReading``; a stiction fit's
 #: period, interval method, block costs and archive resolution are typed fields;
 #: an oscillation's absence is a category (``Absence``).
-SCHEMA_VERSION = 10
+#: 11: the gap diagnosis is typed all the way down: its breakdown (``gap.breakdown``),
+#: base replay (``GapBase``, the controller a ``ControllerReplay``), series
+#: (``GapSeries``) and each candidate's parameters (the effect's ``EffectParams``).
+SCHEMA_VERSION = 11
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

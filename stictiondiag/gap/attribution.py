@@ -30,7 +30,7 @@ from stictiondiag.core.serialize import plain_float, to_plain
 from stictiondiag.gap.effects.signatures import SIGNATURE_P
 
 if TYPE_CHECKING:
-    from stictiondiag.gap.diagnose import Candidate, GapDiagnosis
+    from stictiondiag.gap.result import Candidate, GapDiagnosis
     from stictiondiag.replay.refit import ClosedLoopRefit
 
 #: A gap above this, left without an effect, is explained in words [%].
@@ -158,22 +158,15 @@ def _identification(refit: ClosedLoopRefit | None) -> RefitShare:
 
 def _largest_signal(gap: GapDiagnosis) -> str | None:
     """The signal that holds most of the gap before, from the breakdown."""
-    per = to_plain((gap.breakdown or {}).get("signal")) or {}
-    vals = {s: v.get("before") for s, v in per.items() if v.get("before") is not None}
-    return max(vals, key=lambda s: vals[s]) if vals else None
+    return None if gap.breakdown is None else gap.breakdown.largest_signal()
 
 
 def _why_rejected(c: Candidate, heldout_before: float | None) -> str:
     """Which test a candidate failed, in words, from its reported results."""
-    failed_sig = [
-        (k, v)
-        for k, v in to_plain(c.params or {}).items()
-        if k.endswith("_p") and v is not None and float(v) >= SIGNATURE_P
-    ]
-    if failed_sig:
-        k, v = failed_sig[0]
+    test, v = c.params.SIGNATURE, plain_float(c.params.signature_p())
+    if test is not None and v is not None and v >= SIGNATURE_P:
         return (
-            f"its own signature is not in the data ({k.removesuffix('_p')}: p = "
+            f"its own signature is not in the data ({test.removesuffix('_p')}: p = "
             f"{_f(v, '.2g')}, above {SIGNATURE_P:g})"
         )
     held = plain_float(c.heldout)

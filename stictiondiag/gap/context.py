@@ -17,22 +17,9 @@ import numpy as np
 
 from stictiondiag.core.checks import span_offset
 from stictiondiag.core.errors import DataError
-from stictiondiag.core.robust import robust_std
 
 #: Shortest record analysed [samples].
 MIN_SAMPLES = 400
-
-
-def noise_variance(x: np.ndarray) -> float:
-    """White measurement-noise variance of a signal from its sample-to-sample changes.
-
-    ``(1.4826 MAD(diff x))^2 / 2``: the median ignores the few large changes (slips,
-    steps), and a still or slowly moving signal changes by its noise alone.
-    """
-    d = np.diff(np.asarray(x, dtype=float))
-    if d.size == 0:
-        return 0.0
-    return robust_std(d) ** 2 / 2.0
 
 
 def signals_of(tags) -> LoopSignals:
@@ -249,6 +236,22 @@ def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float, segments=None) -> d
         "mv_after": np.asarray(seg.mv_after, dtype=float),
         "op_direction": op_dir,
     }
+
+
+def starting_point(fit, sig: LoopSignals) -> dict:
+    """S and J to start the searches from and, without a recorded mv, the modelled
+    valve output that drives the process (from a stiction estimate, if any)."""
+    start = None
+    mv_model = None
+    if fit is not None:
+        S, J = getattr(fit, "S", None), getattr(fit, "J", None)
+        if S is not None and J is not None and math.isfinite(S) and math.isfinite(J):
+            start = (float(S), float(J))
+        if sig.mv is None and getattr(fit, "mv_model", None) is not None:
+            mv_model = np.asarray(fit.mv_model, dtype=float) + sig.offset
+            if mv_model.size != sig.n:
+                mv_model = None
+    return {"start": start, "mv_model": mv_model}
 
 
 def build_context(

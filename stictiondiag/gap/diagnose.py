@@ -88,25 +88,20 @@ record, :func:`stictiondiag.gap.effects.signature_test`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from stictiondiag.core.errors import DataError
-from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.breakdown import breakdown
 from stictiondiag.gap.context import (
-    LoopSignals,
-    ReplayContext,
     build_context,
-    noise_variance,
     signals_of,
+    starting_point,
 )
-from stictiondiag.gap.effects import EFFECT_MODELS, EFFECTS, REGISTRY, assessable_effects
-from stictiondiag.gap.effects.base import BaseFit, fit_base
+from stictiondiag.gap.effects import EFFECT_MODELS, assessable_effects
+from stictiondiag.gap.effects.base import fit_base
+from stictiondiag.gap.result import Candidate, GapBase, GapDiagnosis, GapSeries
 from stictiondiag.gap.selection import (
     N_BLOCKS,
-    Measure,
     Score,
     candidate_share,
     choose_quantization,
@@ -116,6 +111,7 @@ from stictiondiag.gap.selection import (
     evidence_floors,
     heldout_errors,
     margin,
+    mv_only_within_noise,
     rank_key,
     score_candidate,
     select_winner,
@@ -130,171 +126,6 @@ METRIC_DEFINITION = (
     "ahead with the load tracked, op from recorded sp and pv); V_s the variance of the "
     "signal's cycle-scale part, N_s its white-noise variance; 0 means within noise"
 )
-
-
-SIGNALS = ("op", "mv", "pv")
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """One effect added to the replay.
-
-    Attributes
-    ----------
-    effect : str
-        Effect name (see :data:`stictiondiag.gap.effects.EFFECTS`).
-    variant : str
-        Form that fitted best (e.g. ``step`` for a time-varying stiction).
-    after : float
-        Gap with the effect added, fitted on the whole record [%].
-    shrink_pct : float
-        Reduction of the gap [% of the gap before].
-    params : dict
-        Fitted parameters (units in the key names).
-    n_params : int
-        Parameters beyond the base model's.
-    heldout : float
-        Gap on held-out data (fitted on the other half) [%].
-    penalised_score : float
-        Held-out gap with the penalty for extra parameters added [%].
-    accepted : bool
-        The held-out improvement over the base model exceeds the penalty.
-    """
-
-    effect: str
-    variant: str
-    after: float
-    shrink_pct: float
-    params: dict
-    n_params: int
-    heldout: float
-    penalised_score: float
-    accepted: bool
-
-    def to_dict(self) -> dict:
-        return to_plain(
-            {
-                "effect": self.effect,
-                "variant": self.variant,
-                "after": self.after,
-                "shrink_pct": self.shrink_pct,
-                "params": self.params,
-                "n_params": self.n_params,
-                "heldout": self.heldout,
-                "penalised_score": self.penalised_score,
-                "accepted": self.accepted,
-            }
-        )
-
-
-@dataclass(frozen=True)
-class GapDiagnosis:
-    """Sim-to-real gap of a loop and the effect that explains it.
-
-    Attributes
-    ----------
-    metric : str
-        Name of the gap measure (:data:`METRIC_NAME`).
-    definition : str
-        Its definition (:data:`METRIC_DEFINITION`).
-    before : float
-        Gap of the two-parameter replay [%].
-    after : float
-        Gap with the winning effect added [%] (= before for ``none``).
-    shrink_pct : float
-        Reduction of the gap by the winning effect [% of before].
-    effect : str
-        The winning effect, ``none`` when the two-parameter model explains the data
-        to within its noise or no effect beats it on held-out data.
-    runner_up : str or None
-        Second-best candidate (accepted effects by evidence, then ``none``, then the
-        rest by penalised score).
-    margin : float
-        How clearly the winner won [%]: the share of the winner's penalised gain over
-        the base model that the runner-up does not reach (100 when the runner-up gains
-        nothing; between two accepted effects, the share of the winner's evidence the
-        runner-up lacks); for ``none``, how far the best candidate's penalised score lies
-        above the base model's error, in % of it.
-    candidates : tuple of Candidate
-        Every assessed effect, in the order of ``runner_up``.
-    breakdown : dict
-        Where the gap lies, before and after: by signal, valve phase, frequency,
-        time and feature (JSON-able).
-    not_assessed : tuple of str
-        Effects that cannot be assessed with the data (e.g. valve-side effects
-        without a recorded mv).
-    within_noise : tuple of str
-        Effects not fitted because they cannot lower the gap: they act on mv alone and
-        the base replay of mv is already within its noise (its excess is 0), so no
-        fit of theirs can be named (:func:`mv_within_noise`).
-    heldout_before : float
-        Gap of the two-parameter replay on held-out data [%] (the score of ``none``).
-    base : dict
-        The base replay's parameters: S and J [% of span], valve logic, process,
-        controller.
-    series : dict
-        Time series for plots: ``time`` [s], recorded ``op``, ``mv``, ``pv`` and the
-        replays ``<signal>_before`` and ``<signal>_after`` (None where absent).
-    """
-
-    metric: str
-    definition: str
-    before: float
-    after: float
-    shrink_pct: float
-    effect: str
-    runner_up: str | None
-    margin: float
-    candidates: tuple
-    breakdown: dict
-    not_assessed: tuple = ()
-    within_noise: tuple = ()
-    heldout_before: float = 0.0
-    base: dict = field(default_factory=dict)
-    series: dict = field(default_factory=dict, repr=False, compare=False)
-
-    def to_dict(self) -> dict:
-        """JSON-able summary (no time series): the keys of ``gap`` in the analysis JSON."""
-        return to_plain(
-            {
-                "metric": self.metric,
-                "definition": self.definition,
-                "units": "%",
-                "before": self.before,
-                "after": self.after,
-                "shrink_pct": self.shrink_pct,
-                "effect": self.effect,
-                "runner_up": self.runner_up,
-                "margin": self.margin,
-                "candidates": [c.to_dict() for c in self.candidates],
-                "breakdown": self.breakdown,
-                "not_assessed": list(self.not_assessed),
-                "within_noise": list(self.within_noise),
-                "heldout_before": self.heldout_before,
-                "base": self.base,
-            }
-        )
-
-    def to_pandas(self):
-        """The recorded signals and the replays before and after, one row per sample."""
-        import pandas as pd
-
-        return pd.DataFrame({k: v for k, v in self.series.items() if v is not None})
-
-    def plot(self):
-        """Where the gap lies (:func:`stictiondiag.plotting.gap.plot_gap_breakdown`)."""
-        from stictiondiag.plotting.gap import plot_gap_breakdown
-
-        return plot_gap_breakdown(self)
-
-    def figures(self) -> dict:
-        """Figures by name: ``gap_breakdown`` and ``gap_replay``."""
-        from stictiondiag.plotting.gap import (
-            plot_gap_breakdown,
-            plot_gap_replay,
-        )
-
-        return {"gap_breakdown": plot_gap_breakdown(self), "gap_replay": plot_gap_replay(self)}
 
 
 def diagnose_gap(
@@ -348,8 +179,9 @@ def diagnose_gap(
     """
     sig = signals_of(tags)
     n_blocks = max(int(n_blocks), 4)
-    ctx = build_context(sig, segments=segments, **_starting_point(fit, sig))
-    assessable, not_assessed = _assessable(sig, effects)
+    start = starting_point(fit, sig)
+    ctx = build_context(sig, segments=segments, **start)
+    assessable, not_assessed = assessable_effects(sig.mv is not None, effects)
 
     # Whole-record fits.
     base = fit_base(ctx, ctx.w_eval)
@@ -410,7 +242,7 @@ def diagnose_gap(
                 variant=ef.variant,
                 after=after_c,
                 shrink_pct=100.0 * (sel.before - after_c) / sel.before if sel.before > 0 else 0.0,
-                params=to_plain(dict(ef.params)),
+                params=ef.params,
                 n_params=ef.n_params,
                 heldout=as_gap(errors[name], explained=ef.explained),
                 penalised_score=as_gap(
@@ -425,7 +257,7 @@ def diagnose_gap(
         win = next(c for c in cands if c.effect == winner)
         after, shrink = win.after, win.shrink_pct
 
-    preds_before = base.predictions()
+    preds_before = base.predictions
     preds_after = combined_predictions(base, None if winner == "none" else fits[winner])
     return GapDiagnosis(
         metric=METRIC_NAME,
@@ -437,100 +269,10 @@ def diagnose_gap(
         runner_up=runner,
         margin=margin(winner, runner, scores, evidences),
         candidates=tuple(cands),
-        breakdown=to_plain(
-            breakdown(sig, ctx, sel.measure, base, preds_before, preds_after, replay)
-        ),
+        breakdown=breakdown(sig, sel.measure, base, preds_before, preds_after, replay),
         not_assessed=tuple(not_assessed),
         within_noise=tuple(within_noise),
         heldout_before=as_gap(errors["none"]),
-        base=to_plain(_base_info(ctx, base, sel.measure.floor)),
-        series=_series(sig, preds_before, preds_after),
+        base=GapBase.of(ctx, base, sel.measure.floor),
+        series=GapSeries.of(sig, preds_before, preds_after),
     )
-
-
-def mv_within_noise(ctx: ReplayContext, base: BaseFit) -> bool:
-    """True when the base replay of mv is within its noise: its excess in the gap
-    (mean squared error on the judged samples less the white-noise variance of mv) is 0.
-
-    Computed as :func:`stictiondiag.gap.selection.record_gaps` computes it, so the
-    answer is exact: an effect that acts on mv alone then leaves every signal's excess
-    as the base has it or raises mv's, so its gap on the record is never below the
-    base's and :func:`select_winner` can never name it.
-    """
-    sig = ctx.sig
-    if sig.mv is None or base.valve is None:
-        return False
-    meas = Measure(norm=ctx.norm, floor={"mv": noise_variance(sig.mv)}, w=ctx.w_eval)
-    return meas.excess("mv", meas.nmse("mv", base.valve.mv, sig.mv)) == 0.0
-
-
-def mv_only_within_noise(ctx: ReplayContext, base: BaseFit, names) -> list[str]:
-    """The effects among ``names`` that act on mv alone (and explain no measurement
-    error), when the base replay of mv is within its noise (:func:`mv_within_noise`):
-    their fits cannot lower the gap, so they need not be made (their threshold
-    searches are most of the work of a loop with mv)."""
-    mv_only = [n for n in names if tuple(REGISTRY[n].acts_on) == ("mv",) and n != "quantization"]
-    if not mv_only or not mv_within_noise(ctx, base):
-        return []
-    return mv_only
-
-
-def _starting_point(fit, sig: LoopSignals) -> dict:
-    """S and J to start the searches from and, without a recorded mv, the modelled
-    valve output that drives the process (from a stiction estimate, if any)."""
-    start = None
-    mv_model = None
-    if fit is not None:
-        S, J = getattr(fit, "S", None), getattr(fit, "J", None)
-        if S is not None and J is not None and math.isfinite(S) and math.isfinite(J):
-            start = (float(S), float(J))
-        if sig.mv is None and getattr(fit, "mv_model", None) is not None:
-            mv_model = np.asarray(fit.mv_model, dtype=float) + sig.offset
-            if mv_model.size != sig.n:
-                mv_model = None
-    return {"start": start, "mv_model": mv_model}
-
-
-def _assessable(sig: LoopSignals, effects: tuple[str, ...] | None) -> tuple[list, list]:
-    """Effects to assess (those asked for that the data allow) and those the data do
-    not allow."""
-    assessable, not_assessed = assessable_effects(sig.mv is not None)
-    if effects is not None:
-        unknown = [e for e in effects if e not in EFFECTS]
-        if unknown:
-            raise DataError(f"unknown effect(s) {', '.join(unknown)}: use {', '.join(EFFECTS[1:])}")
-        assessable = [e for e in assessable if e in effects]
-    return assessable, not_assessed
-
-
-def _base_info(ctx: ReplayContext, base: BaseFit, floors: dict) -> dict:
-    """The base replay's parameters: valve, process, controller, noise floors."""
-    valve = base.valve
-    return {
-        "valve": None
-        if valve is None
-        else {
-            **valve.params,
-            "logic": "kano" if valve.kano else "choudhury",
-            "initial_direction": valve.initial_direction,
-        },
-        "process": base.process.to_dict(),
-        "controller": base.controller,
-        "noise_floor": {s: floors[s] / ctx.norm[s] for s in floors},
-        "judged_from_sample": int(np.argmax(ctx.w_eval > 0)),
-    }
-
-
-def _series(sig: LoopSignals, before: dict, after: dict) -> dict:
-    """Recorded signals and the replays before and after, for plots."""
-    series: dict[str, np.ndarray | None] = {"time": np.arange(sig.n) * sig.dt}
-    for s in SIGNALS:
-        # op and mv back in the units of the record (signals_of shifted them).
-        shift = sig.offset if s in ("op", "mv") else 0.0
-        for key, x in (
-            (s, getattr(sig, s)),
-            (f"{s}_before", before.get(s)),
-            (f"{s}_after", after.get(s)),
-        ):
-            series[key] = None if x is None else np.asarray(x) - shift
-    return series

@@ -19,13 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from stictiondiag.core.robust import robust_std
-from stictiondiag.gap.context import LoopSignals, ReplayContext, noise_variance
+from stictiondiag.gap.context import LoopSignals, ReplayContext
+from stictiondiag.gap.effects import REGISTRY
 from stictiondiag.gap.effects.base import (
     BaseFit,
     EffectFit,
     fit_base,
-    process_input,
-    pv_noise_floor,
 )
 from stictiondiag.gap.effects.quantization import (
     detect_quantization,
@@ -43,6 +42,18 @@ SIGNIFICANCE = 2.0
 
 #: Fewest effectively independent residuals assumed for the per-parameter penalty [-].
 MIN_EFFECTIVE_SAMPLES = 10
+
+
+def noise_variance(x: np.ndarray) -> float:
+    """White measurement-noise variance of a signal from its sample-to-sample changes.
+
+    ``(1.4826 MAD(diff x))^2 / 2``: the median ignores the few large changes (slips,
+    steps), and a still or slowly moving signal changes by its noise alone.
+    """
+    d = np.diff(np.asarray(x, dtype=float))
+    if d.size == 0:
+        return 0.0
+    return robust_std(d) ** 2 / 2.0
 
 
 @dataclass(frozen=True)
@@ -84,13 +95,40 @@ class Measure:
         return 100.0 * math.sqrt(sum(self.excess(s, v) for s, v in per_signal.items()))
 
 
+def mv_within_noise(ctx: ReplayContext, base: BaseFit) -> bool:
+    """True when the base replay of mv is within its noise: its excess in the gap
+    (mean squared error on the judged samples less the white-noise variance of mv) is 0.
+
+    Computed as :func:`stictiondiag.gap.selection.record_gaps` computes it, so the
+    answer is exact: an effect that acts on mv alone then leaves every signal's excess
+    as the base has it or raises mv's, so its gap on the record is never below the
+    base's and :func:`select_winner` can never name it.
+    """
+    sig = ctx.sig
+    if sig.mv is None or base.valve is None:
+        return False
+    meas = Measure(norm=ctx.norm, floor={"mv": noise_variance(sig.mv)}, w=ctx.w_eval)
+    return meas.excess("mv", meas.nmse("mv", base.valve.mv, sig.mv)) == 0.0
+
+
+def mv_only_within_noise(ctx: ReplayContext, base: BaseFit, names) -> list[str]:
+    """The effects among ``names`` that act on mv alone (and explain no measurement
+    error), when the base replay of mv is within its noise (:func:`mv_within_noise`):
+    their fits cannot lower the gap, so they need not be made (their threshold
+    searches are most of the work of a loop with mv)."""
+    mv_only = [n for n in names if tuple(REGISTRY[n].acts_on) == ("mv",) and n != "quantization"]
+    if not mv_only or not mv_within_noise(ctx, base):
+        return []
+    return mv_only
+
+
 def block_index(n: int, n_blocks: int) -> np.ndarray:
     """Block index of every sample (contiguous blocks of equal length)."""
     return np.minimum((np.arange(n) * n_blocks) // n, n_blocks - 1)
 
 
 def combined_predictions(base: BaseFit, ef: EffectFit | None) -> dict:
-    preds = dict(base.predictions())
+    preds = dict(base.predictions)
     if ef is not None:
         preds.update(ef.predictions)
     return preds
@@ -247,7 +285,7 @@ def heldout_errors(
         test = 1.0 - train
         w_train = ctx.w_eval * train
         base_f = fit_base(ctx, w_train, like=base)
-        errs = block_errors(base_f.predictions(), sig, norm_only, blocks, test, n_blocks)
+        errs = block_errors(base_f.predictions, sig, norm_only, blocks, test, n_blocks)
         held["none"] = accumulate(held["none"], errs)
         for name, ef_full in fits.items():
             ef = models[name](ctx, w_train, base_f, init=ef_full)
@@ -284,7 +322,7 @@ def effective_samples_of(ctx: ReplayContext, base: BaseFit) -> dict:
     samples (:func:`effective_samples`)."""
     return {
         s: effective_samples(p - getattr(ctx.sig, s), ctx.w_eval)
-        for s, p in base.predictions().items()
+        for s, p in base.predictions.items()
     }
 
 
@@ -399,7 +437,7 @@ def score_candidate(
     total1 = sum(v for v in held[name].values())
     n_blocks = total0.size
     base_total = float(total0.sum())
-    base_preds = base.predictions()
+    base_preds = base.predictions
     d = total0 - total1
     # Process-side replays: an installed characteristic may show in the one block
     # where the valve travels far from its operating point (all blocks count).
@@ -644,7 +682,7 @@ def noise_floors(
 def record_gaps(meas: Measure, ctx: ReplayContext, base: BaseFit, fits: dict) -> tuple:
     """Gap of the base replay and of every candidate on the whole record [%]."""
     sig = ctx.sig
-    per_base = {s: meas.nmse(s, p, getattr(sig, s)) for s, p in base.predictions().items()}
+    per_base = {s: meas.nmse(s, p, getattr(sig, s)) for s, p in base.predictions.items()}
     before = meas.gap(per_base)
     afters = {}
     for name, ef in fits.items():
@@ -674,7 +712,7 @@ def select_winner(
         for name in ["none", *fits]
         if "pv" in held[name] and (name == "none" or "pv" in fits[name].predictions)
     ]
-    base_pv_floor = pv_noise_floor(process_input(ctx, base), ctx, base.process)
+    base_pv_floor = base.pv_noise_floor(ctx)
     excluded: set = set()
     while True:
         order = sorted([e for e in ["none", *fits] if e not in excluded], key=rank)

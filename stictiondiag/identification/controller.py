@@ -449,9 +449,41 @@ def _lstsq_t(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float, np.ndarra
     return coef, t, resid
 
 
+@dataclass(frozen=True)
+class ControllerReplay:
+    """The PI law that replays a recorded op (:func:`fit_controller_replay`).
+
+    Attributes
+    ----------
+    gain : float
+        Kc [% of span / pv units].
+    integral_time_s : float or None
+        Ti [s]; None without integral action.
+    filter_time_s : float
+        Time constant of the first-order filter on pv [s] (0: none).
+    bias : float
+        op at zero error and zero integral [% of span].
+    """
+
+    gain: float
+    integral_time_s: float | None
+    filter_time_s: float
+    bias: float
+
+    def to_dict(self) -> dict:
+        return to_plain(
+            {
+                "gain": self.gain,
+                "integral_time_s": self.integral_time_s,
+                "filter_time_s": self.filter_time_s,
+                "bias": self.bias,
+            }
+        )
+
+
 def fit_controller_replay(
     sp: np.ndarray | None, pv: np.ndarray, op: np.ndarray, dt: float, w: np.ndarray
-) -> tuple[np.ndarray, dict]:
+) -> tuple[np.ndarray, ControllerReplay]:
     """PI controller replay on a filtered measurement (Eq. 3).
 
     ``op = bias + Kc (e + (1/Ti) integral(e))``, ``e = sp - pv_f`` with ``pv_f`` a
@@ -476,9 +508,9 @@ def fit_controller_replay(
     -------
     op_hat : ndarray
         Replayed controller output [% of span].
-    params : dict
-        ``gain`` Kc [% / pv units], ``integral_time_s`` Ti [s] (None without integral
-        action), ``filter_time_s`` [s], ``bias`` [% of span].
+    params : ControllerReplay
+        Kc [% / pv units], Ti [s] (None without integral action), the pv filter's
+        time constant [s] and the bias [% of span].
     """
     n = op.size
     sp_fixed = sp is None
@@ -500,12 +532,9 @@ def fit_controller_replay(
     _, pred, coef, tf = best
     kc, ki = float(coef[1]), float(coef[2])
     ti = kc / ki if abs(ki) > 1e-12 and kc / ki > 0 else None
-    return pred, {
-        "gain": kc,
-        "integral_time_s": ti,
-        "filter_time_s": tf * dt,
-        "bias": float(coef[0]),
-    }
+    return pred, ControllerReplay(
+        gain=kc, integral_time_s=ti, filter_time_s=tf * dt, bias=float(coef[0])
+    )
 
 
 #: R^2 of the velocity-form PI law (:attr:`ControllerFit.fit_r2`) from which the

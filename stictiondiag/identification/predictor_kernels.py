@@ -1,25 +1,36 @@
-"""Compiled kernels of the prediction-error process fit
+"""The process-with-load Kalman filter of the prediction-error process fit
 (:mod:`stictiondiag.identification.predictor`; Section 4.2.2, Eq. 3 of Choudhury,
-Thornhill & Shah 2005).
+Thornhill & Shah 2005): its compiled kernels and its algebra.
 
-The steady-state Kalman gains of the process-with-load model; the filter's
-``horizon``-step prediction errors of one signal or of many with a filter each
-(a grid's filters at once); the entries of the one-step
-structure grid's normal equations; and the weighted least-squares fit of one
-structure (:func:`shifted_pair_wls`).  Rows filtered together run side by side
-(one's latency hides behind the others'); each row goes through the same operations
-as alone, so it gets the same numbers.  The weighted sums are reassociated into
-vector registers: the same products, summed in another order than BLAS sums them
-(the same numbers to rounding).
+Compiled: the steady-state Kalman gains of the process-with-load model; the
+filter's ``horizon``-step prediction errors of one signal or of many with a filter
+each (a grid's filters at once); the entries of the one-step structure grid's normal
+equations; and the weighted least-squares fit of one structure
+(:func:`shifted_pair_wls`).  Rows filtered together run side by side (one's latency
+hides behind the others'); each row goes through the same operations as alone, so
+it gets the same numbers.  The weighted sums are reassociated into vector registers:
+the same products, summed in another order than BLAS sums them (the same numbers to
+rounding).
+
+In Python, over those kernels: the gains remembered per filter
+(:func:`kalman_gains`), the variances of the one-step and ``horizon``-step prediction
+errors (:func:`prediction_variance_ratio`), the innovation responses to the input
+(:func:`process_regressors`) and the pv noise floor of a fitted replay
+(:func:`process_noise_floor`).  They sit beside the kernels they call, so that a
+caller of the filter's algebra finds all of it in one place.
 """
 
 from __future__ import annotations
 
+import functools
+
 import numba
 import numpy as np
 
+from stictiondiag.core.filters import delayed
 from stictiondiag.core.jit import jit
 from stictiondiag.identification.numerics import _scaled_solve
+from stictiondiag.identification.process_result import ProcessFit, ProcessModel
 
 #: A sum over the samples that may be reassociated (numba's ``fastmath`` flag
 #: ``reassoc`` alone: no other assumption about the numbers), so that it is computed
@@ -350,3 +361,127 @@ def shifted_pair_wls(e0, base, delay, E, w):  # pragma: no cover - compiled
         coef = best
     sse = _pair_residual(e0, base, delay, E, coef, w, r)
     return sse, coef, r
+
+
+# ------------------------------------------------------------------------------------
+# The filter's algebra in Python: gains, prediction variances, innovation responses and
+# the noise floor of a fitted replay (each over the compiled kernels above)
+# ------------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=1024)
+def kalman_gains(pole: float, load_ratio: float) -> tuple[float, float]:
+    """Steady-state Kalman gains of the process-with-load model (remembered: the
+    searches of a fit, and the fits of a loop, come back to the same filters).
+
+    States: the process output ``y`` and an unmeasured load ``l`` (a random walk)
+    entering with the valve: ``y[k+1] = a y[k] + b u[k-d] + l[k]``, ``l[k+1] = l[k] +
+    v[k]``, measured ``pv = y + e``; ``load_ratio`` is var(v)/var(e).  Returns the
+    gains of the filtered estimates of ``y`` and ``l`` on the innovation.
+    """
+    k1, k2, *_ = _riccati_gains(float(pole), float(load_ratio))
+    return float(k1), float(k2)
+
+
+def prediction_variance_ratio(pole: float, load_ratio: float, horizon: int) -> tuple[float, float]:
+    """Variances of the one-step innovation and of the ``horizon``-step prediction error,
+    in units of the measurement-noise variance, for the process-with-load model.
+
+    A correct model's ``horizon``-step error variance is the second value times the
+    measurement noise variance: measurement noise plus the load the filter could not
+    foresee.
+    """
+    k1, k2, p11, p12, p22 = _riccati_gains(float(pole), float(load_ratio))
+    s1 = p11 + 1.0
+    # Filtered covariance.
+    f11, f12, f22 = p11 - k1 * p11, p12 - k1 * p12, p22 - k2 * p12
+    P = np.array([[f11, f12], [f12, f22]])
+    F = np.array([[pole, 1.0], [0.0, 1.0]])
+    Q = np.array([[0.0, 0.0], [0.0, load_ratio]])
+    acc = np.zeros((2, 2))
+    Fj = np.eye(2)
+    for _ in range(max(int(horizon), 1)):
+        acc += Fj @ Q @ Fj.T
+        Fj = F @ Fj
+    Pm = Fj @ P @ Fj.T + acc
+    return float(s1), float(Pm[0, 0] + 1.0)
+
+
+def extra_start(column: np.ndarray) -> float:
+    """Initial state of the filter of an extra column (an output disturbance): its
+    first value.
+
+    The innovations are linear in the filtered signal and in the filter's initial
+    state, so pv less a disturbance ``a c`` is filtered from ``pv[0] - a c[0]`` only
+    if the column's own filter starts at ``c[0]`` (pv's starts at ``pv[0]``).  From
+    0, the fitted disturbance's first value is an error the filter carries into the
+    record as load, for as long as its tracking takes to forget it (on a slow filter,
+    the first block of the record): a disturbance fitted on the other blocks then
+    lost on the first one what it gained on all the others.
+    """
+    return float(column[0]) if column.size else 0.0
+
+
+def _input_response(u: np.ndarray, model: ProcessModel, k1: float, k2: float) -> np.ndarray:
+    """Innovation response to a unit gain on the input without dead time."""
+    u0 = u - u[0]
+    return _prediction_errors(
+        np.zeros(u.size), np.ascontiguousarray(u0), model.pole, k1, k2, 0.0, model.horizon
+    )
+
+
+def _shifted_pair(base: np.ndarray, delay: int) -> np.ndarray:
+    """``base`` delayed by ``delay`` and ``delay + 1`` samples, as two columns."""
+    X = np.empty((base.size, 2))
+    X[:, 0] = delayed(base, delay)
+    X[:, 1] = delayed(base, delay + 1)
+    return X
+
+
+def process_regressors(u: np.ndarray, model: ProcessModel, k1: float, k2: float) -> np.ndarray:
+    """Innovation responses to a unit gain on the input at two adjacent dead times."""
+    response = _input_response(u, model, k1, k2)
+    return _shifted_pair(response, model.delay)
+
+
+def process_noise_floor(
+    u: np.ndarray,
+    pv: np.ndarray,
+    w: np.ndarray,
+    fit: ProcessFit,
+    extra: np.ndarray | None = None,
+) -> float:
+    """Variance of the pv prediction error that a correct process replay still makes [pv^2].
+
+    The measurement-noise variance is read from the one-step innovations of the fitted
+    replay (their variance is a known multiple of it for the fitted load-to-noise
+    ratio), and the horizon's error is that multiple of it again
+    (:func:`prediction_variance_ratio`): measurement noise plus the load the filter
+    could not foresee.
+    """
+    m = fit.prediction.model
+    k1, k2 = kalman_gains(m.pole, m.load_ratio)
+    r1, rm = prediction_variance_ratio(m.pole, m.load_ratio, m.horizon)
+    pv = np.ascontiguousarray(pv, dtype=float)
+    zeros = np.zeros(pv.size)
+    one = ProcessModel(m.pole, m.delay, m.load_ratio, 1)
+    # One-step innovations of the fitted replay: those of pv, plus the input's and
+    # any extra column's responses times their fitted coefficients.
+    e0 = _prediction_errors(pv, zeros, m.pole, k1, k2, float(pv[0]), 1)
+    coef = fit.prediction.coef
+    E = None
+    if extra is not None and coef.size > 2:
+        E = np.column_stack(
+            [
+                -_prediction_errors(
+                    np.ascontiguousarray(c), zeros, m.pole, k1, k2, extra_start(c), 1
+                )
+                for c in np.atleast_2d(extra.T)
+            ]
+        )
+    X = process_regressors(np.ascontiguousarray(u, dtype=float), one, k1, k2)
+    if E is not None:
+        X = np.column_stack([X, E])
+    e1 = e0 + X @ coef[: X.shape[1]]
+    s1 = float(np.dot(w, e1 * e1)) / max(float(w.sum()), 1.0)
+    return s1 / r1 * rm

@@ -4,6 +4,9 @@
 time) and how each candidate effect scored; :func:`plot_gap_replay` shows the replay
 against the data before and after the winning effect, as time trends and as the
 mv-op plot that Section 5.3.1 of Choudhury et al. (2005) recommends for valve faults.
+Both read the diagnosis's typed parts by attribute (``breakdown``:
+:class:`stictiondiag.gap.breakdown.Breakdown`; ``series``:
+:class:`stictiondiag.gap.result.GapSeries`) without importing the gap layer.
 """
 
 from __future__ import annotations
@@ -54,14 +57,16 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     b = diagnosis.breakdown
     # Only the panels with something to show, in reading order; the summary text
     # takes the last cell and a cell left over is removed (no empty panels).
-    panels = [lambda ax: _signal_panel(ax, b.get("signal", {}))]
-    phase_signal = _phase_signal(b.get("phase"))
-    if phase_signal is not None:
-        panels.append(lambda ax: _phase_panel(ax, b.get("phase"), phase_signal))
-    if _frequency_signals(b.get("frequency"))[0]:
-        panels.append(lambda ax: _frequency_panel(ax, b.get("frequency", {})))
-    if b.get("time"):
-        panels.append(lambda ax: _time_panel(ax, b.get("time", {})))
+    panels = []
+    if b is not None:
+        panels.append(lambda ax: _signal_panel(ax, b.signal))
+        phase, phase_signal = b.phase, _phase_signal(b.phase)
+        if phase is not None and phase_signal is not None:
+            panels.append(lambda ax: _phase_panel(ax, phase, phase_signal))
+        if _frequency_signals(b.frequency)[0]:
+            panels.append(lambda ax: _frequency_panel(ax, b.frequency))
+        if b.time.items():
+            panels.append(lambda ax: _time_panel(ax, b.time))
     if diagnosis.candidates:
         panels.append(lambda ax: _candidates_panel(ax, diagnosis))
     fig, axes = new_figure(2, 3, (14, 7.5))
@@ -81,20 +86,21 @@ def plot_gap_breakdown(diagnosis, *, title: str | None = None) -> Figure:
     return fig
 
 
-def _signal_panel(ax, sig: dict) -> None:
+def _signal_panel(ax, sig) -> None:
     """Gap per signal before and after, with each signal's noise floor."""
-    names = list(sig)
+    names = sig.names()
+    gaps = [g for _, g in sig.items()]
     _bars(
         ax,
         names,
-        [sig[s]["before"] for s in names],
-        [sig[s]["after"] for s in names],
+        [g.before for g in gaps],
+        [g.after for g in gaps],
         "By signal",
         "gap [%]",
     )
     ax.plot(
         np.arange(len(names)),
-        [sig[s]["noise_floor"] for s in names],
+        [g.noise_floor for g in gaps],
         "k_",
         markersize=18,
         label="noise floor",
@@ -102,52 +108,54 @@ def _signal_panel(ax, sig: dict) -> None:
     ax.legend(fontsize=8)
 
 
-def _phase_signal(ph: dict | None) -> str | None:
+def _phase_signal(ph) -> str | None:
     """The signal whose error the valve-phase panel shows: mv where its replay
     departs at all, else pv; None when neither does (the panel is left out and the
     summary says so)."""
-    if not ph:
+    if ph is None:
         return None
     for signal in ("mv", "pv"):
-        shares = [ph[p].get(f"{signal}_share_pct_before") for p in ph]
+        shares = [p.share_before(signal) for _, p in ph.items()]
         if any(v is not None and np.isfinite(v) and v > 0 for v in shares):
             return signal
     return None
 
 
-def _phase_panel(ax, ph: dict, signal: str) -> None:
+def _phase_panel(ax, ph, signal: str) -> None:
     """Share of the ``signal`` replay error per valve phase (stuck, slip, moving,
     reversal)."""
-    labels = list(ph)
+    labels = [name for name, _ in ph.items()]
+    errors = [getattr(p, signal) for _, p in ph.items()]
     _bars(
         ax,
         labels,
-        [ph[p].get(f"{signal}_share_pct_before") for p in labels],
-        [ph[p].get(f"{signal}_share_pct_after") for p in labels],
+        [None if e is None else e.share_pct_before for e in errors],
+        [None if e is None else e.share_pct_after for e in errors],
         f"By valve phase (share of {signal} error)",
         "% of squared error",
     )
-    for i, p in enumerate(labels):
+    for i, (_, p) in enumerate(ph.items()):
         ax.text(
             i,
             0,
-            f"{ph[p]['samples_pct']:.0f}% of\nsamples",
+            f"{p.samples_pct:.0f}% of\nsamples",
             ha="center",
             va="bottom",
             fontsize=7,
         )
 
 
-def _frequency_signals(fr: dict | None) -> tuple[list[str], list[str]]:
+def _frequency_signals(fr) -> tuple[list[str], list[str]]:
     """The signals with a replay error to split by frequency, and those whose replay
     is exact (no error: their shares are None, :mod:`stictiondiag.gap.breakdown`)."""
-    fr = fr or {}
-    present = [s for s in ("mv", "pv", "op") if s in fr]
-    exact = [s for s in present if fr[s].get("fundamental_pct_before") is None]
+    if fr is None:
+        return [], []
+    present = [s for s in ("mv", "pv", "op") if getattr(fr.signals, s) is not None]
+    exact = [s for s in present if getattr(fr.signals, s).fundamental_pct_before is None]
     return [s for s in present if s not in exact], exact
 
 
-def _frequency_panel(ax, fr: dict) -> None:
+def _frequency_panel(ax, fr) -> None:
     """Error energy at the fundamental, its harmonics and elsewhere, per signal; a
     signal whose replay is exact gets no bar and is named in words instead."""
     sigs, exact = _frequency_signals(fr)
@@ -156,11 +164,13 @@ def _frequency_panel(ax, fr: dict) -> None:
         x = np.arange(len(sigs))
         bottom = np.zeros(len(sigs))
         for part, color in zip(parts, ("tab:blue", "tab:purple", "0.7"), strict=True):
-            vals = np.array([fr[s].get(f"{part}_pct_before") or 0.0 for s in sigs])
+            vals = np.array(
+                [getattr(getattr(fr.signals, s), f"{part}_pct_before") or 0.0 for s in sigs]
+            )
             ax.bar(x, vals, 0.5, bottom=bottom, color=color, label=part)
             bottom += vals
         ax.set_xticks(x, sigs)
-        period = fr.get("fundamental_period_s")
+        period = fr.fundamental_period_s
         ax.set_title(
             "By frequency, before"
             + ("" if period is None else f" (fundamental period {period:.0f} s)"),
@@ -174,19 +184,19 @@ def _frequency_panel(ax, fr: dict) -> None:
         ax.set_axis_off()
 
 
-def _time_panel(ax, tm: dict) -> None:
+def _time_panel(ax, tm) -> None:
     """Gap in the first and second half of the record, per signal; a signal with no
     gap in either half before or after gets no bars and is named in words."""
     labels, before, after, nil = [], [], [], []
     for s, v in tm.items():
-        cells = [v.get(f"{h}_{w}") for h in ("early", "late") for w in ("before", "after")]
+        cells = [v.early_before, v.early_after, v.late_before, v.late_after]
         if all(c is not None and c == 0.0 for c in cells):
             nil.append(s)
             continue
         for half in ("early", "late"):
             labels.append(f"{s}\n{half}")
-            before.append(v.get(f"{half}_before"))
-            after.append(v.get(f"{half}_after"))
+            before.append(getattr(v, f"{half}_before"))
+            after.append(getattr(v, f"{half}_after"))
     if labels:
         _bars(ax, labels, before, after, "Over time (first and second half)", "gap [%]")
         if nil:
@@ -227,26 +237,27 @@ def _summary(diagnosis) -> str:
         f"gap after: {diagnosis.after:.1f} % (shrink {diagnosis.shrink_pct:.0f} %)",
         f"runner-up: {diagnosis.runner_up} (margin {diagnosis.margin:.1f} %)",
     ]
-    valve = b.get("feature", {}).get("valve")
-    if valve:
+    valve = None if b is None else b.feature.valve
+    if valve is not None:
         for key, label in (
             ("jump_up", "jump up"),
             ("jump_down", "jump down"),
             ("moving_slope", "moving slope"),
             ("corner_rise_samples", "slip rise [samples]"),
         ):
-            cells = [valve[w].get(key) for w in ("data", "before", "after")]
+            cells = [getattr(getattr(valve, w), key) for w in ("data", "before", "after")]
             txt = " / ".join("-" if v is None else f"{v:.2f}" for v in cells)
             lines.append(f"{label} (data/before/after): {txt}")
-    if b.get("phase") and _phase_signal(b.get("phase")) is None:
+    phase = None if b is None else b.phase
+    if phase is not None and _phase_signal(phase) is None:
         lines.append("by valve phase: no replay error in mv or pv")
-    elif not b.get("phase"):
+    elif phase is None:
         lines.append("by valve phase: no valve phases (no stick and slip found)")
-    fr = b.get("frequency") or {}
+    fr = None if b is None else b.frequency
     with_error, exact = _frequency_signals(fr)
     if exact and not with_error:
         lines.append("by frequency: every replay exact, no error to split")
-    elif not with_error and fr.get("fundamental_period_s") is None:
+    elif not with_error and (fr is None or fr.fundamental_period_s is None):
         lines.append("by frequency: no oscillation to split the error by")
     if diagnosis.not_assessed:
         lines.append("not assessed: " + ", ".join(diagnosis.not_assessed))
@@ -292,7 +303,10 @@ def plot_gap_replay(diagnosis, *, window: int | None = None, title: str | None =
     -------
     Figure
     """
-    s = diagnosis.series
+    series = diagnosis.series
+    if series is None:
+        raise ValueError("the gap diagnosis holds no series to plot")
+    s = series.columns()
     t = np.asarray(s["time"])
     n = t.size
     m = min(max(n // 4, 200), 2000) if window is None else int(window)

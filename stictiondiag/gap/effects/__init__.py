@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from stictiondiag.core.errors import DataError
 from stictiondiag.gap.effects import (
     actuator_lag,
     asymmetry,
@@ -74,19 +75,33 @@ EFFECT_MODELS: dict[str, Callable[..., EffectFit | None]] = {
 VALVE_SIDE_EFFECTS: frozenset[str] = frozenset(e.name for e in REGISTRY.values() if e.valve_side)
 
 
-def assessable_effects(has_mv: bool) -> tuple[list[str], list[str]]:
+def assessable_effects(
+    has_mv: bool, effects: tuple[str, ...] | None = None
+) -> tuple[list[str], list[str]]:
     """Effects that can and cannot be assessed with or without a recorded mv.
 
     Without mv the valve-side effects (lag, miscalibration, asymmetry, time-varying
     S and J) are confounded with the process dynamics and gain in pv; the
-    process-side ones remain.
+    process-side ones remain.  With ``effects`` given, only those of them are
+    assessed.
+
+    Raises
+    ------
+    DataError
+        ``effects`` names an effect the catalogue does not have.
     """
     names = [e for e in EFFECTS if e != "none"]
     if has_mv:
-        return names, []
-    return [e for e in names if e not in VALVE_SIDE_EFFECTS], [
-        e for e in names if e in VALVE_SIDE_EFFECTS
-    ]
+        assessable, not_assessed = names, []
+    else:
+        assessable = [e for e in names if e not in VALVE_SIDE_EFFECTS]
+        not_assessed = [e for e in names if e in VALVE_SIDE_EFFECTS]
+    if effects is not None:
+        unknown = [e for e in effects if e not in EFFECTS]
+        if unknown:
+            raise DataError(f"unknown effect(s) {', '.join(unknown)}: use {', '.join(EFFECTS[1:])}")
+        assessable = [e for e in assessable if e in effects]
+    return assessable, not_assessed
 
 
 __all__ = [

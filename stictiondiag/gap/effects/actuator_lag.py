@@ -9,6 +9,7 @@ cannot be told from the timing jitter of the replayed slips).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -17,9 +18,12 @@ from stictiondiag.gap.effects.base import (
     BaseFit,
     Effect,
     EffectFit,
+    EffectParams,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.search import WIDE_STAGES, grid_search_nd
 from stictiondiag.gap.effects.valve import (
+    ValveLogic,
     demand_travel,
     logic_name,
     needle_sj,
@@ -27,9 +31,28 @@ from stictiondiag.gap.effects.valve import (
     sj_wide,
     slip_medians,
     travel_seeds,
-    valve_rows,
 )
 from stictiondiag.identification.numerics import golden_section
+
+
+@dataclass(frozen=True)
+class ActuatorLagParams(EffectParams):
+    """A valve followed by a first-order actuator lag.
+
+    Attributes
+    ----------
+    S, J : float
+        Stiction thresholds of the friction element [% of span].
+    time_constant_s : float
+        The lag's time constant [s].
+    logic : ValveLogic
+        The stuck-phase logic replayed.
+    """
+
+    S: float
+    J: float
+    time_constant_s: float
+    logic: ValveLogic
 
 
 def _lag_weight(tau_samples: float) -> float:
@@ -37,8 +60,11 @@ def _lag_weight(tau_samples: float) -> float:
 
 
 def fit_actuator_lag(
-    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
-) -> EffectFit:
+    ctx: ReplayContext,
+    w: np.ndarray,
+    base: BaseFit,
+    init: EffectFit[ActuatorLagParams] | None = None,
+) -> EffectFit[ActuatorLagParams]:
     """Positioner/actuator dynamics after the friction element: ``mv = lag(valve(op))``.
 
     The stiction element of Fig. 10 is followed by a first-order lag with time
@@ -47,7 +73,7 @@ def fit_actuator_lag(
     then S and J again.
     """
     valve = base.recorded_valve()
-    seeds = [(valve.params["S"], valve.params["J"])]
+    seeds = [(valve.S, valve.J)]
     med = slip_medians(ctx.slips)
     if med is not None:
         seeds.append(med)
@@ -107,12 +133,9 @@ def fit_actuator_lag(
         effect="actuator_lag",
         variant="first_order",
         n_params=1,
-        params={
-            "S": float(S),
-            "J": float(J),
-            "time_constant_s": float(tau * dt),
-            "logic": logic_name(prob),
-        },
+        params=ActuatorLagParams(
+            S=float(S), J=float(J), time_constant_s=float(tau * dt), logic=logic_name(prob)
+        ),
         predictions={"mv": mv_hat},
         x=(float(S), float(J), float(tau)),
     )

@@ -8,6 +8,8 @@ Signature: the slips measured in the data differ by direction (rank test,
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from stictiondiag.gap.context import ReplayContext
@@ -15,7 +17,9 @@ from stictiondiag.gap.effects.base import (
     BaseFit,
     Effect,
     EffectFit,
+    EffectParams,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.search import WIDE_STAGES, grid_search_nd, needle_search
 from stictiondiag.gap.effects.signatures import (
     SLIP_TEST_P,
@@ -23,17 +27,41 @@ from stictiondiag.gap.effects.signatures import (
     untested_p,
 )
 from stictiondiag.gap.effects.valve import (
+    ValveLogic,
     demand_travel,
     logic_name,
     pick_problem,
     travel_seeds,
-    valve_rows,
 )
 
 
+@dataclass(frozen=True)
+class AsymmetryParams(EffectParams):
+    """A valve whose S and J differ opening and closing.
+
+    Attributes
+    ----------
+    S_open, J_open, S_close, J_close : float
+        Stiction thresholds opening and closing [% of span].
+    logic : ValveLogic
+        The stuck-phase logic replayed.
+    slips_differ_p : float
+        p-value of the rank test that the slips differ by direction [-].
+    """
+
+    SIGNATURE = "slips_differ_p"
+
+    S_open: float
+    J_open: float
+    S_close: float
+    J_close: float
+    logic: ValveLogic
+    slips_differ_p: float
+
+
 def fit_asymmetry(
-    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
-) -> EffectFit:
+    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit[AsymmetryParams] | None = None
+) -> EffectFit[AsymmetryParams]:
     """Different S and J opening and closing (Loop 1 of Section 3, Fig. 3).
 
     Fig. 10 and Eq. 4 with S and J taken from the direction of travel: four
@@ -43,7 +71,7 @@ def fit_asymmetry(
     travel = demand_travel(ctx.sig.op)
     lower, upper = np.zeros(4), np.array([travel, 1.5 * travel] * 2)
     valve = base.recorded_valve()
-    S0, J0 = valve.params["S"], valve.params["J"]
+    S0, J0 = valve.S, valve.J
     seeds = [np.array([S0, J0, S0, J0])]
     ups = travel_seeds(ctx.slips, 1.0) or [(S0, J0)]
     dns = travel_seeds(ctx.slips, -1.0) or [(S0, J0)]
@@ -80,14 +108,14 @@ def fit_asymmetry(
         effect="asymmetry",
         variant="open_close",
         n_params=2,
-        params={
-            "S_open": float(x[0]),
-            "J_open": float(x[1]),
-            "S_close": float(x[2]),
-            "J_close": float(x[3]),
-            "logic": logic_name(prob),
-            "slips_differ_p": p_slips,
-        },
+        params=AsymmetryParams(
+            S_open=float(x[0]),
+            J_open=float(x[1]),
+            S_close=float(x[2]),
+            J_close=float(x[3]),
+            logic=logic_name(prob),
+            slips_differ_p=p_slips,
+        ),
         predictions={"mv": mv_hat},
         x=tuple(float(v) for v in x),
     )

@@ -17,15 +17,18 @@ departure is located in the element that causes it (Choudhury, Thornhill & Shah 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 
+from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.context import ReplayContext
 from stictiondiag.gap.effects.kernels import valve_replay
 from stictiondiag.gap.effects.valve import ValveFit, fit_valve
-from stictiondiag.identification.controller import fit_controller_replay
-from stictiondiag.identification.predictor import fit_predictor, process_noise_floor
+from stictiondiag.identification.controller import ControllerReplay, fit_controller_replay
+from stictiondiag.identification.predictor import fit_predictor
+from stictiondiag.identification.predictor_kernels import process_noise_floor
 from stictiondiag.identification.process_result import ProcessFit, ProcessModel
 
 
@@ -63,7 +66,32 @@ class Effect:
 
 
 @dataclass(frozen=True)
-class EffectFit:
+class EffectParams:
+    """An effect's fitted parameters: each effect's own frozen subclass, units in the
+    field docs (``_s`` seconds, ``_pct`` % of span; S and J always in % of span).
+
+    :meth:`to_dict` writes the fields by name, in their order (the ``params`` of a
+    candidate in the gap's JSON); :attr:`SIGNATURE` names the field that holds the
+    p-value of the effect's signature test, if it has one.
+    """
+
+    #: The field holding the p-value of the signature test (None: no such test).
+    SIGNATURE: ClassVar[str | None] = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dict of the fields, in their order."""
+        return to_plain({f.name: getattr(self, f.name) for f in fields(self)})
+
+    def signature_p(self) -> float | None:
+        """The p-value of the signature test; None without one (or before it is run)."""
+        return None if self.SIGNATURE is None else getattr(self, self.SIGNATURE)
+
+
+P = TypeVar("P", bound=EffectParams)
+
+
+@dataclass(frozen=True)
+class EffectFit(Generic[P]):
     """One fitted candidate: the base replay with one effect added.
 
     Attributes
@@ -75,9 +103,8 @@ class EffectFit:
         ``time_varying_stiction``).
     n_params : int
         Parameters beyond the base model's.
-    params : dict
-        Fitted parameters, units in the key names (``_s`` seconds, ``_pct`` % of
-        span; S and J always in % of span).
+    params : EffectParams
+        Fitted parameters (the effect's own :class:`EffectParams`, units per field).
     predictions : dict
         Replayed signals this effect changes (``mv``, ``pv`` or ``op``) [their units].
     x : tuple
@@ -98,7 +125,7 @@ class EffectFit:
     effect: str
     variant: str
     n_params: int
-    params: dict
+    params: P
     predictions: dict
     x: tuple = ()
     process: ProcessFit | None = None
@@ -119,25 +146,29 @@ class BaseFit:
         Process replay driven by the recorded mv (or ``mv_model``).
     op : ndarray
         Controller replay [% of span].
-    controller : dict
-        Controller parameters (see
-        :func:`stictiondiag.identification.controller.fit_controller_replay`).
+    controller : ControllerReplay
+        The PI law that replays op
+        (:func:`stictiondiag.identification.controller.fit_controller_replay`).
     mv_model : ndarray
         Valve output of the two-parameter model [% of span].
+    predictions : dict
+        The replayed signals by name, ``op``, ``pv`` and (with a valve replay) ``mv``
+        [their units], as an :class:`EffectFit` carries those it changes (derived
+        from the fields above).
     """
 
     valve: ValveFit | None
     process: ProcessFit
     op: np.ndarray
-    controller: dict
+    controller: ControllerReplay
     mv_model: np.ndarray
+    predictions: dict = field(init=False, repr=False, compare=False)
 
-    def predictions(self) -> dict:
-        """Replayed signals by name [their units]."""
-        out = {"op": self.op, "pv": self.process.prediction.pv}
+    def __post_init__(self) -> None:
+        preds = {"op": self.op, "pv": self.process.prediction.pv}
         if self.valve is not None:
-            out["mv"] = self.valve.mv
-        return out
+            preds["mv"] = self.valve.mv
+        object.__setattr__(self, "predictions", preds)
 
     def recorded_valve(self) -> ValveFit:
         """The valve replay, for the valve-side effects: they are fitted only on loops
@@ -145,6 +176,12 @@ class BaseFit:
         if self.valve is None:
             raise ValueError("the base fit has no valve replay: mv is not recorded")
         return self.valve
+
+    def pv_noise_floor(self, ctx: ReplayContext) -> float:
+        """The pv noise floor of the base process replay on the judged samples of
+        ``ctx`` [pv^2] (:func:`pv_noise_floor`)."""
+        u = process_input(ctx, self)
+        return pv_noise_floor(u, ctx, self.process)
 
 
 def fit_process(
@@ -188,7 +225,7 @@ def pv_noise_floor(
     u: np.ndarray, ctx: ReplayContext, fit: ProcessFit, extra: np.ndarray | None = None
 ) -> float:
     """The pv noise floor of a process replay on the judged samples of ``ctx`` [pv^2]
-    (:func:`stictiondiag.identification.predictor.process_noise_floor`)."""
+    (:func:`stictiondiag.identification.predictor_kernels.process_noise_floor`)."""
     return process_noise_floor(u, ctx.sig.pv, ctx.w_eval, fit, extra)
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from stictiondiag.gap.effects.base import (
     BaseFit,
     Effect,
     EffectFit,
+    EffectParams,
     fit_process,
     process_input,
     pv_noise_floor,
@@ -93,9 +95,38 @@ def phase_coherence(r: np.ndarray, omega: float, w: np.ndarray) -> tuple[float, 
     return R, float(math.exp(-len(ph) * R * R))
 
 
+@dataclass(frozen=True)
+class ExternalDisturbanceParams(EffectParams):
+    """An oscillation entering the loop that the valve did not cause.
+
+    Attributes
+    ----------
+    period_s : float
+        Its period [s].
+    amplitude, amplitude_second_harmonic : float
+        Amplitudes at pv of the fundamental and the second harmonic [pv units]
+        (0 for a fundamental alone).
+    phase_coherence : float or None
+        How steadily its phase holds along the record [-] (None on part of the record).
+    phase_coherence_p : float
+        p-value of the Rayleigh test of that phase [-].
+    """
+
+    SIGNATURE = "phase_coherence_p"
+
+    period_s: float
+    amplitude: float
+    amplitude_second_harmonic: float
+    phase_coherence: float | None
+    phase_coherence_p: float
+
+
 def fit_external_disturbance(
-    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
-) -> EffectFit:
+    ctx: ReplayContext,
+    w: np.ndarray,
+    base: BaseFit,
+    init: EffectFit[ExternalDisturbanceParams] | None = None,
+) -> EffectFit[ExternalDisturbanceParams]:
     """An oscillation entering the loop that the valve did not cause.
 
     ``pv = G(mv) + A1 sin(w t + p1) [+ A2 sin(2 w t + p2)]``: the frequency starts at
@@ -123,7 +154,7 @@ def fit_external_disturbance(
         return float(np.dot(w, (f.prediction.pv - pv) ** 2)) / var_pv, f
 
     if init is not None:
-        om = 2.0 * math.pi * sig.dt / init.params["period_s"]
+        om = 2.0 * math.pi * sig.dt / init.params.period_s
         harmonics = 1 if init.variant == "fundamental" else 2
         c, f = cost(om, harmonics, model=init.process.prediction.model if init.process else model)
     else:
@@ -202,13 +233,13 @@ def fit_external_disturbance(
         effect="external_disturbance",
         variant="fundamental" if harmonics == 1 else "fundamental_and_second_harmonic",
         n_params=1 + 2 * harmonics,
-        params={
-            "period_s": float(2.0 * math.pi / om * sig.dt),
-            "amplitude": amplitudes[0],
-            "amplitude_second_harmonic": amplitudes[1] if harmonics > 1 else 0.0,
-            "phase_coherence": coherence,
-            "phase_coherence_p": p_value,
-        },
+        params=ExternalDisturbanceParams(
+            period_s=float(2.0 * math.pi / om * sig.dt),
+            amplitude=amplitudes[0],
+            amplitude_second_harmonic=amplitudes[1] if harmonics > 1 else 0.0,
+            phase_coherence=coherence,
+            phase_coherence_p=p_value,
+        ),
         predictions={"pv": f.prediction.pv},
         supported=p_value < COHERENCE_P,
         x=(float(om),),

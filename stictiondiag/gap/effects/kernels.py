@@ -26,6 +26,47 @@ from stictiondiag.models.valve import valve_step as _valve_step
 FAMILY_CODES = {"linear": 0, "exponential": 1, "power": 2}
 
 
+def valve_rows(
+    S_open,
+    J_open,
+    S_close=None,
+    J_close=None,
+    S_open_end=None,
+    J_open_end=None,
+    S_close_end=None,
+    J_close_end=None,
+    lag=None,
+):
+    """Parameter rows of :func:`valve_sse_batch` (the column order of the module
+    docstring) from columns; missing ones default to symmetric, constant in time and
+    without lag."""
+    S_close = S_open if S_close is None else S_close
+    J_close = J_open if J_close is None else J_close
+    cols = [
+        S_open,
+        S_open if S_open_end is None else S_open_end,
+        S_close,
+        S_close if S_close_end is None else S_close_end,
+        J_open,
+        J_open if J_open_end is None else J_open_end,
+        J_close,
+        J_close if J_close_end is None else J_close_end,
+        0.0 if lag is None else lag,
+    ]
+    m = max(np.size(c) for c in cols)
+    return np.column_stack([np.broadcast_to(np.asarray(c, dtype=float), (m,)) for c in cols])
+
+
+def _rows_order(m: int, order=None) -> np.ndarray:
+    """Evaluation order of ``m`` rows for :func:`valve_sse_batch` (default: as given)."""
+    if order is None:
+        return np.arange(m, dtype=np.int64)
+    order = np.ascontiguousarray(order, dtype=np.int64)
+    if order.shape != (m,):
+        raise ValueError(f"order must be a permutation of the {m} rows")
+    return order
+
+
 @jit
 def _clipped_moves(op):  # pragma: no cover - compiled
     """Demand clipped to 0-100 % and the sign of its change (0 at the first sample)."""
@@ -236,7 +277,7 @@ def valve_sse_batch(
 
     Each row of ``P`` holds S and J opening and closing at the start and end of the
     profile ``h`` (length 1: constant) and the lag weight (columns as
-    ``_P_COLUMNS``).  The valve output goes through the lag and the characteristic
+    :func:`valve_rows` builds them).  The valve output goes through the lag and the characteristic
     (``family`` 0: none); with ``affine`` the best ``mv = b + k z`` is solved in
     closed form from running sums, so the returned error is already minimised over
     slope and offset.  Without ``affine`` a row is abandoned (its partial error,

@@ -9,6 +9,7 @@ of slope other than 1, in the fitted direction (:func:`slip_slope_test`).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -17,7 +18,9 @@ from stictiondiag.gap.effects.base import (
     BaseFit,
     Effect,
     EffectFit,
+    EffectParams,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.search import needle_search
 from stictiondiag.gap.effects.signatures import (
     SIGNATURE_P,
@@ -27,6 +30,7 @@ from stictiondiag.gap.effects.signatures import (
     untested_p,
 )
 from stictiondiag.gap.effects.valve import (
+    ValveLogic,
     ValveProblem,
     affine_map,
     demand_travel,
@@ -36,7 +40,6 @@ from stictiondiag.gap.effects.valve import (
     sj_bounds,
     sj_wide,
     travel_seeds,
-    valve_rows,
 )
 
 
@@ -93,9 +96,49 @@ def _needle_sj_affine(prob: ValveProblem, seeds, travel: float, *, rel=0.15, zoo
     return best
 
 
+@dataclass(frozen=True)
+class MiscalibrationParams(EffectParams):
+    """A miscalibrated positioner: the valve position is ``offset + slope`` times the
+    friction element's output (Eq. 4, Section 4.2.1).
+
+    Attributes
+    ----------
+    S, J : float
+        Stiction thresholds on the valve's axis [% of span].
+    S_on_op_axis, J_on_op_axis : float
+        The same on the demand's axis [% of span].
+    slope : float
+        Gain from the friction element's output to mv [-].
+    offset_pct : float
+        Offset of mv [% of span].
+    logic : ValveLogic
+        The stuck-phase logic replayed.
+    slip_slope : float
+        Slope of the position after each slip against the demand at the breakaway,
+        measured in the data [-] (NaN: too few slips; whole-record fit only).
+    slip_slope_p : float
+        p-value of the test that it differs from 1 in the fitted direction [-].
+    """
+
+    SIGNATURE = "slip_slope_p"
+
+    S: float
+    J: float
+    S_on_op_axis: float
+    J_on_op_axis: float
+    slope: float
+    offset_pct: float
+    logic: ValveLogic
+    slip_slope: float
+    slip_slope_p: float
+
+
 def fit_miscalibration(
-    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
-) -> EffectFit:
+    ctx: ReplayContext,
+    w: np.ndarray,
+    base: BaseFit,
+    init: EffectFit[MiscalibrationParams] | None = None,
+) -> EffectFit[MiscalibrationParams]:
     """Miscalibrated positioner: ``mv = offset + slope * valve(op)`` (Section 4.2.1, Fig. 8).
 
     A calibration factor that is too large makes the moving-phase slope of mv
@@ -107,7 +150,7 @@ def fit_miscalibration(
     travel = demand_travel(ctx.sig.op)
     mv = recorded_mv(ctx)
     valve = base.recorded_valve()
-    S0, J0 = valve.params["S"], valve.params["J"]
+    S0, J0 = valve.S, valve.J
     slopes = np.geomspace(0.4, 2.5, 41)
     prob = pick_problem(
         ctx,
@@ -119,7 +162,7 @@ def fit_miscalibration(
     if init is not None:
         # Thresholds from the whole record; slope and offset are solved on the samples
         # of ``w`` below.
-        prob = prob.with_output_map(init.params["slope"], init.params["offset_pct"])
+        prob = prob.with_output_map(init.params.slope, init.params.offset_pct)
         x = np.array(init.x)
     else:
         c = prob.costs(valve_rows(S0 / slopes, J0 / slopes), affine=True)
@@ -161,17 +204,17 @@ def fit_miscalibration(
         variant="slope_offset",
         n_params=2,
         supported=p_slope < SIGNATURE_P,
-        params={
-            "S": float(x[0] * slope),
-            "J": float(x[1] * slope),
-            "S_on_op_axis": float(x[0]),
-            "J_on_op_axis": float(x[1]),
-            "slope": slope,
-            "offset_pct": offset,
-            "logic": logic_name(prob),
-            "slip_slope": slip_slope,
-            "slip_slope_p": p_slope,
-        },
+        params=MiscalibrationParams(
+            S=float(x[0] * slope),
+            J=float(x[1] * slope),
+            S_on_op_axis=float(x[0]),
+            J_on_op_axis=float(x[1]),
+            slope=slope,
+            offset_pct=offset,
+            logic=logic_name(prob),
+            slip_slope=slip_slope,
+            slip_slope_p=p_slope,
+        ),
         predictions={"mv": offset + slope * v},
         x=(float(x[0]), float(x[1])),
     )

@@ -8,17 +8,73 @@ grid itself, read from the data (:func:`detect_quantization`).
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.context import ReplayContext
 from stictiondiag.gap.effects.base import (
     BaseFit,
     Effect,
     EffectFit,
+    EffectParams,
 )
 from stictiondiag.identification.controller import filtered_pv
+
+#: The signals whose rounding is read, in the order they are reported.
+QUANTISED_SIGNALS = ("op", "mv", "pv")
+
+
+@dataclass(frozen=True)
+class Rounding:
+    """The grid a recorded signal's values lie on.
+
+    Attributes
+    ----------
+    step : float
+        Resolution [units of the signal].
+    offset : float
+        The grid's level nearest zero [units of the signal].
+    """
+
+    step: float
+    offset: float
+
+
+@dataclass(frozen=True)
+class QuantizationParams(EffectParams):
+    """The resolution of each quantised signal (one parameter each, the step).
+
+    Attributes
+    ----------
+    op, mv, pv : Rounding or None
+        The signal's grid; None when it is not quantised (or not counted).
+    op_from_pv_rounding : float or None
+        Variance per sample of the controller replay's error that a historian-rounded
+        pv causes [(% of span)^2]; None without one.
+    """
+
+    op: Rounding | None = None
+    mv: Rounding | None = None
+    pv: Rounding | None = None
+    op_from_pv_rounding: float | None = None
+
+    def signals(self) -> tuple[str, ...]:
+        """The quantised signals, in the order op, mv, pv."""
+        return tuple(s for s in QUANTISED_SIGNALS if getattr(self, s) is not None)
+
+    def to_dict(self) -> dict:
+        """``<signal>_step`` and ``<signal>_offset`` per quantised signal, then
+        ``op_from_pv_rounding`` where there is one."""
+        out: dict = {}
+        for s in self.signals():
+            grid = getattr(self, s)
+            out[f"{s}_step"] = grid.step
+            out[f"{s}_offset"] = grid.offset
+        if self.op_from_pv_rounding is not None:
+            out["op_from_pv_rounding"] = self.op_from_pv_rounding
+        return to_plain(out)
 
 
 def quantize(x: np.ndarray, step: float, offset: float = 0.0) -> np.ndarray:
@@ -59,8 +115,11 @@ def detect_quantization(x: np.ndarray | None) -> tuple[float, float] | None:
 
 
 def fit_quantization(
-    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
-) -> EffectFit | None:
+    ctx: ReplayContext,
+    w: np.ndarray,
+    base: BaseFit,
+    init: EffectFit[QuantizationParams] | None = None,
+) -> EffectFit[QuantizationParams] | None:
     """Historian or instrument resolution (Loop 4 of Section 3, Fig. 6).
 
     The resolution (step ``q``) of each recorded signal is read from the data
@@ -70,9 +129,9 @@ def fit_quantization(
     (one parameter per quantised signal, the step).  The replay itself is unchanged.
     None when no signal is quantised.
     """
-    preds, params, explained = {}, {}, {}
-    base_preds = base.predictions()
-    for name in ("op", "mv", "pv"):
+    preds, grids, explained = {}, {}, {}
+    base_preds = base.predictions
+    for name in QUANTISED_SIGNALS:
         x = getattr(ctx.sig, name)
         q = detect_quantization(x)
         if q is None or name not in base_preds:
@@ -80,35 +139,40 @@ def fit_quantization(
         step, offset = q
         preds[name] = base_preds[name]
         explained[name] = step * step / 12.0
-        params[f"{name}_step"] = step
-        params[f"{name}_offset"] = offset
+        grids[name] = Rounding(step, offset)
     if not preds:
         return None
-    if "pv_step" in params:
+    extra = None
+    if "pv" in grids:
         # A pv rounded by the historian (not by the instrument the controller reads)
         # also throws the controller replay off: it is driven by the rounded pv.
-        extra = _rounding_in_op(ctx, w, base, params["pv_step"], params["pv_offset"])
+        pv_grid = grids["pv"]
+        extra = _rounding_in_op(ctx, w, base, pv_grid.step, pv_grid.offset)
         if extra > 0.0:
             preds["op"] = base_preds["op"]
             explained["op"] = explained.get("op", 0.0) + extra
-            params["op_from_pv_rounding"] = extra
+        else:
+            extra = None
+    params = QuantizationParams(**grids, op_from_pv_rounding=extra)
     return EffectFit(
         effect="quantization",
         variant="+".join(preds),
-        n_params=sum(k.endswith("_step") for k in params),
+        n_params=len(grids),
         params=params,
         predictions=preds,
         explained=explained,
     )
 
 
-def quantized_signals(ef: EffectFit) -> tuple[str, ...]:
+def quantized_signals(ef: EffectFit[QuantizationParams]) -> tuple[str, ...]:
     """The signals whose resolution a quantization fit reads from the data (``op``,
     ``mv``, ``pv``, in that order)."""
-    return tuple(name for name in ("op", "mv", "pv") if f"{name}_step" in ef.params)
+    return ef.params.signals()
 
 
-def restrict_quantization(ef: EffectFit, signals: tuple[str, ...]) -> EffectFit:
+def restrict_quantization(
+    ef: EffectFit[QuantizationParams], signals: tuple[str, ...]
+) -> EffectFit[QuantizationParams]:
     """The quantization fit ``ef`` with the resolution of ``signals`` only.
 
     Each step is one parameter and acts on its own signal (a historian-rounded pv also
@@ -117,26 +181,26 @@ def restrict_quantization(ef: EffectFit, signals: tuple[str, ...]) -> EffectFit:
     gap diagnosis keeps the subset that pays for its parameters
     (:func:`stictiondiag.gap.diagnose.diagnose_gap`).
     """
-    params, explained, preds = {}, {}, {}
-    for name in ("op", "mv", "pv"):
-        if name not in signals or f"{name}_step" not in ef.params:
+    grids, explained, preds = {}, {}, {}
+    for name in ef.params.signals():
+        if name not in signals:
             continue
-        step = float(ef.params[f"{name}_step"])
-        params[f"{name}_step"] = step
-        params[f"{name}_offset"] = ef.params[f"{name}_offset"]
-        explained[name] = step * step / 12.0
+        grid = getattr(ef.params, name)
+        grids[name] = grid
+        explained[name] = grid.step * grid.step / 12.0
         preds[name] = ef.predictions[name]
-    extra = ef.params.get("op_from_pv_rounding")
-    if "pv_step" in params and extra is not None:
-        params["op_from_pv_rounding"] = extra
+    extra = ef.params.op_from_pv_rounding
+    if "pv" not in grids:
+        extra = None
+    if extra is not None:
         explained["op"] = explained.get("op", 0.0) + float(extra)
         preds["op"] = ef.predictions["op"]
     preds = {k: v for k, v in ef.predictions.items() if k in preds}
     return replace(
         ef,
         variant="+".join(preds),
-        n_params=sum(k.endswith("_step") for k in params),
-        params=params,
+        n_params=len(grids),
+        params=QuantizationParams(**grids, op_from_pv_rounding=extra),
         predictions=preds,
         explained=explained,
     )
@@ -158,15 +222,15 @@ def _rounding_in_op(
     rounded pv), the replay has no such error and nothing is explained.
     """
     ctrl = base.controller
-    kc = float(ctrl.get("gain") or 0.0)
+    kc = float(ctrl.gain or 0.0)
     if kc == 0.0 or step <= 0.0:
         return 0.0
     dt = ctx.sig.dt
     smooth = np.asarray(base.process.prediction.pv, dtype=float)
     e = quantize(smooth, step, offset) - smooth
-    tf = float(ctrl.get("filter_time_s") or 0.0)
+    tf = float(ctrl.filter_time_s or 0.0)
     ef = filtered_pv(e, tf, dt) if tf > 0.0 else e
-    ti = ctrl.get("integral_time_s")
+    ti = ctrl.integral_time_s
     d_op = kc * ef
     if ti:
         d_op = d_op + kc / float(ti) * np.cumsum(ef) * dt

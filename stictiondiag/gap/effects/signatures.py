@@ -74,6 +74,32 @@ def signature_test(
     return beta, float(2.0 * stdtr(n_blocks - 1, -abs(t)))
 
 
+def block_scale(r: np.ndarray, w: np.ndarray, n_blocks: int = SIGNATURE_BLOCKS) -> np.ndarray:
+    """Per-sample factor ``1 / s_b`` that weights a regression by the inverse of its
+    errors' variance in each block (feasible generalised least squares): ``s_b`` is the
+    RMS of ``r`` over block ``b`` of the weighted samples, the blocks of
+    :func:`signature_test`'s batch means; 0 outside the weighted samples.
+
+    A replay's errors are not equally large along the record: a block with an
+    unforeseen load step or set-point change carries errors many times those of the
+    quiet blocks, and an unweighted least-squares coefficient is then decided by
+    those few blocks, where the error is mostly the load.  Multiplying every column
+    of the regression (and its response) by this factor gives each block a say in
+    proportion to how precisely it measures the coefficient.
+    """
+    res = np.asarray(r, dtype=float)
+    out = np.zeros(res.size)
+    idx = np.flatnonzero(np.asarray(w) > 0)
+    if idx.size == 0:
+        return out
+    total = float(np.mean(res[idx] ** 2))
+    for b in np.array_split(idx, max(int(n_blocks), 1)):
+        if b.size:
+            ms = max(float(np.mean(res[b] ** 2)), 1e-12 * total, 1e-300)
+            out[b] = 1.0 / math.sqrt(ms)
+    return out
+
+
 def one_sided(p_two_sided: float, agrees: bool) -> float:
     """p-value of the one-sided test in the direction of the fitted effect from that of
     the two-sided test: half of it when the estimate points that way, else 1 or more

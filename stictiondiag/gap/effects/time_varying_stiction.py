@@ -10,14 +10,19 @@ or, where too few are measured on one side to compare, their rate does
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields
+
 import numpy as np
 
+from stictiondiag.core.serialize import to_plain
 from stictiondiag.gap.context import ReplayContext
 from stictiondiag.gap.effects.base import (
     BaseFit,
     Effect,
     EffectFit,
+    EffectParams,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.search import TVS_STAGES, grid_search_nd, needle_search
 from stictiondiag.gap.effects.signatures import (
     SLIP_TEST_P,
@@ -27,6 +32,7 @@ from stictiondiag.gap.effects.signatures import (
     untested_p,
 )
 from stictiondiag.gap.effects.valve import (
+    ValveLogic,
     ValveProblem,
     base_problem,
     demand_travel,
@@ -37,7 +43,6 @@ from stictiondiag.gap.effects.valve import (
     slip_medians,
     threshold_scale,
     travel_seeds,
-    valve_rows,
 )
 
 
@@ -87,6 +92,65 @@ def _profile(n: int, t1: float, t2: float) -> np.ndarray:
     return np.clip((k - t1) / (t2 - t1), 0.0, 1.0)
 
 
+@dataclass(frozen=True)
+class StictionWindow:
+    """S and J fitted on one window of the record on its own.
+
+    Attributes
+    ----------
+    time_s : float
+        Middle of the window [s].
+    S, J : float
+        Its thresholds [% of span].
+    """
+
+    time_s: float
+    S: float
+    J: float
+
+
+@dataclass(frozen=True)
+class TimeVaryingStictionParams(EffectParams):
+    """S and J changing during the record: a step, a ramp or a drift.
+
+    Attributes
+    ----------
+    S_start, J_start, S_end, J_end : float
+        Thresholds before and after the change [% of span].
+    change_start_s, change_end_s : float
+        When the change starts and ends [s].
+    logic : ValveLogic
+        The stuck-phase logic replayed.
+    slips_differ_p : float
+        p-value of the rank test that the slips differ before and after [-].
+    windows : tuple of StictionWindow or None
+        S and J fitted on windows of the record (None where a window has too few
+        slips); empty unless they were fitted (whole-record fit only).
+    """
+
+    SIGNATURE = "slips_differ_p"
+
+    S_start: float
+    J_start: float
+    S_end: float
+    J_end: float
+    change_start_s: float
+    change_end_s: float
+    logic: ValveLogic
+    slips_differ_p: float
+    windows: tuple[StictionWindow | None, ...] = ()
+
+    def to_dict(self) -> dict:
+        """The fields by name; ``windows`` only where they were fitted, each a dict."""
+        out = to_plain({f.name: getattr(self, f.name) for f in fields(self) if f.name != "windows"})
+        if self.windows:
+            out["windows"] = [
+                None if v is None else to_plain({"time_s": v.time_s, "S": v.S, "J": v.J})
+                for v in self.windows
+            ]
+        return out
+
+
 def _window_fits(ctx: ReplayContext, w: np.ndarray, base: BaseFit, n_win: int) -> list:
     """S and J fitted on each of ``n_win`` windows of the record on its own.
 
@@ -99,7 +163,7 @@ def _window_fits(ctx: ReplayContext, w: np.ndarray, base: BaseFit, n_win: int) -
     travel = demand_travel(sig.op)
     valve = base.recorded_valve()
     mv = recorded_mv(ctx)
-    S0, J0 = valve.params["S"], valve.params["J"]
+    S0, J0 = valve.S, valve.J
     edges = np.linspace(0, n, n_win + 1).astype(int)
     slip_t = ctx.slips["time"] if ctx.slips is not None else np.zeros(0)
     slip_d = ctx.slips["direction"] if ctx.slips is not None else np.zeros(0)
@@ -141,8 +205,11 @@ def _window_fits(ctx: ReplayContext, w: np.ndarray, base: BaseFit, n_win: int) -
 
 
 def fit_time_varying_stiction(
-    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
-) -> EffectFit:
+    ctx: ReplayContext,
+    w: np.ndarray,
+    base: BaseFit,
+    init: EffectFit[TimeVaryingStictionParams] | None = None,
+) -> EffectFit[TimeVaryingStictionParams]:
     """S and J changing during the record: a step, a ramp between two instants, or a drift.
 
     ``S(t) = S0 + (S1 - S0) h(t)``, the same for J, with ``h`` rising from 0 to 1
@@ -185,12 +252,12 @@ def fit_time_varying_stiction(
             )
         return x, c
 
-    S0, J0 = valve.params["S"], valve.params["J"]
+    S0, J0 = valve.S, valve.J
     win = []
     if init is not None:
         t1, t2 = (
-            init.params["change_start_s"] / ctx.sig.dt,
-            init.params["change_end_s"] / ctx.sig.dt,
+            init.params.change_start_s / ctx.sig.dt,
+            init.params.change_end_s / ctx.sig.dt,
         )
         # Thresholds and instants only: kept from the whole record.
         x = np.array(init.x)
@@ -272,20 +339,20 @@ def fit_time_varying_stiction(
         variant, n_params = "step", 3
     else:
         variant, n_params = "ramp", 4
-    params = {
-        "S_start": float(x[0]),
-        "J_start": float(x[1]),
-        "S_end": float(x[2]),
-        "J_end": float(x[3]),
-        "change_start_s": float(t1) * ctx.sig.dt,
-        "change_end_s": float(t2) * ctx.sig.dt,
-        "logic": logic_name(prob),
-        "slips_differ_p": p_slips,
-    }
-    if win:
-        params["windows"] = [
-            None if v is None else {"time_s": v[0] * ctx.sig.dt, "S": v[1], "J": v[2]} for v in win
-        ]
+    params = TimeVaryingStictionParams(
+        S_start=float(x[0]),
+        J_start=float(x[1]),
+        S_end=float(x[2]),
+        J_end=float(x[3]),
+        change_start_s=float(t1) * ctx.sig.dt,
+        change_end_s=float(t2) * ctx.sig.dt,
+        logic=logic_name(prob),
+        slips_differ_p=p_slips,
+        windows=tuple(
+            None if v is None else StictionWindow(v[0] * ctx.sig.dt, v[1], v[2])
+            for v in (win or ())
+        ),
+    )
     return EffectFit(
         supported=p_slips < SLIP_TEST_P,
         effect="time_varying_stiction",

@@ -12,24 +12,21 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
 from stictiondiag.gap.context import ReplayContext
-from stictiondiag.gap.effects.kernels import FAMILY_CODES, valve_series, valve_sse_batch
+from stictiondiag.gap.effects.kernels import (
+    FAMILY_CODES,
+    _rows_order,
+    valve_rows,
+    valve_series,
+    valve_sse_batch,
+)
 from stictiondiag.gap.effects.search import needle_search
 
 _CONSTANT = np.zeros(1)
-
-
-def _rows_order(m: int, order=None) -> np.ndarray:
-    """Evaluation order of ``m`` rows for :func:`valve_sse_batch` (default: as given)."""
-    if order is None:
-        return np.arange(m, dtype=np.int64)
-    order = np.ascontiguousarray(order, dtype=np.int64)
-    if order.shape != (m,):
-        raise ValueError(f"order must be a permutation of the {m} rows")
-    return order
 
 
 class ValveProblem:
@@ -83,7 +80,7 @@ class ValveProblem:
         keep=0,
         order=None,
     ):
-        """Normalised weighted squared mv error for every row of P (see ``_P_COLUMNS``).
+        """Normalised weighted squared mv error for every row of P (the columns of :func:`valve_rows`).
 
         Rows whose error exceeds ``bound`` (normalised) or the best row so far are
         abandoned early; their returned error is then only a lower bound.  With
@@ -153,36 +150,6 @@ def _rest_level_before_first_slip(ctx: ReplayContext) -> float:
         if k >= 4:
             return float(np.median(mv[max(k - 10, 0) : k - 1]))
     return float(np.median(mv[: max(min(3, mv.size // 100), 1)]))
-
-
-def valve_rows(
-    S_open,
-    J_open,
-    S_close=None,
-    J_close=None,
-    S_open_end=None,
-    J_open_end=None,
-    S_close_end=None,
-    J_close_end=None,
-    lag=None,
-):
-    """Parameter rows (``_P_COLUMNS``) from columns; missing ones default to symmetric,
-    constant in time and without lag."""
-    S_close = S_open if S_close is None else S_close
-    J_close = J_open if J_close is None else J_close
-    cols = [
-        S_open,
-        S_open if S_open_end is None else S_open_end,
-        S_close,
-        S_close if S_close_end is None else S_close_end,
-        J_open,
-        J_open if J_open_end is None else J_open_end,
-        J_close,
-        J_close if J_close_end is None else J_close_end,
-        0.0 if lag is None else lag,
-    ]
-    m = max(np.size(c) for c in cols)
-    return np.column_stack([np.broadcast_to(np.asarray(c, dtype=float), (m,)) for c in cols])
 
 
 def demand_travel(op: np.ndarray) -> float:
@@ -277,6 +244,15 @@ def needle_sj(
     return best
 
 
+class ValveLogic(StrEnum):
+    """The stuck-phase logic of a replayed valve: the flowchart of Fig. 10
+    (Choudhury, Thornhill & Shah 2005) or Kano et al.'s (2004), which re-arms a stuck
+    valve on a reversal of the demand."""
+
+    CHOUDHURY = "choudhury"
+    KANO = "kano"
+
+
 @dataclass(frozen=True)
 class ValveFit:
     """The fitted two-parameter valve replay.
@@ -287,8 +263,8 @@ class ValveFit:
         Replayed valve position [% of span].
     phase : ndarray
         Valve phase codes of the stiction element (see :func:`valve_replay`).
-    params : dict
-        S and J [% of span].
+    S, J : float
+        Deadband plus stickband and slip jump [% of span].
     kano : bool
         Stuck-phase logic of Kano et al. (2004) instead of Fig. 10.
     initial_direction : float
@@ -297,9 +273,15 @@ class ValveFit:
 
     mv: np.ndarray
     phase: np.ndarray
-    params: dict
+    S: float
+    J: float
     kano: bool = False
     initial_direction: float = 0.0
+
+    @property
+    def logic(self) -> ValveLogic:
+        """The stuck-phase logic replayed."""
+        return ValveLogic.KANO if self.kano else ValveLogic.CHOUDHURY
 
 
 def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None) -> ValveFit:
@@ -361,7 +343,7 @@ def fit_valve(ctx: ReplayContext, w: np.ndarray, *, like: ValveFit | None = None
     d0 = -1.0 if prob_neg.costs(valve_rows(x[0], x[1]))[0] < c else 1.0
     prob = ValveProblem.of(ctx, w, kano, d0)
     v, ph = prob.series(valve_rows(x[0], x[1])[0])
-    return ValveFit(v, ph, {"S": float(x[0]), "J": float(x[1])}, kano, d0)
+    return ValveFit(v, ph, float(x[0]), float(x[1]), kano, d0)
 
 
 def affine_map(v: np.ndarray, mv: np.ndarray, w: np.ndarray) -> tuple[float, float]:
@@ -388,13 +370,14 @@ def pick_problem(ctx, w, base, init, evaluate) -> ValveProblem:
     logic the better reading of the same data."""
     d0 = base.valve.initial_direction
     if init is not None:
-        return ValveProblem.of(ctx, w, init.params.get("logic") == "kano", d0)
+        return ValveProblem.of(ctx, w, init.params.logic is ValveLogic.KANO, d0)
     probs = [ValveProblem.of(ctx, w, k, d0) for k in (False, True)]
     return min(probs, key=evaluate)
 
 
-def logic_name(prob: ValveProblem) -> str:
-    return "kano" if prob.kano else "choudhury"
+def logic_name(prob: ValveProblem) -> ValveLogic:
+    """The stuck-phase logic of ``prob``."""
+    return ValveLogic.KANO if prob.kano else ValveLogic.CHOUDHURY
 
 
 def threshold_scale(*values: float) -> float:

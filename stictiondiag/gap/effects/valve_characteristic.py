@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from dataclasses import dataclass, replace
+from enum import StrEnum
 
 import numpy as np
 
@@ -21,12 +22,15 @@ from stictiondiag.gap.effects.base import (
     BaseFit,
     Effect,
     EffectFit,
+    EffectParams,
     fit_process,
     process_input,
     pv_noise_floor,
 )
+from stictiondiag.gap.effects.kernels import valve_rows
 from stictiondiag.gap.effects.signatures import (
     SIGNATURE_P,
+    block_scale,
     one_sided,
     signature_test,
     testable_slips,
@@ -36,11 +40,53 @@ from stictiondiag.gap.effects.valve import (
     affine_map,
     base_problem,
     recorded_mv,
-    valve_rows,
 )
 from stictiondiag.identification.numerics import golden_section
-from stictiondiag.identification.predictor import kalman_gains, process_regressors
+from stictiondiag.identification.predictor_kernels import kalman_gains, process_regressors
 from stictiondiag.identification.process_result import ProcessFit
+
+
+class CurveFamily(StrEnum):
+    """The family of an installed characteristic (:func:`characteristic_curve`)."""
+
+    EXPONENTIAL = "exponential"
+    POWER = "power"
+
+
+class CharacteristicSide(StrEnum):
+    """Where the characteristic acts: between mv and the process (``process``), or
+    inside a flow-like recorded mv (``valve``)."""
+
+    PROCESS = "process"
+    VALVE = "valve"
+
+
+@dataclass(frozen=True)
+class CharacteristicParams(EffectParams):
+    """A non-linear installed characteristic.
+
+    Attributes
+    ----------
+    curvature : float
+        Its curvature [-] (:func:`characteristic_curve`; 0 is linear).
+    family : CurveFamily
+        Exponential or power.
+    side : CharacteristicSide
+        Process side or valve side.
+    gain_change : float or None
+        Change of the loop's gain with the operating point, measured in the data [-]
+        (NaN: too few slips to measure; None on part of the record).
+    gain_change_p : float or None
+        p-value of its test, one-sided in the direction of the curvature [-].
+    """
+
+    SIGNATURE = "gain_change_p"
+
+    curvature: float
+    family: CurveFamily
+    side: CharacteristicSide
+    gain_change: float | None = None
+    gain_change_p: float | None = None
 
 
 def characteristic_curve(x: np.ndarray, curvature: float, family: str) -> np.ndarray:
@@ -92,7 +138,10 @@ def gain_change_test(
     the range travelled against below it, whatever the shape of the curve.
     Process side (``u`` the process input): the hinge passes through the base
     process's dynamics, load tracking and prediction horizon, and its coefficient is
-    fitted to the base pv replay's errors.  Valve side (mv itself flow-like): the
+    fitted to the base pv replay's errors, each block of the record weighted by the
+    inverse of their variance there (:func:`block_scale`: the errors of a block with
+    an unforeseen load step are mostly that load, and unweighted they decide the
+    coefficient and its scatter).  Valve side (mv itself flow-like): the
     position after each slip against the demand at its breakaway and the hinge of it,
     with an offset per direction (as :func:`slip_slope_test`).  Returns the
     relative gain change and the two-sided p-value of :func:`signature_test` (the
@@ -111,7 +160,10 @@ def gain_change_test(
         x_h = process_regressors(h, model, k1, k2) @ base.process.prediction.coef[:2]
         r = sig.pv - base.process.prediction.pv
         others = np.column_stack([np.ones(sig.n), X_u])
-        return signature_test(x_h, -r, w, others=others)
+        # Weighted by each block's error variance: the blocks of unforeseen load
+        # steps must not decide the test (:func:`block_scale`).
+        g = block_scale(r, w)
+        return signature_test(x_h * g, -r * g, w, others=others * g[:, None])
     measured = testable_slips(ctx.slips)
     if measured is None:
         return math.nan, 1.0
@@ -124,8 +176,11 @@ def gain_change_test(
 
 
 def fit_valve_characteristic(
-    ctx: ReplayContext, w: np.ndarray, base: BaseFit, init: EffectFit | None = None
-) -> EffectFit:
+    ctx: ReplayContext,
+    w: np.ndarray,
+    base: BaseFit,
+    init: EffectFit[CharacteristicParams] | None = None,
+) -> EffectFit[CharacteristicParams]:
     """A non-linear installed characteristic between valve position and flow.
 
     Process side: ``pv = G(f(mv))``, the curvature of ``f`` searched with the process
@@ -144,7 +199,7 @@ def fit_valve_characteristic(
         forms += ["valve_exponential", "valve_power"]
         valve, mv = base.recorded_valve(), recorded_mv(ctx)
         prob = base_problem(ctx, w, valve)
-        row = valve_rows(valve.params["S"], valve.params["J"])
+        row = valve_rows(valve.S, valve.J)
         base_mv_cost = float(prob.costs(row)[0])
     if init is not None:
         forms = [init.variant]
@@ -155,7 +210,7 @@ def fit_valve_characteristic(
             float,
             str,
             int,
-            dict[str, Any],
+            CharacteristicParams,
             dict[str, np.ndarray],
             ProcessFit | None,
             np.ndarray | None,
@@ -170,7 +225,7 @@ def fit_valve_characteristic(
                 return float(np.dot(w, (f.prediction.pv - pv) ** 2)) / var_pv
 
             if init is not None:
-                c = float(init.params["curvature"])
+                c = float(init.params.curvature)
                 cc = cost_pv(c)
             else:
                 c, cc = _search_curvature(cost_pv, family)
@@ -187,7 +242,7 @@ def fit_valve_characteristic(
                     cc,
                     form,
                     1,
-                    {"curvature": c, "family": family, "side": side},
+                    CharacteristicParams(c, CurveFamily(family), CharacteristicSide(side)),
                     {"pv": f.prediction.pv},
                     f,
                     ue,
@@ -199,7 +254,7 @@ def fit_valve_characteristic(
                 return float(prob.costs(row, affine=True, curvature=c, family=family)[0])
 
             if init is not None:
-                c = float(init.params["curvature"])
+                c = float(init.params.curvature)
                 cc = cost_mv(c)
             else:
                 c, cc = _search_curvature(cost_mv, family)
@@ -211,7 +266,7 @@ def fit_valve_characteristic(
                     cc + base_pv_cost - base_mv_cost,
                     form,
                     3,
-                    {"curvature": c, "family": family, "side": side},
+                    CharacteristicParams(c, CurveFamily(family), CharacteristicSide(side)),
                     {"mv": b + k * g},
                     None,
                     None,
@@ -220,15 +275,15 @@ def fit_valve_characteristic(
     _, variant, n_params, params, preds, proc, proc_u = min(results, key=lambda r: r[0])
     supported = True
     if init is None:
-        gain_change, p_gain = gain_change_test(ctx, w, base, params["side"])
+        gain_change, p_gain = gain_change_test(ctx, w, base, params.side)
         if math.isfinite(gain_change):
             # Convex (curvature > 0, both families) means more gain above the middle.
-            p_gain = one_sided(p_gain, gain_change * params["curvature"] > 0.0)
+            p_gain = one_sided(p_gain, gain_change * params.curvature > 0.0)
         else:
             # Too few measured slips to test: the replay decides alone, except on a
             # quantised mv (:func:`untested_p`).
             p_gain = untested_p(ctx.sig.mv)
-        params = {**params, "gain_change": gain_change, "gain_change_p": p_gain}
+        params = replace(params, gain_change=gain_change, gain_change_p=p_gain)
         supported = p_gain < SIGNATURE_P
     return EffectFit(
         effect="valve_characteristic",
@@ -237,7 +292,7 @@ def fit_valve_characteristic(
         supported=supported,
         params=params,
         predictions=preds,
-        x=(params["curvature"],),
+        x=(params.curvature,),
         process=proc,
         # proc_u is None exactly when proc is (the valve side).
         pv_floor=None
