@@ -712,7 +712,9 @@ def select_winner(
         for name in ["none", *fits]
         if "pv" in held[name] and (name == "none" or "pv" in fits[name].predictions)
     ]
-    base_pv_floor = base.pv_noise_floor(ctx)
+    if base.pv_floor is None:
+        raise ValueError("the gap is measured with the base fit on the whole record")
+    base_pv_floor = base.pv_floor
     excluded: set = set()
     while True:
         order = sorted([e for e in ["none", *fits] if e not in excluded], key=rank)
