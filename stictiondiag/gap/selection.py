@@ -7,7 +7,9 @@ penalty: the block-to-block scatter and the reduction the Bayesian information
 criterion asks of its extra parameters (:func:`bic_gain`, :func:`score_candidate`).
 The accepted candidates are ranked by their held-out evidence (:func:`evidence`);
 a winner that does not lower the gap on the record is excluded and the next one
-taken (:func:`select_winner` in :mod:`stictiondiag.gap.diagnose`).
+taken (:func:`select_winner`).  The noise floors the gap is measured against live here
+too (:func:`noise_variance`, :func:`noise_floors`, :func:`evidence_floors`,
+:func:`mv_within_noise`).
 """
 
 from __future__ import annotations

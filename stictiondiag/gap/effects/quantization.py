@@ -212,7 +212,8 @@ def _rounding_in_op(
     """Variance per sample of the controller replay's error that a rounded pv causes
     [(% of span)^2].
 
-    The replayed controller (:func:`fit_controller`) is driven by the recorded pv; if
+    The replayed controller
+    (:func:`stictiondiag.identification.controller.fit_controller_replay`) is driven by the recorded pv; if
     the historian rounded pv after the controller read it, the replay answers the
     rounding error ``e`` that the controller never saw, by ``Kc (e_f + (1/Ti) int e_f)``
     (``e_f`` the filtered ``e``).  ``e`` is unobserved; its stand-in is the rounding of
