@@ -8,6 +8,7 @@ grid itself, read from the data (:func:`detect_quantization`).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -204,6 +205,18 @@ def restrict_quantization(
         predictions=preds,
         explained=explained,
     )
+
+
+def quantization_subsets(
+    ef: EffectFit[QuantizationParams],
+) -> dict[tuple[str, ...], EffectFit[QuantizationParams]]:
+    """The quantization fit ``ef`` restricted to every proper subset of its quantised
+    signals (:func:`restrict_quantization`), by subset, fewest signals first: each
+    step is one parameter, so the gap diagnosis judges each subset on held-out data
+    and keeps the one that pays (:func:`stictiondiag.gap.selection.choose_quantization`)."""
+    names = quantized_signals(ef)
+    subsets = [c for r in range(1, len(names)) for c in itertools.combinations(names, r)]
+    return {sub: restrict_quantization(ef, sub) for sub in subsets}
 
 
 def _rounding_in_op(
