@@ -30,7 +30,7 @@ so ``gap`` is the part of the replay error that is not noise, in % of the RMS of
 signals' cycle-scale movement; 0 means "within its noise".  For pv the floor is what a
 correct replay still misses at its horizon: measurement noise plus the load it could
 not foresee, from the noise model of the best process replay
-(:func:`stictiondiag.gap.effects.process_noise_floor`), and never below the best pv
+(:func:`stictiondiag.identification.predictor_kernels.process_noise_floor`), and never below the best pv
 replay's error on held-out data.  The winner's floor is no higher than its own error
 on the record unless the base replay's floor is (a load tracking retuned to follow a
 tone the effect does not model claims that tone as unforeseeable load).  A quantised signal's rounding error (``q^2/12``)
