@@ -28,6 +28,7 @@ from stictiondiag.gap.effects.base import (
     fit_base,
 )
 from stictiondiag.gap.effects.quantization import detect_quantization, quantization_subsets
+from stictiondiag.gap.result import Candidate
 
 #: Blocks of the record for validation (even blocks against odd ones).
 N_BLOCKS = 8
@@ -717,3 +718,68 @@ def select_winner(
         if winner == "none" or afters[winner] < before:
             return Selection(winner, order, excluded, meas, before, afters)
         excluded.add(winner)
+
+
+def heldout_gap(
+    ctx: ReplayContext,
+    meas: Measure,
+    per_signal: dict,
+    extra: float = 0.0,
+    explained: dict | None = None,
+) -> float:
+    """Gap [%] of per-block held-out errors ``per_signal`` (summed over the blocks),
+    with ``extra`` (a penalty) added, measured as on the record by ``meas``.
+
+    Held-out errors have a candidate's rounding variance (``explained`` [units^2])
+    taken out in full; as on the record, only the part the noise floor does not hold
+    counts (:meth:`Measure.rounding_left`).
+    """
+    n_judged = max(float(ctx.w_eval.sum()), 1.0)
+    expl = explained or {}
+    tot = sum(
+        meas.excess(
+            s,
+            float(v.sum()) / n_judged
+            + expl.get(s, 0.0) / ctx.norm[s]
+            - meas.rounding_left(s, expl.get(s, 0.0)),
+        )
+        for s, v in per_signal.items()
+    )
+    return 100.0 * math.sqrt(max(tot + extra / n_judged, 0.0))
+
+
+def ranked_candidates(
+    ctx: ReplayContext,
+    sel: Selection,
+    fits: dict,
+    errors: dict,
+    scores: dict,
+    evidences: dict,
+) -> list[Candidate]:
+    """Every fitted effect as a :class:`~stictiondiag.gap.result.Candidate`: its gap
+    on the record and on held-out blocks, its penalised score and whether it is
+    accepted, in the order of :func:`rank_key`."""
+    cands = []
+    for name, ef in fits.items():
+        after_c = sel.afters[name]
+        cands.append(
+            Candidate(
+                effect=name,
+                variant=ef.variant,
+                after=after_c,
+                shrink_pct=100.0 * (sel.before - after_c) / sel.before if sel.before > 0 else 0.0,
+                params=ef.params,
+                n_params=ef.n_params,
+                heldout=heldout_gap(ctx, sel.measure, errors[name], explained=ef.explained),
+                penalised_score=heldout_gap(
+                    ctx,
+                    sel.measure,
+                    errors[name],
+                    scores[name].penalty_excess,
+                    explained=ef.explained,
+                ),
+                accepted=scores[name].accepted and name not in sel.excluded,
+            )
+        )
+    cands.sort(key=lambda c: rank_key(scores, evidences)(c.effect))
+    return cands
