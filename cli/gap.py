@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from stictiondiag.core.atomic import atomic_path
-from stictiondiag.core.serialize import plain_float
 
 from .app import app
 from .common import check_output_file, compile_if_cold, emit, friendly_errors, info
@@ -38,33 +38,30 @@ if TYPE_CHECKING:
 
 
 def _fmt(x, spec: str = ".1f") -> str:
-    return "n/a" if x is None else format(x, spec)
+    """A number as ``spec``; ``n/a`` for None or a non-finite one (as the JSON's null)."""
+    return "n/a" if x is None or not math.isfinite(x) else format(x, spec)
 
 
 def render_gap(g: GapDiagnosis) -> str:
     """Readable summary of a :class:`~stictiondiag.gap.result.GapDiagnosis`."""
     lines = [
-        f"gap         {g.metric}: before {_fmt(plain_float(g.before))} %, "
-        f"after {_fmt(plain_float(g.after))} % ({_fmt(plain_float(g.shrink_pct), '.0f')} % shrink)",
-        f"effect      {g.effect}  (runner-up {g.runner_up}, margin {_fmt(plain_float(g.margin))} %)",
+        f"gap         {g.metric}: before {_fmt(g.before)} %, "
+        f"after {_fmt(g.after)} % ({_fmt(g.shrink_pct, '.0f')} % shrink)",
+        f"effect      {g.effect}  (runner-up {g.runner_up}, margin {_fmt(g.margin)} %)",
     ]
     sig = [] if g.breakdown is None else g.breakdown.signal.items()
     if sig:
         lines.append(
-            "by signal   "
-            + ", ".join(
-                f"{s} {_fmt(plain_float(v.before))} -> {_fmt(plain_float(v.after))} %"
-                for s, v in sig
-            )
+            "by signal   " + ", ".join(f"{s} {_fmt(v.before)} -> {_fmt(v.after)} %" for s, v in sig)
         )
     lines.append(
         "candidates  effect                 after %  shrink %  held-out %  score %  accepted"
     )
     for c in g.candidates:
         lines.append(
-            f"            {c.effect:<22} {_fmt(plain_float(c.after)):>7}"
-            f"  {_fmt(plain_float(c.shrink_pct), '.0f'):>8}"
-            f"  {_fmt(plain_float(c.heldout)):>10}  {_fmt(plain_float(c.penalised_score)):>7}"
+            f"            {c.effect:<22} {_fmt(c.after):>7}"
+            f"  {_fmt(c.shrink_pct, '.0f'):>8}"
+            f"  {_fmt(c.heldout):>10}  {_fmt(c.penalised_score):>7}"
             f"  {'yes' if c.accepted else 'no'}"
         )
     if g.not_assessed:

@@ -10,7 +10,7 @@ import pytest
 
 from stictiondiag.gap.context import build_context, signals_of
 from stictiondiag.gap.diagnose import diagnose_gap
-from stictiondiag.gap.effects.base import fit_base, process_input, pv_noise_floor
+from stictiondiag.gap.effects.base import fit_base
 from stictiondiag.gap.effects.quantization import quantize
 from stictiondiag.gap.selection import noise_variance
 from stictiondiag.io.tags import Tags
@@ -84,7 +84,7 @@ def test_pv_floor_measured_on_a_rounded_pv_holds_the_rounding():
         )
         ctx = build_context(signals_of(tags))
         base = fit_base(ctx, ctx.w_eval)
-        return pv_noise_floor(process_input(ctx, base), ctx, base.process)
+        return base.pv_floor
 
     pv0 = d.pv.values
     q = 2.0 * math.sqrt(2.0 * noise_variance(pv0))

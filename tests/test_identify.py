@@ -476,7 +476,6 @@ def test_process_search_ranges_follow_the_cycle_not_the_record(monkeypatch):
     the dead time may take one more step (at most 10 more evaluations; the record's
     range took twice as many at 500 000 samples as at 50 000).
     """
-    import stictiondiag.identification.output_error as oe
     import stictiondiag.identification.process as proc
 
     sim = simulate_loop(
@@ -491,7 +490,7 @@ def test_process_search_ranges_follow_the_cycle_not_the_record(monkeypatch):
     )
     ranges: list[tuple[int, float]] = []
     calls = [0]
-    fit_foptd, foptd_oe = proc.fit_foptd, oe.foptd_oe
+    fit_foptd, foptd_oe = proc.fit_foptd, proc.foptd_oe
 
     def spy_fit(u, y_f, dt, b, d_max, tau_max):
         ranges.append((d_max, tau_max))
@@ -502,7 +501,7 @@ def test_process_search_ranges_follow_the_cycle_not_the_record(monkeypatch):
         return foptd_oe(*args)
 
     monkeypatch.setattr(proc, "fit_foptd", spy_fit)
-    monkeypatch.setattr(oe, "foptd_oe", spy_oe)
+    monkeypatch.setattr(proc, "foptd_oe", spy_oe)
     fits, counts = [], []
     for n in (20_000, 80_000):
         calls[0] = 0
@@ -562,7 +561,7 @@ def test_solve_normal_survives_a_singular_system_in_its_batch():
     batch, which reached a user as a traceback from ``analyze``.  The regular system
     keeps its exact solution (to rounding, 1e-12), and the singular one gets the
     least-norm solution, whose fitted values are still the least-squares ones."""
-    from stictiondiag.identification.output_error import solve_normal
+    from stictiondiag.identification.process import solve_normal
 
     rng = np.random.default_rng(0)
     X = rng.normal(size=(50, 2))

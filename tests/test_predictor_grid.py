@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from stictiondiag.identification.numerics import delayed
+from stictiondiag.core.filters import delayed
 from stictiondiag.identification.predictor import (
     ProcessModel,
     _pair_sse,

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stictiondiag.identification.numerics import delayed, fractional_delay_wls
+from stictiondiag.core.filters import delayed
+from stictiondiag.identification.numerics import fractional_delay_wls
 from stictiondiag.identification.predictor_kernels import (
     _prediction_errors,
     _prediction_errors_rows,

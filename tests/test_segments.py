@@ -230,7 +230,7 @@ def test_median_ci_in_chunks_is_the_one_draw_bootstrap(m):
 def test_short_median_is_numpys_bit_for_bit():
     # The per-run median of segment_valve replaces np.median for speed; the numbers
     # must be the very same (tolerance zero), odd and even counts, repeated values.
-    from stictiondiag.core.stats import median_small as _median
+    from stictiondiag.stiction.segments import median_small as _median
 
     rng = np.random.default_rng(11)
     for _ in range(3000):

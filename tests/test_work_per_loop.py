@@ -286,7 +286,7 @@ def test_pairs_seen_before_are_not_computed_again(monkeypatch):
 def test_process_fit_shares_its_filter_sums_to_the_last_bit():
     """The FOPTD fit computes the filter's free response and its prefix sums once
     for all its scans and fits: the same numbers as computed afresh in each."""
-    from stictiondiag.identification import output_error as ip
+    from stictiondiag.identification import process as ip
 
     rng = np.random.default_rng(12)
     n = 4000

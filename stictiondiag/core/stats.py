@@ -1,6 +1,5 @@
 """Small statistics: the Mann-Whitney U test of :mod:`scipy.stats` without importing
-:mod:`scipy.stats`, a short array's median without numpy's overhead, and the
-bootstrap interval of a median.
+:mod:`scipy.stats`, and the bootstrap interval of a median.
 
 Importing :mod:`scipy.stats` takes about a second, more than the rest of a
 ``stiction analyze`` run imports; the gap diagnosis needs one rank test from it.
@@ -102,22 +101,6 @@ def mannwhitneyu(x, y, alternative: str = "two-sided") -> MannWhitneyResult:
     p = p * 2
     p = np.clip(p, 0.0, 1.0)
     return MannWhitneyResult(np.float64(u1), np.float64(p))
-
-
-def median_small(x: np.ndarray) -> float:
-    """``np.median`` of a short finite 1-D array, the same number without its overhead.
-
-    The middle element of the sorted values, or for an even count the two middle
-    ones added and halved (what ``np.median`` computes: the mean of the two).
-    O(k log k) for k values.
-    """
-    k = x.size
-    if k == 0:
-        return float(np.median(x))
-    s = np.sort(x)
-    if k % 2:
-        return float(s[k // 2])
-    return float((s[k // 2 - 1] + s[k // 2]) / 2.0)
 
 
 #: The bootstrap of :func:`bootstrap_median_ci` draws its resamples in chunks of

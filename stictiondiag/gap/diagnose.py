@@ -30,7 +30,7 @@ so ``gap`` is the part of the replay error that is not noise, in % of the RMS of
 signals' cycle-scale movement; 0 means "within its noise".  For pv the floor is what a
 correct replay still misses at its horizon: measurement noise plus the load it could
 not foresee, from the noise model of the best process replay
-(:func:`stictiondiag.gap.effects.process_noise_floor`), and never below the best pv
+(:func:`stictiondiag.identification.predictor_kernels.process_noise_floor`), and never below the best pv
 replay's error on held-out data.  The winner's floor is no higher than its own error
 on the record unless the base replay's floor is (a load tracking retuned to follow a
 tone the effect does not model claims that tone as unforeseeable load).  A quantised signal's rounding error (``q^2/12``)
@@ -99,7 +99,7 @@ from stictiondiag.gap.context import (
 )
 from stictiondiag.gap.effects import EFFECT_MODELS, assessable_effects
 from stictiondiag.gap.effects.base import fit_base
-from stictiondiag.gap.result import Candidate, GapBase, GapDiagnosis, GapSeries
+from stictiondiag.gap.result import GapBase, GapDiagnosis, GapSeries
 from stictiondiag.gap.selection import (
     N_BLOCKS,
     Score,
@@ -110,9 +110,10 @@ from stictiondiag.gap.selection import (
     evidence,
     evidence_floors,
     heldout_errors,
+    heldout_gap,
     margin,
     mv_only_within_noise,
-    rank_key,
+    ranked_candidates,
     score_candidate,
     select_winner,
 )
@@ -216,42 +217,8 @@ def diagnose_gap(
     sel = select_winner(ctx, base, fits, errors, scores, evidences)
     winner = sel.winner
     runner = sel.order[1] if len(sel.order) > 1 else None
-    n_judged = max(float(ctx.w_eval.sum()), 1.0)
-
-    def as_gap(per_signal: dict, extra: float = 0.0, explained: dict | None = None) -> float:
-        # Held-out errors have a candidate's rounding variance taken out in full; as on
-        # the record, only the part the noise floor does not hold counts.
-        meas, expl = sel.measure, explained or {}
-        tot = sum(
-            meas.excess(
-                s,
-                float(v.sum()) / n_judged
-                + expl.get(s, 0.0) / ctx.norm[s]
-                - meas.rounding_left(s, expl.get(s, 0.0)),
-            )
-            for s, v in per_signal.items()
-        )
-        return 100.0 * math.sqrt(max(tot + extra / n_judged, 0.0))
-
-    cands = []
-    for name, ef in fits.items():
-        after_c = sel.afters[name]
-        cands.append(
-            Candidate(
-                effect=name,
-                variant=ef.variant,
-                after=after_c,
-                shrink_pct=100.0 * (sel.before - after_c) / sel.before if sel.before > 0 else 0.0,
-                params=ef.params,
-                n_params=ef.n_params,
-                heldout=as_gap(errors[name], explained=ef.explained),
-                penalised_score=as_gap(
-                    errors[name], scores[name].penalty_excess, explained=ef.explained
-                ),
-                accepted=scores[name].accepted and name not in sel.excluded,
-            )
-        )
-    cands.sort(key=lambda c: rank_key(scores, evidences)(c.effect))
+    cands = ranked_candidates(ctx, sel, fits, errors, scores, evidences)
+    heldout_before = heldout_gap(ctx, sel.measure, errors["none"])
     after, shrink = sel.before, 0.0
     if winner != "none":
         win = next(c for c in cands if c.effect == winner)
@@ -272,7 +239,7 @@ def diagnose_gap(
         breakdown=breakdown(sig, sel.measure, base, preds_before, preds_after, replay),
         not_assessed=tuple(not_assessed),
         within_noise=tuple(within_noise),
-        heldout_before=as_gap(errors["none"]),
+        heldout_before=heldout_before,
         base=GapBase.of(ctx, base, sel.measure.floor),
         series=GapSeries.of(sig, preds_before, preds_after),
     )

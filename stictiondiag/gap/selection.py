@@ -7,12 +7,13 @@ penalty: the block-to-block scatter and the reduction the Bayesian information
 criterion asks of its extra parameters (:func:`bic_gain`, :func:`score_candidate`).
 The accepted candidates are ranked by their held-out evidence (:func:`evidence`);
 a winner that does not lower the gap on the record is excluded and the next one
-taken (:func:`select_winner` in :mod:`stictiondiag.gap.diagnose`).
+taken (:func:`select_winner`).  The noise floors the gap is measured against live here
+too (:func:`noise_variance`, :func:`noise_floors`, :func:`evidence_floors`,
+:func:`mv_within_noise`).
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -26,11 +27,8 @@ from stictiondiag.gap.effects.base import (
     EffectFit,
     fit_base,
 )
-from stictiondiag.gap.effects.quantization import (
-    detect_quantization,
-    quantized_signals,
-    restrict_quantization,
-)
+from stictiondiag.gap.effects.quantization import detect_quantization, quantization_subsets
+from stictiondiag.gap.result import Candidate
 
 #: Blocks of the record for validation (even blocks against odd ones).
 N_BLOCKS = 8
@@ -254,11 +252,15 @@ class HeldOut:
     quantization_subsets : dict
         The same for the quantization fit restricted to each proper subset of its
         quantised signals (a tuple of names).
+    quantization_fits : dict
+        The whole-record quantization fit restricted to each of those subsets
+        (:func:`stictiondiag.gap.effects.quantization.quantization_subsets`).
     """
 
     blocks: np.ndarray
     errors: dict
     quantization_subsets: dict
+    quantization_fits: dict
 
 
 def heldout_errors(
@@ -274,47 +276,38 @@ def heldout_errors(
     sig = ctx.sig
     norm_only = Measure(norm=ctx.norm, floor=dict.fromkeys(ctx.norm, 0.0), w=ctx.w_eval)
     blocks = block_index(sig.n, n_blocks)
+    q_fits = quantization_subsets(fits["quantization"]) if "quantization" in fits else {}
     held: dict = dict.fromkeys(["none", *fits])
-    q_subsets = []
-    if "quantization" in fits:
-        q_sig = quantized_signals(fits["quantization"])
-        q_subsets = [c for r in range(1, len(q_sig)) for c in itertools.combinations(q_sig, r)]
-    q_held: dict = dict.fromkeys(q_subsets)
+    q_held: dict = dict.fromkeys(q_fits)
     for parity in (0, 1):
         train = (blocks % 2 == parity).astype(float)
         test = 1.0 - train
         w_train = ctx.w_eval * train
+        # The base and every candidate refitted on the training half, then judged on
+        # the other half.
         base_f = fit_base(ctx, w_train, like=base)
-        errs = block_errors(base_f.predictions, sig, norm_only, blocks, test, n_blocks)
-        held["none"] = accumulate(held["none"], errs)
+        half = {}
         for name, ef_full in fits.items():
             ef = models[name](ctx, w_train, base_f, init=ef_full)
-            if ef is None:
-                ef = ef_full
-            errs = block_errors(
-                combined_predictions(base_f, ef),
-                sig,
-                norm_only,
-                blocks,
-                test,
-                n_blocks,
-                ef.explained,
-            )
-            held[name] = accumulate(held[name], errs)
-            if name == "quantization":
-                for sub in q_subsets:
-                    ef_s = restrict_quantization(ef, sub)
-                    errs = block_errors(
-                        combined_predictions(base_f, ef_s),
-                        sig,
-                        norm_only,
-                        blocks,
-                        test,
-                        n_blocks,
-                        ef_s.explained,
-                    )
-                    q_held[sub] = accumulate(q_held[sub], errs)
-    return HeldOut(blocks=blocks, errors=held, quantization_subsets=q_held)
+            half[name] = ef_full if ef is None else ef
+        q_half = quantization_subsets(half["quantization"]) if q_fits else {}
+        errs = block_errors(base_f.predictions, sig, norm_only, blocks, test, n_blocks)
+        held["none"] = accumulate(held["none"], errs)
+        for judged, candidates in ((held, half), (q_held, q_half)):
+            for key, ef in candidates.items():
+                errs = block_errors(
+                    combined_predictions(base_f, ef),
+                    sig,
+                    norm_only,
+                    blocks,
+                    test,
+                    n_blocks,
+                    ef.explained,
+                )
+                judged[key] = accumulate(judged[key], errs)
+    return HeldOut(
+        blocks=blocks, errors=held, quantization_subsets=q_held, quantization_fits=q_fits
+    )
 
 
 def effective_samples_of(ctx: ReplayContext, base: BaseFit) -> dict:
@@ -370,12 +363,11 @@ def choose_quantization(fits: dict, held: HeldOut, share: dict) -> None:
     full_net = q_net(errors["quantization"], fits["quantization"])
     best_q = (full_net, None)
     for sub in held.quantization_subsets if full_net <= 0.0 else ():
-        ef_s = restrict_quantization(fits["quantization"], sub)
-        net = q_net(held.quantization_subsets[sub], ef_s)
+        net = q_net(held.quantization_subsets[sub], held.quantization_fits[sub])
         if net > best_q[0]:
             best_q = (net, sub)
     if best_q[1] is not None:
-        fits["quantization"] = restrict_quantization(fits["quantization"], best_q[1])
+        fits["quantization"] = held.quantization_fits[best_q[1]]
         errors["quantization"] = held.quantization_subsets[best_q[1]]
 
 
@@ -712,7 +704,9 @@ def select_winner(
         for name in ["none", *fits]
         if "pv" in held[name] and (name == "none" or "pv" in fits[name].predictions)
     ]
-    base_pv_floor = base.pv_noise_floor(ctx)
+    if base.pv_floor is None:
+        raise ValueError("the gap is measured with the base fit on the whole record")
+    base_pv_floor = base.pv_floor
     excluded: set = set()
     while True:
         order = sorted([e for e in ["none", *fits] if e not in excluded], key=rank)
@@ -724,3 +718,68 @@ def select_winner(
         if winner == "none" or afters[winner] < before:
             return Selection(winner, order, excluded, meas, before, afters)
         excluded.add(winner)
+
+
+def heldout_gap(
+    ctx: ReplayContext,
+    meas: Measure,
+    per_signal: dict,
+    extra: float = 0.0,
+    explained: dict | None = None,
+) -> float:
+    """Gap [%] of per-block held-out errors ``per_signal`` (summed over the blocks),
+    with ``extra`` (a penalty) added, measured as on the record by ``meas``.
+
+    Held-out errors have a candidate's rounding variance (``explained`` [units^2])
+    taken out in full; as on the record, only the part the noise floor does not hold
+    counts (:meth:`Measure.rounding_left`).
+    """
+    n_judged = max(float(ctx.w_eval.sum()), 1.0)
+    expl = explained or {}
+    tot = sum(
+        meas.excess(
+            s,
+            float(v.sum()) / n_judged
+            + expl.get(s, 0.0) / ctx.norm[s]
+            - meas.rounding_left(s, expl.get(s, 0.0)),
+        )
+        for s, v in per_signal.items()
+    )
+    return 100.0 * math.sqrt(max(tot + extra / n_judged, 0.0))
+
+
+def ranked_candidates(
+    ctx: ReplayContext,
+    sel: Selection,
+    fits: dict,
+    errors: dict,
+    scores: dict,
+    evidences: dict,
+) -> list[Candidate]:
+    """Every fitted effect as a :class:`~stictiondiag.gap.result.Candidate`: its gap
+    on the record and on held-out blocks, its penalised score and whether it is
+    accepted, in the order of :func:`rank_key`."""
+    cands = []
+    for name, ef in fits.items():
+        after_c = sel.afters[name]
+        cands.append(
+            Candidate(
+                effect=name,
+                variant=ef.variant,
+                after=after_c,
+                shrink_pct=100.0 * (sel.before - after_c) / sel.before if sel.before > 0 else 0.0,
+                params=ef.params,
+                n_params=ef.n_params,
+                heldout=heldout_gap(ctx, sel.measure, errors[name], explained=ef.explained),
+                penalised_score=heldout_gap(
+                    ctx,
+                    sel.measure,
+                    errors[name],
+                    scores[name].penalty_excess,
+                    explained=ef.explained,
+                ),
+                accepted=scores[name].accepted and name not in sel.excluded,
+            )
+        )
+    cands.sort(key=lambda c: rank_key(scores, evidences)(c.effect))
+    return cands

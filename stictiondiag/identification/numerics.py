@@ -1,7 +1,7 @@
 """Small numerical tools shared by the process and controller fits and the gap searches.
 
-Delayed copies of a signal, weighted linear least squares (with the
-one-signed pair of columns of a fractional dead time) and golden-section search, for
+Weighted linear least squares (with the one-signed pair of columns of a
+fractional dead time), the R^2 of a fit and golden-section search, for
 the identification of the loop's linear blocks (Eq. 3 of Choudhury, Thornhill & Shah
 2005) and the parameter searches of the gap diagnosis.
 """
@@ -24,16 +24,6 @@ def r_squared(y: np.ndarray, y_hat: np.ndarray) -> float:
     if sst <= 0.0:
         return 0.0
     return 1.0 - float(np.sum((y - y_hat) ** 2)) / sst
-
-
-def delayed(u: np.ndarray, shift: int) -> np.ndarray:
-    """``u[k - shift]``, held at ``u[0]`` before the record starts."""
-    if shift <= 0:
-        return u
-    out = np.empty_like(u)
-    out[:shift] = u[0]
-    out[shift:] = u[: u.size - shift]
-    return out
 
 
 def golden_section(cost: Callable[[float], float], lo: float, hi: float, n_iter: int = 30) -> float:

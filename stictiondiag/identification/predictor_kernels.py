@@ -27,8 +27,9 @@ import functools
 import numba
 import numpy as np
 
+from stictiondiag.core.filters import delayed
 from stictiondiag.core.jit import jit
-from stictiondiag.identification.numerics import _scaled_solve, delayed
+from stictiondiag.identification.numerics import _scaled_solve
 from stictiondiag.identification.process_result import ProcessFit, ProcessModel
 
 #: A sum over the samples that may be reassociated (numba's ``fastmath`` flag
@@ -250,7 +251,7 @@ def _wdot(x, w, y):  # pragma: no cover - compiled
 @jit
 def _shifted_wdot(x, si, y, sj, w):  # pragma: no cover - compiled
     """``sum_k (x[k - si] w[k]) y[k - sj]`` with ``x`` and ``y`` held at their first
-    value before the record starts (:func:`~stictiondiag.identification.numerics.delayed`),
+    value before the record starts (:func:`~stictiondiag.core.filters.delayed`),
     summed as :func:`_wdot` sums.  O(n)."""
     n = w.shape[0]
     k0 = min(max(si, sj), n)

@@ -30,9 +30,14 @@ simpler model wins ties.
 
 A limit cycle is (nearly) periodic, so a dead time ``d`` and ``d + P`` (``P`` the
 period in samples) explain the data about equally well; the scan takes the shortest
-dead time whose fit is close to the best
-(:data:`stictiondiag.identification.output_error.DEAD_TIME_TOLERANCE`); the fits are
-in :mod:`stictiondiag.identification.output_error`.
+dead time whose fit is close to the best (:data:`DEAD_TIME_TOLERANCE`).
+
+The fits (:func:`fit_foptd`, :func:`fit_integrating`,
+:func:`fit_integrating_differenced`) simulate the model with the first-order
+responses of :mod:`stictiondiag.core.filters`; every dead time is scanned at once
+(:func:`delay_scan`: normal equations from prefix sums and correlations).  The
+result is one :class:`~stictiondiag.identification.process_result.ProcessFit`,
+whose ``simulate`` replays the fitted process.
 
 The prediction-error fit of the same process structures, with the unmeasured load
 tracked by a Kalman filter and pv predicted ``h`` samples ahead, is
@@ -42,26 +47,23 @@ tracked by a Kalman filter and pv predicted ``h`` samples ahead, is
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from stictiondiag.core.checks import as_signal, check_dt
 from stictiondiag.core.errors import DataError, UsageError
-from stictiondiag.identification.numerics import (
-    MIN_SAMPLES,
+from stictiondiag.core.filters import (
+    correlate_lags,
     delayed,
-    r_squared,
-)
-from stictiondiag.identification.output_error import (
-    fit_foptd,
-    fit_integrating,
-    fit_integrating_differenced,
     highpass,
     integrating_regressors,
     lag_response,
+    lfilter1,
     powers,
 )
+from stictiondiag.core.optimize import minimize_scalar_bounded
+from stictiondiag.identification.numerics import MIN_SAMPLES, r_squared
 from stictiondiag.identification.process_result import Objective, OutputErrorFit, ProcessFit
 from stictiondiag.models.processes import FOPTD, Integrating
 from stictiondiag.signals.oscillation import dominant_period
@@ -181,6 +183,282 @@ def longest_time_constant(pv: np.ndarray, dt: float) -> float:
     period = _period_s(pv, dt)
     span = search_span(pv.size, None if period is None else period / dt)
     return MAX_TIME_CONSTANT_SPANS * span * dt
+
+
+# --------------------------------------------------------------------------------------
+# The filtered output-error fits of the FOPTD and the integrator
+# --------------------------------------------------------------------------------------
+
+
+#: Dead-time scan: shortest delay whose cost is within this fraction of the range
+#: between the best and the median cost (periodic data make d and d + P ambiguous).
+DEAD_TIME_TOLERANCE = 0.02
+
+
+def pick_dead_time(cost: np.ndarray) -> int:
+    """Shortest delay whose cost is close to the best (see module docstring)."""
+    best = float(cost.min())
+    spread = float(np.median(cost)) - best
+    ok = np.flatnonzero(cost <= best + DEAD_TIME_TOLERANCE * max(spread, 0.0))
+    d = int(ok[0])
+    # Walk down into the local minimum of the run that starts at d.
+    while d + 1 < cost.size and cost[d + 1] < cost[d]:
+        d += 1
+    return d
+
+
+def solve_normal(A: np.ndarray, g: np.ndarray, yy: np.ndarray | float, rows: np.ndarray | int):
+    """Batched least squares from normal equations; mean squared error per batch.
+
+    A singular system in the batch (regressors that coincide: a dead time or pole at
+    which the lag response equals the free response, on a record that barely moves)
+    is solved by the pseudo-inverse, its least-norm solution, instead of failing the
+    whole batch: numpy's batched solve raises for the batch when any one of its
+    systems is singular.  The regular systems get the same solution either way.
+    """
+    try:
+        beta = np.linalg.solve(A, g[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        beta = (np.linalg.pinv(A) @ g[..., None])[..., 0]
+    return (yy - np.einsum("...i,...i->...", beta, g)) / rows, beta
+
+
+def foptd_oe(
+    u: np.ndarray, y_f: np.ndarray, d: int, a: float, b: float, qb: np.ndarray | None = None
+):
+    """Filtered output-error fit of the FOPTD for fixed dead time and pole.
+
+    Regressors, high-passed like ``y_f``: the lag response ``z`` (coefficient: the
+    gain) and the free response ``a^k`` (the initial state); plus ``b^k``, the
+    filter's own free response, which carries whatever the rows ``k <= d`` (where pv
+    answers to inputs from before the record) leave in the filter.  Rows ``k > d``.
+    ``qb``: ``powers(b, 0, n)`` when the caller has it (a fit evaluates many dead
+    times and poles with one filter).  Returns the mean squared error and the
+    coefficients.  O(n): a few passes over the record.
+    """
+    n = u.size
+    rows = slice(d + 1, n)
+    X = np.column_stack(
+        [
+            highpass(lag_response(u, d, a), b)[rows],
+            highpass(powers(a, 0, n), b)[rows],
+            powers(b, d + 1, n) if qb is None else qb[rows],
+        ]
+    )
+    A = X.T @ X
+    m = n - d - 1
+    # Free responses vanish for fast poles: a tiny ridge keeps the solve regular.
+    A[1, 1] += 1e-12 * m
+    A[2, 2] += 1e-12 * m
+    y = y_f[rows]
+    mse, coef = solve_normal(A, X.T @ y, float(y @ y), m)
+    return float(mse), coef
+
+
+def _prefix(x: np.ndarray) -> np.ndarray:
+    return np.concatenate(([0.0], np.cumsum(x)))
+
+
+@dataclass(frozen=True)
+class FilterSums:
+    """What the delay scans of one fit share: the filter's free response ``b^k`` and
+    the prefix sums of its square, of its product with ``y_f`` and of ``y_f``'s
+    square (they do not depend on the input's pole or dead time)."""
+
+    q: np.ndarray
+    cqq: np.ndarray
+    cqy: np.ndarray
+    cyy: np.ndarray
+
+    @classmethod
+    def of(cls, y_f: np.ndarray, b: float) -> FilterSums:
+        q = powers(b, 0, y_f.size)
+        return cls(q, _prefix(q * q), _prefix(q * y_f), _prefix(y_f * y_f))
+
+
+def delay_scan(
+    w: np.ndarray,
+    r: np.ndarray,
+    y_f: np.ndarray,
+    b: float,
+    d_max: int,
+    sums: FilterSums | None = None,
+):
+    """Mean squared error of a filtered output-error fit for every dead time 0..d_max.
+
+    Regressors for dead time ``d``, rows ``k > d``: ``w[k - d]`` (the high-passed
+    response to the input without dead time, ``w[0] = 0``: delaying the input delays
+    the response, and the high-pass started at rest keeps the shift), ``r[k]`` (a
+    delay-free column) and ``b^k`` (the filter's free response).  The normal
+    equations come from prefix sums and two correlations for all delays at once;
+    ``sums`` are the ones that depend on ``y_f`` and ``b`` only, when the caller
+    scans more than once (:class:`FilterSums`).  O(n log d_max) (the correlations,
+    :func:`correlate_lags`) plus O(d_max) 3 x 3 solves; O(n) memory.
+    """
+    n = w.size
+    dd = np.arange(d_max + 1)
+    if sums is None:
+        sums = FilterSums.of(y_f, b)
+    q, cqq, cqy, cyy = sums.q, sums.cqq, sums.cqy, sums.cyy
+    first = dd + 1  # rows k = d+1 .. n-1
+    top = n - dd  # w[1 .. n-1-d] appear
+    cww, cwq = _prefix(w * w), _prefix(w * q)
+    crr, crq = _prefix(r * r), _prefix(r * q)
+    cry = _prefix(r * y_f)
+    # sum_{k>=d} v[k] w[k-d]: correlation of v with w at lag d (w[0] = 0 drops k = d).
+    wr = correlate_lags(r, w, d_max)
+    wy = correlate_lags(y_f, w, d_max)
+    A = np.empty((d_max + 1, 3, 3))
+    A[:, 0, 0] = cww[top] - cww[1]
+    A[:, 0, 1] = A[:, 1, 0] = wr
+    A[:, 0, 2] = A[:, 2, 0] = (b**dd) * (cwq[top] - cwq[1])
+    A[:, 1, 1] = crr[n] - crr[first] + 1e-12 * n * max(float(np.max(np.abs(r))), 1.0) ** 2
+    A[:, 1, 2] = A[:, 2, 1] = crq[n] - crq[first]
+    A[:, 2, 2] = cqq[n] - cqq[first] + 1e-12 * n
+    g = np.stack([wy, cry[n] - cry[first], cqy[n] - cqy[first]], axis=1)
+    mse, _ = solve_normal(A, g, cyy[n] - cyy[first], n - first)
+    return mse
+
+
+def oe_delay_scan(
+    u: np.ndarray,
+    y_f: np.ndarray,
+    a: float,
+    b: float,
+    d_max: int,
+    sums: FilterSums | None = None,
+):
+    """:func:`foptd_oe` for every dead time 0..d_max at a fixed pole (vectorised)."""
+    w = highpass(lag_response(u, 0, a), b)
+    return delay_scan(w, highpass(powers(a, 0, u.size), b), y_f, b, d_max, sums)
+
+
+def fit_foptd(u, y_f, dt, b, d_max, tau_max):
+    """Filtered output-error FOPTD fit: a coarse grid over the time constant with every
+    dead time (vectorised), then a walk along the dead time with the time constant
+    refined at each step.  Returns (dead time [samples], tau [s], gain, mse).
+
+    Cost: 25 delay scans (:func:`delay_scan`, O(n log d_max) each) and about ten
+    O(n) output-error fits per bounded search of the time constant, one search per
+    step of the walk.  With ``d_max`` and ``tau_max`` from :func:`search_span` (the
+    loop's period, not the record) the grid's spacing and so the walk's length do
+    not grow with the record: O(n log d_max) in all.
+    """
+    log_lo, log_hi = math.log(0.2 * dt), math.log(tau_max)
+    sums = FilterSums.of(y_f, b)  # shared by every scan and fit below: one filter
+
+    def mse(d: int, log_tau: float) -> float:
+        return foptd_oe(u, y_f, d, math.exp(-dt / math.exp(log_tau)), b, sums.q)[0]
+
+    grid = np.linspace(log_lo, log_hi, 25)
+    spacing = float(grid[1] - grid[0])
+
+    def best_tau(d: int, centre: float) -> tuple[float, float]:
+        """Bounded search of log(tau) within a grid spacing of ``centre``; the
+        bracket moves while the optimum sits on its edge."""
+        lo, hi = max(centre - spacing, log_lo), min(centre + spacing, log_hi)
+        for _ in range(8):
+            res_x, res_fun = minimize_scalar_bounded(lambda g: mse(d, g), (lo, hi), xatol=1e-4)
+            x = float(res_x)
+            if x - lo < 0.05 * spacing and lo > log_lo:
+                lo, hi = max(lo - spacing, log_lo), lo + 0.1 * spacing
+            elif hi - x < 0.05 * spacing and hi < log_hi:
+                lo, hi = hi - 0.1 * spacing, min(hi + spacing, log_hi)
+            else:
+                break
+        return x, float(res_fun)
+
+    # Coarse joint grid: every dead time for each time constant of the grid.  The
+    # time constant and the dead time trade off along a ridge, so the two are
+    # searched together rather than one after the other.
+    profile = np.full(d_max + 1, np.inf)
+    tau_at = np.zeros(d_max + 1)
+    for g in grid:
+        costs = oe_delay_scan(u, y_f, math.exp(-dt / math.exp(g)), b, d_max, sums)
+        better = costs < profile
+        profile[better] = costs[better]
+        tau_at[better] = g
+    d = pick_dead_time(profile)
+    cache: dict[int, tuple[float, float]] = {d: best_tau(d, float(tau_at[d]))}
+
+    def cost(dd: int, centre: float) -> float:
+        if dd not in cache:
+            cache[dd] = best_tau(dd, centre)
+        return cache[dd][1]
+
+    # Local refinement along the ridge with the time constant optimised at each step.
+    for step in (1, -1):
+        while 0 <= d + step <= d_max and cost(d + step, cache[d][0]) < cache[d][1]:
+            d += step
+    tau = math.exp(cache[d][0])
+    mse_, coef = foptd_oe(u, y_f, d, math.exp(-dt / tau), b, sums.q)
+    return d, tau, float(coef[0]), mse_
+
+
+def integrating_oe(u, y_f, dt, d, b):
+    """Filtered output-error fit of the integrator for a fixed dead time: regressors
+    (high-passed) ``dt sum u`` (gain) and ``dt k`` (minus gain x balance input), and
+    the filter's free response ``b^k``; rows ``k > d``."""
+    n = u.size
+    rows = slice(d + 1, n)
+    cols = integrating_regressors(u, d, dt)
+    X = np.column_stack(
+        [highpass(cols[:, 1], b)[rows], highpass(cols[:, 2], b)[rows], powers(b, d + 1, n)]
+    )
+    A = X.T @ X
+    m = n - d - 1
+    A[2, 2] += 1e-12 * m
+    y = y_f[rows]
+    mse, coef = solve_normal(A, X.T @ y, float(y @ y), m)
+    return float(mse), coef
+
+
+def fit_integrating(u, y_f, dt, b, d_max):
+    """Filtered output-error integrator fit; every dead time at once (the model is
+    linear in its parameters, so the scan is exact).  Returns (dead time, gain,
+    balance input, mse).  O(n log d_max): one delay scan and one fit."""
+    # With the input shifted to start at zero the integrated input for dead time d is
+    # the one for no dead time shifted by d; the shift moves into the balance input.
+    cols = integrating_regressors(u - u[0], 0, dt)
+    costs = delay_scan(highpass(cols[:, 1], b), highpass(cols[:, 2], b), y_f, b, d_max)
+    d = pick_dead_time(costs)
+    mse, coef = integrating_oe(u, y_f, dt, d, b)
+    gain = float(coef[0])
+    u_bias = -float(coef[1]) / gain if gain != 0.0 else float(u.mean())
+    return d, gain, u_bias, mse
+
+
+def fit_integrating_differenced(u, pv, dt, b, d_max, smooth):
+    """Integrator fit on pv's differences: ``pv[k+1] - pv[k] = K dt (u[k - d] - u_b)``.
+
+    The balance input ``u_b`` of a real level loop wanders with the unmeasured
+    outflow; integrated, that wander swamps pv's level, so a fit of pv itself is
+    pulled far off.  In the differences it is a slow offset that the drift
+    high-pass removes.  Both sides pass the same high-pass and the same first-order
+    lag ``smooth`` (against the noise that differencing amplifies): the relation is
+    linear, so the filters leave the gain unchanged.  Every dead time is scanned at
+    once.  Returns (dead time, gain, R^2 of the filtered differences).
+    O(n log d_max).
+    """
+    dy = np.diff(pv)
+    x = u[:-1] - u[0]
+    y_f = highpass(lfilter1((1.0 - smooth,), -smooth, dy - dy[0]), b)
+    w = highpass(lfilter1((1.0 - smooth,), -smooth, x), b)
+    zero = np.zeros_like(w)
+    d_max = min(d_max, w.size - MIN_SAMPLES)
+    costs = delay_scan(w, zero, y_f, b, max(d_max, 0))
+    d = pick_dead_time(costs)
+    k = np.arange(d + 1, w.size)
+    wd = w[k - d]
+    gain = float(wd @ y_f[k]) / (float(wd @ wd) or 1e-300) / dt
+    resid = y_f[k] - gain * dt * wd
+    r2 = 1.0 - float(resid @ resid) / (float(y_f[k] @ y_f[k]) or 1e-300)
+    return d, gain, r2
+
+
+# --------------------------------------------------------------------------------------
+# identify_process: checks, the structures fitted and chosen, operating point
+# --------------------------------------------------------------------------------------
 
 
 def _checked_inputs(u, pv, dt, integrating, max_dead_time):

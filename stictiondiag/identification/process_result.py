@@ -31,8 +31,8 @@ from enum import Enum
 import numpy as np
 
 from stictiondiag.core.errors import UsageError
+from stictiondiag.core.filters import integrating_regressors, lag_response, powers
 from stictiondiag.core.serialize import to_plain
-from stictiondiag.identification.output_error import integrating_regressors, lag_response, powers
 from stictiondiag.models.processes import FOPTD, Integrating
 
 

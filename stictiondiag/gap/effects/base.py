@@ -151,6 +151,10 @@ class BaseFit:
         (:func:`stictiondiag.identification.controller.fit_controller_replay`).
     mv_model : ndarray
         Valve output of the two-parameter model [% of span].
+    pv_floor : float or None
+        The pv noise floor of the process replay on the judged samples
+        (:func:`pv_noise_floor`) [pv units^2]; None for a fit on part of the record
+        (as :attr:`EffectFit.pv_floor`).
     predictions : dict
         The replayed signals by name, ``op``, ``pv`` and (with a valve replay) ``mv``
         [their units], as an :class:`EffectFit` carries those it changes (derived
@@ -162,6 +166,7 @@ class BaseFit:
     op: np.ndarray
     controller: ControllerReplay
     mv_model: np.ndarray
+    pv_floor: float | None = None
     predictions: dict = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -176,12 +181,6 @@ class BaseFit:
         if self.valve is None:
             raise ValueError("the base fit has no valve replay: mv is not recorded")
         return self.valve
-
-    def pv_noise_floor(self, ctx: ReplayContext) -> float:
-        """The pv noise floor of the base process replay on the judged samples of
-        ``ctx`` [pv^2] (:func:`pv_noise_floor`)."""
-        u = process_input(ctx, self)
-        return pv_noise_floor(u, ctx, self.process)
 
 
 def fit_process(
@@ -251,7 +250,8 @@ def fit_base(ctx: ReplayContext, w: np.ndarray, *, like: BaseFit | None = None) 
     w : ndarray
         Sample weights (0 or 1).
     like : BaseFit, optional
-        The fit on the whole record, to start from (fits on parts of the record).
+        The fit on the whole record, to start from (fits on parts of the record,
+        which carry no pv noise floor).
     """
     sig = ctx.sig
     valve = None
@@ -265,5 +265,10 @@ def fit_base(ctx: ReplayContext, w: np.ndarray, *, like: BaseFit | None = None) 
         mvm, _ = valve_replay(sig.op, S, J)
     u = sig.mv if sig.mv is not None else mvm
     process = fit_process(u, ctx, w, model=None if like is None else like.process.prediction.model)
+    # The noise floor of the whole record's process replay (the gap is measured
+    # against it); fits on parts of the record are only judged, not measured.
+    pv_floor = None if like is not None else process_noise_floor(u, sig.pv, ctx.w_eval, process)
     op_hat, ctrl = fit_controller_replay(sig.sp, sig.pv, sig.op, sig.dt, w)
-    return BaseFit(valve=valve, process=process, op=op_hat, controller=ctrl, mv_model=mvm)
+    return BaseFit(
+        valve=valve, process=process, op=op_hat, controller=ctrl, mv_model=mvm, pv_floor=pv_floor
+    )

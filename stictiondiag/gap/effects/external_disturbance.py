@@ -121,6 +121,43 @@ class ExternalDisturbanceParams(EffectParams):
     phase_coherence_p: float
 
 
+def _candidate_peaks(
+    pv: np.ndarray, pv_replay: np.ndarray, w: np.ndarray, load_spacing: float
+) -> tuple[list[int], np.ndarray, int]:
+    """Candidate frequencies of a disturbance: the three largest spectral peaks of the
+    process replay's residual and the three of pv itself (the load tracking follows
+    part of a slow disturbance, so its peak can be small in the residual while it
+    dominates pv), between two cycles in the record (and the slow load's knot
+    spacing) and three samples per cycle.
+
+    Returns the peaks' bins, the bins' frequencies [rad/sample] and the FFT length.
+    """
+    n = pv.size
+    r = (pv - pv_replay) * w
+    nfft = 1 << int(math.ceil(math.log2(4 * n)))
+    spec = np.abs(np.fft.rfft(r, nfft)) ** 2
+    omega = 2.0 * math.pi * np.arange(spec.size) / nfft  # [rad/sample]
+    lo = max(2.0 * math.pi * 2.0 / n, 2.0 * math.pi / load_spacing)
+    ok = (omega >= lo) & (omega <= 2.0 * math.pi / 3.0)
+    cand = np.where(ok)[0]
+    if cand.size < 3:
+        cand = np.arange(1, spec.size)
+
+    def top_peaks(spec_x, k):
+        # Local maxima of the spectrum over the candidates, largest first (ties in
+        # frequency order).
+        sx = spec_x[cand]
+        inner = (sx[1:-1] >= sx[:-2]) & (sx[1:-1] >= sx[2:])
+        pk = cand[np.flatnonzero(inner) + 1]
+        pk = pk[np.argsort(-spec_x[pk], kind="stable")[:k]]
+        return [int(i) for i in pk] or [int(cand[int(np.argmax(sx))])]
+
+    pvc = (pv - np.sum(pv * w) / max(np.sum(w), 1.0)) * w
+    spec_pv = np.abs(np.fft.rfft(pvc, nfft)) ** 2
+    peaks = list(dict.fromkeys(top_peaks(spec, 3) + top_peaks(spec_pv, 3)))
+    return peaks, omega, nfft
+
+
 def fit_external_disturbance(
     ctx: ReplayContext,
     w: np.ndarray,
@@ -158,31 +195,7 @@ def fit_external_disturbance(
         harmonics = 1 if init.variant == "fundamental" else 2
         c, f = cost(om, harmonics, model=init.process.prediction.model if init.process else model)
     else:
-        r = (pv - base.process.prediction.pv) * w
-        nfft = 1 << int(math.ceil(math.log2(4 * n)))
-        spec = np.abs(np.fft.rfft(r, nfft)) ** 2
-        omega = 2.0 * math.pi * np.arange(spec.size) / nfft  # [rad/sample]
-        lo = max(2.0 * math.pi * 2.0 / n, 2.0 * math.pi / ctx.load.spacing)
-        ok = (omega >= lo) & (omega <= 2.0 * math.pi / 3.0)
-        cand = np.where(ok)[0]
-        if cand.size < 3:
-            cand = np.arange(1, spec.size)
-
-        def top_peaks(spec_x, k):
-            # Local maxima of the spectrum over the candidates, largest first (ties
-            # in frequency order).
-            sx = spec_x[cand]
-            inner = (sx[1:-1] >= sx[:-2]) & (sx[1:-1] >= sx[2:])
-            pk = cand[np.flatnonzero(inner) + 1]
-            pk = pk[np.argsort(-spec_x[pk], kind="stable")[:k]]
-            return [int(i) for i in pk] or [int(cand[int(np.argmax(sx))])]
-
-        # Candidate frequencies: the largest peaks of the replay's residual and of pv
-        # itself (the load tracking follows part of a slow disturbance, so its peak
-        # can be small in the residual while it dominates pv).
-        pvc = (pv - np.sum(pv * w) / max(np.sum(w), 1.0)) * w
-        spec_pv = np.abs(np.fft.rfft(pvc, nfft)) ** 2
-        peaks = list(dict.fromkeys(top_peaks(spec, 3) + top_peaks(spec_pv, 3)))
+        peaks, omega, nfft = _candidate_peaks(pv, base.process.prediction.pv, w, ctx.load.spacing)
         # Each peak is screened with the process dynamics refitted together with the
         # sinusoid: in closed loop the controller answers the disturbance, so a
         # process fitted without it has taken part of the disturbance for the

@@ -8,6 +8,7 @@ grid itself, read from the data (:func:`detect_quantization`).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -206,13 +207,26 @@ def restrict_quantization(
     )
 
 
+def quantization_subsets(
+    ef: EffectFit[QuantizationParams],
+) -> dict[tuple[str, ...], EffectFit[QuantizationParams]]:
+    """The quantization fit ``ef`` restricted to every proper subset of its quantised
+    signals (:func:`restrict_quantization`), by subset, fewest signals first: each
+    step is one parameter, so the gap diagnosis judges each subset on held-out data
+    and keeps the one that pays (:func:`stictiondiag.gap.selection.choose_quantization`)."""
+    names = quantized_signals(ef)
+    subsets = [c for r in range(1, len(names)) for c in itertools.combinations(names, r)]
+    return {sub: restrict_quantization(ef, sub) for sub in subsets}
+
+
 def _rounding_in_op(
     ctx: ReplayContext, w: np.ndarray, base: BaseFit, step: float, offset: float
 ) -> float:
     """Variance per sample of the controller replay's error that a rounded pv causes
     [(% of span)^2].
 
-    The replayed controller (:func:`fit_controller`) is driven by the recorded pv; if
+    The replayed controller
+    (:func:`stictiondiag.identification.controller.fit_controller_replay`) is driven by the recorded pv; if
     the historian rounded pv after the controller read it, the replay answers the
     rounding error ``e`` that the controller never saw, by ``Kc (e_f + (1/Ti) int e_f)``
     (``e_f`` the filtered ``e``).  ``e`` is unobserved; its stand-in is the rounding of

@@ -208,6 +208,75 @@ def _window_fits(ctx: ReplayContext, w: np.ndarray, base: BaseFit, n_win: int) -
     return out
 
 
+def _profile_of_windows(pts: list, n: int) -> tuple[float, float]:
+    """The instants (t1, t2) [samples] of the step or ramp that best matches the S
+    and J fitted on windows (``pts``: (centre [samples], S, J) each), by least
+    squares over 17 starts and three widths."""
+    centers = np.array([p[0] for p in pts])
+    vals = np.array([[p[1], p[2]] for p in pts])
+    best_shape: tuple[float, float, float] | None = None
+    for t1 in np.linspace(0.1, 0.9, 17) * n:
+        for width in (0.0, 0.15 * n, 0.3 * n):
+            if width > 0:
+                h = np.clip((centers - t1) / width, 0.0, 1.0)
+            else:
+                h = (centers >= t1).astype(float)
+            A = np.column_stack([1.0 - h, h])
+            coef, *_ = np.linalg.lstsq(A, vals, rcond=None)
+            c = float(np.sum((A @ coef - vals) ** 2))
+            if best_shape is None or c < best_shape[0]:
+                best_shape = (c, t1, t1 + width)
+    assert best_shape is not None  # the loops above scored 17 x 3 shapes
+    return best_shape[1], best_shape[2]
+
+
+def _start_of_windows(pts: list, t1: float, t2: float, base_sj: tuple) -> np.ndarray:
+    """Start and end S and J [% of span] to search from: the medians of the windows
+    before t1 and after t2 (the first and last window when none is), else the base
+    valve's S and J (``base_sj``) throughout."""
+    early = [p for p in pts if p[0] < t1] or pts[:1]
+    late = [p for p in pts if p[0] > t2] or pts[-1:]
+    if early and late:
+        return np.array(
+            [
+                np.median([p[1] for p in early]),
+                np.median([p[2] for p in early]),
+                np.median([p[1] for p in late]),
+                np.median([p[2] for p in late]),
+            ]
+        )
+    S0, J0 = base_sj
+    return np.array([S0, J0, S0, J0])
+
+
+def _move_instants(cost, c: float, t1: float, t2: float, n: int) -> tuple[float, float, float]:
+    """Move the instants by 2 % of the record at a time while that lowers
+    ``cost(t1, t2)`` (at most four rounds); the cost and the instants [samples]."""
+    for _ in range(4):
+        moved = False
+        for d1, d2 in ((-1, -1), (1, 1), (-1, 0), (1, 0), (0, -1), (0, 1)):
+            a, b = t1 + d1 * 0.02 * n, t2 + d2 * 0.02 * n
+            if a < 0 or b > n - 1 or b < a:
+                continue
+            cc = cost(a, b)
+            if cc < c:
+                c, t1, t2, moved = cc, a, b, True
+        if not moved:
+            break
+    return c, t1, t2
+
+
+def _variant_of(t1: float, t2: float, n: int) -> tuple[str, int]:
+    """The form of a change between the instants t1 and t2 [samples] of a record of
+    ``n`` samples, and its parameters beyond the base model's: a drift over the whole
+    record (S and J at its end), a step (and its instant) or a ramp (and both)."""
+    if t1 <= 0.0 and t2 >= n - 1:
+        return "drift", 2
+    if t2 - t1 < 1.0:
+        return "step", 3
+    return "ramp", 4
+
+
 def fit_time_varying_stiction(
     ctx: ReplayContext,
     w: np.ndarray,
@@ -271,38 +340,11 @@ def fit_time_varying_stiction(
         pts = [v for v in win if v is not None]
         shapes = [(0.0, float(n - 1))]
         if len(pts) >= 3:
-            centers = np.array([p[0] for p in pts])
-            vals = np.array([[p[1], p[2]] for p in pts])
-            best_shape: tuple[float, float, float] | None = None
-            for t1 in np.linspace(0.1, 0.9, 17) * n:
-                for width in (0.0, 0.15 * n, 0.3 * n):
-                    if width > 0:
-                        h = np.clip((centers - t1) / width, 0.0, 1.0)
-                    else:
-                        h = (centers >= t1).astype(float)
-                    A = np.column_stack([1.0 - h, h])
-                    coef, *_ = np.linalg.lstsq(A, vals, rcond=None)
-                    c = float(np.sum((A @ coef - vals) ** 2))
-                    if best_shape is None or c < best_shape[0]:
-                        best_shape = (c, t1, t1 + width)
-            assert best_shape is not None  # the loops above scored 17 x 3 shapes
-            shapes.append((best_shape[1], best_shape[2]))
+            shapes.append(_profile_of_windows(pts, n))
         results = []
         for t1, t2 in shapes:
             # Either stuck-phase logic, whichever reads the profile's start better.
-            early = [p for p in pts if p[0] < t1] or pts[:1]
-            late = [p for p in pts if p[0] > t2] or pts[-1:]
-            if early and late:
-                x = np.array(
-                    [
-                        np.median([p[1] for p in early]),
-                        np.median([p[2] for p in early]),
-                        np.median([p[1] for p in late]),
-                        np.median([p[2] for p in late]),
-                    ]
-                )
-            else:
-                x = np.array([S0, J0, S0, J0])
+            x = _start_of_windows(pts, t1, t2, (S0, J0))
             h0 = _profile(n, t1, t2)
             row0 = valve_rows(
                 x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3]
@@ -311,18 +353,13 @@ def fit_time_varying_stiction(
                 ctx, w, base, None, lambda pr, h0=h0, row0=row0: float(pr.costs(row0, h0)[0])
             )
             x, c = search(t1, t2, x, 0.15, 2)
-            # Move the instants by a few percent of the record while that helps.
-            for _ in range(4):
-                moved = False
-                for d1, d2 in ((-1, -1), (1, 1), (-1, 0), (1, 0), (0, -1), (0, 1)):
-                    a, b = t1 + d1 * 0.02 * n, t2 + d2 * 0.02 * n
-                    if a < 0 or b > n - 1 or b < a:
-                        continue
-                    cc = float(cost_h(_profile(n, a, b))(x[None, :], np.inf)[0])
-                    if cc < c:
-                        c, t1, t2, moved = cc, a, b, True
-                if not moved:
-                    break
+            c, t1, t2 = _move_instants(
+                lambda a, b, x=x: float(cost_h(_profile(n, a, b))(x[None, :], np.inf)[0]),
+                c,
+                t1,
+                t2,
+                n,
+            )
             x, c = search(t1, t2, x, 0.05, 1)
             results.append((c, x, t1, t2, prob))
     c, x, t1, t2, prob = min(results, key=lambda r: r[0])
@@ -333,19 +370,13 @@ def fit_time_varying_stiction(
     mv_hat, _ = prob.series(row, h)
     # Too few measured slips: the replay decides alone, except on a quantised mv.
     untested = untested_p(ctx.sig.mv)
-    if ctx.slips is not None:
-        # The slips after the change must differ from those before it the way the
-        # fitted change of S (the travel at reversals) and J (the jump) goes.
-        expect = {"travel": x[2] - x[0], "J": x[3] - x[1]}
-        p_slips = _slips_test(ctx.slips, t1, t2, n, untested, expect)
-    else:
-        p_slips = untested
-    if t1 <= 0.0 and t2 >= n - 1:
-        variant, n_params = "drift", 2
-    elif t2 - t1 < 1.0:
-        variant, n_params = "step", 3
-    else:
-        variant, n_params = "ramp", 4
+    # The slips after the change must differ from those before it the way the fitted
+    # change of S (the travel at reversals) and J (the jump) goes.
+    expect = {"travel": x[2] - x[0], "J": x[3] - x[1]}
+    p_slips = (
+        untested if ctx.slips is None else _slips_test(ctx.slips, t1, t2, n, untested, expect)
+    )
+    variant, n_params = _variant_of(t1, t2, n)
     params = TimeVaryingStictionParams(
         S_start=float(x[0]),
         J_start=float(x[1]),

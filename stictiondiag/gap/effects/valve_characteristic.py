@@ -175,6 +175,19 @@ def gain_change_test(
     return (beta / b if b != 0.0 else 0.0), p
 
 
+#: One form's fit: (cost, form, n_params, params, predictions, process fit, process
+#: input); the last two are None on the valve side.
+_FormFit = tuple[
+    float,
+    str,
+    int,
+    CharacteristicParams,
+    dict[str, np.ndarray],
+    ProcessFit | None,
+    np.ndarray | None,
+]
+
+
 def fit_valve_characteristic(
     ctx: ReplayContext,
     w: np.ndarray,
@@ -203,19 +216,7 @@ def fit_valve_characteristic(
         base_mv_cost = float(prob.costs(row)[0])
     if init is not None:
         forms = [init.variant]
-    # (cost, form, n_params, params, predictions, process fit, process input); the last
-    # two are None on the valve side.
-    results: list[
-        tuple[
-            float,
-            str,
-            int,
-            CharacteristicParams,
-            dict[str, np.ndarray],
-            ProcessFit | None,
-            np.ndarray | None,
-        ]
-    ] = []
+    results: list[_FormFit] = []
     for form in forms:
         side, family = form.split("_")
         if side == "process":

@@ -1,3 +1,0 @@
-"""Applications built on the analysis: reports, plant scans, ISDB validation, the
-withheld-effect benchmark.
-"""

@@ -1,1 +1,0 @@
-"""Reading control-loop tags (pv, op, mv, sp) from historian exports."""

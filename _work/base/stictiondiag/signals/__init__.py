@@ -1,3 +1,0 @@
-"""Signal analysis below the models: oscillation detection by the autocorrelation
-zero-crossing method.
-"""
