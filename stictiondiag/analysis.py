@@ -69,11 +69,11 @@ from stictiondiag.identification.looptype import (
     settle_loop_type,
 )
 from stictiondiag.io.tags import Tags, read_tags
-from stictiondiag.replay import Replay, replay
+from stictiondiag.replay import replay
 from stictiondiag.replay.compensation import compensation_from_replay
 from stictiondiag.replay.reproduction import reproduction_features
 from stictiondiag.result import FIGURE_DPI, Analysis
-from stictiondiag.signals.kpis import LoopKpis, loop_kpis
+from stictiondiag.signals.kpis import loop_kpis
 from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
@@ -427,6 +427,22 @@ def run_from_estimate(est: LoopEstimate, *, config: AnalysisConfig | None = None
             lambda: diagnose_gap(tags, fit, replayed, segments=segments),
         )
 
+    # 7. The loop's performance indicators; the Harris index takes the replay's
+    # identified process dead time plus the controller's one-sample delay.
+    osc = est.oscillation
+    kpis = loop_kpis(
+        tags.pv,
+        tags.op,
+        tags.sp,
+        float(tags.ts),
+        op_in_percent=getattr(tags, "op_scale", "percent") == "percent",
+        service_factor_pct=tags.service_factor,
+        dead_time_s=None
+        if rep is None
+        else (int(rep.process_fit.dead_time_samples) + 1) * float(tags.ts),
+        oscillation_period_s=osc.period_s if osc.present else None,
+        oscillation_amplitude=osc.amplitude if osc.present else None,
+    )
     return Analysis(
         tags=tags,
         oscillation=est.oscillation,
@@ -438,26 +454,7 @@ def run_from_estimate(est: LoopEstimate, *, config: AnalysisConfig | None = None
         warnings=tuple(warnings),
         compensation=comp,
         analysed_at=datetime.now(UTC).isoformat(timespec="seconds"),
-        kpis=kpis_of(tags, est.oscillation, rep),
-    )
-
-
-def kpis_of(tags: Tags, osc_pv: Oscillation, rep: Replay | None) -> LoopKpis:
-    """Step 7: the loop's performance indicators; the Harris index takes the replay's
-    identified process dead time plus the controller's one-sample delay."""
-    dead_time_s = None
-    if rep is not None:
-        dead_time_s = (int(rep.process_fit.dead_time_samples) + 1) * float(tags.ts)
-    return loop_kpis(
-        tags.pv,
-        tags.op,
-        tags.sp,
-        float(tags.ts),
-        op_in_percent=getattr(tags, "op_scale", "percent") == "percent",
-        service_factor_pct=tags.service_factor,
-        dead_time_s=dead_time_s,
-        oscillation_period_s=osc_pv.period_s if osc_pv.present else None,
-        oscillation_amplitude=osc_pv.amplitude if osc_pv.present else None,
+        kpis=kpis,
     )
 
 
