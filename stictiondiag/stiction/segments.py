@@ -539,8 +539,14 @@ def _slip_events(segs: Segments) -> _SlipEvents:
     return _SlipEvents(use, band_ev, jump_ev, S_seg, J_seg)
 
 
-def _least_squares(op, mv, sync, S_max, seeds) -> dict:
-    """The grid search of every valve variant worth trying: name -> (variant, result)."""
+def _least_squares(op, mv, sync, S_max, seeds):
+    """The grid search of every valve variant worth trying, and the best fit run.
+
+    Returns the searches (name -> (variant, result of :func:`_grid_search`)), the
+    name of the best, the variant that represents its band
+    (:meth:`~stictiondiag.stiction.valvefit.ValveVariant.for_band`), and that model's
+    valve position [% of span] and number of slips.
+    """
     k0, k_start, d_start = sync
     variants = valve_variants(op)
     if any(v.play_width > 0 for v in variants):
@@ -552,7 +558,12 @@ def _least_squares(op, mv, sync, S_max, seeds) -> dict:
     for variant in variants:
         res = _grid_search(op, mv, (k0, k_start, d_start, -1.0), variant, S_max, S_max, seeds=seeds)
         searches[variant.name] = (variant, res)
-    return searches
+    best = min(searches, key=lambda k: searches[k][1][5])
+    variant, (_, _, _, S_ls, J_ls, _) = searches[best]
+    variant = variant.for_band(S_ls)
+    S_model = float(variant.model_S(S_ls))
+    y, n_slips = valve_run(variant.prepare(op), S_model, J_ls, variant.kano, k_start, d_start, -1.0)
+    return searches, best, variant, y, n_slips
 
 
 def _hull(a, b):
@@ -562,10 +573,14 @@ def _hull(a, b):
     return (max(0.0, min(a[0], b[0])), max(a[1], b[1]))
 
 
-def _segments_details(segs: Segments, ev: _SlipEvents, S_ci, J_ci, seg_cost) -> dict:
-    """The event statistics of ``details["segments"]``."""
+def _segments_details(segs: Segments, ev: _SlipEvents, cis, seg_cost, counts) -> dict:
+    """The event statistics of ``details["segments"]`` (``cis``: the bootstrap
+    intervals of S and J), then the counts of the fit (``counts``: the first sample
+    of the cost, the record's and the effective number of samples)."""
+    S_ci, J_ci = cis
+    k0, n, n_eff = counts
     travel_rev = segs.travel[segs.reversal & ev.use]
-    return {
+    segments = {
         "S": ev.S,
         "J": ev.J,
         "S_interval": None if S_ci is None else list(S_ci),
@@ -581,6 +596,14 @@ def _segments_details(segs: Segments, ev: _SlipEvents, S_ci, J_ci, seg_cost) -> 
         "noise_op": segs.noise_op,
         "quantum_mv": segs.quantum_mv,
     }
+    return {
+        "segments": segments,
+        "burn_in_samples": k0,
+        "noise_cost": float(segs.noise_mv**2 * (n - k0)),
+        "n_parameters": {"stiction": 3, "linear": 1},
+        "effective_samples": n_eff,
+        "n_samples": n - k0,
+    }
 
 
 def _synchronisation(segs: Segments, n: int) -> tuple[int, float]:
@@ -595,9 +618,10 @@ def _synchronisation(segs: Segments, n: int) -> tuple[int, float]:
 
 
 def _mv_fit_details(
-    variant, bias: float, searches: dict, best, intervals, hi_edges, n_eff: float
+    variant, bias: float, searches: dict, best, intervals, hi_edges, n_eff: float, rest: dict
 ) -> dict:
-    """The least-squares part of :func:`estimate_from_mv`'s ``details``."""
+    """:func:`estimate_from_mv`'s ``details``: the least-squares part, then ``rest``
+    (the segment statistics and the counts)."""
     S_all, J_all, C_all, S_ls, J_ls, cost = searches[best][1]
     (S_iv, J_iv), (S_hi_edge, J_hi_edge) = intervals, hi_edges
     return {
@@ -614,6 +638,7 @@ def _mv_fit_details(
             "S_bounded": not S_hi_edge,
             "J_bounded": not J_hi_edge,
         },
+        **rest,
     }
 
 
@@ -678,20 +703,15 @@ def estimate_from_mv(
     segs = segment_valve(op, mv, dt, d_mv) if segments is None else segments
     op_std = float(np.std(op))
     lo, hi = np.percentile(op, [0.5, 99.5])
-    S_max = float(max(hi - lo, 1e-12))
-    J_max = S_max
-
+    S_max = J_max = float(max(hi - lo, 1e-12))
     k_start, d_start = _synchronisation(segs, n)
     k0 = k_start + 1
-
     ev = _slip_events(segs)
     seeds = [] if ev.S is None else [(ev.S, ev.J)]
-    searches = _least_squares(op, mv, (k0, k_start, d_start), S_max, seeds)
-    best = min(searches, key=lambda k: searches[k][1][5])
-    variant, (S_all, J_all, C_all, S_ls, J_ls, cost) = searches[best]
-    variant = variant.for_band(S_ls)
-    S_model = float(variant.model_S(S_ls))
-    y, n_slips = valve_run(variant.prepare(op), S_model, J_ls, variant.kano, k_start, d_start, -1.0)
+    searches, best, variant, y, n_slips = _least_squares(
+        op, mv, (k0, k_start, d_start), S_max, seeds
+    )
+    S_all, J_all, C_all, S_ls, J_ls, cost = searches[best][1]
     bias = float(np.mean(mv[k0:] - y[k0:]))
     mv_model = y + bias
     resid = mv - mv_model
@@ -719,17 +739,9 @@ def estimate_from_mv(
     S_interval = _hull(S_iv, S_ci)
     J_interval = _hull(J_iv, J_ci)
     det = determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge)
-    details = {
-        **_mv_fit_details(
-            variant, bias, searches, best, (S_iv, J_iv), (S_hi_edge, J_hi_edge), n_eff
-        ),
-        "segments": _segments_details(segs, ev, S_ci, J_ci, seg_cost),
-        "burn_in_samples": k0,
-        "noise_cost": float(segs.noise_mv**2 * (n - k0)),
-        "n_parameters": {"stiction": 3, "linear": 1},
-        "effective_samples": n_eff,
-        "n_samples": n - k0,
-    }
+    rest = _segments_details(segs, ev, (S_ci, J_ci), seg_cost, (k0, n, n_eff))
+    intervals, hi_edges = (S_iv, J_iv), (S_hi_edge, J_hi_edge)
+    details = _mv_fit_details(variant, bias, searches, best, intervals, hi_edges, n_eff, rest)
     return StictionFit(
         S=S_ls,
         J=J_ls,
