@@ -13,9 +13,10 @@ numba checks a cached kernel against its own source file only, so a kernel that
 calls or compiles in a kernel of another file would keep stale machine code when
 only that file changes (a ``git pull`` in an editable install, an upgrade).  On
 import, before any kernel is defined or loaded, this module therefore runs
-:func:`stictiondiag.core.kernelcache.guard`: when the package's source differs from
-the one its caches were made from, all of the package's numba cache files are
-dropped, and the next run recompiles (0.6 ms per import when nothing changed).
+:func:`stictiondiag.core.kernelcache.guard`: when the package's source (every layer
+that may hold a kernel) differs from the one its caches were made from, all of the
+package's numba cache files are dropped, and the run recompiles them, as on a fresh
+installation (0.6 ms per import when nothing changed).
 
 A cold cache costs 12-30 s of compilation.  The first time a kernel of this package
 is compiled in a main process whose stderr is a terminal, one line says so on stderr

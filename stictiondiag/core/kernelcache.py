@@ -52,8 +52,10 @@ Cost, measured: 0.6 ms per call when nothing changed (112 of the package's 137
 import kernelcache; import numba" "kernelcache.guard()"``, best of 5, three runs
 0.60-0.62 ms); the content hash after a changed stat fingerprint adds 2.3 ms.  The
 ``import stictiondiag.core.jit`` of a new process (0.34 s of CPU) did not change
-measurably (ratio of whole-process CPU time with/without the guard 0.99, 15 pairs,
-range 0.84-1.12); ``stiction --help`` and ``import stictiondiag`` do not import it.
+measurably: the median ratio of whole-process CPU time with/without the guard was
+0.99 and 1.01 in two series of 15 alternated pairs (ranges 0.84-1.12, 0.91-1.09).
+``stiction --help`` and ``import stictiondiag`` do not import numba or this module
+(``stiction --help``: ratio 0.99, 10 pairs).
 """
 
 from __future__ import annotations
