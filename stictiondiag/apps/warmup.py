@@ -73,7 +73,7 @@ def _valve_models() -> None:
     op = 50.0 + 20.0 * np.sin(np.linspace(0.0, 20.0, 400))
     choudhury_model(op, 5.0, 2.0, ewma_lambda=0.5, characteristic="equal_percentage")
     kano_model(op, 5.0, 2.0)
-    stick_model(op, 5.0, 2.0, model="he")  # one kernel for both stick models
+    stick_model(op, 5.0, 2.0, model="he")  # the band-hold valve runs the same kernel
     karnopp(op, PhysicalValve(), 0.1)
 
 

@@ -153,7 +153,13 @@ def slips_comparable(slips: dict, a: np.ndarray, b: np.ndarray) -> bool:
     return False
 
 
-def slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray, untested: float = 0.0) -> float:
+def slips_differ(
+    slips: dict | None,
+    a: np.ndarray,
+    b: np.ndarray,
+    untested: float = 0.0,
+    expect: dict | None = None,
+) -> float:
     """Smallest p-value of two-sided rank tests that the slips in ``a`` and ``b`` differ,
     in the demand travel at reversals (S) or in the jump (J); ``untested`` when there
     are too few measured slips to test (fewer than three on a side; 0: the replay
@@ -162,6 +168,11 @@ def slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray, untested: flo
     Thresholds are fitted on the whole record, where a replay that is more flexible
     can fall in step with a few more slips by chance; the slips measured one by one
     (:func:`measure_slips`) must show the difference too.
+
+    ``expect`` (``travel`` and ``J``): the sign of the difference the fitted effect
+    gives, the slips in ``b`` less those in ``a``; a test whose sign is not 0 is
+    one-sided in that direction (:func:`one_sided`): slips that differ the other way
+    do not show the fitted effect.
     """
     from stictiondiag.core.stats import (
         mannwhitneyu,  # scipy.stats.mannwhitneyu, without importing scipy.stats
@@ -175,7 +186,14 @@ def slips_differ(slips: dict | None, a: np.ndarray, b: np.ndarray, untested: flo
         x, y = slips[key][a & mask], slips[key][b & mask]
         if x.size >= 3 and y.size >= 3:
             tested = True
-            p = min(p, float(mannwhitneyu(x, y, alternative="two-sided").pvalue))
+            res = mannwhitneyu(x, y, alternative="two-sided")
+            p_key = float(res.pvalue)
+            sign = 0.0 if expect is None else float(np.sign(expect.get(key, 0.0)))
+            if sign != 0.0:
+                # b's slips larger than a's when a's U statistic is below its mean.
+                b_larger = float(res.statistic) < 0.5 * x.size * y.size
+                p_key = one_sided(p_key, b_larger == (sign > 0.0))
+            p = min(p, p_key)
     return p if tested else untested
 
 

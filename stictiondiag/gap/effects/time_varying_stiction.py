@@ -63,7 +63,9 @@ def change_sides(times: np.ndarray, t1: float, t2: float, n: int) -> tuple:
     return early, late
 
 
-def _slips_test(slips: dict, t1: float, t2: float, n: int, untested: float = 0.0) -> float:
+def _slips_test(
+    slips: dict, t1: float, t2: float, n: int, untested: float = 0.0, expect: dict | None = None
+) -> float:
     """p-value that the slips differ across a change of stiction between samples t1
     and t2: their sizes by rank (:func:`slips_differ` on :func:`change_sides`); when
     fewer than three are measured before t1 or after t2, also their rate
@@ -72,12 +74,14 @@ def _slips_test(slips: dict, t1: float, t2: float, n: int, untested: float = 0.0
 
     ``untested`` (:func:`untested_p`) 1: the change must be shown by the slips
     measured; where too few are measured to compare their sizes, their rate alone
-    decides (1 when it cannot be tested either), not the replay alone."""
+    decides (1 when it cannot be tested either), not the replay alone.  ``expect``:
+    the signs of the fitted change of S and J, for a size test in that direction
+    (:func:`slips_differ`)."""
     times = slips["time"]
     early, late = change_sides(times, t1, t2, n)
     if untested >= 1.0 and not slips_comparable(slips, early, late):
         return slip_rate_differs(times, t1, t2, n)
-    p = slips_differ(slips, early, late)
+    p = slips_differ(slips, early, late, expect=expect)
     drift = t1 <= 0.0 and t2 >= n - 1
     if drift or min(int(np.sum(times < t1)), int(np.sum(times > t2))) >= 3:
         return p
@@ -366,7 +370,12 @@ def fit_time_varying_stiction(
     mv_hat, _ = prob.series(row, h)
     # Too few measured slips: the replay decides alone, except on a quantised mv.
     untested = untested_p(ctx.sig.mv)
-    p_slips = untested if ctx.slips is None else _slips_test(ctx.slips, t1, t2, n, untested)
+    # The slips after the change must differ from those before it the way the fitted
+    # change of S (the travel at reversals) and J (the jump) goes.
+    expect = {"travel": x[2] - x[0], "J": x[3] - x[1]}
+    p_slips = (
+        untested if ctx.slips is None else _slips_test(ctx.slips, t1, t2, n, untested, expect)
+    )
     variant, n_params = _variant_of(t1, t2, n)
     params = TimeVaryingStictionParams(
         S_start=float(x[0]),
