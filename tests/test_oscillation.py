@@ -15,6 +15,7 @@ from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
     Absence,
+    acf_period_samples,
     autocorrelation,
     detect_oscillation,
     dominant_period,
@@ -193,6 +194,13 @@ def test_dominant_period_and_acf():
     # Same estimate as detect_oscillation, without the decision.
     assert dominant_period(x, DT) == pytest.approx(30.0, rel=2e-3)
     assert dominant_period(np.ones(100), 1.0) is None
+    # The period in samples is the same estimate before the sample time scales it:
+    # 300 samples within the tolerance above, and equal to the last bit once scaled.
+    assert acf_period_samples(x) == pytest.approx(300.0, rel=2e-3)
+    assert acf_period_samples(x) * DT == dominant_period(x, DT)
+    assert acf_period_samples(np.ones(100)) is None
+    with pytest.raises(UsageError):
+        dominant_period(x, 0.0)
     acf = autocorrelation(x)
     assert acf[0] == pytest.approx(1.0)
     # Half a period later a sine's ACF is about -1, tapered by the biased

@@ -8,7 +8,8 @@ if cached) with the argument types real use gives it, and written to the cache
 every later process reads.  The work:
 
 1. the open-loop valve models (Choudhury et al. 2005, Section 5.1; Kano et al. 2004;
-   the physical valve of Section 4, Eqs. 1-2);
+   He et al.'s and the band-hold stick models; the physical valve of Section 4,
+   Eqs. 1-2);
 2. the closed loops of Section 4 (Eq. 3, Table 3) with the data-driven and the
    physical valve, and a generated benchmark case;
 3. :func:`stictiondiag.analysis.analyze` with the gap diagnosis on a sticky loop with
@@ -66,11 +67,13 @@ class WarmUp:
 
 def _valve_models() -> None:
     from stictiondiag.models.physical import PhysicalValve, karnopp
+    from stictiondiag.models.stick_models import stick_model
     from stictiondiag.models.valve import choudhury_model, kano_model
 
     op = 50.0 + 20.0 * np.sin(np.linspace(0.0, 20.0, 400))
     choudhury_model(op, 5.0, 2.0, ewma_lambda=0.5, characteristic="equal_percentage")
     kano_model(op, 5.0, 2.0)
+    stick_model(op, 5.0, 2.0, model="he")  # the band-hold valve runs the same kernel
     karnopp(op, PhysicalValve(), 0.1)
 
 

@@ -66,7 +66,7 @@ from stictiondiag.core.optimize import minimize_scalar_bounded
 from stictiondiag.identification.numerics import MIN_SAMPLES, r_squared
 from stictiondiag.identification.process_result import Objective, OutputErrorFit, ProcessFit
 from stictiondiag.models.processes import FOPTD, Integrating
-from stictiondiag.signals.oscillation import dominant_period
+from stictiondiag.signals.oscillation import acf_period_samples
 
 #: Integrating model chosen when its simulation R^2 is at most this much below the FOPTD's.
 INTEGRATING_R2_MARGIN = 0.01
@@ -119,8 +119,10 @@ START_WINDOW_PERIODS = 2.0
 
 
 def _period_s(pv: np.ndarray, dt: float) -> float | None:
-    """pv's dominant period [s], or None.  O(n log n) (the autocorrelation by FFT)."""
-    return dominant_period(pv, dt)
+    """pv's dominant period [s] (:func:`~stictiondiag.signals.oscillation.dominant_period`
+    of a checked ``dt``), or None.  O(n log n) (the autocorrelation by FFT)."""
+    period = acf_period_samples(pv)
+    return None if period is None else period * dt
 
 
 def drift_pole(pv: np.ndarray, dt: float, drift_time_constant: float | None):
@@ -328,9 +330,12 @@ def oe_delay_scan(
     d_max: int,
     sums: FilterSums | None = None,
 ):
-    """:func:`foptd_oe` for every dead time 0..d_max at a fixed pole (vectorised)."""
+    """:func:`foptd_oe` for every dead time 0..d_max at a fixed pole (vectorised):
+    the high-passed lag response without dead time and the high-passed free
+    response scanned by :func:`delay_scan`."""
     w = highpass(lag_response(u, 0, a), b)
-    return delay_scan(w, highpass(powers(a, 0, u.size), b), y_f, b, d_max, sums)
+    r = highpass(powers(a, 0, u.size), b)
+    return delay_scan(w, r, y_f, b, d_max, sums)
 
 
 def fit_foptd(u, y_f, dt, b, d_max, tau_max):

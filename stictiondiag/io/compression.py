@@ -54,6 +54,7 @@ import math
 import numpy as np
 
 from stictiondiag.core.errors import DataError, UsageError
+from stictiondiag.io.timebase import check_grid, onto_grid
 
 __all__ = [
     "COMPRESSIONS",
@@ -262,8 +263,6 @@ def reconstruct(
     UsageError
         An unknown ``compression``.
     """
-    from stictiondiag.io.timebase import check_grid, onto_grid
-
     if compression is not None and compression not in COMPRESSIONS:
         raise UsageError(
             f"compression must be one of {', '.join(COMPRESSIONS)}, not {compression!r}"

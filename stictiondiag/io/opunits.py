@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stictiondiag.core.errors import DataError
+from stictiondiag.core.errors import DataError, UsageError
 
 __all__ = ["MIN_TRAVEL_PCT", "WARN_TRAVEL_PCT", "check_op_travel", "check_op_units"]
 
@@ -157,8 +157,6 @@ def check_op_travel(
 
     A travel below :data:`WARN_TRAVEL_PCT` is noted.
     """
-    from stictiondiag.core.errors import UsageError
-
     values = np.asarray(op_pct, dtype=float)
     values = values[np.isfinite(values)]
     travel = float(np.ptp(values)) if values.size else 0.0

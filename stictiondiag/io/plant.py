@@ -41,12 +41,24 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from stictiondiag.core.errors import DataError, UsageError
-from stictiondiag.io.columns import ROLES, is_time_name, mode_prefix, mode_rank, roles_of
+from stictiondiag.io.columns import (
+    ROLES,
+    is_mv_suffix,
+    is_time_name,
+    mode_prefix,
+    mode_rank,
+    roles_of,
+    yokogawa_note,
+)
+from stictiondiag.io.compression import archive_deadbands, reconstruct
+from stictiondiag.io.mode import mode_codes, mode_labels
+from stictiondiag.io.readers import read_table
+from stictiondiag.io.tags import LOOP_TYPES, OP_UNITS, Tags, read_frame, read_tags
+from stictiondiag.io.timebase import time_seconds
 
 if TYPE_CHECKING:
     import pandas as pd
 
-    from stictiondiag.io.tags import Tags
 
 __all__ = [
     "LONG_COLUMNS",
@@ -141,7 +153,6 @@ def _promote_mv(groups: dict[str, dict[str, list[str]]]) -> dict[str, str]:
 
     Returns prefix -> the note saying so.
     """
-    from stictiondiag.io.columns import is_mv_suffix, yokogawa_note
 
     notes = {}
     for prefix, roles in groups.items():
@@ -182,7 +193,6 @@ def _loops_of_groups(
 
 
 def _header(path: Path) -> pd.DataFrame:
-    from stictiondiag.io.readers import read_table
 
     if path.suffix.lower() in (".parquet", ".pq") and path.is_file():
         import pandas as pd
@@ -271,7 +281,6 @@ def _long_tags(file: Path, long: dict[str, str]) -> list[str]:
 
 
 def _read_long(file: Path, long: dict[str, str], tags: list[str] | None) -> pd.DataFrame:
-    from stictiondiag.io.readers import read_table
 
     if file.suffix.lower() in (".parquet", ".pq") and tags is not None:
         import pyarrow.dataset as ds
@@ -304,10 +313,6 @@ def _resample_long(
     said in ``notes``), held on the grid and written back as words.
     """
     import pandas as pd
-
-    from stictiondiag.io.compression import archive_deadbands, reconstruct
-    from stictiondiag.io.mode import mode_codes, mode_labels
-    from stictiondiag.io.timebase import time_seconds
 
     seconds = time_seconds(frame[long["time"]], long["time"], label)
     values = pd.to_numeric(frame[long["value"]], errors="coerce").to_numpy(dtype=float)
@@ -387,8 +392,6 @@ def read_plant_loop(loop: PlantLoop, **read_options) -> Tags:
     """
     from dataclasses import replace
 
-    from stictiondiag.io.tags import read_frame, read_tags
-
     if loop.problem:
         raise DataError(f"loop {loop.loop} of {loop.path}: {loop.problem}")
     if loop.layout == "file":
@@ -436,8 +439,6 @@ def _read_wide(file: Path, options: dict, label: str) -> Tags:
     Rows before the loop's first and after its last sample (loops of one export
     recorded over different spans) are not part of its record.
     """
-    from stictiondiag.io.readers import read_table
-    from stictiondiag.io.tags import read_frame
 
     columns = [options[r] for r in (*ROLES, "time", "mode") if options.get(r)]
     frame = read_table(file, lambda header: columns)
@@ -499,8 +500,6 @@ def read_manifest(path: str | os.PathLike) -> dict[str, dict]:
         The file cannot be read, has no ``file``/``loop`` column, an unknown
         column, a bad value (row named).
     """
-    from stictiondiag.io.readers import read_table
-    from stictiondiag.io.tags import LOOP_TYPES, OP_UNITS
 
     file = Path(path)
     try:
@@ -643,8 +642,6 @@ def long_tag_series(
         The file is not a long export, or cannot be read.
     """
     import pandas as pd
-
-    from stictiondiag.io.timebase import time_seconds
 
     file = Path(path)
     long = _long_columns([str(c) for c in _header(file).columns])

@@ -232,22 +232,30 @@ def _acf_periods(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return crossings, periods
 
 
-def dominant_period(x: np.ndarray, dt: float) -> float | None:
-    """Period [s] of the dominant oscillation from the ACF zero crossings.
+def acf_period_samples(x: np.ndarray) -> float | None:
+    """Period [samples] of the dominant oscillation from the ACF zero crossings.
 
     Mean of the full-period estimates between alternate zero crossings of the
-    autocorrelation (Thornhill et al. 2003); None when the ACF has fewer than three
-    zero crossings.  No regularity check: use :func:`detect_oscillation` to decide
-    whether an oscillation is present.
+    autocorrelation (Thornhill et al. 2003) of the linearly detrended signal; None
+    when the ACF has fewer than three zero crossings.  No regularity check: use
+    :func:`detect_oscillation` to decide whether an oscillation is present.  The
+    period in seconds is :func:`dominant_period`.
     """
-    dt = check_dt(dt)
     x = _interpolate_nans(x)
     if x.size < MIN_SAMPLES or np.ptp(x) == 0:
         return None
     _, periods = _acf_periods(detrend_linear(x))
     if periods.size == 0:
         return None
-    return float(periods.mean() * dt)
+    return float(periods.mean())
+
+
+def dominant_period(x: np.ndarray, dt: float) -> float | None:
+    """Period [s] of the dominant oscillation from the ACF zero crossings
+    (:func:`acf_period_samples` times the checked sample time ``dt``), or None."""
+    dt = check_dt(dt)
+    period = acf_period_samples(x)
+    return None if period is None else period * dt
 
 
 def _detrend_by_cycles(x: np.ndarray, period_samples: float) -> np.ndarray:
