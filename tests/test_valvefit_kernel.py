@@ -101,3 +101,25 @@ def test_valve_sse_batch_is_the_step_functions_bit_for_bit(kano):
                     s2 += r * r
             cnt = op.size - k0
             assert got[i] == s2 - s1 * s1 / cnt
+
+
+def test_variant_sse_is_one_pair_of_the_batch_run_by_its_band():
+    """``ValveVariant.sse`` is the batch's number for one (S, J) pair, run by the
+    variant that represents the band (:meth:`ValveVariant.for_band`): behind the play
+    operator for a wide band, on the raw op for one narrower than the play.  The same
+    kernel on the same inputs, so the tolerance is zero."""
+    from stictiondiag.stiction.valvefit import ValveVariant
+
+    rng = np.random.default_rng(3)
+    op = 50.0 + np.cumsum(rng.normal(0.0, 0.3, 600))
+    mv = op + rng.normal(0.0, 0.05, op.size)
+    played = ValveVariant("kano+play", True, play_width=1.0)
+    sync = (11, 10, 1.0)
+    for S, J in ((3.0, 1.0), (0.5, 0.2)):
+        v = played.for_band(S)
+        batch = valve_sse_batch(
+            v.prepare(op), mv, v.model_S(np.array([S])), np.array([J]), v.kano, *sync, -1.0
+        )
+        assert played.sse(op, mv, S, J, sync) == float(batch[0])
+    # The narrow band runs on the raw op (no play), the wide one behind it.
+    assert played.for_band(0.5).play_width == 0.0 and played.for_band(3.0) is played

@@ -50,7 +50,6 @@ from stictiondiag.stiction.valvefit import (
     effective_samples,
     profile_interval,
     valve_run,
-    valve_sse_batch,
     valve_sse_many,
     valve_variants,
 )
@@ -60,6 +59,12 @@ STILL_BAND_SIGMAS = 4.0
 
 #: Fewest slips for an event-based interval (bootstrap of the median).
 MIN_EVENTS_FOR_INTERVAL = 3
+
+#: How :func:`estimate_from_mv` states its intervals of S and J.
+INTERVAL_METHOD = (
+    "hull of the 95 % profile-cost interval of the least-squares fit (F test, "
+    "effective samples) and the 95 % bootstrap interval of the median over slips"
+)
 
 #: Longest slip transition [samples]: a recorded slip may take a few samples
 #: (positioner, sampling), a longer change is a moving phase.
@@ -578,27 +583,6 @@ def _segments_details(segs: Segments, ev: _SlipEvents, S_ci, J_ci, seg_cost) -> 
     }
 
 
-def _segment_cost(op, mv, variant, ev: _SlipEvents, sync) -> float | None:
-    """Cost [% of span]^2 of the model with the event estimates of S and J."""
-    if ev.S is None or ev.J is None:
-        return None
-    k0, k_start, d_start = sync
-    v_seg = variant.for_band(max(ev.S, 0.0))
-    return float(
-        valve_sse_batch(
-            v_seg.prepare(op),
-            mv,
-            v_seg.model_S(np.array([max(ev.S, 0.0)])),
-            np.array([max(ev.J, 0.0)]),
-            v_seg.kano,
-            k0,
-            k_start,
-            d_start,
-            -1.0,
-        )[0]
-    )
-
-
 def _synchronisation(segs: Segments, n: int) -> tuple[int, float]:
     """Where and in which direction the model valve starts moving.
 
@@ -706,10 +690,8 @@ def estimate_from_mv(
     best = min(searches, key=lambda k: searches[k][1][5])
     variant, (S_all, J_all, C_all, S_ls, J_ls, cost) = searches[best]
     variant = variant.for_band(S_ls)
-    x_valve = variant.prepare(op)
-    y, n_slips = valve_run(
-        x_valve, float(variant.model_S(S_ls)), J_ls, variant.kano, k_start, d_start, -1.0
-    )
+    S_model = float(variant.model_S(S_ls))
+    y, n_slips = valve_run(variant.prepare(op), S_model, J_ls, variant.kano, k_start, d_start, -1.0)
     bias = float(np.mean(mv[k0:] - y[k0:]))
     mv_model = y + bias
     resid = mv - mv_model
@@ -717,21 +699,25 @@ def estimate_from_mv(
     linear_cost = float(np.sum(lin_resid[k0:] ** 2))
 
     n_eff = effective_samples(resid[k0:])
-    noise_cost = float(segs.noise_mv**2 * (n - k0))
     # The textbook threshold here, no widening by the misfit: with mv the
     # misfit of one (S, J) pair is the valve varying from slip to slip, which the
     # interval over slips below reports directly.
     thr = cost_threshold(cost, n_eff, 3)
     S_iv, S_lo_edge, S_hi_edge = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, J_lo_edge, J_hi_edge = profile_interval(J_all, C_all, thr, 0.0, J_max)
+    # The model's cost [% of span]^2 with the event estimates of S and J, and the
+    # per-cycle costs of the fit and of the linear valve that the verdict compares.
+    seg_cost = None
+    if ev.S is not None and ev.J is not None:
+        S_ev, J_ev = max(ev.S, 0.0), max(ev.J, 0.0)
+        seg_cost = searches[best][0].sse(op, mv, S_ev, J_ev, (k0, k_start, d_start))
+    period = cycle_samples(op)
+    blocks = BlockCosts(period, block_sse(resid, period, k0), block_sse(lin_resid, period, k0))
 
     S_ci = bootstrap_median_ci(ev.band, min_count=MIN_EVENTS_FOR_INTERVAL)
     J_ci = bootstrap_median_ci(ev.jump, min_count=MIN_EVENTS_FOR_INTERVAL)
     S_interval = _hull(S_iv, S_ci)
     J_interval = _hull(J_iv, J_ci)
-    seg_cost = _segment_cost(op, mv, searches[best][0], ev, (k0, k_start, d_start))
-
-    period = cycle_samples(op)
     det = determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge)
     details = {
         **_mv_fit_details(
@@ -739,7 +725,7 @@ def estimate_from_mv(
         ),
         "segments": _segments_details(segs, ev, S_ci, J_ci, seg_cost),
         "burn_in_samples": k0,
-        "noise_cost": noise_cost,
+        "noise_cost": float(segs.noise_mv**2 * (n - k0)),
         "n_parameters": {"stiction": 3, "linear": 1},
         "effective_samples": n_eff,
         "n_samples": n - k0,
@@ -760,12 +746,7 @@ def estimate_from_mv(
         S_determinacy=det["S"],
         J_determinacy=det["J"],
         valve_model=variant.name,
-        interval_method=(
-            "hull of the 95 % profile-cost interval of the least-squares fit (F test, "
-            "effective samples) and the 95 % bootstrap interval of the median over slips"
-        ),
-        block_costs=BlockCosts(
-            period, block_sse(resid, period, k0), block_sse(lin_resid, period, k0)
-        ),
+        interval_method=INTERVAL_METHOD,
+        block_costs=blocks,
         resolution=archive_resolution(mv, deadband, S_ls, J_ls),
     )

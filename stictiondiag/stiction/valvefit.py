@@ -114,6 +114,20 @@ class ValveVariant:
         parts = [(~narrow, self), (narrow, self.for_band(0.0))]
         return [(mask, v) for mask, v in parts if mask.any()]
 
+    def sse(self, op: np.ndarray, mv: np.ndarray, S: float, J: float, sync) -> float:
+        """Squared error [% of span]^2 of the model with band ``S`` and jump ``J``
+        against ``mv``, run by the variant that represents ``S`` (:meth:`for_band`):
+        one pair of :func:`valve_sse_batch`.  ``sync``: ``(k0, k_start, d_start)``,
+        the first sample counted and where and how the model starts moving."""
+        v = self.for_band(S)
+        k0, k_start, d_start = sync
+        model_S = v.model_S(np.array([S]))
+        return float(
+            valve_sse_batch(
+                v.prepare(op), mv, model_S, np.array([J]), v.kano, k0, k_start, d_start, -1.0
+            )[0]
+        )
+
 
 def white_noise_std(x: np.ndarray) -> float:
     """Standard deviation of white noise on ``x`` [units of x]; 0 for a smooth signal.

@@ -112,12 +112,12 @@ def fit_actuator_lag(
                 best = (c, x, tau)
         assert best is not None  # the loop above tried three lags
         _, (S, J), tau = best
-        (S, J), _ = needle_sj(prob, [(S, J)], travel, rel=0.05, n_grid=15, lag=_lag_weight(tau))
+        (S, J), _ = needle_sj(prob, [(S, J)], travel, rel=0.05, lag=_lag_weight(tau))
         lt = golden_section(
             lambda v: cost_tau(S, J)(math.exp(v)), math.log(0.1), math.log(tau_max), 24
         )
         tau = math.exp(lt)
-        (S, J), _ = needle_sj(prob, [(S, J)], travel, rel=0.05, n_grid=15, lag=_lag_weight(tau))
+        (S, J), _ = needle_sj(prob, [(S, J)], travel, rel=0.05, lag=_lag_weight(tau))
     lt = golden_section(
         lambda v: cost_tau(S, J)(math.exp(v)),
         math.log(max(tau / 3, 0.05)),

@@ -21,7 +21,7 @@ from stictiondiag.gap.effects.base import (
     EffectParams,
 )
 from stictiondiag.gap.effects.kernels import valve_rows
-from stictiondiag.gap.effects.search import needle_search
+from stictiondiag.gap.effects.search import needle_from_seeds
 from stictiondiag.gap.effects.signatures import (
     SIGNATURE_P,
     one_sided,
@@ -78,7 +78,7 @@ def _centre_first(X: np.ndarray) -> np.ndarray:
     return np.argsort(np.abs((X - 0.5 * (lo + hi)) / span).sum(axis=1), kind="stable")
 
 
-def _needle_sj_affine(prob: ValveProblem, seeds, travel: float, *, rel=0.15, zooms=2, n_grid=31):
+def _needle_sj_affine(prob: ValveProblem, seeds, travel: float, *, rel=0.15, zooms=2):
     lower, upper = sj_bounds(travel)
 
     def cost(X, bound):
@@ -86,14 +86,7 @@ def _needle_sj_affine(prob: ValveProblem, seeds, travel: float, *, rel=0.15, zoo
         # its grids are centred on the best point so far.
         return prob.costs(valve_rows(X[:, 0], X[:, 1]), affine=True, keep=3, order=_centre_first(X))
 
-    best = None
-    for s in seeds:
-        x, c = needle_search(
-            cost, np.asarray(s, dtype=float), (0, 1), lower, upper, rel=rel, zooms=zooms
-        )
-        if best is None or c < best[1]:
-            best = (x, c)
-    return best
+    return needle_from_seeds(cost, seeds, (0, 1), lower, upper, rel=rel, zooms=zooms)
 
 
 @dataclass(frozen=True)
@@ -184,7 +177,7 @@ def fit_miscalibration(
     slope, offset = affine_map(v, mv, w)
     for _ in range(2 if init is None else 0):
         prob = prob.with_output_map(slope, offset)
-        x, _ = _needle_sj_affine(prob, [x], travel * 3, rel=0.03, zooms=1, n_grid=11)
+        x, _ = _needle_sj_affine(prob, [x], travel * 3, rel=0.03, zooms=1)
         v, _ = prob.series(valve_rows(x[0], x[1])[0])
         slope, offset = affine_map(v, mv, w)
     # The signature (whole-record fit only): the slope of the position after each

@@ -96,6 +96,28 @@ WIDE_STAGES = ((0.35, 15), (0.06, 7), (0.015, 5), (0.004, 5))
 TVS_STAGES = ((0.25, 9), (0.06, 7), (0.015, 5), (0.004, 5))
 
 
+def needle_from_seeds(
+    batch_cost: Callable[[np.ndarray, float], np.ndarray],
+    seeds,
+    pair: tuple[int, int],
+    lower: np.ndarray,
+    upper: np.ndarray,
+    *,
+    rel: float = 0.15,
+    zooms: int = 2,
+) -> tuple[np.ndarray, float] | None:
+    """The best of :func:`needle_search` started from each of ``seeds``: (x, cost), or
+    None without seeds."""
+    best = None
+    for s in seeds:
+        x, c = needle_search(
+            batch_cost, np.asarray(s, dtype=float), pair, lower, upper, rel=rel, zooms=zooms
+        )
+        if best is None or c < best[1]:
+            best = (x, c)
+    return best
+
+
 def grid_search_nd(
     batch_cost: Callable[[np.ndarray, float], np.ndarray],
     x0: np.ndarray,

@@ -24,7 +24,7 @@ from stictiondiag.gap.effects.kernels import (
     valve_series,
     valve_sse_batch,
 )
-from stictiondiag.gap.effects.search import needle_search
+from stictiondiag.gap.effects.search import needle_from_seeds
 
 _CONSTANT = np.zeros(1)
 
@@ -225,23 +225,16 @@ def needle_sj(
     *,
     rel: float = 0.15,
     zooms: int = 2,
-    n_grid: int = 31,
     **row_kw,
 ):
-    """Best (S, J) from each seed by :func:`needle_search`; returns (x, cost)."""
+    """Best (S, J) from each seed by :func:`needle_search` (its default grid); returns
+    (x, cost)."""
     lower, upper = sj_bounds(travel)
 
     def cost(X, bound):
         return prob.costs(valve_rows(X[:, 0], X[:, 1], **row_kw), bound=bound)
 
-    best = None
-    for s in seeds:
-        x, c = needle_search(
-            cost, np.asarray(s, dtype=float), (0, 1), lower, upper, rel=rel, zooms=zooms
-        )
-        if best is None or c < best[1]:
-            best = (x, c)
-    return best
+    return needle_from_seeds(cost, seeds, (0, 1), lower, upper, rel=rel, zooms=zooms)
 
 
 class ValveLogic(StrEnum):
