@@ -417,15 +417,19 @@ def run_from_estimate(est: LoopEstimate, *, config: AnalysisConfig | None = None
             lambda: compensation_from_replay(replayed_loop),
         )
 
-    # 6. Sim-to-real gap (it needs the replay).
-    gap = None
-    if config.gap and rep is not None:
-        replayed = rep
-        gap = _or_warn(
-            "gap diagnosis not possible",
-            warnings,
-            lambda: diagnose_gap(tags, fit, replayed, segments=segments),
-        )
+    # 6. Sim-to-real gap (it needs the replay); when there is none, the reason why.
+    gap, gap_skipped = None, None
+    if not config.gap:
+        gap_skipped = "not asked for"
+    elif rep is None:
+        made = "could not be made from these data" if config.replay else "was not asked for"
+        gap_skipped = f"it needs the closed-loop replay, which {made}"
+    else:
+        try:
+            gap = diagnose_gap(tags, fit, rep, segments=segments)
+        except StictionError as exc:
+            gap_skipped = str(exc)
+            warnings.append(f"gap diagnosis not possible: {exc}")
 
     # 7. The loop's performance indicators; the Harris index takes the replay's
     # identified process dead time plus the controller's one-sample delay.
@@ -455,6 +459,7 @@ def run_from_estimate(est: LoopEstimate, *, config: AnalysisConfig | None = None
         compensation=comp,
         analysed_at=datetime.now(UTC).isoformat(timespec="seconds"),
         kpis=kpis,
+        gap_skipped=gap_skipped,
     )
 
 

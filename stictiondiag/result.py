@@ -75,6 +75,9 @@ class Analysis:
     kpis : LoopKpis or None
         Loop performance indicators (:mod:`stictiondiag.signals.kpis`), each with
         its unit, definition and citation.
+    gap_skipped : str or None
+        Why there is no gap diagnosis, in words (not asked for, no replay to compare
+        with, or why the diagnosis could not use the data); None when there is one.
     """
 
     tags: Tags
@@ -88,6 +91,7 @@ class Analysis:
     compensation: Compensation | None = None
     analysed_at: str = ""
     kpis: LoopKpis | None = None
+    gap_skipped: str | None = None
 
     @property
     def loop(self) -> str:
@@ -160,6 +164,7 @@ class Analysis:
                 None if self.compensation is None else to_plain(self.compensation.to_dict())
             ),
             "gap": None if self.gap is None else to_plain(self.gap.to_dict()),
+            "gap_skipped": self.gap_skipped,
             "kpis": None if self.kpis is None else to_plain(self.kpis.to_dict()),
             "warnings": list(self.warnings),
         }

@@ -484,3 +484,30 @@ def test_evidence_states_s_and_j_in_ops_own_units_when_its_scale_is_unknown(conc
     assert "in op's own units (scale unknown)" in line and "%" not in line
     known = next(r for r in conc_mv.verdict.reasons if r.startswith("S = "))
     assert " % [" in known and "of span (valve position)" in known
+
+
+def test_a_missing_gap_diagnosis_says_why(conc_mv, conc, monkeypatch):
+    """Without a gap diagnosis the result says why, and the findings repeat it: not
+    'it needs the replay' when the replay is there and the diagnosis refused the data
+    (a 201-sample plant record once read so)."""
+    import stictiondiag.analysis as chain
+    from stictiondiag.apps.findings import findings_of
+    from stictiondiag.core.errors import DataError as Refused
+
+    assert conc_mv.gap is None and conc_mv.gap_skipped == "not asked for"
+    assert findings_of(conc_mv).gap == "no gap diagnosis: not asked for"
+
+    def refuse(*args, **kwargs):
+        raise Refused("201 samples are too few for the gap diagnosis: need at least 400")
+
+    monkeypatch.setattr(chain, "diagnose_gap", refuse)
+    tags = Tags.from_arrays(conc["pv"], conc["op"], mv=conc["mv"], sp=conc["sp"], ts=1.0)
+    a = analyze(tags, config=AnalysisConfig(compensation=False))
+    assert a.replay is not None and a.gap is None
+    assert a.gap_skipped == "201 samples are too few for the gap diagnosis: need at least 400"
+    assert findings_of(a).gap.startswith("no gap diagnosis: 201 samples are too few")
+    assert "gap diagnosis not possible: 201 samples" in a.warnings[-1]
+
+    b = analyze(tags, config=AnalysisConfig(replay=False, compensation=False))
+    assert b.gap_skipped == "it needs the closed-loop replay, which was not asked for"
+    assert Analysis.from_json(a.to_json()).gap_skipped == a.gap_skipped

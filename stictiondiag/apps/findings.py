@@ -341,7 +341,7 @@ def _gap(a: Analysis) -> str:
 
     why = attribute_gap(None if a.replay is None else a.replay.settings.refit, a.gap)
     if a.gap is None:
-        text = "no gap diagnosis (it needs the closed-loop replay)"
+        text = f"no gap diagnosis: {a.gap_skipped or 'it needs the closed-loop replay'}"
         return f"{text}; {why.text}" if why.identification.refit_accepted else text
     head = (
         f"the replay departs from the data by {_num(plain_float(a.gap.before), '.3g')} % "

@@ -9,6 +9,15 @@ parent of a scan before it starts its workers) is loaded, not compiled, by every
 later process: see :mod:`stictiondiag.apps.warmup` and docs/performance.md,
 "First run".
 
+numba checks a cached kernel against its own source file only, so a kernel that
+calls or compiles in a kernel of another file would keep stale machine code when
+only that file changes (a ``git pull`` in an editable install, an upgrade).  On
+import, before any kernel is defined or loaded, this module therefore runs
+:func:`stictiondiag.core.kernelcache.guard`: when the package's source (every layer
+that may hold a kernel) differs from the one its caches were made from, all of the
+package's numba cache files are dropped, and the run recompiles them, as on a fresh
+installation (0.6 ms per import when nothing changed).
+
 A cold cache costs 12-30 s of compilation.  The first time a kernel of this package
 is compiled in a main process whose stderr is a terminal, one line says so on stderr
 (:data:`FIRST_COMPILE_NOTE`); worker processes and captured or redirected output stay
@@ -27,6 +36,11 @@ import numba
 from numba.core import event
 from numba.core.caching import NullCache
 from numba.core.dispatcher import Dispatcher
+
+from stictiondiag.core import kernelcache
+
+# Before any kernel of the package is loaded from the cache (see the docstring).
+kernelcache.guard()
 
 #: Decorator for a compiled, cached, GIL-free kernel.
 jit = numba.njit(cache=True, nogil=True)

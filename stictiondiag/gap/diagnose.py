@@ -69,8 +69,12 @@ time; a miscalibrated positioner puts the valve after each slip on a line of slo
 other than 1 against the demand at the breakaway; an installed characteristic
 makes the loop's gain change with the operating point, which no linear process does
 (:func:`stictiondiag.gap.effects.slip_slope_test`,
-:func:`stictiondiag.gap.effects.gain_change_test`).  A signature with a direction is
-tested one-sided, in the direction of the fitted effect.  ``none`` wins when no
+:func:`stictiondiag.gap.effects.gain_change_test`, whose blocks are weighted by the
+inverse RMS of the base replay's error in each, so that a few blocks of unforeseen
+load do not decide it).  A signature with a direction is tested one-sided, in the
+direction of the fitted effect (a time-varying valve's slips must change the way its
+fitted S and J do); the asymmetric valve's slips are tested two-sided, because the
+slips measured per direction need not follow the fitted direction.  ``none`` wins when no
 candidate is accepted.  The accepted candidates are ranked by their held-out evidence
 in the units of the Bayesian information criterion: for each signal the effect
 changes, ``n_eff`` times the log ratio of the base's squared error to the effect's,
