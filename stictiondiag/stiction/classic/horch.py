@@ -216,6 +216,49 @@ def _oscillation_of(pv: np.ndarray, op: np.ndarray, dt: float):
     return False, None
 
 
+def _ccf_shape(r: np.ndarray, max_lag: int):
+    """The first zero crossings of the CCF ``r`` right and left of lag 0 [samples],
+    its phase asymmetry ``delta_phi`` [rad] and its peak between them [-] (None where
+    the crossings do not give them), and the reasons why not."""
+    right = _first_crossing(r[max_lag:])
+    left = _first_crossing(r[max_lag::-1])
+    reasons: list[str] = []
+    delta_phi = r_peak = None
+    if right is None or left is None:
+        reasons.append("the CCF has no zero crossing on one side of lag 0")
+    elif left + right == 0.0:
+        reasons.append("the CCF is zero at lag 0 and has no other crossing")
+    else:
+        delta_phi = math.pi * abs(right - left) / (right + left)
+        half = 0.5 * (right + left)
+        lo = max(0, int(math.floor(max_lag - left - half)))
+        hi = min(r.size, int(math.ceil(max_lag + right + half)) + 1)
+        r_peak = float(np.max(np.abs(r[lo:hi])))
+    return right, left, delta_phi, r_peak, reasons
+
+
+def _ccf_verdict(delta_phi: float | None, oscillating: bool, reasons: list[str]) -> VerdictLabel:
+    """The verdict of an odd (stiction) or even (no stiction) CCF of an oscillating
+    loop, from the phase asymmetry ``delta_phi`` [rad] of a significant CCF (None:
+    none); the shape goes first into ``reasons``."""
+    verdict: VerdictLabel = "inconclusive"
+    if delta_phi is not None:
+        deg = math.degrees(delta_phi)
+        if delta_phi >= HORCH_ODD_MIN:
+            shape = f"odd CCF (delta_phi {deg:.0f} deg >= 120 deg): stiction likely"
+            if oscillating:
+                verdict = "stiction"
+            reasons.insert(0, shape)
+        elif delta_phi <= HORCH_EVEN_MAX:
+            shape = f"even CCF (delta_phi {deg:.0f} deg <= 60 deg): no stiction"
+            if oscillating:
+                verdict = "no_stiction"
+            reasons.insert(0, shape)
+        else:
+            reasons.insert(0, f"CCF neither odd nor even (delta_phi {deg:.0f} deg)")
+    return verdict
+
+
 def horch_cross_correlation(
     op: np.ndarray,
     pv: np.ndarray,
@@ -300,21 +343,8 @@ def horch_cross_correlation(
     max_lag = n // 2
     r = cross_correlation(op, pv, max_lag)
     lags = np.arange(-max_lag, max_lag + 1)
-    right = _first_crossing(r[max_lag:])
-    left = _first_crossing(r[max_lag::-1])
     r0 = float(r[max_lag])
-    reasons: list[str] = []
-    delta_phi = r_peak = None
-    if right is None or left is None:
-        reasons.append("the CCF has no zero crossing on one side of lag 0")
-    elif left + right == 0.0:
-        reasons.append("the CCF is zero at lag 0 and has no other crossing")
-    else:
-        delta_phi = math.pi * abs(right - left) / (right + left)
-        half = 0.5 * (right + left)
-        lo = max(0, int(math.floor(max_lag - left - half)))
-        hi = min(r.size, int(math.ceil(max_lag + right + half)) + 1)
-        r_peak = float(np.max(np.abs(r[lo:hi])))
+    right, left, delta_phi, r_peak, reasons = _ccf_shape(r, max_lag)
     significant = r_peak is not None and r_peak >= HORCH_CCF_SIGNIFICANCE / math.sqrt(n)
     if r_peak is not None and not significant:
         reasons.append(
@@ -324,21 +354,7 @@ def horch_cross_correlation(
     if not oscillating:
         reasons.append("no oscillation in pv or op: Horch's test applies to oscillating loops")
 
-    verdict: VerdictLabel = "inconclusive"
-    if delta_phi is not None and significant:
-        deg = math.degrees(delta_phi)
-        if delta_phi >= HORCH_ODD_MIN:
-            shape = f"odd CCF (delta_phi {deg:.0f} deg >= 120 deg): stiction likely"
-            if oscillating:
-                verdict = "stiction"
-            reasons.insert(0, shape)
-        elif delta_phi <= HORCH_EVEN_MAX:
-            shape = f"even CCF (delta_phi {deg:.0f} deg <= 60 deg): no stiction"
-            if oscillating:
-                verdict = "no_stiction"
-            reasons.insert(0, shape)
-        else:
-            reasons.insert(0, f"CCF neither odd nor even (delta_phi {deg:.0f} deg)")
+    verdict = _ccf_verdict(delta_phi if significant else None, oscillating, reasons)
     return HorchResult(
         verdict=verdict,
         method="cross_correlation",
