@@ -78,8 +78,8 @@ from stictiondiag.signals.oscillation import (
     MIN_CYCLES,
     REGULARITY_THRESHOLD,
     Oscillation,
+    acf_period_samples,
     detect_oscillation,
-    dominant_period,
 )
 from stictiondiag.stiction.cause import find_cycle
 from stictiondiag.stiction.fit_result import StictionFit
@@ -152,8 +152,8 @@ def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) ->
     oscillation test needs :data:`~stictiondiag.signals.oscillation.MIN_CYCLES` periods.
     When pv or op has a regular autocorrelation (regularity above
     :data:`~stictiondiag.signals.oscillation.REGULARITY_THRESHOLD`) whose period
-    (:func:`~stictiondiag.signals.oscillation.dominant_period`) the record holds fewer than
-    ``MIN_CYCLES`` times, "no oscillation" would only mean "not enough data":
+    (:func:`~stictiondiag.signals.oscillation.acf_period_samples` times the sample
+    time) the record holds fewer than ``MIN_CYCLES`` times, "no oscillation" would only mean "not enough data":
 
     * fewer than :data:`MIN_ANALYSIS_CYCLES` periods: the analysis stops and says
       how long a record it needs;
@@ -182,7 +182,8 @@ def check_record_length(tags: Tags, osc_pv: Oscillation, osc_op: Oscillation) ->
     for role, osc in (("pv", osc_pv), ("op", osc_op)):
         if osc.regularity is None or not osc.regularity > REGULARITY_THRESHOLD:
             continue
-        period = dominant_period(getattr(tags, role), float(tags.ts))
+        samples = acf_period_samples(getattr(tags, role))
+        period = None if samples is None else samples * float(tags.ts)
         if not period or tags.duration >= MIN_CYCLES * period:
             continue
         need = math.ceil(MIN_CYCLES * period / float(tags.ts))
@@ -288,8 +289,9 @@ class LoopEstimate:
 
 
 def estimate_loop(tags: Tags) -> LoopEstimate:
-    """Steps 1-3 of the chain: settle the loop type, find the oscillations, check
-    the record's length, and estimate S and J.
+    """Steps 1-3 of the chain: settle the loop type, find the oscillations (found
+    first: the loop-type step reads them), check the record's length, and estimate
+    S and J.
 
     Raises
     ------
@@ -297,14 +299,15 @@ def estimate_loop(tags: Tags) -> LoopEstimate:
         The record holds fewer than two periods of a regular cycle
         (:func:`check_record_length`), or the estimator cannot use the data.
     """
+    # 2. Is there an oscillation at all?  Found first: the loop-type step reads it.
+    found: list[str] = []
+    osc_pv, osc_op = find_oscillations(tags, found)
+    # 1. The loop type, where neither the user nor the tag name gave it.
     structure = None
     if tags.loop_type_source == "pending":
-        structure = identify_structure(tags)
+        structure = identify_structure(tags, cycling=osc_pv.present)
         tags = settle_loop_type(tags, structure)  # the data decide the structure
-    warnings = list(tags.warnings)
-
-    # 2. Is there an oscillation at all?
-    osc_pv, osc_op = find_oscillations(tags, warnings)
+    warnings = [*tags.warnings, *found]
     short = check_record_length(tags, osc_pv, osc_op)
     if short:
         warnings.append(short)

@@ -121,13 +121,17 @@ def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
     return evidence.integrating, evidence.why
 
 
-def identify_structure(tags: Tags) -> StructureEvidence:
+def identify_structure(tags: Tags, *, cycling: bool | None = None) -> StructureEvidence:
     """Whether the data say the process integrates, why, and the fits behind it.
 
     Parameters
     ----------
     tags : Tags
         The loop's signals (op, mv in % of span).
+    cycling : bool, optional
+        Whether pv (or the control error) oscillates, when the caller has found it
+        (the chain's step 2, :func:`stictiondiag.analysis.find_oscillations`);
+        detected here otherwise.
 
     Returns
     -------
@@ -139,8 +143,10 @@ def identify_structure(tags: Tags) -> StructureEvidence:
     u = tags.op if tags.mv is None else tags.mv
     what = "mv" if has_mv else "op"
     dt = float(tags.ts)
-    error = tags.pv if tags.sp is None else tags.sp - tags.pv  # a set-point step hides the cycle
-    if not (detect_oscillation(tags.pv, dt).present or detect_oscillation(error, dt).present):
+    if cycling is None:
+        error = tags.pv if tags.sp is None else tags.sp - tags.pv  # a set-point step hides it
+        cycling = detect_oscillation(tags.pv, dt).present or detect_oscillation(error, dt).present
+    if not cycling:
         return StructureEvidence(
             None,
             "pv does not cycle, so the response to the valve is not seen clearly",
