@@ -15,7 +15,12 @@ from typer.testing import CliRunner
 from stiction_cli.main import app
 from stictiondiag.analysis import AnalysisConfig, analyze_file
 from stictiondiag.core.errors import EXIT_DATA, EXIT_PARTIAL, EXIT_USAGE, DataError, UsageError
-from stictiondiag.identification.looptype import infer_integrating, settle_loop_type
+from stictiondiag.identification.looptype import (
+    identify_structure,
+    infer_integrating,
+    pv_cycles,
+    settle_loop_type,
+)
 from stictiondiag.io.looptype import isa_loop_type
 from stictiondiag.io.plant import plant_loops, read_manifest, read_plant_loop
 from stictiondiag.io.tags import Tags, read_tags
@@ -112,7 +117,7 @@ def test_data_tell_a_sticky_level_loop_integrates(with_mv):
     assert tags.loop_type_source == "pending"
     integrating, why = infer_integrating(tags)
     assert integrating is True, why
-    settled = settle_loop_type(tags)
+    settled = settle_loop_type(tags, identify_structure(tags, cycling=pv_cycles(tags)))
     assert settled.integrating and settled.loop_type_source == "data"
 
 
@@ -139,7 +144,7 @@ def test_a_loop_at_rest_is_left_self_regulating_with_a_warning():
     tags = Tags.from_arrays(
         50 + rng.normal(0, 0.1, 2000), 40 + rng.normal(0, 0.1, 2000), ts=1.0, loop_type=None
     )
-    settled = settle_loop_type(tags)
+    settled = settle_loop_type(tags, identify_structure(tags, cycling=pv_cycles(tags)))
     assert settled.loop_type_source == "default" and not settled.integrating
     assert "--loop-type" in settled.warnings[-1]
 

@@ -114,24 +114,33 @@ class StructureEvidence:
     u_signal: str = "op"
 
 
+def pv_cycles(tags: Tags) -> bool:
+    """Whether pv or the control error oscillates (a set-point step can hide the
+    cycle from pv's autocorrelation, Thornhill et al. 2003): what
+    :func:`identify_structure` asks first.  The chain has it from its oscillation step
+    (:func:`stictiondiag.analysis.find_oscillations`)."""
+    dt = float(tags.ts)
+    error = tags.pv if tags.sp is None else tags.sp - tags.pv
+    return detect_oscillation(tags.pv, dt).present or detect_oscillation(error, dt).present
+
+
 def infer_integrating(tags: Tags) -> tuple[bool | None, str]:
     """Whether the data say the process integrates (None: they cannot tell), and why
     (:func:`identify_structure` without its fits)."""
-    evidence = identify_structure(tags)
+    evidence = identify_structure(tags, cycling=pv_cycles(tags))
     return evidence.integrating, evidence.why
 
 
-def identify_structure(tags: Tags, *, cycling: bool | None = None) -> StructureEvidence:
+def identify_structure(tags: Tags, *, cycling: bool) -> StructureEvidence:
     """Whether the data say the process integrates, why, and the fits behind it.
 
     Parameters
     ----------
     tags : Tags
         The loop's signals (op, mv in % of span).
-    cycling : bool, optional
-        Whether pv (or the control error) oscillates, when the caller has found it
-        (the chain's step 2, :func:`stictiondiag.analysis.find_oscillations`);
-        detected here otherwise.
+    cycling : bool
+        Whether pv (or the control error) oscillates (:func:`pv_cycles`; the chain
+        has it from its step 2, :func:`stictiondiag.analysis.find_oscillations`).
 
     Returns
     -------
@@ -143,9 +152,6 @@ def identify_structure(tags: Tags, *, cycling: bool | None = None) -> StructureE
     u = tags.op if tags.mv is None else tags.mv
     what = "mv" if has_mv else "op"
     dt = float(tags.ts)
-    if cycling is None:
-        error = tags.pv if tags.sp is None else tags.sp - tags.pv  # a set-point step hides it
-        cycling = detect_oscillation(tags.pv, dt).present or detect_oscillation(error, dt).present
     if not cycling:
         return StructureEvidence(
             None,
@@ -215,7 +221,7 @@ def _decide(
     return None, f"{why} ({r2s})"
 
 
-def settle_loop_type(tags: Tags, evidence: StructureEvidence | None = None) -> Tags:
+def settle_loop_type(tags: Tags, evidence: StructureEvidence) -> Tags:
     """``tags`` with the process structure decided, when reading left it to the data.
 
     Only tags whose :attr:`~stictiondiag.io.tags.Tags.loop_type_source` is
@@ -223,13 +229,10 @@ def settle_loop_type(tags: Tags, evidence: StructureEvidence | None = None) -> T
     type stays ``other``: the data tell integrating from self-regulating, not a
     level from a flow), or to ``"default"``
     (self-regulating) with a warning when they cannot tell.  A note gives the
-    reason either way.  ``evidence``: :func:`identify_structure` of ``tags`` when
-    the caller has it already.
+    reason either way.  ``evidence``: :func:`identify_structure` of ``tags``.
     """
     if tags.loop_type_source != "pending":
         return tags
-    if evidence is None:
-        evidence = identify_structure(tags)
     integrating, why = evidence.integrating, evidence.why
     if integrating is None:
         note = (
