@@ -36,6 +36,7 @@ from stictiondiag.models.processes import (
     Integrating,
 )
 from stictiondiag.signals.oscillation import detect_oscillation
+from stictiondiag.stiction.cause import find_cycle
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import estimate_from_mv
 from stictiondiag.stiction.verdict import stiction_verdict
@@ -119,7 +120,8 @@ def run(n_cases: int, seed: int, n_samples: int) -> list[dict]:
         osc_op = detect_oscillation(case["op"], case["dt"])
         for name, fit, secs in (("mv", fm, t1 - t0), ("hammerstein", fh, t2 - t1)):
             S_iv, J_iv = fit.S_interval, fit.J_interval
-            verdict = stiction_verdict(fit, osc_pv, oscillation_op=osc_op)
+            cycle = find_cycle(osc_pv, osc_op, short_record=False)
+            verdict = stiction_verdict(fit, osc_pv, oscillation_op=osc_op, cycle=cycle)
             rows.append(
                 {
                     "case": i,

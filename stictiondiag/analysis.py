@@ -81,7 +81,7 @@ from stictiondiag.signals.oscillation import (
     acf_period_samples,
     detect_oscillation,
 )
-from stictiondiag.stiction.cause import find_cycle
+from stictiondiag.stiction.cause import Cycle, find_cycle
 from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import Segments, estimate_from_mv, segment_valve
@@ -242,16 +242,21 @@ class LoopEstimate:
     warnings: tuple[str, ...] = ()
 
     @cached_property
+    def cycle(self) -> Cycle:
+        """Stage 1 of the verdict: the limit cycle to explain, if any
+        (:func:`~stictiondiag.stiction.cause.find_cycle`)."""
+        return find_cycle(
+            self.oscillation, self.oscillation_op, short_record=bool(self.short_record)
+        )
+
+    @cached_property
     def reproduction(self) -> dict[str, float] | None:
         """The closed-loop reproduction's features
         (:func:`~stictiondiag.replay.reproduction.reproduction_features`) when the
         loop has a cycle (stage 1, :func:`~stictiondiag.stiction.cause.find_cycle`)
         and a Hammerstein fit; None otherwise (the verdict then takes their "no
         replay" values).  Two O(n) closed-loop simulations; computed once."""
-        cycle = find_cycle(
-            self.oscillation, self.oscillation_op, short_record=bool(self.short_record)
-        )
-        if not cycle.present or self.fit.method != "hammerstein":
+        if not self.cycle.present or self.fit.method != "hammerstein":
             return None
         return reproduction_features(self.tags, self.fit, known=self.structure)[0]
 
@@ -262,6 +267,7 @@ class LoopEstimate:
         return stiction_verdict(
             self.fit,
             self.oscillation,
+            cycle=self.cycle,
             oscillation_op=self.oscillation_op,
             has_mv=self.tags.mv is not None,
             short_record=bool(self.short_record),
@@ -281,9 +287,7 @@ class LoopEstimate:
             self.oscillation_op,
             short_record=bool(self.short_record),
             data=self.tags,
-            cycle=find_cycle(
-                self.oscillation, self.oscillation_op, short_record=bool(self.short_record)
-            ),
+            cycle=self.cycle,
             reproduction=self.reproduction,
         )
 

@@ -478,7 +478,11 @@ def test_evidence_states_s_and_j_in_ops_own_units_when_its_scale_is_unknown(conc
     # span".  The same loop as conc_mv, only the scale flag differs.
     tags = dataclasses.replace(conc_mv.tags, op_scale="unknown")
     v = stiction_verdict(
-        conc_mv.fit, conc_mv.oscillation, oscillation_op=conc_mv.oscillation_op, data=tags
+        conc_mv.fit,
+        conc_mv.oscillation,
+        oscillation_op=conc_mv.oscillation_op,
+        cycle=conc_mv.verdict.cycle,
+        data=tags,
     )
     line = next(r for r in v.reasons if r.startswith("S = "))
     assert "in op's own units (scale unknown)" in line and "%" not in line

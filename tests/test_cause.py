@@ -74,8 +74,13 @@ def test_no_cycle_is_a_definite_no_stiction_with_its_reason():
     # Even with P(friction) = 0.9 from the fit, no cycle and no direct evidence
     # (support 1.0 but the split halves could not be fitted) means the valve
     # drives no oscillation.
+    flat = _Osc(False)
     v = stiction_verdict(
-        _fit(), _Osc(False), oscillation_op=_Osc(False), model=_constant_model(0.9)
+        _fit(),
+        flat,
+        oscillation_op=flat,
+        cycle=find_cycle(flat, flat, short_record=False),
+        model=_constant_model(0.9),
     )
     assert v.status == "no_stiction" and v.detected is False
     assert v.cause == "none"
@@ -116,10 +121,12 @@ def test_a_cycle_is_decided_by_P_with_the_cause_model_read_beside_it(
 ):
     # A cycle without mv: the verdict follows P(stiction) against its levels, and the
     # cause model's reading (top cause and runner-up) is reported as evidence.
+    osc, osc_op = _Osc(True, 100.0, 3.0, 12.0), _Osc(False)
     v = stiction_verdict(
         _fit(),
-        _Osc(True, 100.0, 3.0, 12.0),
-        oscillation_op=_Osc(False),
+        osc,
+        oscillation_op=osc_op,
+        cycle=find_cycle(osc, osc_op, short_record=False),
         model=_constant_model(p_friction),
         cause_model=_constant_cause_model(probs),
     )

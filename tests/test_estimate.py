@@ -11,6 +11,7 @@ from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import LOOP_PARAMETERS
 from stictiondiag.models.valve import choudhury_model
 from stictiondiag.signals.oscillation import detect_oscillation
+from stictiondiag.stiction.cause import find_cycle
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import estimate_from_mv
 from stictiondiag.stiction.valvefit import (
@@ -56,8 +57,13 @@ def verdict_for(fit, op, pv, dt):
     from stictiondiag.io.tags import Tags
 
     tags = Tags.from_arrays(pv, op, ts=dt, loop_type="other", integrating=False)
+    osc, osc_op = detect_oscillation(pv, dt), detect_oscillation(op, dt)
     return stiction_verdict(
-        fit, detect_oscillation(pv, dt), oscillation_op=detect_oscillation(op, dt), data=tags
+        fit,
+        osc,
+        oscillation_op=osc_op,
+        cycle=find_cycle(osc, osc_op, short_record=False),
+        data=tags,
     )
 
 
@@ -150,7 +156,10 @@ def test_no_oscillation_but_recorded_stick_slip_is_stiction():
         present = False
         reason = "irregular"
 
-    v = stiction_verdict(fit, NoCycle(), oscillation_op=NoCycle(), has_mv=True)
+    no = NoCycle()
+    v = stiction_verdict(
+        fit, no, oscillation_op=no, cycle=find_cycle(no, no, short_record=False), has_mv=True
+    )
     assert v.status == "stiction"
     assert v.reasons[0].startswith("stick-slip without a limit cycle: the recorded valve")
     assert v.cause == "valve"

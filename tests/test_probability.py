@@ -19,6 +19,7 @@ from stictiondiag.apps.family import (
     loop_features,
     stiction_share,
 )
+from stictiondiag.stiction.cause import find_cycle
 from stictiondiag.stiction.fit_result import BlockCosts, StictionFit
 from stictiondiag.stiction.probability import (
     BASE_FEATURES,
@@ -359,8 +360,14 @@ def _constant_model(p: float) -> dict:
 def test_verdict_follows_the_probability(p, status):
     # With the valve position recorded the friction model decides (stage 2, the cause
     # of the cycle, is asked of loops without mv).
+    osc = _Cycle()
     v = stiction_verdict(
-        _fit(), _Cycle(), oscillation_op=_Cycle(), has_mv=True, model=_constant_model(p)
+        _fit(),
+        osc,
+        oscillation_op=osc,
+        cycle=find_cycle(osc, osc, short_record=False),
+        has_mv=True,
+        model=_constant_model(p),
     )
     assert v.status == status
     assert v.probability == pytest.approx(p, abs=1e-12)

@@ -40,7 +40,6 @@ from stictiondiag.stiction.cause import (
     cause_reading_text,
     cycle_text,
     direct_stick_slip,
-    find_cycle,
 )
 from stictiondiag.stiction.cause_model import read_causes
 from stictiondiag.stiction.consistency import FILL as DF_FILL
@@ -257,7 +256,8 @@ def verdict_features(
     trained on (``scripts/train_probability.py``).  A loop with a cycle and without
     mv also gets the describing-function consistency of
     :mod:`stictiondiag.stiction.consistency` (the others its "no prediction" values).
-    ``cycle`` is :func:`~stictiondiag.stiction.cause.find_cycle`'s (stage 1).  ``reproduction``: the closed-loop reproduction's features
+    ``cycle`` is :func:`~stictiondiag.stiction.cause.find_cycle`'s (stage 1).
+    ``reproduction``: the closed-loop reproduction's features
     (:data:`~stictiondiag.stiction.consistency.REPLAY_FEATURES`), which the chain
     computes with the replay (:func:`stictiondiag.replay.reproduction.reproduction_features`,
     in :meth:`stictiondiag.analysis.LoopEstimate.verdict`); without them, and for a
@@ -389,6 +389,7 @@ def stiction_verdict(
     fit: StictionFit,
     oscillation,
     *,
+    cycle: Cycle,
     oscillation_op=None,
     has_mv: bool | None = None,
     short_record: bool = False,
@@ -416,6 +417,10 @@ def stiction_verdict(
     oscillation, oscillation_op : Oscillation
         :func:`stictiondiag.signals.oscillation.detect_oscillation` of pv (or the
         control error) and of op.
+    cycle : Cycle
+        Stage 1, :func:`~stictiondiag.stiction.cause.find_cycle` of the two
+        oscillations and the short-record flag: the chain finds it once
+        (:attr:`stictiondiag.analysis.LoopEstimate.cycle`).
     has_mv : bool, optional
         Whether the valve position was recorded; default from ``fit.method``.
     short_record : bool
@@ -447,8 +452,8 @@ def stiction_verdict(
     """
     has_mv = fit.method == "mv_segments" if has_mv is None else bool(has_mv)
     model = model or load_model()
-    # Stage 1: is there a limit cycle?  Stage 2 (its cause) only where there is one.
-    cycle = find_cycle(oscillation, oscillation_op, short_record=short_record)
+    # Stage 1 (``cycle``): is there a limit cycle?  Stage 2 (its cause) only where
+    # there is one.
     features, (support, f, f_iv), classic = verdict_features(
         fit,
         oscillation,
