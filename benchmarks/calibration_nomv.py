@@ -165,6 +165,7 @@ def run_case(case: dict) -> dict:
     from stictiondiag.core.errors import StictionError
     from stictiondiag.io.tags import Tags
     from stictiondiag.models.loops import simulate_loop
+    from stictiondiag.stiction.fit_details import HammersteinDetails
 
     integrating, process, controller = templates()[case["template"]]
     ref_std, ref_period = _reference(case["template"])
@@ -221,7 +222,8 @@ def run_case(case: dict) -> dict:
         J_hat=float(fit.J),
         J_covered=bool(j_lo <= case["J"] <= j_hi),
         J_width=float(j_hi - j_lo),
-        J_confounded=bool(fit.details.get("J_confounded_with_gain")),
+        J_confounded=isinstance(fit.details, HammersteinDetails)
+        and bool(fit.details.J_confounded_with_gain),
         verdict=verdict.status,
         support=float(verdict.evidence.support),
         improvement=float(fit.improvement) if fit.improvement is not None else math.nan,

@@ -92,7 +92,7 @@ def test_from_a_replay_of_simulated_data():
         CONC["process"], CONC["controller"], duration=3000.0, dt=DT, S=5.0, J=2.0, op_bias=50.0
     )
     tags = Tags.from_arrays(sim.pv, sim.op, mv=sim.mv, sp=sim.sp, ts=DT)
-    fit = SimpleNamespace(S=5.0, J=2.0, mv_model=None, details={})
+    fit = SimpleNamespace(S=5.0, J=2.0, mv_model=None, details=None)
     rep = replay(tags, fit, controller=CONC["controller"], process=CONC["process"])
     c = compensation_from_replay(rep)
     direct = compensate(CONC["process"], CONC["controller"], 5.0, 2.0, dt=DT, period_s=142.0)

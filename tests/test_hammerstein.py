@@ -15,6 +15,7 @@ from stictiondiag.models.processes import (
     LOOP_PARAMETERS,
     PI,
 )
+from stictiondiag.stiction.fit_details import HammersteinDetails
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.verdict import RULE_OUT_S
 
@@ -90,7 +91,8 @@ def test_flow_loop():
     assert fit.S == pytest.approx(4.0, abs=0.3)
     assert fit.J == pytest.approx(2.0, abs=0.3)
     assert fit.linear_part is not None and fit.linear_part.structure == "self-regulating"
-    assert "flow loop" in fit.details["note"]
+    assert isinstance(fit.details, HammersteinDetails)
+    assert fit.details.note is not None and "flow loop" in fit.details.note
 
 
 @pytest.mark.parametrize("lag_s", [1.0, 8.0])

@@ -14,6 +14,13 @@ import pytest
 from stictiondiag.analysis import Analysis, AnalysisConfig, analyze_file
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.schema import SCHEMA_VERSION, decode, dumps, encode, loads
+from stictiondiag.stiction.fit_details import (
+    HammersteinDetails,
+    LeastSquaresEstimate,
+    MvFitDetails,
+    ParameterCounts,
+    SegmentStatistics,
+)
 from stictiondiag.stiction.fit_result import Determinacy
 
 SAMPLES = sorted((Path(__file__).resolve().parents[1] / "sample_data").glob("*.csv"))
@@ -40,9 +47,64 @@ def test_every_sample_analysis_round_trips(path):
     assert b.to_dict() == a.to_dict()
     for sym in ("S", "J"):
         assert b.fit.determinacy_of(sym) is a.fit.determinacy_of(sym)
+    # The fit's diagnostics come back typed, down to their nested parts.
+    assert isinstance(a.fit.details, MvFitDetails | HammersteinDetails)
+    assert type(b.fit.details) is type(a.fit.details)
+    assert type(b.fit.details.n_parameters) is ParameterCounts
+    if isinstance(b.fit.details, MvFitDetails):
+        assert type(b.fit.details.least_squares) is LeastSquaresEstimate
+        assert type(b.fit.details.segments) is SegmentStatistics
     assert (b.gap is None) == (not gap)
     if a.replay is not None:
         assert type(b.replay.process_fit.process) is type(a.replay.process_fit.process)
+
+
+#: The keys ``details`` of a fit's JSON has always had (schema 11, a dict then), in
+#: order: the method's diagnostics, then the typed fields ``StictionFit`` adds.
+_MV_DETAILS = [
+    "play_width", "bias", "least_squares", "segments", "burn_in_samples", "noise_cost",
+    "n_parameters", "effective_samples", "n_samples", "valve_model", "determinacy",
+    "interval_method", "block_samples", "block_sse",
+]  # fmt: skip
+_MV_LEAST_SQUARES = [
+    "S", "J", "S_interval", "J_interval", "cost", "cost_by_valve_model",
+    "effective_samples", "S_bounded", "J_bounded",
+]  # fmt: skip
+_MV_SEGMENTS = [
+    "S", "J", "S_interval", "J_interval", "S_iqr", "J_iqr", "S_travel_at_reversals",
+    "n_slips", "n_used", "n_reversals", "cost", "noise_mv", "noise_op", "quantum_mv",
+]  # fmt: skip
+_NOMV_DETAILS = [
+    "play_width", "row_stride", "rows_left_out", "dead_time_interval_s",
+    "linear_valve_dead_time_s", "highpass_corner_s", "search_limit", "fitted_samples",
+    "cost_by_valve_model_coarse", "effective_samples", "effective_samples_residual",
+    "noise_cost", "explained", "moving_fraction", "J_confounded_with_gain", "n_samples",
+    "n_parameters", "n_evaluations",
+]  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stem", ["temperature_quantised", "level_no_mv"])
+def test_details_json_keeps_its_keys(stem):
+    """The typed ``details`` writes the keys the dict wrote, in the same order
+    (one loop with mv, one without)."""
+    a = analyze_file(SAMPLES[0].parent / f"{stem}.csv", config=AnalysisConfig(gap=False))
+    d = json.loads(json.dumps(a.fit.to_dict()))["details"]
+    keys = list(d)
+    if stem == "temperature_quantised":
+        assert isinstance(a.fit.details, MvFitDetails)
+        # The archive resolution is written only where the record has one.
+        assert [k for k in keys if k != "resolution"] == _MV_DETAILS
+        assert list(d["least_squares"]) == _MV_LEAST_SQUARES
+        assert list(d["segments"]) == _MV_SEGMENTS
+        assert d["n_parameters"] == {"stiction": 3, "linear": 1}
+        assert isinstance(d["least_squares"]["S_interval"], list)
+    else:
+        assert isinstance(a.fit.details, HammersteinDetails)
+        # The typed fields of a fit without mv follow its own diagnostics.
+        assert keys[: len(_NOMV_DETAILS)] == _NOMV_DETAILS
+        assert "note" not in keys or keys[len(_NOMV_DETAILS)] == "note"
+        assert isinstance(d["dead_time_interval_s"], list) and len(d["fitted_samples"]) == 2
 
 
 def test_encoding_covers_what_results_hold():

@@ -11,6 +11,7 @@ from stictiondiag.core.errors import DataError
 from stictiondiag.models.loops import simulate_loop
 from stictiondiag.models.processes import LOOP_PARAMETERS
 from stictiondiag.models.valve import choudhury_model
+from stictiondiag.stiction.fit_details import MvFitDetails
 from stictiondiag.stiction.resolution import quantum
 from stictiondiag.stiction.segments import (
     estimate_from_mv,
@@ -87,11 +88,12 @@ def test_closed_loop_recovers_S_and_J():
     assert fit.S == pytest.approx(5.0, abs=0.01)
     assert fit.J == pytest.approx(2.0, abs=0.01)
     assert fit.method == "mv_segments"
-    seg = fit.details["segments"]
+    assert isinstance(fit.details, MvFitDetails)
+    seg = fit.details.segments
     # The slip-by-slip estimate has the op step (about 0.02 %/sample here) as its
     # resolution.
-    assert seg["S"] == pytest.approx(5.0, abs=0.05)
-    assert seg["J"] == pytest.approx(2.0, abs=0.05)
+    assert seg.S == pytest.approx(5.0, abs=0.05)
+    assert seg.J == pytest.approx(2.0, abs=0.05)
     lo, hi = fit.S_interval
     assert lo <= 5.0 <= hi
     lo, hi = fit.J_interval
@@ -131,7 +133,8 @@ def test_noisy_and_quantised_mv():
     # The still band must cover the quantisation step, or every level change of
     # the quantised position would count as a slip.
     assert seg.still_band >= 0.5
-    assert seg.n_slips == fit_n.details["segments"]["n_slips"]
+    assert isinstance(fit_n.details, MvFitDetails)
+    assert seg.n_slips == fit_n.details.segments.n_slips
 
 
 def test_linear_valve_has_no_stiction():

@@ -54,7 +54,9 @@ from stictiondiag.core.errors import DataError
 #: 11: the gap diagnosis is typed all the way down: its breakdown (``gap.breakdown``),
 #: base replay (``GapBase``, the controller a ``ControllerReplay``), series
 #: (``GapSeries``) and each candidate's parameters (the effect's ``EffectParams``).
-SCHEMA_VERSION = 11
+#: 12: a stiction fit's ``details`` is typed per method (``MvFitDetails``,
+#: ``HammersteinDetails`` in ``stiction.fit_details``), not a dict.
+SCHEMA_VERSION = 12
 
 #: The package whose classes :func:`decode` rebuilds.
 _PACKAGE = "stictiondiag"

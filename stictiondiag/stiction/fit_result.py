@@ -8,8 +8,10 @@ the data determine S and J (:class:`Determinacy`, an enum), and for a fit withou
 the sign its process gain was held to (:class:`GainSign`), the valve's state where
 its model starts (:class:`ValveStart`), the refit with drift states
 (:class:`DriftComparison`) and the disturbance model used (:class:`DisturbanceChoice`).
-``details`` keeps the remaining JSON-able diagnostics; ``to_dict`` writes all of
-them where the JSON has always had them.
+``details`` holds the remaining method-specific diagnostics, typed per method
+(:class:`~stictiondiag.stiction.fit_details.MvFitDetails`,
+:class:`~stictiondiag.stiction.fit_details.HammersteinDetails`); ``to_dict`` writes
+all of them where the JSON has always had them.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from enum import StrEnum
 import numpy as np
 
 from stictiondiag.core.serialize import to_plain as _plain
+from stictiondiag.stiction.fit_details import HammersteinDetails, MvFitDetails
 
 
 class Determinacy(StrEnum):
@@ -292,9 +295,10 @@ class StictionFit:
         Hammerstein fit: [scaled pv]^2, pv scaled to unit variance).
     linear_cost : float
         The same cost with a linear valve (S = J = 0), fitted the same way.
-    details : dict
-        Method-specific, JSON-able diagnostics: both estimates of the mv method, the
-        valve model variant, per-cycle costs used by the verdict.
+    details : MvFitDetails, HammersteinDetails or None
+        Method-specific diagnostics: the least-squares and the event estimates of the
+        mv method (:class:`MvFitDetails`), the search and the residual of a fit without
+        mv (:class:`HammersteinDetails`); None when the estimator gave none.
     S_determinacy, J_determinacy : Determinacy or None
         How well the data determine S and J; None when the estimator did not say.
     gain_sign : GainSign or None
@@ -337,7 +341,7 @@ class StictionFit:
     n_slips: int
     cost: float
     linear_cost: float
-    details: dict = field(default_factory=dict, repr=False)
+    details: MvFitDetails | HammersteinDetails | None = field(default=None, repr=False)
     S_determinacy: Determinacy | None = None
     J_determinacy: Determinacy | None = None
     gain_sign: GainSign | None = None
@@ -412,7 +416,7 @@ class StictionFit:
     def _details_dict(self) -> dict:
         """``details`` with the valve model, its start, the determinacy and the gain
         sign, as the JSON carries them."""
-        out = dict(self.details)
+        out = {} if self.details is None else self.details.to_dict()
         if self.valve_model is not None:
             out["valve_model"] = self.valve_model
         if self.valve_start is not None:

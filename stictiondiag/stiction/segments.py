@@ -40,6 +40,12 @@ from stictiondiag.core.jit import jit
 from stictiondiag.core.robust import second_difference_noise_std
 from stictiondiag.core.serialize import to_plain
 from stictiondiag.core.stats import bootstrap_median_ci
+from stictiondiag.stiction.fit_details import (
+    LeastSquaresEstimate,
+    MvFitDetails,
+    ParameterCounts,
+    SegmentStatistics,
+)
 from stictiondiag.stiction.fit_result import BlockCosts, StictionFit
 from stictiondiag.stiction.resolution import archive_resolution, resolution
 from stictiondiag.stiction.valvefit import (
@@ -573,37 +579,32 @@ def _hull(a, b):
     return (max(0.0, min(a[0], b[0])), max(a[1], b[1]))
 
 
-def _segments_details(segs: Segments, ev: _SlipEvents, cis, seg_cost, counts) -> dict:
-    """The event statistics of ``details["segments"]`` (``cis``: the bootstrap
-    intervals of S and J), then the counts of the fit (``counts``: the first sample
-    of the cost, the record's and the effective number of samples)."""
+def _segments_details(segs: Segments, ev: _SlipEvents, cis, seg_cost) -> SegmentStatistics:
+    """The event statistics of ``details.segments`` (``cis``: the bootstrap
+    intervals of S and J)."""
     S_ci, J_ci = cis
-    k0, n, n_eff = counts
     travel_rev = segs.travel[segs.reversal & ev.use]
-    segments = {
-        "S": ev.S,
-        "J": ev.J,
-        "S_interval": None if S_ci is None else list(S_ci),
-        "J_interval": None if J_ci is None else list(J_ci),
-        "S_iqr": None if ev.band.size < 2 else [float(v) for v in np.percentile(ev.band, [25, 75])],
-        "J_iqr": None if ev.jump.size < 2 else [float(v) for v in np.percentile(ev.jump, [25, 75])],
-        "S_travel_at_reversals": None if travel_rev.size == 0 else float(np.median(travel_rev)),
-        "n_slips": segs.n_slips,
-        "n_used": int(ev.use.sum()),
-        "n_reversals": int(segs.reversal.sum()),
-        "cost": seg_cost,
-        "noise_mv": segs.noise_mv,
-        "noise_op": segs.noise_op,
-        "quantum_mv": segs.quantum_mv,
-    }
-    return {
-        "segments": segments,
-        "burn_in_samples": k0,
-        "noise_cost": float(segs.noise_mv**2 * (n - k0)),
-        "n_parameters": {"stiction": 3, "linear": 1},
-        "effective_samples": n_eff,
-        "n_samples": n - k0,
-    }
+    return SegmentStatistics(
+        S=ev.S,
+        J=ev.J,
+        S_interval=None if S_ci is None else tuple(S_ci),
+        J_interval=None if J_ci is None else tuple(J_ci),
+        S_iqr=None if ev.band.size < 2 else _quartiles(ev.band),
+        J_iqr=None if ev.jump.size < 2 else _quartiles(ev.jump),
+        S_travel_at_reversals=None if travel_rev.size == 0 else float(np.median(travel_rev)),
+        n_slips=segs.n_slips,
+        n_used=int(ev.use.sum()),
+        n_reversals=int(segs.reversal.sum()),
+        cost=seg_cost,
+        noise_mv=segs.noise_mv,
+        noise_op=segs.noise_op,
+        quantum_mv=segs.quantum_mv,
+    )
+
+
+def _quartiles(values: np.ndarray) -> tuple[float, float]:
+    q1, q3 = np.percentile(values, [25, 75])
+    return float(q1), float(q3)
 
 
 def _synchronisation(segs: Segments, n: int) -> tuple[int, float]:
@@ -618,28 +619,36 @@ def _synchronisation(segs: Segments, n: int) -> tuple[int, float]:
 
 
 def _mv_fit_details(
-    variant, bias: float, searches: dict, best, intervals, hi_edges, n_eff: float, rest: dict
-) -> dict:
-    """:func:`estimate_from_mv`'s ``details``: the least-squares part, then ``rest``
-    (the segment statistics and the counts)."""
+    variant, bias: float, searches: dict, best, intervals, hi_edges, segments, counts
+) -> MvFitDetails:
+    """:func:`estimate_from_mv`'s ``details``: the least-squares part, the segment
+    statistics and the counts (``counts``: the first sample of the cost, the record's
+    and the effective number of samples)."""
     S_all, J_all, C_all, S_ls, J_ls, cost = searches[best][1]
     (S_iv, J_iv), (S_hi_edge, J_hi_edge) = intervals, hi_edges
-    return {
-        "play_width": variant.play_width,
-        "bias": bias,
-        "least_squares": {
-            "S": S_ls,
-            "J": J_ls,
-            "S_interval": list(S_iv),
-            "J_interval": list(J_iv),
-            "cost": cost,
-            "cost_by_valve_model": {k: v[1][5] for k, v in searches.items()},
-            "effective_samples": n_eff,
-            "S_bounded": not S_hi_edge,
-            "J_bounded": not J_hi_edge,
-        },
-        **rest,
-    }
+    k0, n, n_eff = counts
+    least_squares = LeastSquaresEstimate(
+        S=S_ls,
+        J=J_ls,
+        S_interval=tuple(S_iv),
+        J_interval=tuple(J_iv),
+        cost=cost,
+        cost_by_valve_model={k: v[1][5] for k, v in searches.items()},
+        effective_samples=n_eff,
+        S_bounded=not S_hi_edge,
+        J_bounded=not J_hi_edge,
+    )
+    return MvFitDetails(
+        play_width=variant.play_width,
+        bias=bias,
+        least_squares=least_squares,
+        segments=segments,
+        burn_in_samples=k0,
+        noise_cost=float(segments.noise_mv**2 * (n - k0)),
+        n_parameters=ParameterCounts(stiction=3, linear=1),
+        effective_samples=n_eff,
+        n_samples=n - k0,
+    )
 
 
 def estimate_from_mv(
@@ -739,9 +748,11 @@ def estimate_from_mv(
     S_interval = _hull(S_iv, S_ci)
     J_interval = _hull(J_iv, J_ci)
     det = determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge)
-    rest = _segments_details(segs, ev, (S_ci, J_ci), seg_cost, (k0, n, n_eff))
+    stats = _segments_details(segs, ev, (S_ci, J_ci), seg_cost)
     intervals, hi_edges = (S_iv, J_iv), (S_hi_edge, J_hi_edge)
-    details = _mv_fit_details(variant, bias, searches, best, intervals, hi_edges, n_eff, rest)
+    details = _mv_fit_details(
+        variant, bias, searches, best, intervals, hi_edges, stats, (k0, n, n_eff)
+    )
     return StictionFit(
         S=S_ls,
         J=J_ls,

@@ -159,6 +159,7 @@ import numpy as np
 
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.filters import median_filter_nearest
+from stictiondiag.stiction.fit_details import HammersteinDetails, ParameterCounts
 from stictiondiag.stiction.fit_result import (
     BlockCosts,
     DisturbanceChoice,
@@ -488,37 +489,37 @@ def _details(
     moving_fraction: float,
     J_confounded: bool,
     n_left_out: int,
-    note: dict,
-) -> dict:
-    """The fit's JSON-able diagnostics (``StictionFit.details``); ``best`` is the dead
-    time [samples], start offset [cycle travels], time constant [samples] and cost."""
+    note: str | None,
+) -> HammersteinDetails:
+    """The fit's diagnostics (``StictionFit.details``); ``best`` is the dead time
+    [samples], start offset [cycle travels], time constant [samples] and cost."""
     prob, scale = setup.problem, setup.scale
     delay, offset, tau, cost = best
     resid, lin_resid = residuals
     n_par = NCOL + 5  # linear columns; S, J, dead time, time constant, offset
-    return {
-        "play_width": variant.play_width * scale,
-        "row_stride": setup.stride,
-        "rows_left_out": n_left_out,
-        "dead_time_interval_s": [iv.dead_time[0] * dt, iv.dead_time[1] * dt],
-        "linear_valve_dead_time_s": float(lin_delay) * dt,
-        "highpass_corner_s": HIGHPASS_PERIODS * setup.period * dt,
-        "search_limit": setup.S_max * scale,
-        "fitted_samples": list(fitted),
-        "cost_by_valve_model_coarse": start.coarse_costs,
-        "effective_samples": iv.n_eff,
-        "effective_samples_residual": iv.n_eff_residual,
+    return HammersteinDetails(
+        play_width=variant.play_width * scale,
+        row_stride=setup.stride,
+        rows_left_out=n_left_out,
+        dead_time_interval_s=(iv.dead_time[0] * dt, iv.dead_time[1] * dt),
+        linear_valve_dead_time_s=float(lin_delay) * dt,
+        highpass_corner_s=HIGHPASS_PERIODS * setup.period * dt,
+        search_limit=setup.S_max * scale,
+        fitted_samples=fitted,
+        cost_by_valve_model_coarse=start.coarse_costs,
+        effective_samples=iv.n_eff,
+        effective_samples_residual=iv.n_eff_residual,
         # White measurement noise on pv, in the units of the cost (pv scaled to unit
         # variance; the slow high-pass leaves white noise as it is): a diagnostic only.
-        "noise_cost": setup.noise_var * resid.size,
-        "explained": 1.0 - cost / max(float(np.sum(prob.yf[prob.rows + delay] ** 2)), 1e-300),
-        "moving_fraction": moving_fraction,
-        "J_confounded_with_gain": bool(J_confounded),
-        "n_samples": int(resid.size),
-        "n_parameters": {"stiction": n_par, "linear": n_par - 2},
-        "n_evaluations": int(search.n_eval),
-        **note,
-    }
+        noise_cost=setup.noise_var * resid.size,
+        explained=1.0 - cost / max(float(np.sum(prob.yf[prob.rows + delay] ** 2)), 1e-300),
+        moving_fraction=moving_fraction,
+        J_confounded_with_gain=bool(J_confounded),
+        n_samples=int(resid.size),
+        n_parameters=ParameterCounts(stiction=n_par, linear=n_par - 2),
+        n_evaluations=int(search.n_eval),
+        note=note,
+    )
 
 
 def _drift_comparison(
@@ -566,17 +567,15 @@ def _moving_fraction(setup: FitSetup, variant: ValveVariant, mv_model) -> float:
     return float(moving.mean()) if moving.size else 0.0
 
 
-def _note(integrating: bool, flow_loop: bool) -> dict:
+def _note(integrating: bool, flow_loop: bool) -> str | None:
     if integrating and flow_loop:
-        return {"note": "loop type flow but integrating: the integrating structure was used"}
+        return "loop type flow but integrating: the integrating structure was used"
     if flow_loop:
-        return {
-            "note": (
-                "flow loop: fitted with the self-regulating structure, whose dead time reaches "
-                "half a cycle, so that a load the controller fights is not blamed on the valve"
-            )
-        }
-    return {}
+        return (
+            "flow loop: fitted with the self-regulating structure, whose dead time reaches "
+            "half a cycle, so that a load the controller fights is not blamed on the valve"
+        )
+    return None
 
 
 def fit_hammerstein(
