@@ -385,6 +385,32 @@ def _unbounded_s_notes(status: VerdictStatus, fit: StictionFit) -> tuple[str, ..
     return ()
 
 
+def _reasons(
+    head: str,
+    status: VerdictStatus,
+    ev: VerdictEvidence,
+    fit: StictionFit,
+    op_scale: str,
+    oscillation,
+    oscillation_op,
+) -> tuple[str, ...]:
+    """The verdict in words: the decision, its caveats, the two stages, the
+    improvement, S and J, and the oscillations found."""
+    stage2 = ev.cause_probabilities
+    return (
+        head,
+        *_unbounded_s_notes(status, fit),
+        *((cause_reading_text(stage2),) if stage2 is not None and not ev.has_mv else ()),
+        cycle_text(ev.cycle),
+        _improvement_text(
+            ev.improvement, ev.improvement_interval, ev.support, ev.min_improvement, ev.n_blocks
+        ),
+        _fit_text(fit, ev.has_mv, op_scale),
+        _osc_text("pv", oscillation),
+        *((_osc_text("op", oscillation_op),) if oscillation_op is not None else ()),
+    )
+
+
 def stiction_verdict(
     fit: StictionFit,
     oscillation,
@@ -418,9 +444,8 @@ def stiction_verdict(
         :func:`stictiondiag.signals.oscillation.detect_oscillation` of pv (or the
         control error) and of op.
     cycle : Cycle
-        Stage 1, :func:`~stictiondiag.stiction.cause.find_cycle` of the two
-        oscillations and the short-record flag: the chain finds it once
-        (:attr:`stictiondiag.analysis.LoopEstimate.cycle`).
+        Stage 1 (:func:`~stictiondiag.stiction.cause.find_cycle`), found once by the
+        chain (:attr:`stictiondiag.analysis.LoopEstimate.cycle`).
     has_mv : bool, optional
         Whether the valve position was recorded; default from ``fit.method``.
     short_record : bool
@@ -436,24 +461,19 @@ def stiction_verdict(
     model : dict, optional
         A fitted probability model; default the packaged one.
     cause_model : dict, optional
-        A fitted cause model (:mod:`stictiondiag.stiction.cause_model`); default the
-        packaged one.
+        A fitted cause model (:mod:`~stictiondiag.stiction.cause_model`); default ours.
     reproduction : dict, optional
-        The closed-loop reproduction's features (:func:`verdict_features`), computed
-        by the chain with the replay.
+        The closed-loop reproduction's features (:func:`verdict_features`).
 
     Returns
     -------
     Verdict
-        ``stiction`` when ``P > STICTION_LEVEL``, ``no_stiction`` when
-        ``P < NO_STICTION_LEVEL``, else ``inconclusive``.  The confidence is
-        confidence in the verdict: ``P`` for stiction, ``1 - P`` for no stiction,
-        ``P`` (between the levels, so never near 1) for inconclusive.
+        Without a cycle ``stiction`` on direct stick-slip, else ``no_stiction``; with
+        one, ``stiction`` when ``P > STICTION_LEVEL``, ``no_stiction`` when ``P <
+        NO_STICTION_LEVEL``, else ``inconclusive`` (module docstring).
     """
     has_mv = fit.method == "mv_segments" if has_mv is None else bool(has_mv)
     model = model or load_model()
-    # Stage 1 (``cycle``): is there a limit cycle?  Stage 2 (its cause) only where
-    # there is one.
     features, (support, f, f_iv), classic = verdict_features(
         fit,
         oscillation,
@@ -468,10 +488,14 @@ def stiction_verdict(
     P = stiction_probability(features, has_mv, model)
     contrib = contributions(features, has_mv, model)
     n_blocks = (0 if fit.block_costs is None else len(fit.block_costs.stiction)) or 1
+    # Stage 2, the cause of the cycle, where stage 1 found one; without a cycle only
+    # stick-slip seen directly calls stiction.
     stage2 = read_causes(features, cause_model) if cycle.present else None
-    direct = None
-    if not cycle.present:
-        direct = direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
+    direct = (
+        None
+        if cycle.present
+        else direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
+    )
     status, detected, confidence, cause, head = _decide(P, cycle, direct, stage2, contrib, fit)
     evidence = VerdictEvidence(
         p_friction=P,
@@ -493,32 +517,17 @@ def stiction_verdict(
         valve_level=VALVE_LEVEL,
         confidence_formula=CONFIDENCE_FORMULA,
     )
-    caveats = _unbounded_s_notes(status, fit)
-    # The two stages in words, and the cause the reading ranks after the one named.
-    stages = (
-        *((cause_reading_text(stage2),) if stage2 is not None and not has_mv else ()),
-        cycle_text(cycle),
-    )
-    runner_up = stage2.runner_up(cause)[0] if stage2 is not None else None
-    reasons = (
-        head,
-        *caveats,
-        *stages,
-        _improvement_text(f, f_iv, support, min_improvement, n_blocks),
-        _fit_text(fit, has_mv, str(getattr(data, "op_scale", "percent"))),
-        _osc_text("pv", oscillation),
-        *((_osc_text("op", oscillation_op),) if oscillation_op is not None else ()),
-    )
+    op_scale = str(getattr(data, "op_scale", "percent"))
     return Verdict(
         status,
         detected,
         float(confidence),
-        reasons,
+        _reasons(head, status, evidence, fit, op_scale, oscillation, oscillation_op),
         evidence,
         # No cycle and no stick-slip: the valve causes none (P(friction) is in the evidence).
         probability=P if cycle.present or direct else 0.0,
         cause=cause,
         cycle=cycle,
         cause_probabilities=stage2,
-        runner_up=runner_up,
+        runner_up=stage2.runner_up(cause)[0] if stage2 is not None else None,
     )
