@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from stictiondiag.core.errors import UsageError
+from stictiondiag.core.errors import DataError, UsageError
 
 
 def check_dt(dt, name: str = "sample time dt") -> float:
@@ -30,6 +30,36 @@ def as_signal(x, name: str) -> np.ndarray:
     if a.ndim != 1:
         raise UsageError(f"{name} must be a one-dimensional signal")
     return a
+
+
+def signal_pair(
+    x, y, dt, names: tuple[str, str], *, min_samples: int, purpose: str = ""
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Two recorded signals of one loop and their sample time, checked for an
+    estimator: one-dimensional float arrays of equal length, at least
+    ``min_samples`` long, finite, and a positive finite ``dt`` [s]; else a
+    one-line DataError naming the signals (``purpose`` ends the length message,
+    e.g. ``" for a fit"``)."""
+    a, b = names
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if x.ndim != 1 or y.ndim != 1 or x.shape != y.shape:
+        raise DataError(
+            f"{a} and {b} must be one-dimensional and of equal length, got {x.shape} and {y.shape}"
+        )
+    if x.size < min_samples:
+        raise DataError(
+            f"only {x.size} samples of {a} and {b}: need at least {min_samples}{purpose}"
+        )
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise DataError(f"{a} or {b} contains NaN or inf: fill or drop the gaps first")
+    try:
+        dt = float(dt)
+    except (TypeError, ValueError):
+        raise DataError(f"sampling time must be a number, got {dt!r}") from None
+    if not (dt > 0 and math.isfinite(dt)):
+        raise DataError(f"sampling time must be positive, got {dt}")
+    return x, y, dt
 
 
 def span_offset(*signals) -> float:

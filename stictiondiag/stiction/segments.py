@@ -29,12 +29,12 @@ off both (the expected overshoot for a ramp).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from stictiondiag.core.checks import signal_pair
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.jit import jit
 from stictiondiag.core.robust import second_difference_noise_std
@@ -240,22 +240,7 @@ class Segments:
 
 
 def _check_pair(op, mv, dt) -> tuple[np.ndarray, np.ndarray, float]:
-    op = np.asarray(op, dtype=float)
-    mv = np.asarray(mv, dtype=float)
-    if op.ndim != 1 or mv.ndim != 1 or op.shape != mv.shape:
-        raise DataError(
-            f"op and mv must be one-dimensional and of equal length, got {op.shape} and {mv.shape}"
-        )
-    if op.size < 20:
-        raise DataError(f"only {op.size} samples of op and mv: need at least 20")
-    if not (np.all(np.isfinite(op)) and np.all(np.isfinite(mv))):
-        raise DataError("op or mv contains NaN or inf: fill or drop the gaps first")
-    try:
-        dt = float(dt)
-    except (TypeError, ValueError):
-        raise DataError(f"sampling time must be a number, got {dt!r}") from None
-    if not (dt > 0 and math.isfinite(dt)):
-        raise DataError(f"sampling time must be positive, got {dt}")
+    op, mv, dt = signal_pair(op, mv, dt, ("op", "mv"), min_samples=20)
     if np.ptp(op) <= 0:
         raise DataError("op is constant: the valve demand never moves, nothing to estimate")
     return op, mv, dt

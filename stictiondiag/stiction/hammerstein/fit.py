@@ -157,6 +157,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from stictiondiag.core.checks import signal_pair
 from stictiondiag.core.errors import DataError
 from stictiondiag.core.filters import median_filter_nearest
 from stictiondiag.stiction.fit_details import HammersteinDetails, ParameterCounts
@@ -256,22 +257,7 @@ INTERVAL_METHOD = (
 
 
 def _check(op, pv, dt) -> tuple[np.ndarray, np.ndarray, float]:
-    op = np.asarray(op, dtype=float)
-    pv = np.asarray(pv, dtype=float)
-    if op.ndim != 1 or pv.ndim != 1 or op.shape != pv.shape:
-        raise DataError(
-            f"op and pv must be one-dimensional and of equal length, got {op.shape} and {pv.shape}"
-        )
-    if op.size < 50:
-        raise DataError(f"only {op.size} samples of op and pv: need at least 50 for a fit")
-    if not (np.all(np.isfinite(op)) and np.all(np.isfinite(pv))):
-        raise DataError("op or pv contains NaN or inf: fill or drop the gaps first")
-    try:
-        dt = float(dt)
-    except (TypeError, ValueError):
-        raise DataError(f"sampling time must be a number, got {dt!r}") from None
-    if not (dt > 0 and math.isfinite(dt)):
-        raise DataError(f"sampling time must be positive, got {dt}")
+    op, pv, dt = signal_pair(op, pv, dt, ("op", "pv"), min_samples=50, purpose=" for a fit")
     if np.ptp(op) <= 0:
         raise DataError("op is constant: the valve demand never moves, nothing to fit")
     if np.ptp(pv) <= 0:
