@@ -203,6 +203,25 @@ def _search(try_band, amplitude: float):
     return trials, found
 
 
+def _no_band(process, amplitude: float, period: float, trials) -> Compensation:
+    """The result when no band of :data:`BAND_GRID` stops the cycle, and why an
+    integrating process cannot be helped (Section 6.4, Fig. 17)."""
+    why = (
+        "; the process integrates, so without the controller's integral the loop "
+        "still holds an integrator, which sustains the cycle of a slip jump "
+        "(Section 6.4, Fig. 17)"
+        if getattr(process, "kind", "") == "integrating"
+        else ""
+    )
+    return Compensation(
+        True,
+        f"no band up to {BAND_GRID[-1]:g} times the cycle's pv amplitude stops the cycle{why}",
+        amplitude=amplitude,
+        period_s=period,
+        trials=tuple(trials),
+    )
+
+
 def compensate(
     process: FOPTD | Integrating,
     controller: PI,
@@ -304,20 +323,7 @@ def compensate(
     trials, found = _search(lambda band: _trial(run, band, n, warm, per, phases), amplitude)
     period = float(cycle.period_s)
     if found is None:
-        why = (
-            "; the process integrates, so without the controller's integral the loop "
-            "still holds an integrator, which sustains the cycle of a slip jump "
-            "(Section 6.4, Fig. 17)"
-            if getattr(process, "kind", "") == "integrating"
-            else ""
-        )
-        return Compensation(
-            True,
-            f"no band up to {BAND_GRID[-1]:g} times the cycle's pv amplitude stops the cycle{why}",
-            amplitude=amplitude,
-            period_s=period,
-            trials=tuple(trials),
-        )
+        return _no_band(process, amplitude, period, trials)
     band, offset, settle = found
     return Compensation(
         True,

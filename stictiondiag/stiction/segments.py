@@ -713,9 +713,8 @@ def estimate_from_mv(
     linear_cost = float(np.sum(lin_resid[k0:] ** 2))
 
     n_eff = effective_samples(resid[k0:])
-    # The textbook threshold here, no widening by the misfit: with mv the
-    # misfit of one (S, J) pair is the valve varying from slip to slip, which the
-    # interval over slips below reports directly.
+    # The textbook threshold, not widened by the misfit: with mv, one (S, J) pair's
+    # misfit is the valve varying from slip to slip, which the slips' interval reports.
     thr = cost_threshold(cost, n_eff, 3)
     S_iv, S_lo_edge, S_hi_edge = profile_interval(S_all, C_all, thr, 0.0, S_max)
     J_iv, J_lo_edge, J_hi_edge = profile_interval(J_all, C_all, thr, 0.0, J_max)
@@ -734,9 +733,8 @@ def estimate_from_mv(
     J_interval = _hull(J_iv, J_ci)
     det = determinacy(S_ls, S_interval, S_hi_edge, J_ls, J_interval, J_hi_edge)
     stats = _segments_details(segs, ev, (S_ci, J_ci), seg_cost)
-    intervals, hi_edges = (S_iv, J_iv), (S_hi_edge, J_hi_edge)
     details = _mv_fit_details(
-        variant, bias, searches, best, intervals, hi_edges, stats, (k0, n, n_eff)
+        variant, bias, searches, best, (S_iv, J_iv), (S_hi_edge, J_hi_edge), stats, (k0, n, n_eff)
     )
     return StictionFit(
         S=S_ls,

@@ -277,6 +277,14 @@ def _variant_of(t1: float, t2: float, n: int) -> tuple[str, int]:
     return "ramp", 4
 
 
+def _changing_rows(S_start, J_start, S_end, J_end):
+    """Valve rows (:func:`~stictiondiag.gap.effects.valve.valve_rows`) whose S and J
+    change from their start to their end values, the same in both directions."""
+    return valve_rows(
+        S_start, J_start, S_open_end=S_end, J_open_end=J_end, S_close_end=S_end, J_close_end=J_end
+    )
+
+
 def fit_time_varying_stiction(
     ctx: ReplayContext,
     w: np.ndarray,
@@ -298,18 +306,7 @@ def fit_time_varying_stiction(
 
     def cost_h(h):
         def cost(X, bound):
-            return prob.costs(
-                valve_rows(
-                    X[:, 0],
-                    X[:, 1],
-                    S_open_end=X[:, 2],
-                    J_open_end=X[:, 3],
-                    S_close_end=X[:, 2],
-                    J_close_end=X[:, 3],
-                ),
-                h,
-                bound=bound,
-            )
+            return prob.costs(_changing_rows(X[:, 0], X[:, 1], X[:, 2], X[:, 3]), h, bound=bound)
 
         return cost
 
@@ -346,9 +343,7 @@ def fit_time_varying_stiction(
             # Either stuck-phase logic, whichever reads the profile's start better.
             x = _start_of_windows(pts, t1, t2, (S0, J0))
             h0 = _profile(n, t1, t2)
-            row0 = valve_rows(
-                x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3]
-            )
+            row0 = _changing_rows(x[0], x[1], x[2], x[3])
             prob = pick_problem(
                 ctx, w, base, None, lambda pr, h0=h0, row0=row0: float(pr.costs(row0, h0)[0])
             )
@@ -364,18 +359,14 @@ def fit_time_varying_stiction(
             results.append((c, x, t1, t2, prob))
     c, x, t1, t2, prob = min(results, key=lambda r: r[0])
     h = _profile(n, t1, t2)
-    row = valve_rows(
-        x[0], x[1], S_open_end=x[2], J_open_end=x[3], S_close_end=x[2], J_close_end=x[3]
-    )[0]
+    row = _changing_rows(x[0], x[1], x[2], x[3])[0]
     mv_hat, _ = prob.series(row, h)
     # Too few measured slips: the replay decides alone, except on a quantised mv.
     untested = untested_p(ctx.sig.mv)
     # The slips after the change must differ from those before it the way the fitted
     # change of S (the travel at reversals) and J (the jump) goes.
     expect = {"travel": x[2] - x[0], "J": x[3] - x[1]}
-    p_slips = (
-        untested if ctx.slips is None else _slips_test(ctx.slips, t1, t2, n, untested, expect)
-    )
+    p_slips = untested if ctx.slips is None else _slips_test(ctx.slips, t1, t2, n, untested, expect)
     variant, n_params = _variant_of(t1, t2, n)
     params = TimeVaryingStictionParams(
         S_start=float(x[0]),
