@@ -575,3 +575,16 @@ def test_solve_normal_survives_a_singular_system_in_its_batch():
     b1 = float(X[:, 0] @ y / (X[:, 0] @ X[:, 0]))
     assert np.allclose(beta[1], [b1 / 2, b1 / 2], rtol=1e-9)
     assert np.all(np.isfinite(mse))
+
+
+def test_r_squared_of_nothing_is_nan_without_a_warning():
+    # An identification left with no samples to score (seen on a generated gap case)
+    # printed numpy's "Mean of empty slice" on the user's terminal.
+    import warnings
+
+    from stictiondiag.identification.numerics import r_squared
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert math.isnan(r_squared(np.array([]), np.array([])))
+    assert r_squared(np.array([1.0, 2.0, 3.0]), np.array([1.0, 2.0, 3.0])) == 1.0

@@ -20,6 +20,10 @@ MIN_SAMPLES = 20
 
 
 def r_squared(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """Coefficient of determination of ``y_hat`` against ``y`` [-]; NaN for an empty
+    ``y`` (said without numpy's warning of an empty mean)."""
+    if y.size == 0:
+        return math.nan
     sst = float(np.sum((y - y.mean()) ** 2))
     if sst <= 0.0:
         return 0.0
