@@ -17,6 +17,7 @@ import numpy as np
 
 from stictiondiag.core.checks import span_offset
 from stictiondiag.core.errors import DataError
+from stictiondiag.stiction.segments import segment_valve
 
 #: Shortest record analysed [samples].
 MIN_SAMPLES = 400
@@ -212,8 +213,6 @@ def measure_slips(op: np.ndarray, mv: np.ndarray, dt: float, segments=None) -> d
     seed the least-squares searches, so a failure there is not an error (None).
     """
     try:
-        from stictiondiag.stiction.segments import segment_valve
-
         seg = segment_valve(op, mv, dt) if segments is None else segments
     except Exception:  # noqa: BLE001 - seeds are optional; the searches have grids too
         return None

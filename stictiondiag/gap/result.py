@@ -311,12 +311,14 @@ class GapDiagnosis:
 
     def plot(self):
         """Where the gap lies (:func:`stictiondiag.plotting.gap.plot_gap_breakdown`)."""
+        # Imported when a figure is asked for: callers that want numbers skip matplotlib.
         from stictiondiag.plotting.gap import plot_gap_breakdown
 
         return plot_gap_breakdown(self)
 
     def figures(self) -> dict:
         """Figures by name: ``gap_breakdown`` and ``gap_replay``."""
+        # Imported when a figure is asked for: callers that want numbers skip matplotlib.
         from stictiondiag.plotting.gap import (
             plot_gap_breakdown,
             plot_gap_replay,

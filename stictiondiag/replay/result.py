@@ -307,6 +307,7 @@ class Replay:
 
         Keyword arguments go to :func:`stictiondiag.plotting.replay.plot_replay`.
         """
+        # Imported when a figure is asked for: callers that want numbers skip matplotlib.
         from stictiondiag.plotting.replay import plot_replay
 
         return plot_replay(self, **kwargs)
