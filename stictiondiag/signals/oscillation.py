@@ -36,6 +36,26 @@ Decisions this implementation makes (and tests):
   Checked on noise (3000 and 10 000 samples, 100 seeds each): random walks are
   called oscillating 17 times in 200 as with the straight line alone (17),
   AR(1) noise with pole 0.99 35 times (37), white noise never.
+* A drift can hide the cycle from the straight line's ACF altogether: a slow wander
+  or a level shift lifts the ACF so that it oscillates about a decaying positive
+  offset and barely crosses zero, and the refinement above has no period to start
+  from.  Thornhill et al. (2003) isolate each oscillation from such trends by
+  filtering before the ACF.  Here, when the straight line leaves too few crossings
+  or an irregular ACF, the period is *seeded* from the ACF itself: each of its first
+  :data:`SEED_PEAKS` local peaks that stands out by :data:`ACF_SIGNIFICANCE`
+  standard errors is a candidate period; the running mean over
+  :data:`DETREND_PERIODS` candidate periods is removed and the ACF measured again,
+  and a candidate counts only when the period found there is within
+  :data:`SEED_CONSISTENCY` of it (the most regular one wins).  The self-consistency
+  is the guard against noise: removing a running mean is a high-pass filter, and a
+  red noise filtered so takes a period set by the window (two to three candidate
+  periods), not the candidate's.  Checked on noise (1441 and 3000 samples, 60 seeds
+  each; ``python scripts/oscillation_false_cycles.py``): white noise and random
+  walks with white noise are never called oscillating; the seeded periods add 0 to
+  5 calls in 60 on AR(1) noise with poles 0.9 and 0.99, random walks and steps,
+  where the straight line and its refinement already make 2 to 21.  On the ISDB's
+  unlabelled records it finds the cycles a level shift hides, for example CHEM6's
+  stick-slip (57 samples) and CHEM61's (9 samples) pv.
 * The ACF is smoothed by a centred moving average about a tenth of its first
   zero-crossing lag wide.  A symmetric smoother does not move the zero crossings of
   a periodic ACF; it removes the spurious double crossings that estimation noise
@@ -49,6 +69,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
+from scipy.signal import find_peaks
 
 from stictiondiag.core.checks import check_dt
 from stictiondiag.core.filters import (
@@ -79,6 +100,11 @@ DETREND_PERIODS = 3.0
 #: the period [-] at which they stop.
 DETREND_PASSES = 4
 DETREND_CONVERGED = 0.05
+#: Peaks of the straight line's ACF tried as seeds of the period, at most [-], and the
+#: largest relative difference between a seed and the period measured after the
+#: running mean over its cycles is removed [-] (module doc).
+SEED_PEAKS = 3
+SEED_CONSISTENCY = 0.25
 #: Upper bound of the reported regularity: a perfectly periodic simulated signal has
 #: zero spread, and the regularity must stay a finite JSON number.
 MAX_REGULARITY = 1.0e6
@@ -315,6 +341,40 @@ def _refine_detrend(
     return xd, crossings, periods
 
 
+def _regularity(periods: np.ndarray) -> float:
+    """Thornhill et al.'s ``mean(Tp) / (3 std(Tp))`` [-], bounded by
+    :data:`MAX_REGULARITY`."""
+    std_tp = float(periods.std(ddof=1))
+    mean_tp = float(periods.mean())
+    return min(MAX_REGULARITY, mean_tp / (3.0 * std_tp) if std_tp > 0 else math.inf)
+
+
+def _seeded_detrend(
+    x: np.ndarray, xd: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The cycle a drift hides from the straight line's ACF, seeded by that ACF's
+    peaks (module doc): the most regular detrended signal, its crossings and
+    periods, or None when no seed holds.  O(n log n) per seed, at most
+    :data:`SEED_PEAKS` seeds."""
+    n = x.size
+    acf = autocorrelation(xd)
+    top = int(n / MIN_CYCLES)
+    peaks, _ = find_peaks(acf[: top + 1], prominence=ACF_SIGNIFICANCE / math.sqrt(n))
+    best: tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+    for seed in peaks[peaks >= 4][:SEED_PEAKS].astype(float):
+        xr = _detrend_by_cycles(x, seed)
+        cr, pr = _acf_periods(xr)
+        if pr.size < MIN_PERIOD_ESTIMATES or abs(pr.mean() - seed) > SEED_CONSISTENCY * seed:
+            continue
+        found = _refine_detrend(x, xr, cr, pr)
+        if found[2].size < MIN_PERIOD_ESTIMATES:
+            continue
+        r = _regularity(found[2])
+        if best is None or r > best[0]:
+            best = (r, found)
+    return None if best is None else best[1]
+
+
 def _cycle_ranges(x: np.ndarray, period_samples: float) -> np.ndarray:
     """Peak-to-peak range of consecutive windows one period long [units of x]."""
     m = max(2, int(round(period_samples)))
@@ -370,7 +430,14 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
     if np.ptp(xd) <= 1e-12 * max(1.0, float(np.max(np.abs(x)))):
         return _absent(Absence.RAMP, "signal is a pure ramp")
     crossings, periods = _acf_periods(xd)
+    line = xd
     xd, crossings, periods = _refine_detrend(x, xd, crossings, periods)
+    if periods.size < MIN_PERIOD_ESTIMATES or _regularity(periods) <= REGULARITY_THRESHOLD:
+        seeded = _seeded_detrend(x, line)
+        if seeded is not None and (
+            periods.size < MIN_PERIOD_ESTIMATES or _regularity(seeded[2]) > _regularity(periods)
+        ):
+            xd, crossings, periods = seeded
     if periods.size < MIN_PERIOD_ESTIMATES:
         return _absent(
             Absence.FEW_CROSSINGS,
@@ -378,8 +445,7 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
             f"need {MIN_PERIOD_ESTIMATES + 2} for a regular oscillation",
         )
     mean_tp = float(periods.mean())
-    std_tp = float(periods.std(ddof=1))
-    regularity = min(MAX_REGULARITY, mean_tp / (3.0 * std_tp) if std_tp > 0 else math.inf)
+    regularity = _regularity(periods)
     n_cycles = n / mean_tp
     if regularity <= REGULARITY_THRESHOLD:
         return _absent(
