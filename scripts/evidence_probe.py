@@ -59,12 +59,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from train_probability import (  # noqa: E402
-    _fit_predict,
-    family_features,
-    reliability,
-    roc_auc,
-)
+from probability_features import family_features  # noqa: E402
+from probability_fit import _fit_predict, reliability, roc_auc  # noqa: E402
 
 #: Share of pv's variance above which the friction counts as material [-].
 MATERIAL = 0.1
