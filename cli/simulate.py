@@ -193,108 +193,127 @@ def valve_options(valve: str, S: str | None, J: str | None, case: str, friction:
     return s_value, j_value, physical.PhysicalValve.from_case(case, **overrides)
 
 
+#: The command's options, one alias each (Typer reads the annotations).
+_SOption = Annotated[
+    str | None,
+    typer.Option(
+        "--S",
+        metavar="FLOAT",
+        help="Deadband plus stickband [% of span], >= 0 (data-driven valves; default 5).",
+    ),
+]
+_JOption = Annotated[
+    str | None,
+    typer.Option(
+        "--J",
+        metavar="FLOAT",
+        help="Slip jump [% of span], >= 0 (data-driven valves; default 2).",
+    ),
+]
+_LoopOption = Annotated[
+    str | None,
+    typer.Option(
+        metavar="LOOP",
+        help="The paper's loop (Eq. 3, Table 3): concentration (G = 3e^{-10s}/(10s+1), "
+        "PI 0.2, 10 s) or level (G = 1/s, PI 0.4, 2 s). Default: concentration "
+        "(stictiondiag.models.processes.DEFAULT_LOOP).",
+    ),
+]
+_ValveOption = Annotated[
+    str,
+    typer.Option(
+        metavar="VALVE",
+        help="datadriven (Choudhury et al. 2005, uses --S/--J), kano (Kano et al. 2004), "
+        "physical (Section 4, uses --case/--Fs/--Fc/--Fv/--calibration) or linear.",
+    ),
+]
+_CaseOption = Annotated[
+    str,
+    typer.Option(
+        metavar="CASE",
+        help="Physical valve parameter set (Tables 1-2): nominal, linear, deadband, "
+        "undershoot_open_loop, undershoot_closed_loop, no_offset, miscalibrated.",
+    ),
+]
+_FsOption = Annotated[
+    str | None, typer.Option("--Fs", metavar="N", help="Static friction [N] (physical).")
+]
+_FcOption = Annotated[
+    str | None, typer.Option("--Fc", metavar="N", help="Coulomb friction [N] (physical).")
+]
+_FvOption = Annotated[
+    str | None,
+    typer.Option("--Fv", metavar="N_S_PER_M", help="Viscous friction [N s/m] (physical)."),
+]
+_CalibrationOption = Annotated[
+    str | None,
+    typer.Option(
+        metavar="FACTOR",
+        help="Multiplier on the calibration factor k/A (physical; 1.25 = Fig. 8).",
+    ),
+]
+_DurationOption = Annotated[str, typer.Option(metavar="SECONDS", help="Simulated time in seconds.")]
+_DtOption = Annotated[
+    str | None,
+    typer.Option(metavar="SECONDS", help="Sample time in seconds. Default: the loop's, 0.1."),
+]
+_IntegralBandOption = Annotated[
+    str | None,
+    typer.Option(
+        metavar="PV_UNITS",
+        help="Variable-integral PI (Gerry & Ruel, Section 6.4): no integral action while "
+        "|sp - pv| is below this.",
+    ),
+]
+_NoiseOption = Annotated[
+    str,
+    typer.Option(
+        metavar="PV_UNITS",
+        help="Measurement noise standard deviation on pv. The data-driven valve "
+        "(Choudhury) sticks for good under noisy op (Section 5.1): the summary warns "
+        "when it never slipped; --valve kano keeps its stuck band through noise.",
+    ),
+]
+_SeedOption = Annotated[int | None, typer.Option(min=0, help="Seed of the noise (>= 0).")]
+_KickOption = Annotated[
+    str,
+    typer.Option(
+        metavar="PERCENT",
+        help="The valve starts stuck this far [% of span] from the operating point.",
+    ),
+]
+_PlotOption = Annotated[
+    Path | None, typer.Option(metavar="PATH", help="Write trends and mv-op plot (png/svg/pdf).")
+]
+_CsvOption = Annotated[
+    Path | None, typer.Option(metavar="PATH", help="Write time, sp, pv, op, mv as CSV.")
+]
+_JsonOption = Annotated[
+    str | None,
+    typer.Option("--json", metavar="PATH", help="Write the summary as JSON ('-' = stdout)."),
+]
+
+
 @app.command()
 def simulate(
-    S: Annotated[
-        str | None,
-        typer.Option(
-            "--S",
-            metavar="FLOAT",
-            help="Deadband plus stickband [% of span], >= 0 (data-driven valves; default 5).",
-        ),
-    ] = None,
-    J: Annotated[
-        str | None,
-        typer.Option(
-            "--J",
-            metavar="FLOAT",
-            help="Slip jump [% of span], >= 0 (data-driven valves; default 2).",
-        ),
-    ] = None,
-    loop: Annotated[
-        str | None,
-        typer.Option(
-            metavar="LOOP",
-            help="The paper's loop (Eq. 3, Table 3): concentration (G = 3e^{-10s}/(10s+1), "
-            "PI 0.2, 10 s) or level (G = 1/s, PI 0.4, 2 s). Default: concentration "
-            "(stictiondiag.models.processes.DEFAULT_LOOP).",
-        ),
-    ] = None,
-    valve: Annotated[
-        str,
-        typer.Option(
-            metavar="VALVE",
-            help="datadriven (Choudhury et al. 2005, uses --S/--J), kano (Kano et al. 2004), "
-            "physical (Section 4, uses --case/--Fs/--Fc/--Fv/--calibration) or linear.",
-        ),
-    ] = "datadriven",
-    case: Annotated[
-        str,
-        typer.Option(
-            metavar="CASE",
-            help="Physical valve parameter set (Tables 1-2): nominal, linear, deadband, "
-            "undershoot_open_loop, undershoot_closed_loop, no_offset, miscalibrated.",
-        ),
-    ] = "nominal",
-    Fs: Annotated[
-        str | None, typer.Option("--Fs", metavar="N", help="Static friction [N] (physical).")
-    ] = None,
-    Fc: Annotated[
-        str | None, typer.Option("--Fc", metavar="N", help="Coulomb friction [N] (physical).")
-    ] = None,
-    Fv: Annotated[
-        str | None,
-        typer.Option("--Fv", metavar="N_S_PER_M", help="Viscous friction [N s/m] (physical)."),
-    ] = None,
-    calibration: Annotated[
-        str | None,
-        typer.Option(
-            metavar="FACTOR",
-            help="Multiplier on the calibration factor k/A (physical; 1.25 = Fig. 8).",
-        ),
-    ] = None,
-    duration: Annotated[
-        str, typer.Option(metavar="SECONDS", help="Simulated time in seconds.")
-    ] = "3000",
-    dt: Annotated[
-        str | None,
-        typer.Option(metavar="SECONDS", help="Sample time in seconds. Default: the loop's, 0.1."),
-    ] = None,
-    integral_band: Annotated[
-        str | None,
-        typer.Option(
-            metavar="PV_UNITS",
-            help="Variable-integral PI (Gerry & Ruel, Section 6.4): no integral action while "
-            "|sp - pv| is below this.",
-        ),
-    ] = None,
-    noise: Annotated[
-        str,
-        typer.Option(
-            metavar="PV_UNITS",
-            help="Measurement noise standard deviation on pv. The data-driven valve "
-            "(Choudhury) sticks for good under noisy op (Section 5.1): the summary warns "
-            "when it never slipped; --valve kano keeps its stuck band through noise.",
-        ),
-    ] = "0",
-    seed: Annotated[int | None, typer.Option(min=0, help="Seed of the noise (>= 0).")] = None,
-    kick: Annotated[
-        str,
-        typer.Option(
-            metavar="PERCENT",
-            help="The valve starts stuck this far [% of span] from the operating point.",
-        ),
-    ] = "1",
-    plot: Annotated[
-        Path | None, typer.Option(metavar="PATH", help="Write trends and mv-op plot (png/svg/pdf).")
-    ] = None,
-    csv: Annotated[
-        Path | None, typer.Option(metavar="PATH", help="Write time, sp, pv, op, mv as CSV.")
-    ] = None,
-    json_out: Annotated[
-        str | None,
-        typer.Option("--json", metavar="PATH", help="Write the summary as JSON ('-' = stdout)."),
-    ] = None,
+    S: _SOption = None,
+    J: _JOption = None,
+    loop: _LoopOption = None,
+    valve: _ValveOption = "datadriven",
+    case: _CaseOption = "nominal",
+    Fs: _FsOption = None,
+    Fc: _FcOption = None,
+    Fv: _FvOption = None,
+    calibration: _CalibrationOption = None,
+    duration: _DurationOption = "3000",
+    dt: _DtOption = None,
+    integral_band: _IntegralBandOption = None,
+    noise: _NoiseOption = "0",
+    seed: _SeedOption = None,
+    kick: _KickOption = "1",
+    plot: _PlotOption = None,
+    csv: _CsvOption = None,
+    json_out: _JsonOption = None,
 ) -> None:
     """Simulate a PI loop with a sticky valve and report its limit cycle.
 

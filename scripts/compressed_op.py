@@ -27,12 +27,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from stictiondiag import AnalysisConfig, analyze  # noqa: E402
 from stictiondiag.io.compression import (  # noqa: E402
     archive_deadbands,
     exception_compress,
     reconstruct,
 )
-from stictiondiag.io.tags import read_tags  # noqa: E402
+from stictiondiag.io.tags import Tags, read_tags  # noqa: E402
 from stictiondiag.stiction.segments import estimate_from_mv  # noqa: E402
 
 SAMPLES = ("level_undershoot", "flow_mixed", "slave_flow_stickslip", "temperature_quantised",
@@ -52,9 +53,6 @@ def _rebuilt(t, op, mv, deadband_op, deadband_mv, band):
 
 
 def _verdicts() -> None:
-    from stictiondiag import AnalysisConfig, analyze
-    from stictiondiag.io.tags import Tags
-
     tags = read_tags(ROOT / "sample_data" / "healthy_flow.csv")
     t = np.arange(tags.n) * tags.ts
     print("healthy_flow, whole analysis (no gap): op / mv deadband, reading, verdict, S, J")

@@ -8,7 +8,7 @@ The verdict decides a loop by P(stiction) only when stage 1 finds a cycle
 (:mod:`stictiondiag.stiction.cause`), so a model fitted on that population alone
 might decide more of it.  This reads the feature rows that
 ``scripts/train_probability.py --cache DIR`` wrote (simulated loops only), fits the
-same regularised logistic regression (:func:`train_probability.fit_logistic`, the
+same regularised logistic regression (:func:`probability_fit.fit_logistic`, the
 shipped features) on the training loops with a cycle, and prints, for the held-out
 loops with a cycle, with and without mv: the area under the ROC curve, the Brier
 score, the share left between the levels 0.3 and 0.7, and how often each call is
@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 sys.path.insert(0, str(ROOT))
 
-from train_probability import fit_logistic, roc_auc  # noqa: E402
+from probability_fit import fit_logistic, roc_auc  # noqa: E402
 
 from stictiondiag.stiction.probability import (  # noqa: E402
     BASE_FEATURES,

@@ -59,12 +59,20 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from train_probability import (  # noqa: E402
-    _fit_predict,
-    family_features,
-    reliability,
-    roc_auc,
-)
+from probability_features import family_features  # noqa: E402
+from probability_fit import _fit_predict, reliability, roc_auc  # noqa: E402
+
+from stictiondiag.analysis import estimate_stiction  # noqa: E402
+from stictiondiag.apps.family import family_loop  # noqa: E402
+from stictiondiag.core.errors import StictionError  # noqa: E402
+from stictiondiag.identification.predictor import fit_predictor  # noqa: E402
+from stictiondiag.stiction.hammerstein import fit as hs  # noqa: E402
+from stictiondiag.stiction.hammerstein import search as hsearch  # noqa: E402
+from stictiondiag.stiction.hammerstein.columns import lag, regressors  # noqa: E402
+from stictiondiag.stiction.hammerstein.kernels import same_sign_lstsq, valve_run  # noqa: E402
+from stictiondiag.stiction.hammerstein.search import fit_linear  # noqa: E402
+from stictiondiag.stiction.probability import PART_FEATURES  # noqa: E402
+from stictiondiag.stiction.valvefit import ValveVariant  # noqa: E402
 
 #: Share of pv's variance above which the friction counts as material [-].
 MATERIAL = 0.1
@@ -77,8 +85,6 @@ PROBE_FEATURES = ("improvement", "support", "halves_improvement", "oscillating")
 
 
 def _share(seed: int) -> tuple[int, float]:
-    from stictiondiag.apps.family import family_loop
-
     return seed, float(family_loop(seed).truth["stiction_share"])
 
 
@@ -108,8 +114,6 @@ def share_table(rows: list[dict], share: dict[int, float]) -> list[str]:
 
 
 def relabelled(train, test, share) -> list[str]:
-    from stictiondiag.stiction.probability import PART_FEATURES
-
     def label(r):
         return float(r["sticky"] and share[r["seed"]] >= MATERIAL)
 
@@ -138,9 +142,6 @@ def _searched(tags):
     """The Hammerstein fit's setup, start, search points and range of time constants
     on ``tags`` (as :func:`stictiondiag.stiction.hammerstein.fit_hammerstein` runs
     them), or None where the fit refuses the record."""
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction.hammerstein import fit as hs
-
     op, pv, dt = hs._check(tags.op, tags.pv, float(tags.ts))
     op, pv = op[: hs.MAX_SAMPLES], pv[: hs.MAX_SAMPLES]
     try:
@@ -154,9 +155,6 @@ def _searched(tags):
 def _fitted(tags):
     """The Hammerstein fit of ``tags`` (a record without mv) as ``analyze`` runs it
     (:func:`stictiondiag.analysis.estimate_stiction`); None where it refuses."""
-    from stictiondiag.analysis import estimate_stiction
-    from stictiondiag.core.errors import StictionError
-
     try:
         return estimate_stiction(tags)
     except StictionError:
@@ -165,9 +163,6 @@ def _fitted(tags):
 
 def _rich_cost(prob, u, taus, delays) -> float:
     """Least cost of the linear part with four time constants (gains of one sign)."""
-    from stictiondiag.stiction.hammerstein.columns import lag, regressors
-    from stictiondiag.stiction.hammerstein.kernels import same_sign_lstsq
-
     uf = lag(u, prob.pre_lag, prob.k_start) if prob.pre_lag > 0 else u
     phis = [regressors(uf, float(t), prob.a_hp, prob.k_start) for t in taus]
     gains = [phis[0][:, 0]] + [phi[:, 1] for phi in phis]
@@ -181,11 +176,6 @@ def _rich_cost(prob, u, taus, delays) -> float:
 
 
 def _rich_one(seed: int) -> dict | None:
-    from stictiondiag.apps.family import family_loop
-    from stictiondiag.stiction.hammerstein.kernels import valve_run
-    from stictiondiag.stiction.hammerstein.search import fit_linear
-    from stictiondiag.stiction.valvefit import ValveVariant
-
     loop = family_loop(seed)
     found = _searched(loop.tags())
     if found is None:
@@ -227,9 +217,6 @@ def _rich_one(seed: int) -> dict | None:
 def _overshoot_one(args) -> dict | None:
     """Improvement of the free search and of the search held to J <= S."""
     seed, held = args
-    from stictiondiag.apps.family import family_loop
-    from stictiondiag.stiction.hammerstein import search as hsearch
-
     if held:
         free_grid = hsearch.grid
 
@@ -279,9 +266,6 @@ def overshoot_table(seeds: list[int], workers: int) -> list[str]:
 
 
 def _pe_one(seed: int) -> dict | None:
-    from stictiondiag.apps.family import family_loop
-    from stictiondiag.identification.predictor import fit_predictor
-
     loop = family_loop(seed)
     tags = loop.tags()
     dt = float(tags.ts)
@@ -319,8 +303,6 @@ def pe_table(seeds: list[int], workers: int) -> list[str]:
 
 
 def _twin_one(seed: int) -> dict | None:
-    from stictiondiag.apps.family import family_loop
-
     out = {}
     for twin in (False, True):
         loop = family_loop(seed, twin=twin)

@@ -81,137 +81,186 @@ def _loop(n: int = 1500, seed: int = 0) -> pd.DataFrame:
     return pd.DataFrame({"time": k.astype(float), "sp": 20.0, "pv": pv, "op": op, "mv": mv})
 
 
-def build_inputs(folder: Path) -> list[tuple[str, Path]]:
-    """Write the malformed inputs; returns (case name, path)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    base = _loop()
-    cases: list[tuple[str, Path]] = []
+class _Inputs:
+    """The malformed inputs written so far into ``folder``, as (case name, path) in
+    order, and the well-formed loop (``base``, its CSV ``text``, its ISO stamps) they
+    are made from."""
 
-    def frame(name: str, df: pd.DataFrame, **kw) -> None:
-        path = folder / f"{name}.csv"
+    def __init__(self, folder: Path, base: pd.DataFrame) -> None:
+        self.folder = folder
+        self.base = base
+        self.text = base.to_csv(index=False)
+        self.iso = pd.Timestamp("2024-01-01") + pd.to_timedelta(base.time, unit="s")
+        self.cases: list[tuple[str, Path]] = []
+
+    def frame(self, name: str, df: pd.DataFrame, **kw) -> None:
+        path = self.folder / f"{name}.csv"
         df.to_csv(path, index=False, **kw)
-        cases.append((name, path))
+        self.cases.append((name, path))
 
-    def raw(name: str, data: bytes, suffix: str = ".csv") -> None:
-        path = folder / f"{name}{suffix}"
+    def raw(self, name: str, data: bytes, suffix: str = ".csv") -> None:
+        path = self.folder / f"{name}{suffix}"
         path.write_bytes(data)
-        cases.append((name, path))
+        self.cases.append((name, path))
 
-    def mod(name: str, fn) -> None:
-        df = base.copy()
+    def mod(self, name: str, fn) -> None:
+        df = self.base.copy()
         df = fn(df) if fn(df) is not None else df
-        frame(name, df)
+        self.frame(name, df)
 
-    text = base.to_csv(index=False)
-    raw("empty", b"")
-    raw("header_only", b"time,pv,op\n")
-    raw("binary", bytes(range(256)) * 40)
-    raw("nul_bytes", text.encode().replace(b"\n", b"\x00\n", 50))
-    raw("one_column", ("pv\n" + "\n".join(map(str, base.pv))).encode())
-    frame("no_pv", base.drop(columns=["pv"]))
-    frame("no_op", base.drop(columns=["op", "mv"]))
-    mod("text_pv", lambda d: d.assign(pv="abc"))
-    mod("mostly_text_op", lambda d: d.assign(op=np.where(d.index % 3, "Bad", d.op.astype(str))))
-    mod("some_bad_pv", lambda d: d.assign(pv=np.where(d.index % 50 == 0, "Bad", d.pv.astype(str))))
-    mod("all_nan_pv", lambda d: d.assign(pv=np.nan))
-    mod("constant_pv", lambda d: d.assign(pv=1.0))
-    frame("five_rows", base.head(5))
-    frame("ninety_nine_rows", base.head(99))
-    mod("inf_pv", lambda d: d.assign(pv=np.where(d.index % 97 == 0, np.inf, d.pv)))
-    mod("neg_inf_op", lambda d: d.assign(op=np.where(d.index % 89 == 0, -np.inf, d.op)))
-    mod("all_inf_pv", lambda d: d.assign(pv=np.inf))
-    mod("inf_time", lambda d: d.assign(time=np.where(d.index == 700, np.inf, d.time)))
-    mod("huge_pv", lambda d: d.assign(pv=d.pv * 1e305))
-    mod("huge_all", lambda d: d.assign(pv=d.pv * 1e300, op=d.op * 1e300, mv=d.mv * 1e300))
-    mod("tiny_pv", lambda d: d.assign(pv=d.pv * 1e-305))
-    mod("tiny_all", lambda d: d.assign(pv=d.pv * 1e-300, op=d.op * 1e-300, mv=d.mv * 1e-300))
-    mod("max_float", lambda d: d.assign(pv=np.where(d.index % 2, 1.7e308, -1.7e308)))
-    mod("subnormal", lambda d: d.assign(op=d.op * 1e-320))
-    mod("huge_sp", lambda d: d.assign(sp=1e308))
-    raw("dup_pv", text.replace("time,sp,pv,op,mv", "time,pv,pv,op,mv", 1).encode())
-    mod("two_pv_like", lambda d: d.rename(columns={"pv": "FIC1.PV"}).assign(**{"FIC2.PV": d.pv}))
-    mod("epoch_ms", lambda d: d.assign(time=1.7e12 + d.time * 1000))
-    mod("epoch_us", lambda d: d.assign(time=1.7e15 + d.time * 1e6))
-    mod("epoch_ns", lambda d: d.assign(time=(1.7e18 + d.time * 1e9).astype("int64")))
-    mod("excel_serial", lambda d: d.assign(time=45000 + d.time / 86400))
-    mod("ambiguous_serial", lambda d: d.assign(time=45000 + d.time * 0.05))
-    mod(
+
+def _content_cases(w: _Inputs) -> None:
+    """Empty, binary and truncated files, missing columns, text in numbers."""
+    w.raw("empty", b"")
+    w.raw("header_only", b"time,pv,op\n")
+    w.raw("binary", bytes(range(256)) * 40)
+    w.raw("nul_bytes", w.text.encode().replace(b"\n", b"\x00\n", 50))
+    w.raw("one_column", ("pv\n" + "\n".join(map(str, w.base.pv))).encode())
+    w.frame("no_pv", w.base.drop(columns=["pv"]))
+    w.frame("no_op", w.base.drop(columns=["op", "mv"]))
+    w.mod("text_pv", lambda d: d.assign(pv="abc"))
+    w.mod("mostly_text_op", lambda d: d.assign(op=np.where(d.index % 3, "Bad", d.op.astype(str))))
+    w.mod(
+        "some_bad_pv", lambda d: d.assign(pv=np.where(d.index % 50 == 0, "Bad", d.pv.astype(str)))
+    )
+    w.mod("all_nan_pv", lambda d: d.assign(pv=np.nan))
+    w.mod("constant_pv", lambda d: d.assign(pv=1.0))
+    w.frame("five_rows", w.base.head(5))
+    w.frame("ninety_nine_rows", w.base.head(99))
+
+
+def _extreme_value_cases(w: _Inputs) -> None:
+    """Non-finite, huge, tiny and subnormal values."""
+    w.mod("inf_pv", lambda d: d.assign(pv=np.where(d.index % 97 == 0, np.inf, d.pv)))
+    w.mod("neg_inf_op", lambda d: d.assign(op=np.where(d.index % 89 == 0, -np.inf, d.op)))
+    w.mod("all_inf_pv", lambda d: d.assign(pv=np.inf))
+    w.mod("inf_time", lambda d: d.assign(time=np.where(d.index == 700, np.inf, d.time)))
+    w.mod("huge_pv", lambda d: d.assign(pv=d.pv * 1e305))
+    w.mod("huge_all", lambda d: d.assign(pv=d.pv * 1e300, op=d.op * 1e300, mv=d.mv * 1e300))
+    w.mod("tiny_pv", lambda d: d.assign(pv=d.pv * 1e-305))
+    w.mod("tiny_all", lambda d: d.assign(pv=d.pv * 1e-300, op=d.op * 1e-300, mv=d.mv * 1e-300))
+    w.mod("max_float", lambda d: d.assign(pv=np.where(d.index % 2, 1.7e308, -1.7e308)))
+    w.mod("subnormal", lambda d: d.assign(op=d.op * 1e-320))
+    w.mod("huge_sp", lambda d: d.assign(sp=1e308))
+
+
+def _column_cases(w: _Inputs) -> None:
+    """Duplicate and ambiguous columns."""
+    w.raw("dup_pv", w.text.replace("time,sp,pv,op,mv", "time,pv,pv,op,mv", 1).encode())
+    w.mod("two_pv_like", lambda d: d.rename(columns={"pv": "FIC1.PV"}).assign(**{"FIC2.PV": d.pv}))
+
+
+def _clock_cases(w: _Inputs) -> None:
+    """Broken clocks and time units: epochs, serial dates, ISO stamps with typos."""
+    w.mod("epoch_ms", lambda d: d.assign(time=1.7e12 + d.time * 1000))
+    w.mod("epoch_us", lambda d: d.assign(time=1.7e15 + d.time * 1e6))
+    w.mod("epoch_ns", lambda d: d.assign(time=(1.7e18 + d.time * 1e9).astype("int64")))
+    w.mod("excel_serial", lambda d: d.assign(time=45000 + d.time / 86400))
+    w.mod("ambiguous_serial", lambda d: d.assign(time=45000 + d.time * 0.05))
+    w.mod(
         "time_ms_header",
         lambda d: d.rename(columns={"time": "time [ms]"}).assign(**{"time [ms]": d.time * 1000}),
     )
-    iso = pd.Timestamp("2024-01-01") + pd.to_timedelta(base.time, unit="s")
-    mod("iso", lambda d: d.assign(time=iso.dt.strftime("%Y-%m-%dT%H:%M:%S")))
-    typo = iso.dt.strftime("%Y-%m-%dT%H:%M:%S").copy()
+    w.mod("iso", lambda d: d.assign(time=w.iso.dt.strftime("%Y-%m-%dT%H:%M:%S")))
+    typo = w.iso.dt.strftime("%Y-%m-%dT%H:%M:%S").copy()
     typo.iloc[700] = "2204-01-01T00:11:40"
-    mod("iso_typo_future", lambda d: d.assign(time=typo))
-    typo2 = iso.dt.strftime("%Y-%m-%dT%H:%M:%S").copy()
+    w.mod("iso_typo_future", lambda d: d.assign(time=typo))
+    typo2 = w.iso.dt.strftime("%Y-%m-%dT%H:%M:%S").copy()
     typo2.iloc[3] = "1024-01-01T00:00:03"
-    mod("iso_typo_past", lambda d: d.assign(time=typo2))
-    mod("one_far_stamp", lambda d: d.assign(time=np.where(d.index == 800, 1e12, d.time)))
-    mod("one_far_stamp_e15", lambda d: d.assign(time=np.where(d.index == 5, 1e15, d.time)))
-    mod("decreasing_time", lambda d: d.assign(time=d.time[::-1].to_numpy()))
-    mod("repeated_time", lambda d: d.assign(time=d.time // 3))
-    mod("same_time", lambda d: d.assign(time=5.0))
-    mod("nan_time", lambda d: d.assign(time=np.nan))
-    mod("text_time", lambda d: d.assign(time="yesterday"))
-    mod("negative_time", lambda d: d.assign(time=d.time - 1e6))
-    mod(
+    w.mod("iso_typo_past", lambda d: d.assign(time=typo2))
+    w.mod("one_far_stamp", lambda d: d.assign(time=np.where(d.index == 800, 1e12, d.time)))
+    w.mod("one_far_stamp_e15", lambda d: d.assign(time=np.where(d.index == 5, 1e15, d.time)))
+    w.mod("decreasing_time", lambda d: d.assign(time=d.time[::-1].to_numpy()))
+    w.mod("repeated_time", lambda d: d.assign(time=d.time // 3))
+    w.mod("same_time", lambda d: d.assign(time=5.0))
+    w.mod("nan_time", lambda d: d.assign(time=np.nan))
+    w.mod("text_time", lambda d: d.assign(time="yesterday"))
+    w.mod("negative_time", lambda d: d.assign(time=d.time - 1e6))
+    w.mod(
         "tz_mixed",
         lambda d: d.assign(
             time=np.where(
                 d.index % 2,
-                iso.dt.strftime("%Y-%m-%dT%H:%M:%S+01:00"),
-                iso.dt.strftime("%Y-%m-%dT%H:%M:%SZ"),
+                w.iso.dt.strftime("%Y-%m-%dT%H:%M:%S+01:00"),
+                w.iso.dt.strftime("%Y-%m-%dT%H:%M:%SZ"),
             )
         ),
     )
-    frame("semicolon", base, sep=";")
-    frame("tab", base, sep="\t")
-    raw("latin1", text.replace("pv", "pv [\u00b0C]", 1).encode("latin-1"))
-    raw("bom", b"\xef\xbb\xbf" + text.encode())
-    raw("trailing_commas", text.replace("\n", ",\n").encode())
-    raw("wide_row", (text + ",".join(["1"] * 20000) + "\n").encode())
-    raw("wide_header", (",".join(f"c{i}" for i in range(20000)) + "\n1,2\n").encode())
-    raw("long_line", ("time,pv,op\n" + "9" * 2_000_000 + ",1,2\n").encode())
-    raw("crlf", text.replace("\n", "\r\n").encode())
-    raw("cr_only", text.replace("\n", "\r").encode())
-    raw("comma_decimal", base.to_csv(index=False, sep=";", decimal=",").encode())
-    raw("quoted_newlines", text.replace("pv", '"p\nv"', 1).encode())
-    raw("script_names", text.replace("pv", "<script>alert(1)</script>.pv", 1).encode())
-    raw("unicode_names", text.replace("pv", "\u6e29\u5ea6.PV", 1).encode())
-    raw("gz_valid", gzip.compress(text.encode()), ".csv.gz")
-    raw("gz_corrupt", gzip.compress(text.encode())[:500], ".csv.gz")
-    raw("bz2_garbage", b"BZh91AY&SYgarbage", ".csv.bz2")
-    raw("xz_garbage", b"\xfd7zXZ\x00garbage", ".csv.xz")
-    raw("bz2_valid", bz2.compress(text.encode()), ".csv.bz2")
-    raw("parquet_garbage", b"PAR1" + os.urandom(2000) + b"PAR1", ".parquet")
-    raw("parquet_empty_bytes", b"", ".parquet")
-    empty_pq = folder / "parquet_no_rows.parquet"
-    base.head(0).to_parquet(empty_pq)
-    cases.append(("parquet_no_rows", empty_pq))
-    dt_pq = folder / "parquet_datetime_index.parquet"
-    base.drop(columns="time").set_index(pd.DatetimeIndex(iso, name="ts")).to_parquet(dt_pq)
-    cases.append(("parquet_datetime_index", dt_pq))
-    bool_pq = folder / "parquet_bool_pv.parquet"
-    base.assign(pv=base.index % 2 == 0).to_parquet(bool_pq)
-    cases.append(("parquet_bool_pv", bool_pq))
-    raw("spreadsheet", b"PK\x03\x04 not really", ".xlsx")
-    raw("unknown_ext", text.encode(), ".dat")
-    raw("no_ext", text.encode(), "")
-    dir_csv = folder / "directory.csv"
+
+
+def _layout_cases(w: _Inputs) -> None:
+    """Delimiters, encodings, line endings, very wide rows and odd names."""
+    w.frame("semicolon", w.base, sep=";")
+    w.frame("tab", w.base, sep="\t")
+    w.raw("latin1", w.text.replace("pv", "pv [\u00b0C]", 1).encode("latin-1"))
+    w.raw("bom", b"\xef\xbb\xbf" + w.text.encode())
+    w.raw("trailing_commas", w.text.replace("\n", ",\n").encode())
+    w.raw("wide_row", (w.text + ",".join(["1"] * 20000) + "\n").encode())
+    w.raw("wide_header", (",".join(f"c{i}" for i in range(20000)) + "\n1,2\n").encode())
+    w.raw("long_line", ("time,pv,op\n" + "9" * 2_000_000 + ",1,2\n").encode())
+    w.raw("crlf", w.text.replace("\n", "\r\n").encode())
+    w.raw("cr_only", w.text.replace("\n", "\r").encode())
+    w.raw("comma_decimal", w.base.to_csv(index=False, sep=";", decimal=",").encode())
+    w.raw("quoted_newlines", w.text.replace("pv", '"p\nv"', 1).encode())
+    w.raw("script_names", w.text.replace("pv", "<script>alert(1)</script>.pv", 1).encode())
+    w.raw("unicode_names", w.text.replace("pv", "\u6e29\u5ea6.PV", 1).encode())
+
+
+def _container_cases(w: _Inputs) -> None:
+    """Compressed files, Parquet, other formats, a directory, a missing path."""
+    w.raw("gz_valid", gzip.compress(w.text.encode()), ".csv.gz")
+    w.raw("gz_corrupt", gzip.compress(w.text.encode())[:500], ".csv.gz")
+    w.raw("bz2_garbage", b"BZh91AY&SYgarbage", ".csv.bz2")
+    w.raw("xz_garbage", b"\xfd7zXZ\x00garbage", ".csv.xz")
+    w.raw("bz2_valid", bz2.compress(w.text.encode()), ".csv.bz2")
+    w.raw("parquet_garbage", b"PAR1" + os.urandom(2000) + b"PAR1", ".parquet")
+    w.raw("parquet_empty_bytes", b"", ".parquet")
+    empty_pq = w.folder / "parquet_no_rows.parquet"
+    w.base.head(0).to_parquet(empty_pq)
+    w.cases.append(("parquet_no_rows", empty_pq))
+    dt_pq = w.folder / "parquet_datetime_index.parquet"
+    w.base.drop(columns="time").set_index(pd.DatetimeIndex(w.iso, name="ts")).to_parquet(dt_pq)
+    w.cases.append(("parquet_datetime_index", dt_pq))
+    bool_pq = w.folder / "parquet_bool_pv.parquet"
+    w.base.assign(pv=w.base.index % 2 == 0).to_parquet(bool_pq)
+    w.cases.append(("parquet_bool_pv", bool_pq))
+    w.raw("spreadsheet", b"PK\x03\x04 not really", ".xlsx")
+    w.raw("unknown_ext", w.text.encode(), ".dat")
+    w.raw("no_ext", w.text.encode(), "")
+    dir_csv = w.folder / "directory.csv"
     dir_csv.mkdir(exist_ok=True)
-    cases.append(("directory", dir_csv))
-    cases.append(("missing", folder / "does_not_exist.csv"))
-    mod("nan_blocks", lambda d: d.assign(pv=np.where((d.index // 40) % 3 == 0, np.nan, d.pv)))
-    mod(
+    w.cases.append(("directory", dir_csv))
+    w.cases.append(("missing", w.folder / "does_not_exist.csv"))
+
+
+def _gap_cases(w: _Inputs) -> None:
+    """Gaps, odd ranges and odd signals in otherwise readable files."""
+    w.mod("nan_blocks", lambda d: d.assign(pv=np.where((d.index // 40) % 3 == 0, np.nan, d.pv)))
+    w.mod(
         "nan_edges",
         lambda d: d.assign(pv=np.where((d.index < 30) | (d.index > 1450), np.nan, d.pv)),
     )
-    mod("alternate_nan", lambda d: d.assign(op=np.where(d.index % 2, np.nan, d.op)))
-    mod("mA_out_of_range", lambda d: d.assign(op=d.op * 1000))
-    mod("random_pv", lambda d: d.assign(pv=np.random.default_rng(1).normal(0, 1, len(d))))
-    mod("op_one_step", lambda d: d.assign(op=np.where(d.index > 700, 60.0, 40.0)))
-    return cases
+    w.mod("alternate_nan", lambda d: d.assign(op=np.where(d.index % 2, np.nan, d.op)))
+    w.mod("mA_out_of_range", lambda d: d.assign(op=d.op * 1000))
+    w.mod("random_pv", lambda d: d.assign(pv=np.random.default_rng(1).normal(0, 1, len(d))))
+    w.mod("op_one_step", lambda d: d.assign(op=np.where(d.index > 700, 60.0, 40.0)))
+
+
+def build_inputs(folder: Path) -> list[tuple[str, Path]]:
+    """Write the malformed inputs; returns (case name, path)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    w = _Inputs(folder, _loop())
+    for write in (
+        _content_cases,
+        _extreme_value_cases,
+        _column_cases,
+        _clock_cases,
+        _layout_cases,
+        _container_cases,
+        _gap_cases,
+    ):
+        write(w)
+    return w.cases
 
 
 # --------------------------------------------------------------------------- running

@@ -21,14 +21,14 @@ import sys
 
 import numpy as np
 
+from stictiondiag.analysis import estimate_loop
+from stictiondiag.apps.validation import LOOP_TYPE_MAP, load_manifest
+from stictiondiag.core.errors import StictionError
+from stictiondiag.identification.controller import identify_controller
+from stictiondiag.io.tags import read_tags
+
 
 def main(argv: list[str] | None = None) -> int:
-    from stictiondiag.analysis import estimate_loop
-    from stictiondiag.apps.validation import LOOP_TYPE_MAP, load_manifest
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.identification.controller import identify_controller
-    from stictiondiag.io.tags import read_tags
-
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--isdb", default=None, help="ISDB folder (default ../shared/data/isdb)")
     args = p.parse_args(argv)

@@ -35,6 +35,7 @@ from stictiondiag.models.valve import (
     choudhury_step,
     valve_state,
 )
+from stictiondiag.signals.oscillation import detect_oscillation
 
 #: Seed of every random choice below (the paper's year and volume).
 SEED = 2005_13
@@ -417,10 +418,6 @@ LOOPS: tuple[LoopSpec, ...] = (
 
 def _period(x: np.ndarray, ts: float) -> float | None:
     """Oscillation period [s] of ``x`` by the project's detector, if it finds one."""
-    try:
-        from stictiondiag.signals.oscillation import detect_oscillation
-    except ImportError:  # pragma: no cover - the detector ships with the package
-        return None
     found = detect_oscillation(np.asarray(x, dtype=float), ts)
     return float(found.period_s) if found.present else None
 

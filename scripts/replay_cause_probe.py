@@ -44,10 +44,17 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from stictiondiag.analysis import estimate_loop  # noqa: E402
+from stictiondiag.apps.family_causes import cause_label  # noqa: E402
+from stictiondiag.apps.validation import LOOP_TYPE_MAP  # noqa: E402
+from stictiondiag.core.errors import StictionError  # noqa: E402
+from stictiondiag.io.tags import read_tags  # noqa: E402
 from stictiondiag.replay.reproduction import (  # noqa: E402
     reproduction_call,
     reproduction_features,
 )
+from stictiondiag.stiction.cause import CAUSES  # noqa: E402
+from stictiondiag.stiction.cause_model import apply_model  # noqa: E402
 from stictiondiag.stiction.consistency import REPLAY_FEATURES as FEATURES  # noqa: E402
 
 
@@ -67,11 +74,6 @@ replay_call = reproduction_call
 
 
 def _sim_one(seed: int, refit: bool = False) -> dict | None:
-    from stictiondiag.analysis import estimate_loop
-    from stictiondiag.apps.family_causes import cause_label
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction.cause import CAUSES
-
     try:
         loop, label = cause_label(seed)
         if label not in CAUSES:
@@ -101,10 +103,6 @@ def _sim_one(seed: int, refit: bool = False) -> dict | None:
 
 
 def _real_one(args: tuple[str, float, str, bool], refit: bool = False) -> dict | None:
-    from stictiondiag.analysis import estimate_loop
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.io.tags import read_tags
-
     path, ts, loop_type, integrating = args
     try:
         tags = read_tags(path, ts=ts, loop_type=loop_type, integrating=integrating)
@@ -149,8 +147,6 @@ def sim_rows(seed: int, n: int, offset: int, cache: Path, refit: bool = False) -
 def real_rows(folder: Path, cache: Path, refit: bool = False) -> list[dict]:
     import pandas as pd
 
-    from stictiondiag.apps.validation import LOOP_TYPE_MAP
-
     m = pd.read_csv(folder / "manifest.csv", usecols=["file", "loop_type", "integrating", "ts_s"])
     jobs = [
         (str(folder / f), float(ts), LOOP_TYPE_MAP.get(str(lt).lower(), "other"), bool(integ))
@@ -183,7 +179,6 @@ def _ks(a: np.ndarray, b: np.ndarray) -> float:
 
 def report(rows: list[dict], real: list[dict]) -> list[str]:
     """The tables (markdown) of the module docstring."""
-    from stictiondiag.stiction.cause import CAUSES
 
     def col(rs, k):
         return np.array([float(r["features"][k] if k in r["features"] else r[k]) for r in rs])
@@ -275,9 +270,6 @@ def model_lines(train: list[dict], test: list[dict]) -> list[str]:
     models are left out of both, as in ``scripts/train_cause.py``."""
     sys.path.insert(0, str(ROOT / "scripts"))
     from train_cause import COMPACT, DF_SEPARATION, HELD_OUT, fit_softmax, roc_auc
-
-    from stictiondiag.stiction.cause import CAUSES
-    from stictiondiag.stiction.cause_model import apply_model
 
     train = [r for r in train if r["valve"] not in HELD_OUT and "evidence" in r]
     test = [r for r in test if r["valve"] not in HELD_OUT and "evidence" in r]

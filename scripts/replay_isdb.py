@@ -25,15 +25,17 @@ from pathlib import Path
 
 import numpy as np
 
+from stictiondiag.analysis import AnalysisConfig, analyze
+from stictiondiag.apps.validation import LOOP_TYPE_MAP, load_manifest
+from stictiondiag.core.atomic import write_atomic
+from stictiondiag.core.errors import StictionError
+from stictiondiag.io.tags import read_tags
+from stictiondiag.replay.closed_loop import nrmse
+from stictiondiag.replay.metrics import cycle_reproduction
+from stictiondiag.signals.oscillation import detect_oscillation
+
 
 def _row(r, ts: float) -> dict:
-    from stictiondiag.analysis import AnalysisConfig, analyze
-    from stictiondiag.apps.validation import LOOP_TYPE_MAP
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.io.tags import read_tags
-    from stictiondiag.replay.metrics import cycle_reproduction
-    from stictiondiag.signals.oscillation import detect_oscillation
-
     loop_type = LOOP_TYPE_MAP.get(str(r["loop_type"]).lower(), "other")
     tags = read_tags(r["path"], ts=ts, loop_type=loop_type, integrating=bool(r["integrating"]))
     osc = detect_oscillation(tags.pv, float(tags.ts))
@@ -69,8 +71,6 @@ def _start_fit(data, replayed, period_s, dt: float) -> float | None:
     """Phase-sensitive fit of pv over the replay's first cycle [%]: ``100 (1 -
     NRMSE)`` (the replay's ``fit`` measure), where the replay's start state decides
     and the free drift of a limit cycle's phase has not yet set in."""
-    from stictiondiag.replay.closed_loop import nrmse
-
     if not period_s:
         return None
     k = max(4, int(round(period_s / dt)))
@@ -79,8 +79,6 @@ def _start_fit(data, replayed, period_s, dt: float) -> float | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from stictiondiag.apps.validation import load_manifest
-
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--isdb", default=None, help="ISDB folder (default ../shared/data/isdb)")
     p.add_argument("--loops", default=None, help="comma-separated loop names")
@@ -123,8 +121,6 @@ def main(argv: list[str] | None = None) -> int:
         "not cycling regularly left out"
     )
     if args.json:
-        from stictiondiag.core.atomic import write_atomic
-
         write_atomic(Path(args.json), json.dumps(rows, indent=1, default=str))
     return 0
 

@@ -20,6 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
+from stictiondiag.analysis import estimate_loop
+from stictiondiag.apps.family import family_loop
+from stictiondiag.apps.validation import LOOP_TYPE_MAP, default_isdb_dir
+from stictiondiag.core.errors import StictionError
+from stictiondiag.io.tags import read_tags
+from stictiondiag.stiction.probability import stiction_probability
+
 #: The manifest columns read (inputs only, never a label).
 INPUT_COLUMNS = ("loop", "file", "loop_type", "integrating", "ts_s")
 
@@ -68,8 +75,6 @@ def record_stats(tags, osc_pv, osc_op) -> dict:
 
 
 def _features(tags):
-    from stictiondiag.analysis import estimate_loop
-
     est = estimate_loop(tags)
     stats = record_stats(est.tags, est.oscillation, est.oscillation_op)
     feats, (support, f, f_iv), _ = est.features()
@@ -85,11 +90,6 @@ def _features(tags):
 
 def isdb_rows(isdb: Path) -> list[dict]:
     import pandas as pd
-
-    from stictiondiag.apps.validation import LOOP_TYPE_MAP
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.io.tags import read_tags
-    from stictiondiag.stiction.probability import stiction_probability
 
     m = pd.read_csv(isdb / "manifest.csv", usecols=list(INPUT_COLUMNS))
     rows = []
@@ -112,10 +112,6 @@ def isdb_rows(isdb: Path) -> list[dict]:
 
 
 def family_rows(seed: int, n: int) -> list[dict]:
-    from stictiondiag.apps.family import family_loop
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.stiction.probability import stiction_probability
-
     rows = []
     for i in range(n):
         loop = family_loop(seed * 1_000_000 + i)
@@ -178,7 +174,6 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=Path("/tmp/shift.json"))
     ap.add_argument("--skip-isdb", action="store_true")
     a = ap.parse_args(argv)
-    from stictiondiag.apps.validation import default_isdb_dir
 
     isdb = []
     if not a.skip_isdb:

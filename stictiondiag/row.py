@@ -199,7 +199,7 @@ class LoopRow:
     def poorly_determined(self, sym: str) -> bool:
         """The data determine ``sym`` poorly (the rule of
         :func:`stictiondiag.stiction.fit_result.poorly_determined`)."""
-        # Imported here: the valve fit's module brings numba, which reading a row does
+        # Imported here: the valve fit's module brings numpy, which reading a row does
         # not otherwise need.
         from stictiondiag.stiction.fit_result import Determinacy, poorly_determined
 

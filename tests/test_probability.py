@@ -43,8 +43,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _train_module():
+    """The fits of ``scripts/train_probability.py`` (``scripts/probability_fit.py``)."""
     spec = importlib.util.spec_from_file_location(
-        "train_probability", ROOT / "scripts" / "train_probability.py"
+        "probability_fit", ROOT / "scripts" / "probability_fit.py"
     )
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

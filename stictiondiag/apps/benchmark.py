@@ -35,6 +35,7 @@ from stictiondiag.core.errors import (
     UsageError,
 )
 from stictiondiag.gap.effects import EFFECTS
+from stictiondiag.models import synthetic
 
 
 @dataclass(frozen=True)
@@ -260,13 +261,7 @@ def run_benchmark(
     -------
     BenchmarkResult
     """
-    from stictiondiag.models.synthetic import (
-        check_benchmark,
-        iter_benchmark,
-        write_benchmark_truth,
-    )
-
-    n_cases, seed = check_benchmark(n_cases, seed)
+    n_cases, seed = synthetic.check_benchmark(n_cases, seed)
     out = Path(out_dir)
     cases_dir = out / "cases"
     results = []
@@ -274,7 +269,7 @@ def run_benchmark(
     how = "custom" if diagnose is not None else None
     # Each case is generated (and its file written whole) just before it is
     # diagnosed: memory does not grow with the number of cases.
-    for i, (path, truth) in enumerate(iter_benchmark(cases_dir, n_cases, seed)):
+    for i, (path, truth) in enumerate(synthetic.iter_benchmark(cases_dir, n_cases, seed)):
         truths.append(truth)
         t0 = time.perf_counter()
         try:
@@ -307,7 +302,7 @@ def run_benchmark(
         results.append(r)
         if progress is not None:
             progress(i, n_cases, r)
-    write_benchmark_truth(cases_dir, seed, truths)
+    synthetic.write_benchmark_truth(cases_dir, seed, truths)
     res = BenchmarkResult(
         seed=int(seed),
         cases=tuple(results),

@@ -31,7 +31,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from stictiondiag.apps import scan as scan_app
 from stictiondiag.core.atomic import write_atomic
+from stictiondiag.models.synthetic_plant import generate_plant
 
 __all__ = ["PlantScore", "PlantBenchmark", "run_plant_benchmark", "score_plant"]
 
@@ -197,9 +199,6 @@ def run_plant_benchmark(
     Writes ``out/plant_<seed>/plant.csv``, its scan in ``out/plant_<seed>/scan/``,
     and ``out/plant_results.json`` and ``out/plant_results.md``.
     """
-    from stictiondiag.apps.scan import scan
-    from stictiondiag.models.synthetic_plant import generate_plant
-
     out = Path(out)
     scores = []
     for i in range(int(n_plants)):
@@ -208,7 +207,9 @@ def run_plant_benchmark(
         folder.mkdir(parents=True, exist_ok=True)
         write_atomic(folder / "plant.csv", plant.frame.to_csv(index=False))
         t0 = time.perf_counter()
-        result = scan(folder / "plant.csv", out=folder / "scan", gap=False, workers=workers)
+        result = scan_app.scan(
+            folder / "plant.csv", out=folder / "scan", gap=False, workers=workers
+        )
         seconds = time.perf_counter() - t0
         table: pd.DataFrame = result.table
         verdicts = dict(zip(table["loop"], table["verdict"], strict=True))

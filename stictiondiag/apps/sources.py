@@ -20,6 +20,7 @@ from stictiondiag.apps.pages import safe_name, unique_names
 from stictiondiag.apps.scan_output import is_scan_output
 from stictiondiag.core.errors import DataError, StictionError, UsageError
 from stictiondiag.io.plant import PlantLoop, is_long_file, plant_loops, read_plant_loop
+from stictiondiag.io.tags import read_frame, read_tags
 
 __all__ = ["LOOP_FILE_SUFFIXES", "LOOP_ID_COLUMNS", "LoopSource", "discover", "load_source"]
 
@@ -265,9 +266,6 @@ def load_source(source: LoopSource, **read_options):
     (``<column>=<loop>/``) is opened, so reading one loop does not list the whole
     plant.
     """
-    # Imported here: io.tags brings numba (about 0.4 s); finding the loops needs neither.
-    from stictiondiag.io.tags import read_frame, read_tags
-
     if source.plant is not None:
         return read_plant_loop(source.plant, **read_options)
     if source.loop_column is None:

@@ -35,10 +35,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stictiondiag.apps.scan import LoopSource, analyse_source, run_local
 from stictiondiag.apps.scan_output import ScannedLoop
 from stictiondiag.apps.sources import load_source
 from stictiondiag.core.errors import DataError, StictionError
 from stictiondiag.core.serialize import plain_float
+from stictiondiag.io.tags import Tags
 
 #: ISDB loop types that behave as the paper's loop types.
 LOOP_TYPE_MAP = {
@@ -103,7 +105,7 @@ _CALL_TEXT = {1.0: "stiction", -1.0: "no_stiction", 0.0: "inconclusive"}
 def _baselines(path: str, ts: float, integrating: bool, loop_type: str | None = None) -> dict:
     """Each classic test's own call on the raw record (``stiction``, ``no_stiction``,
     ``inconclusive``, or ``n/a`` where the test does not apply or could not run)."""
-    # Imported here, as Tags below: they bring numba, which only the analysing process needs.
+    # Imported here: it brings numba, which only the analysing process needs.
     from stictiondiag.stiction.probability import classic_votes
 
     frame = pd.read_csv(path)
@@ -156,8 +158,6 @@ def split_half(tags, period_s: float | None) -> dict | None:
     Returns the two halves' summaries, whether their verdicts agree, and whether each
     half's S lies inside the other half's S interval.
     """
-    from stictiondiag.io.tags import Tags
-
     if not period_s or not period_s > 0 or tags.duration < SPLIT_MIN_CYCLES * period_s:
         return None
     h = tags.n // 2
@@ -211,8 +211,6 @@ class ValidatedLoop:
 def validate_one(source, gap: bool) -> ValidatedLoop:
     """Analyse one ISDB loop, run the classic tests beside it and, for a record of at
     least :data:`SPLIT_MIN_CYCLES` cycles, each of its halves (for a worker process)."""
-    from stictiondiag.apps.scan import analyse_source
-
     scanned = analyse_source(source, {}, gap)
     opts = source.read_options or {}
     baselines = _baselines(
@@ -302,11 +300,6 @@ def validate_isdb(
     progress: Callable[[int, int, str], None] | None = None,
 ) -> ValidationResult:
     """Analyse every ISDB loop and compare verdicts with the published labels."""
-    from stictiondiag.apps.scan import (
-        LoopSource,
-        run_local,
-    )
-
     m = load_manifest(isdb_dir)
     if loops:
         m = m[m["loop"].isin(loops)]

@@ -32,7 +32,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# Importing the analysis loads every kernel a scan's worker runs: warm_cache_once
+# checks each of them for a cold cache.
+from stictiondiag.analysis import analyze
 from stictiondiag.core import jit
+from stictiondiag.io.tags import Tags
+from stictiondiag.models.loops import simulate_paper_loop
+from stictiondiag.models.physical import PhysicalValve, karnopp
+from stictiondiag.models.stick_models import stick_model
+from stictiondiag.models.synthetic import generate_case
+from stictiondiag.models.valve import choudhury_model, kano_model
+from stictiondiag.stiction.hammerstein.kernels import THREADS_VARIABLE
 
 __all__ = ["WarmUp", "warm_cache_once", "warm_up"]
 
@@ -66,10 +76,6 @@ class WarmUp:
 
 
 def _valve_models() -> None:
-    from stictiondiag.models.physical import PhysicalValve, karnopp
-    from stictiondiag.models.stick_models import stick_model
-    from stictiondiag.models.valve import choudhury_model, kano_model
-
     op = 50.0 + 20.0 * np.sin(np.linspace(0.0, 20.0, 400))
     choudhury_model(op, 5.0, 2.0, ewma_lambda=0.5, characteristic="equal_percentage")
     kano_model(op, 5.0, 2.0)
@@ -78,9 +84,6 @@ def _valve_models() -> None:
 
 
 def _closed_loops() -> None:
-    from stictiondiag.models.loops import simulate_paper_loop
-    from stictiondiag.models.synthetic import generate_case
-
     for valve in ("choudhury", "kano", "physical"):
         simulate_paper_loop("level", 5.0, 2.0, valve=valve, duration=_DURATION_S)
     generate_case("none", 0, n_samples=2000)
@@ -91,8 +94,6 @@ def _closed_loops() -> None:
 def _kernel_threads(n: int) -> Iterator[None]:
     """The batch kernels may use ``n`` threads in this block, as in ``stiction
     analyze`` (their threaded variants compile too); the environment is restored."""
-    from stictiondiag.stiction.hammerstein.kernels import THREADS_VARIABLE
-
     before = os.environ.get(THREADS_VARIABLE)
     os.environ[THREADS_VARIABLE] = str(n)
     try:
@@ -105,10 +106,6 @@ def _kernel_threads(n: int) -> Iterator[None]:
 
 
 def _analyses() -> None:
-    from stictiondiag.analysis import analyze
-    from stictiondiag.io.tags import Tags
-    from stictiondiag.models.loops import simulate_paper_loop
-
     sim = simulate_paper_loop("level", 5.0, 2.0, duration=_DURATION_S, noise_std=0.05)
     for mv in (sim.mv, None):
         tags = Tags.from_arrays(sim.pv, sim.op, mv=mv, ts=sim.dt, loop_type="level")
@@ -158,8 +155,6 @@ def warm_cache_once(progress: Callable[[str], None] | None = None) -> WarmUp | N
     Returns None when the cache was warm (cost: reading one small index file per
     kernel, milliseconds).
     """
-    import stictiondiag.analysis  # noqa: F401  (imports the kernels a worker runs)
-
     if not jit.cache_is_cold():
         return None
     return warm_up(progress)

@@ -104,6 +104,8 @@ def _warm_cache_here() -> None:
     Only an optimisation: should the warm-up fail, the workers compile at first use
     as before (tests/test_warmup.py keeps the warm-up itself working).
     """
+    # Imported here: the warm-up brings numba and the analysis, which importing the
+    # scan (its own process) does not load; only a scan that starts workers needs it.
     from stictiondiag.apps.warmup import warm_cache_once
 
     with contextlib.suppress(Exception):
@@ -362,6 +364,7 @@ def _warm_each_host(client) -> None:
     hosts: dict[str, str] = {}
     for address, worker in client.scheduler_info().get("workers", {}).items():
         hosts.setdefault(worker.get("host", address), address)
+    # Imported here, as in _warm_cache_here: the warm-up brings numba and the analysis.
     from stictiondiag.apps.warmup import warm_cache_once
 
     futures = [

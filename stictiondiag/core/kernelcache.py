@@ -66,6 +66,8 @@ import os
 import re
 from collections.abc import Collection
 
+from stictiondiag.core.atomic import write_atomic
+
 __all__ = ["ABOVE_KERNELS", "STAMP_NAME", "guard", "source_fingerprint"]
 
 #: Name of the stamp file in the package's top cache folder.
@@ -287,7 +289,5 @@ def _guard(
                 complete = complete and ok
     if not complete or not _writable(stamp_folder):
         return None  # try again next time; nothing to record in a read-only folder
-    from stictiondiag.core.atomic import write_atomic
-
     write_atomic(stamp_path, f"{_STAMP_HEADER}\n{stat_digest}\n{content_digest}\n")
     return removed

@@ -9,7 +9,10 @@ in the paper's form ``C(s) = Kc (1 + 1/(Ti s))`` drives a valve model whose posi
     mv = valve(op)                                      linear | choudhury | kano | physical
     pv = pv_bias + G(s) (f(mv) - f(op_bias)) + load + noise
 
-``f`` is the valve characteristic (linear by default).  The whole loop -- controller,
+``f`` is the valve characteristic (linear by default).  The controller may read pv
+through a first-order filter (``pv_filter_time`` T: ``f = a f + (1 - a) pv`` each
+controller step, ``a = exp(-step / T)``, started at the first pv; none by default, as
+in the paper); the recorded pv is the unfiltered one.  The whole loop -- controller,
 valve and process -- runs in one compiled kernel:
 
 * the process is discretised exactly for a zero-order-hold input (exact ZOH of the
@@ -29,15 +32,27 @@ while ``|sp - pv| < integral_band``.  The integral is also frozen while the outp
 saturated and the error would drive it further (conditional-integration anti-windup);
 this never acts in the paper's cases, which stay inside the span.
 
+Start-up
+--------
 The cycle is started by a *kick*: at t = 0 the valve is found stuck ``kick`` % of span
 away from the operating point while the controller output is at ``op_bias``, and the
 process is at rest.  The loop must move the stuck valve, which a pure setpoint pulse
-of small size would never do in a loop with a deadband.
+of small size would never do in a loop with a deadband.  ``initial_op`` and
+``initial_mv`` replace the output and the valve position of that start (the kick is
+then ignored); ``initial_integral`` the error integral [pv units * s], by default the
+one that gives ``initial_op`` at the initial error.  ``initial_stop`` is the state of
+a data-driven valve that starts stuck: the controller output at which it stuck [% of
+span] and the direction of its last movement (+1 or -1).  Moving on in that direction
+it breaks away once op is ``J`` past the stop, reversing once op is ``S`` back
+(Fig. 10); by default it is stuck at ``initial_op`` with no movement yet, so any
+breakaway needs ``S``.  A replay of recorded data passes the state the record shows
+(:mod:`stictiondiag.replay.closed_loop`, "Start-up").
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -373,23 +388,67 @@ def _initial_stop(value, op0: float) -> tuple[float, float]:
     return xss, d
 
 
-def _checked_run(
+@dataclass(frozen=True)
+class _LoopRun:
+    """A run of :func:`simulate_loop`, checked and discretised: what the kernel and the
+    recorded settings read."""
+
+    valve: str
+    characteristic: str
+    n: int  # recorded samples
+    dt: float  # sample time [s]
+    h: float  # integration step [s]
+    n_sub: int  # integration steps per sample
+    S: float  # [% of op span]
+    J: float  # [% of mv span]
+    physical: PhysicalValve | None  # the physical valve's parameters; None for the others
+    valve_parameters: tuple[float, ...]  # the physical valve's kernel parameters
+    stem: float  # stem travel per % of span [m]
+    sp: np.ndarray  # [pv units]
+    load: np.ndarray  # [pv units]
+    noise: np.ndarray  # [pv units]
+    noise_std: float  # [pv units]
+    seed: int | np.integer | None
+    band: np.ndarray  # integral band per sample [pv units], NaN: none
+    op_bias: float  # [% of span]
+    pv_bias: float  # [pv units]
+    kick: float  # [% of span]
+    op0: float  # initial controller output [% of span]
+    mv0: float  # initial valve position [% of span]
+    integral0: float  # initial error integral [pv units * s]
+    stop_given: bool  # initial_stop was given
+    stop: float  # controller output at which the valve stuck [% of span]
+    direction: float  # its last direction of movement (+1, -1, 0: none)
+    pv_filter_time: float  # [s]
+
+
+def _set_up(
     process,
     controller,
+    *,
     duration,
     dt,
     valve,
-    characteristic,
     S,
     J,
+    physical,
+    sp,
+    load,
+    noise_std,
+    seed,
     op_bias,
     pv_bias,
     kick,
-    noise_std,
-    seed,
-):
-    """:func:`simulate_loop`'s arguments checked, each with a one-line UsageError:
-    ``(dt, n, S, J, op_bias, pv_bias, kick, noise_std)``, ``n`` the number of samples."""
+    integral_band,
+    characteristic,
+    initial_op,
+    initial_mv,
+    initial_integral,
+    initial_stop,
+    pv_filter_time,
+) -> _LoopRun:
+    """:func:`simulate_loop`'s arguments checked, each with a one-line UsageError, the
+    valve's integration set up, the inputs sampled and the start-up state found."""
     _check_loop(process, controller)
     dt = _number("sample time dt", dt, positive=True)
     duration = _number("duration", duration, positive=True)
@@ -416,7 +475,138 @@ def _checked_run(
     noise_std = _number("noise_std", noise_std, minimum=0.0)
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
         raise UsageError(f"seed must be an integer or None, got {seed!r}")
-    return dt, n, S, J, op_bias, pv_bias, kick, noise_std
+    band = _integral_band(integral_band, n)
+    physical, n_sub, h, p, stem = _valve_integration(valve, physical, dt, n)
+    sp_arr = _series("sp", sp, n, 0.0)
+    load_arr = _series("load", load, n, 0.0)
+    if noise_std > 0:
+        noise = np.random.default_rng(seed).normal(0.0, noise_std, n)
+    else:
+        noise = np.zeros(n)
+    op0, mv0, integral0 = _initial_state(
+        controller,
+        op_bias=op_bias,
+        pv_bias=pv_bias,
+        kick=kick,
+        e0=sp_arr[0] - (pv_bias + load_arr[0]),
+        initial_op=initial_op,
+        initial_mv=initial_mv,
+        initial_integral=initial_integral,
+    )
+    xss0, dirn0 = _initial_stop(initial_stop, op0)
+    return _LoopRun(
+        valve=valve,
+        characteristic=characteristic,
+        n=n,
+        dt=dt,
+        h=h,
+        n_sub=n_sub,
+        S=S,
+        J=J,
+        physical=physical if valve == "physical" else None,
+        valve_parameters=p,
+        stem=stem,
+        sp=sp_arr,
+        load=load_arr,
+        noise=noise,
+        noise_std=noise_std,
+        seed=seed,
+        band=band,
+        op_bias=op_bias,
+        pv_bias=pv_bias,
+        kick=kick,
+        op0=op0,
+        mv0=mv0,
+        integral0=integral0,
+        stop_given=initial_stop is not None,
+        stop=xss0,
+        direction=dirn0,
+        pv_filter_time=_number("pv_filter_time", pv_filter_time, minimum=0.0),
+    )
+
+
+def _simulated(process: FOPTD | Integrating, controller: PI, run: _LoopRun) -> Simulation:
+    """The loop of ``run`` through the compiled kernel: the recorded signals and settings."""
+    n, h = run.n, run.h
+    f_pole = math.exp(-h / run.pv_filter_time) if run.pv_filter_time > 0.0 else 0.0
+    a, b_now, b_prev, delay = _process_coefficients(process, h)
+    out_pv = np.empty(n)
+    out_op = np.empty(n)
+    out_mv = np.empty(n)
+    _loop_kernel(
+        n,
+        run.n_sub,
+        h,
+        run.sp,
+        run.load,
+        run.noise,
+        a,
+        b_now,
+        b_prev,
+        delay,
+        float(controller.gain),
+        float(controller.integral_time),
+        run.band,
+        run.op_bias,
+        run.pv_bias,
+        _VALVE_CODE[run.valve],
+        run.S,
+        run.J,
+        run.valve_parameters,
+        run.stem,
+        _CHARACTERISTIC_CODE[run.characteristic],
+        EQUAL_PERCENTAGE_RANGEABILITY,
+        run.op0,
+        run.mv0,
+        run.stop,
+        run.direction,
+        run.integral0,
+        f_pole,
+        out_pv,
+        out_op,
+        out_mv,
+    )
+    return Simulation(
+        time=np.arange(n) * run.dt,
+        sp=run.sp,
+        pv=out_pv,
+        op=out_op,
+        mv=out_mv,
+        dt=run.dt,
+        settings=_settings(process, controller, run),
+        process=process,
+        controller=controller,
+        physical=run.physical,
+    )
+
+
+def _settings(process: FOPTD | Integrating, controller: PI, run: _LoopRun) -> dict:
+    """:attr:`Simulation.settings` of ``run``: the parameters as used, in JSON types."""
+    sj = run.valve in _SJ_VALVES
+    physical = run.physical
+    return {
+        "process": process.to_dict(),
+        "controller": controller.to_dict(),
+        "valve": run.valve,
+        "S": run.S if sj else None,
+        "J": run.J if sj else None,
+        "physical": None if physical is None else physical.to_dict(),
+        "data_driven_equivalent": (None if physical is None else physical.data_driven_equivalent()),
+        "duration_s": run.n * run.dt,
+        "dt_s": run.dt,
+        "integration_step_s": run.h,
+        "op_bias": run.op_bias,
+        "pv_bias": run.pv_bias,
+        "kick": run.kick,
+        "initial_op": run.op0,
+        "initial_mv": run.mv0,
+        "initial_stop": [run.stop, run.direction] if run.stop_given else None,
+        "integral_band": _band_setting(run.band),
+        "noise_std": run.noise_std,
+        "seed": None if run.seed is None else int(run.seed),
+        "characteristic": run.characteristic,
+        "pv_filter_time": run.pv_filter_time,
+    }
 
 
 def simulate_loop(
@@ -447,7 +637,7 @@ def simulate_loop(
     """Simulate a PI control loop with a linear or sticky valve.
 
     Eq. 3 and Table 3 of Choudhury, Thornhill & Shah (2005); see the module docstring
-    for the loop equations, the discretisation and the kick that starts the cycle.
+    for the loop equations, the discretisation and the start-up.
 
     Parameters
     ----------
@@ -486,8 +676,7 @@ def simulate_loop(
     pv_bias : float
         Process output at the operating point [pv units].
     kick : float
-        The valve starts stuck ``kick`` % of span away from ``op_bias`` (see the
-        module docstring).  Ignored when ``initial_mv`` is given.
+        The valve starts stuck ``kick`` % of span away from ``op_bias``.
     integral_band : float or ndarray, optional
         Gerry & Ruel (2001) variable-integral PI (Section 6.4): no integral action
         while ``|sp - pv| < integral_band`` [pv units].  An array gives one band per
@@ -495,25 +684,15 @@ def simulate_loop(
         during a run).
     characteristic : {"linear", "equal_percentage", "quick_opening"}
         Valve characteristic between position and flow (the process sees the flow).
-    initial_op, initial_mv : float, optional
-        Initial controller output and valve position [% of span]; defaults
-        ``op_bias`` and ``op_bias + kick``.
-    initial_integral : float, optional
-        Initial integral of the error [pv units * s]; default: the value that gives
-        ``initial_op`` at the initial error.
+    initial_op, initial_mv, initial_integral : float, optional
+        Initial controller output and valve position [% of span] and error integral
+        [pv units * s] (module docstring, "Start-up").
     initial_stop : (float, float), optional
-        State of a data-driven valve that starts stuck: the controller output at
-        which it stuck [% of span] and the direction of its last movement (+1 or
-        -1).  Moving on in that direction it breaks away once op is ``J`` past the
-        stop, reversing once op is ``S`` back (Fig. 10).  Default: stuck at
-        ``initial_op`` with no movement yet, so any breakaway needs ``S``.  A replay
-        of recorded data passes the state the record shows
-        (:mod:`stictiondiag.replay.closed_loop`, "Start-up").
+        Stop input [% of span] and last direction (+1 or -1) of a data-driven valve
+        that starts stuck (module docstring, "Start-up").
     pv_filter_time : float
-        Time constant of a first-order filter on the measured pv in front of the
-        controller [s] (``f = a f + (1 - a) pv`` each controller step, ``a =
-        exp(-step / T)``, started at the first pv); 0, the default, for none, as in
-        the paper.  The recorded pv is the unfiltered one.
+        Time constant of a first-order filter on the pv the controller reads [s]; 0,
+        the default, for none (module docstring).
 
     Returns
     -------
@@ -525,123 +704,31 @@ def simulate_loop(
     UsageError
         A parameter is out of range, or the run would be too long.
     """
-    dt, n, S, J, op_bias, pv_bias, kick, noise_std = _checked_run(
+    run = _set_up(
         process,
         controller,
-        duration,
-        dt,
-        valve,
-        characteristic,
-        S,
-        J,
-        op_bias,
-        pv_bias,
-        kick,
-        noise_std,
-        seed,
-    )
-    band = _integral_band(integral_band, n)
-
-    physical, n_sub, h, p, stem = _valve_integration(valve, physical, dt, n)
-    # The physical valve's parameters (the nominal valve by default); None for the others.
-    physical_used = physical if valve == "physical" else None
-    sp_arr = _series("sp", sp, n, 0.0)
-    load_arr = _series("load", load, n, 0.0)
-    if noise_std > 0:
-        noise = np.random.default_rng(seed).normal(0.0, noise_std, n)
-    else:
-        noise = np.zeros(n)
-
-    Kc = float(controller.gain)
-    Ti = float(controller.integral_time)
-    op0, mv0, integral0 = _initial_state(
-        controller,
+        duration=duration,
+        dt=dt,
+        valve=valve,
+        S=S,
+        J=J,
+        physical=physical,
+        sp=sp,
+        load=load,
+        noise_std=noise_std,
+        seed=seed,
         op_bias=op_bias,
         pv_bias=pv_bias,
         kick=kick,
-        e0=sp_arr[0] - (pv_bias + load_arr[0]),
+        integral_band=integral_band,
+        characteristic=characteristic,
         initial_op=initial_op,
         initial_mv=initial_mv,
         initial_integral=initial_integral,
+        initial_stop=initial_stop,
+        pv_filter_time=pv_filter_time,
     )
-
-    xss0, dirn0 = _initial_stop(initial_stop, op0)
-    pv_filter_time = _number("pv_filter_time", pv_filter_time, minimum=0.0)
-    f_pole = math.exp(-h / pv_filter_time) if pv_filter_time > 0.0 else 0.0
-    a, b_now, b_prev, delay = _process_coefficients(process, h)
-    out_pv = np.empty(n)
-    out_op = np.empty(n)
-    out_mv = np.empty(n)
-    _loop_kernel(
-        n,
-        n_sub,
-        h,
-        sp_arr,
-        load_arr,
-        noise,
-        a,
-        b_now,
-        b_prev,
-        delay,
-        Kc,
-        Ti,
-        band,
-        op_bias,
-        pv_bias,
-        _VALVE_CODE[valve],
-        S,
-        J,
-        p,
-        stem,
-        _CHARACTERISTIC_CODE[characteristic],
-        EQUAL_PERCENTAGE_RANGEABILITY,
-        op0,
-        mv0,
-        xss0,
-        dirn0,
-        integral0,
-        f_pole,
-        out_pv,
-        out_op,
-        out_mv,
-    )
-    settings = {
-        "process": process.to_dict(),
-        "controller": controller.to_dict(),
-        "valve": valve,
-        "S": S if valve in _SJ_VALVES else None,
-        "J": J if valve in _SJ_VALVES else None,
-        "physical": None if physical_used is None else physical_used.to_dict(),
-        "data_driven_equivalent": (
-            None if physical_used is None else physical_used.data_driven_equivalent()
-        ),
-        "duration_s": n * dt,
-        "dt_s": dt,
-        "integration_step_s": h,
-        "op_bias": op_bias,
-        "pv_bias": pv_bias,
-        "kick": kick,
-        "initial_op": op0,
-        "initial_mv": mv0,
-        "initial_stop": None if initial_stop is None else [xss0, dirn0],
-        "integral_band": _band_setting(band),
-        "noise_std": noise_std,
-        "seed": None if seed is None else int(seed),
-        "characteristic": characteristic,
-        "pv_filter_time": pv_filter_time,
-    }
-    return Simulation(
-        time=np.arange(n) * dt,
-        sp=sp_arr,
-        pv=out_pv,
-        op=out_op,
-        mv=out_mv,
-        dt=dt,
-        settings=settings,
-        process=process,
-        controller=controller,
-        physical=physical_used,
-    )
+    return _simulated(process, controller, run)
 
 
 def simulate_paper_loop(

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from stictiondiag.core.jit import jit
+from stictiondiag.core.jit import inline, jit
 
 
 @jit
@@ -239,6 +239,72 @@ def flow_characteristic(position, kind, rangeability, authority):
     return f / math.sqrt(authority + (1.0 - authority) * f * f)
 
 
+@inline
+def _pi_step(meas, sp, pvf, integral, filter_weight, ts, Kc, Ti, op_bias):
+    """One sample of the PI controller ``Kc (1 + 1/(Ti s))`` (Eq. 3) on the first-order
+    filtered measurement, with conditional integration against windup: the integral
+    [pv units * s] is kept only while the output stays inside the span.
+
+    Returns the controller output [% of span, within 0-100], the filtered
+    measurement [pv units] and the integral.
+    """
+    pvf = pvf + filter_weight * (meas - pvf)
+    e = sp - pvf
+    trial = integral + e * ts
+    u_pi = op_bias + Kc * (e + trial / Ti)
+    if 0.0 <= u_pi <= 100.0:
+        integral = trial
+    else:
+        u_pi = op_bias + Kc * (e + integral / Ti)
+    return min(max(u_pi, 0.0), 100.0), pvf, integral
+
+
+@inline
+def _karnopp_sample(
+    phys,
+    prev_demand,
+    demand,
+    S_open,
+    J_open,
+    S_close,
+    J_close,
+    ts,
+    mass,
+    spring,
+    viscous,
+    stem_m_per_pct,
+    h,
+    v_eps,
+):
+    """Valve position [% of span] after one sample of the Karnopp valve
+    (:func:`karnopp_interval`) driven from ``prev_demand`` to ``demand`` [% of span].
+
+    This sample's S and J [% of span] per direction become the forces of Eq. 1 through
+    the spring: ``Fs = k (S + J) / 2``, ``Fc = k (S - J) / 2`` (Section 4.1).
+    """
+    Fs_o = spring * stem_m_per_pct * (S_open + J_open) / 2.0
+    Fc_o = spring * stem_m_per_pct * (S_open - J_open) / 2.0
+    Fs_c = spring * stem_m_per_pct * (S_close + J_close) / 2.0
+    Fc_c = spring * stem_m_per_pct * (S_close - J_close) / 2.0
+    xm = karnopp_interval(
+        phys,
+        prev_demand * stem_m_per_pct,
+        demand * stem_m_per_pct,
+        ts,
+        mass,
+        spring,
+        viscous,
+        Fs_o,
+        Fc_o,
+        Fs_c,
+        Fc_c,
+        h,
+        v_eps,
+        100.0 * stem_m_per_pct,
+    )
+    return xm / stem_m_per_pct
+
+
 @jit
 def closed_loop(
     ts,
@@ -311,39 +377,28 @@ def closed_loop(
         if pv_quantum > 0.0:
             meas = pv_quantum * math.floor(meas / pv_quantum + 0.5)
         pv[k] = meas
-        pvf = pvf + filter_weight * (meas - pvf)
-        e = sp[k] - pvf
-        trial = integral + e * ts
-        u_pi = op_bias + Kc * (e + trial / Ti)
-        if 0.0 <= u_pi <= 100.0:
-            integral = trial
-        else:
-            u_pi = op_bias + Kc * (e + integral / Ti)
-        u_pi = min(max(u_pi, 0.0), 100.0)
+        u_pi, pvf, integral = _pi_step(
+            meas, sp[k], pvf, integral, filter_weight, ts, Kc, Ti, op_bias
+        )
         op[k] = u_pi
         demand = min(max(cal_pivot + cal_gain * (u_pi - cal_pivot), 0.0), 100.0)
         if physical:
-            Fs_o = spring * stem_m_per_pct * (S_open[k] + J_open[k]) / 2.0
-            Fc_o = spring * stem_m_per_pct * (S_open[k] - J_open[k]) / 2.0
-            Fs_c = spring * stem_m_per_pct * (S_close[k] + J_close[k]) / 2.0
-            Fc_c = spring * stem_m_per_pct * (S_close[k] - J_close[k]) / 2.0
-            xm = karnopp_interval(
+            vo = _karnopp_sample(
                 phys,
-                prev_demand * stem_m_per_pct,
-                demand * stem_m_per_pct,
+                prev_demand,
+                demand,
+                S_open[k],
+                J_open[k],
+                S_close[k],
+                J_close[k],
                 ts,
                 mass,
                 spring,
                 viscous,
-                Fs_o,
-                Fc_o,
-                Fs_c,
-                Fc_c,
+                stem_m_per_pct,
                 h,
                 v_eps,
-                100.0 * stem_m_per_pct,
             )
-            vo = xm / stem_m_per_pct
         else:
             vo = stick_slip_step(demand, st, S_open[k], J_open[k], S_close[k], J_close[k])
         prev_demand = demand

@@ -269,6 +269,73 @@ def _valve_sse_row(
     return sse
 
 
+@inline
+def _affine_row(
+    xs, vs, mv, w, P, r, h, kano, y0, d0, curvature, family, limit, tv, pre, check
+):  # pragma: no cover - compiled
+    """Row ``r``'s error minimised over the map ``mv = b + k z`` (:func:`valve_sse_batch`
+    with ``affine``): one copy of the row loop per valve, Kano's or Choudhury's."""
+    if kano:
+        return _valve_sse_row(
+            xs, vs, mv, w, P, r, h, True, y0, d0, True, curvature, family, limit, tv, pre, check
+        )
+    return _valve_sse_row(
+        xs, vs, mv, w, P, r, h, False, y0, d0, True, curvature, family, limit, tv, pre, check
+    )
+
+
+@inline
+def _plain_row(
+    xs, vs, mv, w, P, r, h, kano, y0, d0, curvature, family, limit, tv, pre
+):  # pragma: no cover - compiled
+    """Row ``r``'s error of ``mv = z`` (:func:`valve_sse_batch` without ``affine``): one
+    copy of the row loop per valve and per profile, constant or time-varying."""
+    if kano:
+        if tv:
+            return _valve_sse_row(
+                xs,
+                vs,
+                mv,
+                w,
+                P,
+                r,
+                h,
+                True,
+                y0,
+                d0,
+                False,
+                curvature,
+                family,
+                limit,
+                True,
+                pre,
+                False,
+            )
+        return _valve_sse_row(
+            xs, vs, mv, w, P, r, h, True, y0, d0, False, curvature, family, limit, False, pre, False
+        )
+    if tv:
+        return _valve_sse_row(
+            xs, vs, mv, w, P, r, h, False, y0, d0, False, curvature, family, limit, True, pre, False
+        )
+    return _valve_sse_row(
+        xs, vs, mv, w, P, r, h, False, y0, d0, False, curvature, family, limit, False, pre, False
+    )
+
+
+@inline
+def _keep_lowest(kept, c):  # pragma: no cover - compiled
+    """Insert the error ``c`` among the lowest errors ``kept`` (sorted, rising) if it is
+    below the highest of them (an abandoned row's partial error lies above them all)."""
+    kk = kept.shape[0]
+    if c < kept[kk - 1]:
+        i = kk - 1
+        while i > 0 and kept[i - 1] > c:
+            kept[i] = kept[i - 1]
+            i -= 1
+        kept[i] = c
+
+
 @jit
 def valve_sse_batch(
     op, mv, w, P, h, kano, y0, d0, affine, curvature, family, bound, keep, order
@@ -293,8 +360,8 @@ def valve_sse_batch(
     ``keep``, as it changes the limit of the rows without it.
     """
     # The stuck-phase logic, the closed-form map and the time profile are passed as
-    # constants at separate call sites, so that each inlined copy of the row loop is
-    # compiled without their tests per sample (20 % faster).
+    # constants at separate call sites (_affine_row, _plain_row), so that each inlined
+    # copy of the row loop is compiled without their tests per sample (20 % faster).
     m = P.shape[0]
     costs = np.empty(m)
     limit = bound
@@ -312,139 +379,16 @@ def valve_sse_batch(
         r = order[t] if check else t
         if affine:
             lim = kept[kk - 1] + margin if check else limit
-            if kano:
-                c = _valve_sse_row(
-                    xs,
-                    vs,
-                    mv,
-                    w,
-                    P,
-                    r,
-                    h,
-                    True,
-                    y0,
-                    d0,
-                    True,
-                    curvature,
-                    family,
-                    lim,
-                    tv,
-                    pre,
-                    check,
-                )
-            else:
-                c = _valve_sse_row(
-                    xs,
-                    vs,
-                    mv,
-                    w,
-                    P,
-                    r,
-                    h,
-                    False,
-                    y0,
-                    d0,
-                    True,
-                    curvature,
-                    family,
-                    lim,
-                    tv,
-                    pre,
-                    check,
-                )
-        elif kano:
-            if tv:
-                c = _valve_sse_row(
-                    xs,
-                    vs,
-                    mv,
-                    w,
-                    P,
-                    r,
-                    h,
-                    True,
-                    y0,
-                    d0,
-                    False,
-                    curvature,
-                    family,
-                    limit,
-                    True,
-                    pre,
-                    False,
-                )
-            else:
-                c = _valve_sse_row(
-                    xs,
-                    vs,
-                    mv,
-                    w,
-                    P,
-                    r,
-                    h,
-                    True,
-                    y0,
-                    d0,
-                    False,
-                    curvature,
-                    family,
-                    limit,
-                    False,
-                    pre,
-                    False,
-                )
-        elif tv:
-            c = _valve_sse_row(
-                xs,
-                vs,
-                mv,
-                w,
-                P,
-                r,
-                h,
-                False,
-                y0,
-                d0,
-                False,
-                curvature,
-                family,
-                limit,
-                True,
-                pre,
-                False,
+            c = _affine_row(
+                xs, vs, mv, w, P, r, h, kano, y0, d0, curvature, family, lim, tv, pre, check
             )
+            costs[r] = c
+            _keep_lowest(kept, c)
         else:
-            c = _valve_sse_row(
-                xs,
-                vs,
-                mv,
-                w,
-                P,
-                r,
-                h,
-                False,
-                y0,
-                d0,
-                False,
-                curvature,
-                family,
-                limit,
-                False,
-                pre,
-                False,
-            )
-        costs[r] = c
-        if affine:
-            # Insert a complete error among the lowest ``keep`` (an abandoned row's
-            # partial error lies above them all).
-            if c < kept[kk - 1]:
-                i = kk - 1
-                while i > 0 and kept[i - 1] > c:
-                    kept[i] = kept[i - 1]
-                    i -= 1
-                kept[i] = c
-        elif c < limit:
-            limit = c
+            c = _plain_row(xs, vs, mv, w, P, r, h, kano, y0, d0, curvature, family, limit, tv, pre)
+            costs[r] = c
+            if c < limit:
+                limit = c
     return costs
 
 

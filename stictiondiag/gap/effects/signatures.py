@@ -13,6 +13,10 @@ import math
 
 import numpy as np
 
+from stictiondiag.core.stats import (
+    mannwhitneyu,  # scipy.stats.mannwhitneyu, without importing scipy.stats
+)
+
 #: Significance the measured slips must show for a threshold-only effect (rank test).
 SLIP_TEST_P = 0.01
 
@@ -139,6 +143,7 @@ def untested_p(mv: np.ndarray | None) -> float:
     segmentation, which reads the rounding's steps, measures few slips or none.  The
     effect must then be shown by the slips measured.
     """
+    # Imported here: quantization imports this module, a cycle at module level.
     from stictiondiag.gap.effects.quantization import detect_quantization
 
     return 1.0 if detect_quantization(mv) is not None else 0.0
@@ -174,10 +179,6 @@ def slips_differ(
     one-sided in that direction (:func:`one_sided`): slips that differ the other way
     do not show the fitted effect.
     """
-    from stictiondiag.core.stats import (
-        mannwhitneyu,  # scipy.stats.mannwhitneyu, without importing scipy.stats
-    )
-
     if slips is None:
         return untested
     p = 1.0
