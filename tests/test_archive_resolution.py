@@ -117,8 +117,12 @@ def test_healthy_valve_from_a_held_archive_is_not_called_sticky(deadbands):
 
 def test_naive_linear_op_of_a_01_archive_is_not_called_sticky():
     # op and mv both at 0.1 %, op joined linearly between its archived values (a naive
-    # reconstruction), mv held: without the deadband the healthy valve is called
-    # stiction (S 0.10, J 0.03); with it, not.
+    # reconstruction), mv held: without the deadband the archive's staircase reads as
+    # stick-slip of the healthy valve (S 0.10, J 0.03), which raises P(friction) to the
+    # direct-evidence level (0.71, called stiction, with the models fitted before the
+    # seeded oscillation test; 0.69 with today's); with the deadband, P falls by about
+    # 0.2 (0.53 and 0.48) and the valve is not called sticky.  Asked: at least half
+    # that fall, and no stiction call.
     frame = pd.read_csv(SAMPLES / "healthy_flow.csv")
     t, op, mv = (frame[c].to_numpy() for c in ("time", "op", "mv"))
     i, j = exception_compress(op, 0.1), exception_compress(mv, 0.1)
@@ -129,10 +133,10 @@ def test_naive_linear_op_of_a_01_archive_is_not_called_sticky():
         frame["pv"], np.interp(t, t[i], op[i]), mv=arrays["mv"], sp=frame["sp"], loop_type="flow"
     )
     config = AnalysisConfig(gap=False)
-    assert analyze(joined, config=config).verdict.status == "stiction"  # the defect
-    assert analyze(replace(joined, archive_deadband=found), config=config).verdict.status != (
-        "stiction"
-    )
+    naive = analyze(joined, config=config).verdict
+    aware = analyze(replace(joined, archive_deadband=found), config=config).verdict
+    assert naive.evidence.p_friction - aware.evidence.p_friction > 0.1  # the defect
+    assert aware.status != "stiction"
 
 
 @pytest.mark.slow
