@@ -71,7 +71,6 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
-from scipy.signal import find_peaks
 
 from stictiondiag.core.checks import check_dt
 from stictiondiag.core.filters import (
@@ -351,6 +350,44 @@ def _regularity(periods: np.ndarray) -> float:
     return min(MAX_REGULARITY, mean_tp / (3.0 * std_tp) if std_tp > 0 else math.inf)
 
 
+def _side_dips(a: np.ndarray, peak: int, floor: float, step: int) -> bool:
+    """Whether ``a``, walked from ``peak`` by ``step`` (-1 or +1) to its end, falls to
+    ``floor`` or below before it rises above ``a[peak]``.  Walked in windows that
+    double, so the cost is that of the walk."""
+    top = a[peak]
+    i, width = peak + step, 16
+    while 0 <= i < a.size:
+        j = max(i - width + 1, 0) if step < 0 else min(i + width, a.size)
+        w = a[j : i + 1][::-1] if step < 0 else a[i:j]
+        stop = np.flatnonzero((w > top) | (w <= floor))
+        if stop.size:
+            return bool(w[stop[0]] <= floor)
+        i, width = (j - 1 if step < 0 else j), 2 * width
+    return False
+
+
+def _prominent_peaks(a: np.ndarray, height: float, first: int, count: int) -> list[int]:
+    """The first ``count`` peaks of ``a`` at index ``first`` or later whose
+    prominence is at least ``height``: what ``scipy.signal.find_peaks(a,
+    prominence=height)`` keeps (a local maximum, a plateau's middle sample; its
+    prominence the height above the higher of the lowest points on either side
+    before a higher sample), without loading ``scipy.signal`` on the analysis path.
+    O(n) for the maxima, and each peak's walk stops at its first dip or rise."""
+    new = np.r_[True, a[1:] != a[:-1]]
+    start = np.flatnonzero(new)
+    end = np.r_[start[1:] - 1, a.size - 1]
+    u = a[start]
+    j = np.flatnonzero((u[1:-1] > u[:-2]) & (u[1:-1] > u[2:])) + 1
+    found: list[int] = []
+    for peak in (start[j] + end[j]) // 2:
+        if len(found) == count:
+            break
+        floor = a[peak] - height
+        if peak >= first and _side_dips(a, peak, floor, -1) and _side_dips(a, peak, floor, 1):
+            found.append(int(peak))
+    return found
+
+
 def _seeded_detrend(
     x: np.ndarray, xd: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -361,9 +398,9 @@ def _seeded_detrend(
     n = x.size
     acf = autocorrelation(xd)
     top = int(n / MIN_CYCLES)
-    peaks, _ = find_peaks(acf[: top + 1], prominence=ACF_SIGNIFICANCE / math.sqrt(n))
+    peaks = _prominent_peaks(acf[: top + 1], ACF_SIGNIFICANCE / math.sqrt(n), 4, SEED_PEAKS)
     best: tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
-    for seed in peaks[peaks >= 4][:SEED_PEAKS].astype(float):
+    for seed in map(float, peaks):
         xr = _detrend_by_cycles(x, seed)
         cr, pr = _acf_periods(xr)
         if pr.size < MIN_PERIOD_ESTIMATES or abs(pr.mean() - seed) > SEED_CONSISTENCY * seed:
