@@ -244,8 +244,12 @@ def _significant_crossings(acf: np.ndarray, crossings: np.ndarray, n: int) -> in
 
 def _acf_periods(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Zero crossings [samples] of the smoothed ACF and full-period estimates [samples]."""
-    n = x.size
-    acf = autocorrelation(x)
+    return _periods_of_acf(autocorrelation(x))
+
+
+def _periods_of_acf(acf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_acf_periods` of a signal whose autocorrelation ``acf`` is known."""
+    n = acf.size
     max_lag = int(0.9 * n)
     first = _zero_crossings(acf, max_lag)
     if first.size == 0:
@@ -389,14 +393,13 @@ def _prominent_peaks(a: np.ndarray, height: float, first: int, count: int) -> li
 
 
 def _seeded_detrend(
-    x: np.ndarray, xd: np.ndarray
+    x: np.ndarray, acf: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The cycle a drift hides from the straight line's ACF, seeded by that ACF's
+    """The cycle a drift hides from the straight line's ACF ``acf``, seeded by its
     peaks (module doc): the most regular detrended signal, its crossings and
     periods, or None when no seed holds.  O(n log n) per seed, at most
     :data:`SEED_PEAKS` seeds."""
     n = x.size
-    acf = autocorrelation(xd)
     top = int(n / MIN_CYCLES)
     peaks = _prominent_peaks(acf[: top + 1], ACF_SIGNIFICANCE / math.sqrt(n), 4, SEED_PEAKS)
     best: tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
@@ -468,11 +471,11 @@ def detect_oscillation(x: np.ndarray, dt: float) -> Oscillation:
     xd = detrend_linear(x)
     if np.ptp(xd) <= 1e-12 * max(1.0, float(np.max(np.abs(x)))):
         return _absent(Absence.RAMP, "signal is a pure ramp")
-    crossings, periods = _acf_periods(xd)
-    line = xd
+    line_acf = autocorrelation(xd)
+    crossings, periods = _periods_of_acf(line_acf)
     xd, crossings, periods = _refine_detrend(x, xd, crossings, periods)
     if periods.size < MIN_PERIOD_ESTIMATES or _regularity(periods) <= REGULARITY_THRESHOLD:
-        seeded = _seeded_detrend(x, line)
+        seeded = _seeded_detrend(x, line_acf)
         if seeded is not None and (
             periods.size < MIN_PERIOD_ESTIMATES or _regularity(seeded[2]) > _regularity(periods)
         ):
