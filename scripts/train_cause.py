@@ -79,11 +79,11 @@ TOLERANCE = 0.1
 MIN_BAND = 10
 #: How long computing the features took from an empty cache, as measured.
 MEASURED_RUN = (
-    "measured with the closed-loop reproduction on 26-27 Nov 2026 (the first 500 training"
-    " loops, the 250 of seed 12, the 60 dead-zone loops with their twins and the 77 real"
-    " records from an empty cache in 8.1 min; the other 1000 training loops in 12 min and"
-    " the loops of seed 13 in 3 min of wall time), one worker process on a shared two-core"
-    " machine"
+    "measured on 27 Nov 2026, after the integral-dominant tuning joined the family (the"
+    " 1500 training loops, the 500 of seeds 12 and 13 and the 60 dead-zone loops with"
+    " their twins from an empty cache in 8.3 min of wall time with `--workers 2`; the"
+    " loops of seeds 14 and 15 in 2.7 min; the 77 real records, which the family does not"
+    " change, from the cache of the run before), on a shared two-core machine"
 )
 
 #: Heading of the section this script writes in docs/calibration.md.
@@ -635,19 +635,9 @@ def _gate_text(g: dict | None) -> str:
     )
 
 
-def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat, cv) -> str:
-    from collections import Counter
-
-    acc = float(np.mean(Pt.argmax(axis=1) == yt)) if yt.size else math.nan
-    acc_h = float(np.mean(Ph.argmax(axis=1) == yh)) if yh.size else math.nan
-    valve = CAUSES.index("valve")
-    auc = roc_auc((yt == valve).astype(int), Pt[:, valve])
-    auc_h = roc_auc((yh == valve).astype(int), Ph[:, valve]) if yh.size else math.nan
-    rel = reliability(Pt, yt)
-    counted = [r for r in rel if r[4] >= MIN_BAND]
-    ok = all(r[5] for r in counted)
-    labels = Counter((r["generator"], r["label"]) for r in all_rows)
-    lines = [
+def _intro(a, t_feat: float) -> list[str]:
+    """The section's heading, how it was written, and what stage 2 decides."""
+    return [
         HEADING,
         "",
         "Written by `scripts/train_cause.py` "
@@ -659,13 +649,11 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
         + f"`; features of all loops {MEASURED_RUN}; this run {t_feat / 60:.1f} min).",
         "",
         "Stage 2 of the verdict (`stictiondiag/stiction/cause.py`, `cause_model.py`): for a"
-        " loop with a cycle and without mv, one probability per cause of the cycle. As"
-        " trained, the verdict was to be `stiction` when P(valve) >= 0.6 and `no_stiction`"
-        " when <= 0.4 (`stictiondiag.stiction.verdict.VALVE_LEVEL`); scored once on the ISDB"
-        " that call was less accurate than P(stiction)'s (0.50 against 0.61 on the stated"
-        " labels, 0.47 against 0.76 on the likely ones: `docs/isdb_validation.md`), so the"
-        " released verdict follows P(stiction) and reports the cause model's reading beside"
-        " it."
+        " loop with a cycle and without mv, one probability per cause of the cycle, and the"
+        " verdict: `stiction` when P(valve) >= 0.6, `no_stiction` when <= 0.4"
+        " (`stictiondiag.stiction.verdict.VALVE_LEVEL`), `inconclusive` between. Why this"
+        " probability, and not the friction model's P(stiction), decides a loop with a cycle:"
+        " [below](#which-probability-decides-a-loop-with-a-cycle)."
         + (
             " The describing-function consistency of Section 6 is left out of this run"
             " (`--no-describing`)."
@@ -682,6 +670,23 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
             " same loop with a linear valve settle?), by the same gate."
         ),
         "",
+    ]
+
+
+def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat, cv) -> str:
+    from collections import Counter
+
+    acc = float(np.mean(Pt.argmax(axis=1) == yt)) if yt.size else math.nan
+    acc_h = float(np.mean(Ph.argmax(axis=1) == yh)) if yh.size else math.nan
+    valve = CAUSES.index("valve")
+    auc = roc_auc((yt == valve).astype(int), Pt[:, valve])
+    auc_h = roc_auc((yh == valve).astype(int), Ph[:, valve]) if yh.size else math.nan
+    rel = reliability(Pt, yt)
+    counted = [r for r in rel if r[4] >= MIN_BAND]
+    ok = all(r[5] for r in counted)
+    labels = Counter((r["generator"], r["label"]) for r in all_rows)
+    lines = [
+        *_intro(a, t_feat),
         "Loops of `stictiondiag/apps/family_causes.py`, each analysed exactly as a user's"
         " file (`analyze` without step 5's replay and the gap; the verdict's own"
         " reproduction replay runs), labelled by the counterfactual twin that"
