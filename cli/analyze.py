@@ -130,7 +130,7 @@ def _replay_lines(rep: Replay) -> list[str]:
 def render_summary(a: Analysis) -> str:
     """Readable terminal summary of one loop's :class:`~stictiondiag.result.Analysis`.
 
-    The verdict shows the calibrated P(stiction) with its decision levels, a poorly
+    The verdict shows the probability it decided on with its decision levels, a poorly
     determined S or J says so next to its value, the replay is read by period,
     amplitude and waveform agreement, and the findings in words close the summary.
     """

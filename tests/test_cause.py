@@ -104,23 +104,22 @@ def _constant_cause_model(probs: dict[str, float]) -> dict:
 
 
 @pytest.mark.parametrize(
-    ("p_friction", "probs", "status", "cause"),
+    ("p_friction", "probs", "status", "cause", "runner"),
     [
-        # The cause model favours another cause: P(stiction) still decides.
-        (0.9, {"valve": 0.2, "tuning": 0.5, "external": 0.2, "other": 0.1}, "stiction", "valve"),
-        # P below the lower level: no stiction, the cause model's best other cause named.
-        (0.1, {"valve": 0.7, "tuning": 0.1, "external": 0.15, "other": 0.05}, "no_stiction",
-         "external"),
-        # Between the levels: undecided, whatever the cause model says.
-        (0.5, {"valve": 0.9, "tuning": 0.05, "external": 0.03, "other": 0.02}, "inconclusive",
-         None),
+        # P(valve) above the level: stiction, whatever the friction model says.
+        (0.1, {"valve": 0.65, "tuning": 0.1, "external": 0.2, "other": 0.05}, "stiction",
+         "valve", "external"),
+        # P(valve) below 1 - level: no stiction, the most likely other cause named.
+        (0.9, {"valve": 0.35, "tuning": 0.5, "external": 0.1, "other": 0.05}, "no_stiction",
+         "tuning", "valve"),
+        # Between the levels: undecided, no cause named, the two leading ones reported.
+        (0.9, {"valve": 0.5, "tuning": 0.1, "external": 0.3, "other": 0.1}, "inconclusive",
+         None, "external"),
     ],
 )  # fmt: skip
-def test_a_cycle_is_decided_by_P_with_the_cause_model_read_beside_it(
-    p_friction, probs, status, cause
-):
-    # A cycle without mv: the verdict follows P(stiction) against its levels, and the
-    # cause model's reading (top cause and runner-up) is reported as evidence.
+def test_a_cycle_without_mv_is_decided_by_its_cause(p_friction, probs, status, cause, runner):
+    # Stage 2 decides by P(the valve causes the cycle) against VALVE_LEVEL (0.6);
+    # P(stiction) of the friction model stays in the evidence and the reasons.
     osc, osc_op = _Osc(True, 100.0, 3.0, 12.0), _Osc(False)
     v = stiction_verdict(
         _fit(),
@@ -130,13 +129,37 @@ def test_a_cycle_is_decided_by_P_with_the_cause_model_read_beside_it(
         model=_constant_model(p_friction),
         cause_model=_constant_cause_model(probs),
     )
-    assert (v.status, v.cause) == (status, cause)
-    assert v.probability == pytest.approx(p_friction, abs=1e-9)
+    assert (v.status, v.cause, v.runner_up) == (status, cause, runner)
+    assert v.by_cause and v.levels == pytest.approx((0.4, 0.6), abs=1e-12)
+    assert v.probability == pytest.approx(probs["valve"], abs=1e-9)
     assert sum(v.cause_probabilities.to_dict().values()) == pytest.approx(1.0, abs=1e-9)
     assert v.evidence.p_friction == pytest.approx(p_friction, abs=1e-9)
+    assert v.reasons[0].startswith(f"P(the valve causes the cycle) = {probs['valve']:.2f}")
     top = max(probs, key=probs.get)
-    reading = next(r for r in v.reasons if r.startswith("cause model"))
-    assert f"most likely {CAUSE_WORDS[top]} ({probs[top]:.2f})" in reading
+    assert f"most likely cause: {CAUSE_WORDS[top]} ({probs[top]:.2f})" in v.reasons[0]
+    assert any(r.startswith(f"P that the valve has friction (friction model) = {p_friction:.2f}")
+               for r in v.reasons)  # fmt: skip
+
+
+@pytest.mark.parametrize(("p_friction", "status"), [(0.9, "stiction"), (0.5, "inconclusive")])
+def test_a_cycle_with_mv_is_decided_by_P(p_friction, status):
+    # With the valve position recorded the friction model's P decides (the cause model
+    # is trained on loops without mv), against its own levels 0.3 and 0.7.
+    osc, osc_op = _Osc(True, 100.0, 3.0, 12.0), _Osc(False)
+    v = stiction_verdict(
+        _fit(),
+        osc,
+        oscillation_op=osc_op,
+        cycle=find_cycle(osc, osc_op, short_record=False),
+        has_mv=True,
+        model=_constant_model(p_friction),
+        cause_model=_constant_cause_model(
+            {"valve": 0.1, "tuning": 0.3, "external": 0.5, "other": 0.1}
+        ),
+    )
+    assert v.status == status and not v.by_cause
+    assert v.levels == pytest.approx((0.3, 0.7), abs=1e-12)
+    assert v.probability == pytest.approx(p_friction, abs=1e-9)
 
 
 @pytest.mark.parametrize(

@@ -40,10 +40,10 @@ def test_one_ranking_rule_for_the_table_and_every_page():
         {"loop": "c", "verdict": "inconclusive", "probability": 0.6, "S": 20.0, "J": 5.0},
         {"loop": "d", "verdict": "error", "error": "bad"},
     ]
-    # P(stiction) first within a verdict, severity only after it.
+    # P(valve) first within a verdict, severity only after it.
     assert [r["loop"] for r in sorted(rows, key=rank_key)] == ["a", "b", "c", "d"]
     assert list(rank(rows)["loop"]) == ["a", "b", "c", "d"]
-    assert "then P(stiction)" in RANKING_RULE
+    assert "then P(valve)" in RANKING_RULE
 
 
 def _export(path: Path, S: float, day: int, tag: str = "QIC7") -> None:

@@ -268,9 +268,9 @@ def test_index_and_markdown_mark_poorly_determined_parameters():
     html = render_index_html(rows)
     assert '5.78 (2.89&ndash;5.78) <span class="poor"' in html
     assert html.count('class="poor"') == 1  # J only
-    assert "<th>P(stiction)</th>" in html and "0.55" in html
+    assert "<th>P(valve)</th>" in html and "0.55" in html
     md = render_markdown(rows)
-    assert r"5.78 \(2.89-5.78\) poorly determined" in md and "P(stiction)" in md
+    assert r"5.78 \(2.89-5.78\) poorly determined" in md and "| P(valve) |" in md
 
 
 def test_index_names_each_loop_type_and_what_decided_it():

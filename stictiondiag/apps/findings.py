@@ -4,8 +4,10 @@
 (:class:`stictiondiag.result.Analysis`, as run or as read back with
 :meth:`~stictiondiag.result.Analysis.from_json`) and writes, for a maintenance planner:
 
-* the verdict with its calibrated ``P(stiction)`` and the decision levels (Section 5.3
-  verdict, :mod:`stictiondiag.stiction.verdict`), never a bare "confidence";
+* the verdict with the probability it decided on and its decision levels
+  (:mod:`stictiondiag.stiction.verdict`): P(the valve causes the cycle), with the most
+  likely cause and the runner-up, for a loop with a cycle and without mv, else the
+  calibrated ``P(stiction)`` (Section 5.3); never a bare "confidence";
 * S and J in % of valve travel (Section 5.1: "stiction is generally measured as a %
   of the valve travel"), each marked when the data determine it poorly
   (:func:`param_text`);
@@ -53,9 +55,11 @@ class Findings:
     verdict : str
         ``stiction``, ``no_stiction``, ``inconclusive`` (or ``unknown``).
     probability : float or None
-        Calibrated P(stiction) [-].
+        The probability the verdict decided on [-] (P(the valve causes the cycle) or
+        P(stiction), :attr:`stictiondiag.stiction.verdict.Verdict.levels`).
     levels : tuple of float
-        Decision levels on P: below the first no stiction, above the second stiction [-].
+        Decision levels on it: at or below the first no stiction, at or above the second
+        stiction [-].
     S, J : float or None
         Deadband plus stickband and slip jump [% of valve travel].
     S_text, J_text : str
@@ -204,16 +208,16 @@ def param_text(fit: StictionFit, sym: str, *, unit: str = " %") -> str:
 
 
 def decision_levels(verdict: Verdict) -> tuple[float, float]:
-    """The levels on P(stiction) the verdict decided with: below the first no
-    stiction, above the second stiction [-]."""
-    return verdict.evidence.no_stiction_level, verdict.evidence.stiction_level
+    """The levels the verdict decided with (:attr:`Verdict.levels`): below the first
+    no stiction, above the second stiction [-]."""
+    return verdict.levels
 
 
 def probability_text(verdict: Verdict) -> str:
-    """``P(stiction) = 0.55 (decision levels 0.3 and 0.7)``, with the cause model's
-    reading after it for a loop with a cycle and no mv (``; cause model: the valve
-    (P 0.72), runner-up: the controller's tuning (P 0.15)``), or ``no limit
-    cycle`` for a loop without one."""
+    """``P(the valve causes the cycle) = 0.72 (decision levels 0.4 and 0.6); cause:
+    the valve (P 0.72), runner-up: the controller's tuning (P 0.15)`` where stage 2
+    decided (a cycle, no mv), ``P(stiction) = 0.55 (decision levels 0.3 and 0.7)``
+    otherwise, or ``no limit cycle`` for a loop without one."""
     probs = verdict.cause_probabilities
     if verdict.cause == Cause.NONE:
         pf = plain_float(verdict.evidence.p_friction)
@@ -223,14 +227,14 @@ def probability_text(verdict: Verdict) -> str:
     lo, hi = decision_levels(verdict)
     p = plain_float(verdict.probability)
     p_text = "n/a" if p is None else f"{p:.2f}"
-    text = f"P(stiction) = {p_text} (decision levels {lo:g} and {hi:g})"
-    if probs is not None and not verdict.evidence.has_mv:
-        top, second = probs.ranked()[:2]
-        text += (
-            f"; cause model: {CAUSE_WORDS[top]} (P {probs.p(top):.2f}), "
-            f"runner-up: {CAUSE_WORDS[second]} (P {probs.p(second):.2f})"
-        )
-    return text
+    if probs is None or not verdict.by_cause:
+        return f"P(stiction) = {p_text} (decision levels {lo:g} and {hi:g})"
+    top, second = probs.ranked()[:2]
+    return (
+        f"P(the valve causes the cycle) = {p_text} (decision levels {lo:g} and {hi:g}); "
+        f"cause: {CAUSE_WORDS[top]} (P {probs.p(top):.2f}), "
+        f"runner-up: {CAUSE_WORDS[second]} (P {probs.p(second):.2f})"
+    )
 
 
 # --------------------------------------------------------------------------- sentences

@@ -65,7 +65,7 @@ class HistoryEntry:
     verdict : str or None
         The verdict.
     probability : float or None
-        P(stiction) [-].
+        P(valve) [-] (:data:`stictiondiag.apps.pages.P_VALVE_WORDS`).
     S, S_lo, S_hi, J, J_lo, J_hi : float or None
         S and J with their intervals [% of span, or op units when ``op_scale`` is
         ``unknown``].
@@ -270,7 +270,7 @@ def history_html(entries: list[HistoryEntry]) -> str:
     return (
         f'<h2 id="history">History ({len(entries)} export{"s" if len(entries) != 1 else ""})</h2>'
         f"{said}{_chart(entries)}"
-        "<table><tr><th>record from</th><th>verdict</th><th>P(stiction)</th>"
+        "<table><tr><th>record from</th><th>verdict</th><th>P(valve)</th>"
         "<th>S (interval)</th><th>J (interval)</th><th>cause</th></tr>"
         f"{rows}</table>"
     )

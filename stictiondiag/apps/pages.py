@@ -143,13 +143,20 @@ VERDICT_ORDER = ("stiction", "inconclusive", "propagated", "no_stiction", "error
 #: The one ranking rule of the scan table, its page and the report's index.
 RANKING_RULE = (
     "ranked by verdict (stiction, inconclusive, propagated from another loop, no stiction, "
-    "failed), then P(stiction) "
-    "(highest first), then severity = P(stiction) \u00d7 (S + J) [% of span], then loop name"
+    "failed), then P(valve) "
+    "(highest first), then severity = P(valve) \u00d7 (S + J) [% of span], then loop name"
+)
+
+#: What the P(valve) of every table is.
+P_VALVE_WORDS = (
+    "P(valve): the probability that the valve causes the loop's cycle (stage 2's cause "
+    "model, for a loop with a cycle and without mv; the calibrated P(stiction) of the "
+    "friction model where mv is recorded; 0 for a loop without a cycle)"
 )
 
 
 def severity(row: LoopRow | Mapping) -> float:
-    """Maintenance priority of a loop: P(stiction) times stiction size (S + J) [% of span].
+    """Maintenance priority of a loop: P(valve) times stiction size (S + J) [% of span].
 
     A row without a probability (written by an older run) uses its confidence.
     """

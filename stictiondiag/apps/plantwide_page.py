@@ -97,7 +97,7 @@ def plant_html(plant: dict | None) -> str:
             f"<h3>Group {grp.group}: period {grp.period_s:.4g} s, {len(grp.members)} loops</h3>"
             f"<p>{escape(g.note)}</p>"
             "<table><thead><tr><th>rank</th><th>loop</th><th>share of power</th>"
-            "<th>lead [s]</th><th>harmonics/fundamental</th><th>P(stiction)</th>"
+            "<th>lead [s]</th><th>harmonics/fundamental</th><th>P(valve)</th>"
             f"<th>role</th></tr></thead><tbody>{rows}</tbody></table>{_svg_spectrum(grp)}"
         )
     return "".join(parts)

@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from html import escape
 
 from stictiondiag.apps.pages import (
+    P_VALVE_WORDS,
     RANKING_RULE,
     duration_text,
     html_num,
@@ -21,7 +22,7 @@ from stictiondiag.apps.pages import (
     rank_key,
 )
 from stictiondiag.row import LoopRow, as_row
-from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL
+from stictiondiag.stiction.verdict import NO_STICTION_LEVEL, STICTION_LEVEL, VALVE_LEVEL
 
 __all__ = ["md_escape", "render_index_html", "render_markdown", "sort_key"]
 
@@ -95,7 +96,7 @@ def _ranked(rows: Sequence[LoopRow | Mapping]) -> list[LoopRow]:
 def render_index_html(rows: Sequence[LoopRow | Mapping]) -> str:
     """Index page over all loops of a report (stiction first, most confident first)."""
     head = (
-        "<tr><th>loop</th><th>loop type</th><th>verdict</th><th>P(stiction)</th>"
+        "<tr><th>loop</th><th>loop type</th><th>verdict</th><th>P(valve)</th>"
         "<th>S [%] (interval)</th><th>J [%] (interval)</th><th>period</th>"
         "<th>gap effect</th><th>warnings</th></tr>"
     )
@@ -127,9 +128,10 @@ def render_index_html(rows: Sequence[LoopRow | Mapping]) -> str:
         f"<table>{head}{''.join(body)}</table>"
         '<p class="muted">S: deadband + stickband, J: slip jump, both in % of the valve '
         "span (Choudhury, Thornhill &amp; Shah 2005); in parentheses the interval of values "
-        "the data cannot tell apart from the estimate. P(stiction): the calibrated "
-        f"probability of stiction; the verdict is stiction above {STICTION_LEVEL:g}, "
-        f"no stiction below {NO_STICTION_LEVEL:g}, inconclusive between.</p>"
+        f"the data cannot tell apart from the estimate. {escape(P_VALVE_WORDS)}; the "
+        f"verdict is stiction at P(valve) {VALVE_LEVEL:g} or above, no stiction at "
+        f"{1 - VALVE_LEVEL:g} or below (with mv: P(stiction) above {STICTION_LEVEL:g}, "
+        f"below {NO_STICTION_LEVEL:g}), inconclusive between.</p>"
     )
     return html_page("stiction report", body_html)
 
@@ -142,7 +144,7 @@ def render_markdown(rows: Sequence[LoopRow | Mapping]) -> str:
         "",
         _counts(ranked) + ".",
         "",
-        "| loop | verdict | P(stiction) | S [%] | J [%] | gap effect | warnings |",
+        "| loop | verdict | P(valve) | S [%] | J [%] | gap effect | warnings |",
         "|---|---|---|---|---|---|---|",
     ]
     failed = []

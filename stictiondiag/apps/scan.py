@@ -3,7 +3,7 @@
 A plant has hundreds or thousands of loops (Section 1 of Choudhury et al. 2005); the
 question is which valves to send maintenance to first.  :func:`scan` runs
 :func:`stictiondiag.analysis.analyze` on every loop, on a local process pool or a Dask
-cluster (``dask.distributed``), and ranks the loops by verdict, P(stiction) and
+cluster (``dask.distributed``), and ranks the loops by verdict, P(valve) and
 severity.
 
 Design:
@@ -201,7 +201,7 @@ LEADING_COLUMNS = (
 
 def rank(rows: list[dict]) -> pd.DataFrame:
     """Rows in the order of :data:`~stictiondiag.apps.pages.RANKING_RULE` (verdict, then
-    P(stiction) and severity, descending, then loop name), the rule of every page.
+    P(valve) and severity, descending, then loop name), the rule of every page.
 
     Columns: :data:`LEADING_COLUMNS`, then the rest alphabetically.
     """

@@ -2,7 +2,7 @@
 in what order, and why, at a glance.
 
 One row per loop, in the order of :data:`~stictiondiag.apps.pages.RANKING_RULE` (stated
-on the page): the verdict with P(stiction), the cause, S and J with their intervals
+on the page): the verdict with P(valve), the cause, S and J with their intervals
 (in % of span, or marked when op's scale is unknown), sparklines of pv and op over
 the record, the loop KPIs (:mod:`stictiondiag.signals.kpis`), the oscillation period,
 the unit and loop type, and the trend of S over earlier scans
@@ -180,7 +180,7 @@ def scan_html(table: pd.DataFrame, file_names: dict | None = None) -> str:
     )
     u_options = "".join(f'<option value="{escape(u)}">{escape(u)}</option>' for u in units)
     head = (
-        "<tr><th>rank</th><th>loop</th><th>verdict</th><th>P(stiction)</th><th>cause</th>"
+        "<tr><th>rank</th><th>loop</th><th>verdict</th><th>P(valve)</th><th>cause</th>"
         "<th>S [% of span] (interval)</th><th>J [% of span] (interval)</th>"
         "<th>pv / op (whole record)</th><th>KPIs</th><th>period</th><th>loop type</th>"
         "<th>trend over scans</th><th>unit</th></tr>"

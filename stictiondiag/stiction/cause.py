@@ -234,20 +234,11 @@ def cycle_text(cycle: Cycle) -> str:
     return f"limit cycle in {cycle.signal} ({per}{reg}{n})"
 
 
-def cause_reading_text(probs: CauseReading) -> str:
-    """Stage 2's reading in words: the most likely cause of the cycle and the
-    runner-up, by the cause model (:mod:`stictiondiag.stiction.cause_model`).
-
-    The reading is shown, not decided on: on the ISDB the cause model's call
-    (stiction at P(valve) >= ``stictiondiag.stiction.verdict.VALVE_LEVEL``) was less
-    accurate than the friction model's P (docs/isdb_validation.md, "What the data
-    show"), so the verdict of a loop with a cycle follows P(stiction) and the cause
-    model's probabilities stand beside it as evidence.
-    """
-    top = probs.ranked()[0]
-    second, p2 = probs.runner_up(top)
+def friction_text(p_friction: float) -> str:
+    """The friction model's P beside stage 2's decision: whether the valve has any
+    friction (:mod:`stictiondiag.stiction.probability`), a different question from
+    whether it causes the cycle."""
     return (
-        f"cause model (simulated loops only, not yet borne out on plant data): most likely "
-        f"{CAUSE_WORDS[top]} ({probs.p(top):.2f}), runner-up {CAUSE_WORDS[second]} ({p2:.2f}); "
-        f"P(the valve causes the cycle) = {probs.valve:.2f}"
+        f"P that the valve has friction (friction model) = {p_friction:.2f}: whether it "
+        "has any, not whether it causes the cycle"
     )

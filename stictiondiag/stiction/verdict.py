@@ -12,14 +12,19 @@ The verdict is asked in two stages (:mod:`stictiondiag.stiction.cause`):
    (cause ``none``: the valve is not driving an oscillation), unless its valve
    shows stick-slip directly (recorded mv, Kano's stuck sections, a Hammerstein
    improvement that holds over the record).
-2. A loop with a cycle follows P: ``stiction`` above :data:`STICTION_LEVEL`,
-   ``no_stiction`` below :data:`NO_STICTION_LEVEL`, ``inconclusive`` between, each
-   with the evidence that weighed most for and against.  The cause model
-   (:mod:`stictiondiag.stiction.cause_model`: P of the valve, the tuning, an
+2. What causes the cycle?  A loop with a cycle and without mv follows the cause
+   model (:mod:`stictiondiag.stiction.cause_model`: P of the valve, the tuning, an
    external oscillation or another nonlinearity causing the cycle, trained on
-   counterfactual twins of simulated loops) is read beside it and reported, not
-   decided on: scored on the ISDB, its call was less accurate than P's
-   (docs/isdb_validation.md).
+   counterfactual twins of simulated loops): ``stiction`` when P(the valve causes
+   the cycle) is at least :data:`VALVE_LEVEL`, ``no_stiction`` with the most likely
+   other cause when it is at most ``1 - VALVE_LEVEL``, ``inconclusive`` between.
+   On held-out simulated loops with a cycle it answers that question better than
+   P(stiction), which asks whether the valve has any friction
+   (``scripts/verdict_rule.py``, docs/calibration.md, "Which probability decides a
+   loop with a cycle").  A loop with mv, or without the cause model installed,
+   follows P(stiction): ``stiction`` above :data:`STICTION_LEVEL`, ``no_stiction``
+   below :data:`NO_STICTION_LEVEL`, ``inconclusive`` between, each with the
+   evidence that weighed most for and against.
 
 The two estimators (:func:`stictiondiag.stiction.segments.estimate_from_mv` and
 :func:`stictiondiag.stiction.hammerstein.fit_hammerstein`) each return a
@@ -33,13 +38,15 @@ import numpy as np
 
 from stictiondiag.core.errors import StictionError
 from stictiondiag.stiction.cause import (
+    ACTIONS,
+    CAUSE_WORDS,
     NO_CYCLE_REASON,
     Cause,
     CauseReading,
     Cycle,
-    cause_reading_text,
     cycle_text,
     direct_stick_slip,
+    friction_text,
 )
 from stictiondiag.stiction.cause_model import read_causes
 from stictiondiag.stiction.consistency import FILL as DF_FILL
@@ -302,33 +309,64 @@ def verdict_features(
     return features, (support, f, f_iv), classic
 
 
-#: P(the valve causes the cycle) at or above which the cause model would call
-#: ``stiction``, and at or below ``1 - VALVE_LEVEL`` of which ``no_stiction`` [-]
-#: (stated before any real record was scored: the valve more likely than all other
-#: causes together by 3 to 2).  Recorded in the evidence; the verdict does not use
-#: it (see the module docstring).
+#: P(the valve causes the cycle) at or above which stage 2 calls ``stiction``, and at
+#: or below ``1 - VALVE_LEVEL`` of which it calls ``no_stiction`` [-].  Stated before
+#: any real record was scored: with four causes, a loop is called when the valve is
+#: more likely than all other causes together by 3 to 2 (or they than it); the band
+#: between is narrow because stage 2 is asked only of loops with a cycle to explain,
+#: where maintenance must act either way (inspect the valve, or act on the cause named).
 VALVE_LEVEL = 0.6
 
 
+def _stage2_call(
+    stage2: CauseReading,
+) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
+    """Stage 2's decision (:data:`VALVE_LEVEL`): status, detected, confidence, the
+    cause named and the headline reason, naming the most likely cause and the
+    runner-up and what to do."""
+    p_valve = stage2.valve
+    if p_valve >= VALVE_LEVEL:
+        status, detected, confidence, cause = VerdictStatus.STICTION, True, p_valve, Cause.VALVE
+    elif p_valve <= 1.0 - VALVE_LEVEL:
+        cause = stage2.runner_up(Cause.VALVE)[0]
+        status, detected, confidence = VerdictStatus.NO_STICTION, False, 1.0 - p_valve
+    else:
+        status, detected, confidence, cause = VerdictStatus.INCONCLUSIVE, None, p_valve, None
+    named = cause or stage2.ranked()[0]
+    second, p2 = stage2.runner_up(named)
+    todo = (
+        ACTIONS[named.value]
+        if cause is not None
+        else "too close to call: the valve is about as likely to cause the cycle as not"
+    )
+    head = (
+        f"P(the valve causes the cycle) = {p_valve:.2f}; most likely cause: "
+        f"{CAUSE_WORDS[named.value]} ({stage2.p(named):.2f}), runner-up: "
+        f"{CAUSE_WORDS[second.value]} ({p2:.2f}); {todo}"
+    )
+    return status, detected, float(confidence), cause, head
+
+
 def _decide(
-    P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib, fit
+    P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib, fit, has_mv: bool
 ) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
     """The decision: status, detected, confidence, cause and the headline reason.
 
     Without a limit cycle, stick-slip seen directly (``direct``) calls stiction and
-    anything else no stiction; with one, P(stiction) against the two levels.  A
-    stiction call whose S and J lie within what the record's resolution can hide
-    (:func:`hidden_text`) becomes inconclusive, saying why (P kept).
+    anything else no stiction; with one and without mv, stage 2 (:func:`_stage2_call`);
+    otherwise P(stiction) against the two levels.  A stiction call whose S and J lie
+    within what the record's resolution can hide (:func:`hidden_text`) becomes
+    inconclusive, saying why (its probability kept).
     """
-    status, detected, confidence, cause, head = _call(P, cycle, direct, stage2, contrib)
+    status, detected, confidence, cause, head = _call(P, cycle, direct, stage2, contrib, has_mv)
     hidden = hidden_text(fit) if status is VerdictStatus.STICTION else None
     if hidden:
-        return VerdictStatus.INCONCLUSIVE, None, P, None, f"{hidden}; {head}"
+        return VerdictStatus.INCONCLUSIVE, None, confidence, None, f"{hidden}; {head}"
     return status, detected, confidence, cause, head
 
 
 def _call(
-    P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib
+    P: float, cycle, direct: str | None, stage2: CauseReading | None, contrib, has_mv: bool
 ) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
     """:func:`_decide` on the evidence alone, before the record's resolution."""
     for_text = evidence_words(contrib, +1)
@@ -339,6 +377,8 @@ def _call(
     if not cycle.present:
         head = f"{NO_CYCLE_REASON} (P that the valve has friction = {P:.2f})"
         return VerdictStatus.NO_STICTION, False, 1.0 - min(P, 0.5), Cause.NONE, head
+    if stage2 is not None and not has_mv:
+        return _stage2_call(stage2)
     if P > STICTION_LEVEL:
         head = f"P(stiction) = {P:.2f} (above {STICTION_LEVEL:g}): {for_text}"
         return VerdictStatus.STICTION, True, P, Cause.VALVE, head
@@ -400,7 +440,7 @@ def _reasons(
     return (
         head,
         *_unbounded_s_notes(status, fit),
-        *((cause_reading_text(stage2),) if stage2 is not None and not ev.has_mv else ()),
+        *((friction_text(ev.p_friction),) if stage2 is not None and not ev.has_mv else ()),
         cycle_text(ev.cycle),
         _improvement_text(
             ev.improvement, ev.improvement_interval, ev.support, ev.min_improvement, ev.n_blocks
@@ -496,7 +536,9 @@ def stiction_verdict(
         if cycle.present
         else direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
     )
-    status, detected, confidence, cause, head = _decide(P, cycle, direct, stage2, contrib, fit)
+    status, detected, confidence, cause, head = _decide(
+        P, cycle, direct, stage2, contrib, fit, has_mv
+    )
     evidence = VerdictEvidence(
         p_friction=P,
         cause_probabilities=stage2,
@@ -524,10 +566,18 @@ def stiction_verdict(
         float(confidence),
         _reasons(head, status, evidence, fit, op_scale, oscillation, oscillation_op),
         evidence,
-        # No cycle and no stick-slip: the valve causes none (P(friction) is in the evidence).
-        probability=P if cycle.present or direct else 0.0,
+        # Stage 2's P(the valve causes the cycle) where it decides; no cycle and no
+        # stick-slip: the valve causes none (P(friction) is in the evidence).
+        probability=(
+            stage2.valve
+            if cycle.present and stage2 is not None and not has_mv
+            else P
+            if cycle.present or direct
+            else 0.0
+        ),
         cause=cause,
         cycle=cycle,
         cause_probabilities=stage2,
-        runner_up=stage2.runner_up(cause)[0] if stage2 is not None else None,
+        # Undecided: the alternative to the valve is the most likely other cause.
+        runner_up=stage2.runner_up(cause or Cause.VALVE)[0] if stage2 is not None else None,
     )

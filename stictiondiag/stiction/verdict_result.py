@@ -152,7 +152,7 @@ class Verdict:
     evidence : VerdictEvidence
         The measured quantities behind the decision.
     probability : float or None
-        Calibrated P(stiction) [-] (:mod:`stictiondiag.stiction.probability`).
+        The probability the verdict decided on [-] (see below and :attr:`levels`).
     cause : Cause or None
         Why the loop oscillates (:mod:`stictiondiag.stiction.cause`): ``none`` (no
         limit cycle), ``valve``, ``tuning``, ``external``, ``other``; None when
@@ -163,7 +163,8 @@ class Verdict:
         Stage 2: P of each cause of the cycle [-] (None without a cycle or without
         the cause model).
     runner_up : Cause or None
-        The second most likely cause.
+        The most likely cause after ``cause``; for an undecided loop the most likely
+        cause other than the valve (the alternative the verdict could not rule out).
 
     ``probability`` is P(the valve causes the cycle) when stage 2 decides (a cycle,
     no mv), 0 for a loop without a cycle and without direct stick-slip, else the
@@ -180,6 +181,27 @@ class Verdict:
     cycle: Cycle | None = None
     cause_probabilities: CauseReading | None = None
     runner_up: Cause | None = None
+
+    @property
+    def by_cause(self) -> bool:
+        """Stage 2 decided: the loop has a cycle, no mv, and the cause model read it
+        (:func:`stictiondiag.stiction.verdict.stiction_verdict`)."""
+        return (
+            self.cycle is not None
+            and self.cycle.present
+            and self.cause_probabilities is not None
+            and not self.evidence.has_mv
+        )
+
+    @property
+    def levels(self) -> tuple[float, float]:
+        """The levels the verdict decided with on :attr:`probability`: at or below the
+        first no stiction, at or above the second stiction [-] (P(the valve causes
+        the cycle) where :attr:`by_cause`, else P(stiction))."""
+        ev = self.evidence
+        if self.by_cause:
+            return 1.0 - ev.valve_level, ev.valve_level
+        return ev.no_stiction_level, ev.stiction_level
 
     def to_dict(self) -> dict:
         probs = self.cause_probabilities
