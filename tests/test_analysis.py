@@ -215,7 +215,10 @@ def _same_result(a: Analysis, b: Analysis, abs_tol: float) -> None:
     assert a.fit.S_scaled == pytest.approx(b.fit.S_scaled, abs=abs_tol)
     assert a.fit.J_scaled == pytest.approx(b.fit.J_scaled, abs=abs_tol)
     assert a.verdict.status == b.verdict.status
-    assert a.verdict.confidence == pytest.approx(b.verdict.confidence, abs=1e-6)
+    # The probability reads features of the fit, which moves by the optimiser's
+    # rounding (S and J within abs_tol): 1e-4, far below the two decimals shown and the
+    # distance to a decision level.
+    assert a.verdict.confidence == pytest.approx(b.verdict.confidence, abs=1e-4)
     assert a.oscillation.period_s == pytest.approx(b.oscillation.period_s, rel=1e-9)
 
 
