@@ -284,9 +284,10 @@ def _cause_sections(t: pd.DataFrame) -> list[str]:
     if "cause_model" in t:
         lines += [
             "",
-            "The cause model's reading (`stictiondiag/stiction/cause_model.py`: its most",
-            "likely cause of the cycle, for loops with a cycle; reported beside the",
-            "verdict, not decided on):",
+            "The cause model's most likely cause of the cycle (`stictiondiag/stiction/",
+            "cause_model.py`), for every loop with a cycle, the undecided ones included (the",
+            "verdict names the valve only at P(valve) 0.6 or above, another cause only at",
+            "0.4 or below):",
             "",
             *cause_table(t, "cause_model"),
         ]

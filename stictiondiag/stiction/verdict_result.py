@@ -15,11 +15,13 @@ from stictiondiag.stiction.cause import Cause, CauseReading, Cycle
 
 #: How the verdict's confidence follows from P, as the evidence states it.
 CONFIDENCE_FORMULA = (
-    "P = calibrated logistic model of the features (stictiondiag.stiction."
-    "probability, fitted on simulated loops); confidence = P (stiction, "
+    "P = the probability the verdict decides on, both fitted on simulated loops: "
+    "P(the valve causes the cycle) of the cause model (stictiondiag.stiction."
+    "cause_model) for a loop with a cycle and without mv, else P(stiction) of the "
+    "friction model (stictiondiag.stiction.probability); confidence = P (stiction, "
     "inconclusive) or 1 - P (no stiction); without a limit cycle, "
-    "max(1 - P, 0.5) for no stiction (stage 1 answers the question of the "
-    "cycle, P only whether the valve has friction)"
+    "max(1 - P(stiction), 0.5) for no stiction (stage 1 answers the question of the "
+    "cycle, P(stiction) only whether the valve has friction)"
 )
 
 
@@ -77,10 +79,11 @@ class VerdictEvidence:
         (:func:`stictiondiag.stiction.probability.classic_votes`).
     stiction_level, no_stiction_level : float
         P(stiction) above which the verdict is ``stiction``, below which
-        ``no_stiction`` [-].
+        ``no_stiction`` [-], where the friction model decides (a loop with mv).
     valve_level : float
-        P(the valve causes the cycle) at which the cause model would call stiction
-        [-] (recorded, not decided on).
+        P(the valve causes the cycle) at or above which stage 2 calls ``stiction``
+        (at or below one minus it ``no_stiction``) [-], for a loop with a cycle and
+        without mv.
     confidence_formula : str
         How the confidence follows from P.
     """
