@@ -95,3 +95,34 @@ def test_findings_of_a_result_read_back_are_the_same():
 
     a = make_analysis(compensation=COMPENSATION, gap=make_gap())
     assert findings_of(Analysis.from_json(a.to_json())) == findings_of(a)
+
+
+@pytest.mark.parametrize(
+    ("status", "p_valve", "cause", "runner", "meaning", "action"),
+    [
+        ("stiction", 0.8, "valve", "tuning", "valve sticky", "inspect the valve"),
+        ("no_stiction", 0.1, "external", "valve", "most likely an external oscillating",
+         "look upstream"),
+        ("inconclusive", 0.5, None, "tuning", "the valve (P 0.50) and the controller's tuning "
+         "(P 0.30) are too close", "test the valve directly"),
+    ],
+)  # fmt: skip
+def test_a_cycle_without_mv_is_read_by_its_cause(status, p_valve, cause, runner, meaning, action):
+    # Stage 2 decided (a cycle, no mv): the headline gives P(the valve causes the
+    # cycle) with its levels 0.4 and 0.6 and the two leading causes; the meaning and
+    # the action follow the cause named (an undecided loop names the two candidates).
+    rest = {"valve": p_valve, "tuning": 0.3, "external": 0.0, "other": 0.0}
+    if cause == "external":
+        rest = {"valve": p_valve, "tuning": 0.1, "external": 0.8, "other": 0.0}
+    elif status == "stiction":
+        rest = {"valve": p_valve, "tuning": 0.2, "external": 0.0, "other": 0.0}
+    a = make_analysis(
+        status=status, p=p_valve, has_mv=False, method="hammerstein", causes=rest,
+        cause=cause, runner_up=runner,
+    )  # fmt: skip
+    f = findings_of(a)
+    assert f"P(the valve causes the cycle) = {p_valve:.2f} (decision levels 0.4 and 0.6)" in (
+        f.headline
+    )
+    assert meaning in f.meaning
+    assert action in f.action

@@ -16,7 +16,7 @@ from stictiondiag.gap.result import Candidate, GapDiagnosis
 from stictiondiag.io.tags import Tags
 from stictiondiag.result import Analysis
 from stictiondiag.signals.oscillation import Oscillation
-from stictiondiag.stiction.cause import Cycle
+from stictiondiag.stiction.cause import Cause, CauseReading, Cycle
 from stictiondiag.stiction.fit_result import Determinacy, StictionFit
 from stictiondiag.stiction.verdict_result import Verdict, VerdictEvidence, VerdictStatus
 
@@ -103,9 +103,14 @@ def make_analysis(
     gap=None,
     warnings=(),
     op_scale="percent",
+    causes: dict | None = None,
+    cause=None,
+    runner_up=None,
 ) -> Analysis:
     """An :class:`Analysis` whose parts hold the values given (intervals default to
-    +-5 % of the estimate; ``determinacy`` is the words for S and J, None for none)."""
+    +-5 % of the estimate; ``determinacy`` is the words for S and J, None for none).
+    ``causes``: stage 2's ``{cause: P}``, with the verdict's ``cause`` and
+    ``runner_up`` (the verdict then has a cycle)."""
     zeros = np.zeros(n)
     tags = Tags(
         time=np.arange(n) * ts,
@@ -142,6 +147,10 @@ def make_analysis(
         reasons=tuple(reasons),
         evidence=make_evidence(p, has_mv=has_mv, oscillating=oscillating, **(evidence or {})),
         probability=p,
+        cause=None if cause is None else Cause(cause),
+        cycle=Cycle(True, "pv", 1000.0, 1.0, 10.0) if causes is not None else None,
+        cause_probabilities=None if causes is None else CauseReading.of(causes),
+        runner_up=None if runner_up is None else Cause(runner_up),
     )
     osc = Oscillation(oscillating, 1000.0 if oscillating else None, 1.0, 5.0, 10.0)
     return Analysis(

@@ -260,6 +260,14 @@ def _meaning(status: str, a: Analysis, oscillating: bool) -> str:
             f"{_fmt(J)} %; {_shape(S, J)}"
         )
     if status == "inconclusive":
+        v = a.verdict
+        probs = v.cause_probabilities
+        if v.by_cause and probs is not None and v.runner_up is not None:
+            return (
+                f"the loop cycles, and the valve (P {probs.valve:.2f}) and "
+                f"{CAUSE_WORDS[v.runner_up]} (P {probs.p(v.runner_up):.2f}) are too close "
+                "to tell which causes it"
+            )
         return (
             "the data neither confirm nor rule out a sticky valve: the evidence falls "
             "between the decision levels"
