@@ -339,8 +339,10 @@ def _stage2_call(
         if cause is not None
         else "too close to call: the valve is about as likely to cause the cycle as not"
     )
+    # Below the level the valve may still lead three others that share the rest.
+    which = "most likely cause" if named is stage2.ranked()[0] else "most likely other cause"
     head = (
-        f"P(the valve causes the cycle) = {p_valve:.2f}; most likely cause: "
+        f"P(the valve causes the cycle) = {p_valve:.2f}; {which}: "
         f"{CAUSE_WORDS[named.value]} ({stage2.p(named):.2f}), runner-up: "
         f"{CAUSE_WORDS[second.value]} ({p2:.2f}); {todo}"
     )
