@@ -1,6 +1,6 @@
 """Fit the cause model of stage 2 on simulated loops labelled by counterfactual twins.
 
-    python scripts/train_cause.py [--n-train 400] [--n-test 200] [--seed 11] \
+    python scripts/train_cause.py [--n-train 400] [--n-test 200] [--seed 11 [16 ...]] \
         [--test-seed 12 [13 ...]] [--cache /tmp/stiction_causes] [--workers 1] \
         [--real ../shared/data/isdb] [--doc docs/calibration.md] [--no-describing] \
         [--no-replay] [--deadzone 0]
@@ -517,7 +517,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-train", type=int, default=400)
     ap.add_argument("--n-test", type=int, default=200)
-    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument(
+        "--seed", type=int, nargs="+", default=[11], help="training seeds, --n-train loops of each"
+    )
     ap.add_argument(
         "--test-seed",
         type=int,
@@ -550,7 +552,7 @@ def main(argv=None) -> int:
     )
     a = ap.parse_args(argv)
     t0 = time.time()
-    train_all = family_rows(a.seed, a.n_train, a.cache, a.workers)
+    train_all = [r for s in a.seed for r in family_rows(s, a.n_train, a.cache, a.workers)]
     test_all = [r for s in a.test_seed for r in family_rows(s, a.n_test, a.cache, a.workers)]
     t_feat = time.time() - t0
 
@@ -592,7 +594,9 @@ def main(argv=None) -> int:
         "C": cv["c"],
         "held_out_generator": list(HELD_OUT),
         "n_train": len(train),
-        "trained_on": f"stictiondiag.apps.family_causes seeds {a.seed}*1e6 + i, i < {a.n_train}",
+        "trained_on": "stictiondiag.apps.family_causes seeds "
+        + ", ".join(f"{s}*1e6 + i" for s in a.seed)
+        + f", i < {a.n_train}",
         **fitted,
     }
     from stictiondiag.stiction.cause_model import apply_model
@@ -641,7 +645,8 @@ def _intro(a, t_feat: float) -> list[str]:
         HEADING,
         "",
         "Written by `scripts/train_cause.py` "
-        f"(`--n-train {a.n_train} --n-test {a.n_test} --seed {a.seed} --test-seed {' '.join(map(str, a.test_seed))}"
+        f"(`--n-train {a.n_train} --n-test {a.n_test} --seed {' '.join(map(str, a.seed))}"
+        f" --test-seed {' '.join(map(str, a.test_seed))}"
         + (" --real $STICTION_ISDB" if a.real else "")
         + (" --no-describing" if a.no_describing else "")
         + (" --no-replay" if a.no_replay else "")

@@ -1,6 +1,6 @@
 """Which rule should decide a loop with a cycle: P(stiction) or the cause model's P(valve)?
 
-    python scripts/verdict_rule.py --cache DIR [--seed 11] [--n-train 1500] \
+    python scripts/verdict_rule.py --cache DIR [--seed 11 [16 ...]] [--n-train 1500] \
         [--test-seed 12 13] [--n-test 250] [--model stictiondiag/stiction/cause_model.json]
 
 Reads the simulated loops that ``scripts/train_cause.py`` analysed and cached under
@@ -113,7 +113,7 @@ def table(rows: list[dict], model: dict) -> list[str]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, required=True)
-    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--seed", type=int, nargs="+", default=[11])
     ap.add_argument("--n-train", type=int, default=1500)
     ap.add_argument("--test-seed", type=int, nargs="+", default=[12, 13])
     ap.add_argument("--n-test", type=int, default=250)
@@ -122,7 +122,7 @@ def main(argv=None) -> int:
     model = load_cause_model(a.model)
     rows = [r for s in a.test_seed for r in _rows(a.cache, s, a.n_test)]
     # The held-out stick models' loops of the training seeds are never trained on.
-    rows += [r for r in _rows(a.cache, a.seed, a.n_train) if r["valve"] in HELD_OUT]
+    rows += [r for s in a.seed for r in _rows(a.cache, s, a.n_train) if r["valve"] in HELD_OUT]
     rows = [r for r in rows if r["cycle"] and r["label"] in CAUSES and r["direct"] is None]
     print("\n".join(table(rows, model)))
     return 0

@@ -103,6 +103,20 @@ def _constant_cause_model(probs: dict[str, float]) -> dict:
     }
 
 
+def _cycling_verdict(p_friction: float, probs: dict[str, float], *, has_mv: bool):
+    # The verdict of a loop with a cycle in pv, under constant friction and cause models.
+    osc, osc_op = _Osc(True, 100.0, 3.0, 12.0), _Osc(False)
+    return stiction_verdict(
+        _fit(),
+        osc,
+        oscillation_op=osc_op,
+        cycle=find_cycle(osc, osc_op, short_record=False),
+        has_mv=has_mv,
+        model=_constant_model(p_friction),
+        cause_model=_constant_cause_model(probs),
+    )
+
+
 @pytest.mark.parametrize(
     ("p_friction", "probs", "status", "cause", "runner"),
     [
@@ -124,15 +138,7 @@ def _constant_cause_model(probs: dict[str, float]) -> dict:
 def test_a_cycle_without_mv_is_decided_by_its_cause(p_friction, probs, status, cause, runner):
     # Stage 2 decides by P(the valve causes the cycle) against VALVE_LEVEL (0.6);
     # P(stiction) of the friction model stays in the evidence and the reasons.
-    osc, osc_op = _Osc(True, 100.0, 3.0, 12.0), _Osc(False)
-    v = stiction_verdict(
-        _fit(),
-        osc,
-        oscillation_op=osc_op,
-        cycle=find_cycle(osc, osc_op, short_record=False),
-        model=_constant_model(p_friction),
-        cause_model=_constant_cause_model(probs),
-    )
+    v = _cycling_verdict(p_friction, probs, has_mv=False)
     assert (v.status, v.cause, v.runner_up) == (status, cause, runner)
     assert v.by_cause and v.levels == pytest.approx((0.4, 0.6), abs=1e-12)
     assert v.probability == pytest.approx(probs["valve"], abs=1e-9)
@@ -151,18 +157,8 @@ def test_a_cycle_without_mv_is_decided_by_its_cause(p_friction, probs, status, c
 def test_a_cycle_with_mv_is_decided_by_P(p_friction, status):
     # With the valve position recorded the friction model's P decides (the cause model
     # is trained on loops without mv), against its own levels 0.3 and 0.7.
-    osc, osc_op = _Osc(True, 100.0, 3.0, 12.0), _Osc(False)
-    v = stiction_verdict(
-        _fit(),
-        osc,
-        oscillation_op=osc_op,
-        cycle=find_cycle(osc, osc_op, short_record=False),
-        has_mv=True,
-        model=_constant_model(p_friction),
-        cause_model=_constant_cause_model(
-            {"valve": 0.1, "tuning": 0.3, "external": 0.5, "other": 0.1}
-        ),
-    )
+    probs = {"valve": 0.1, "tuning": 0.3, "external": 0.5, "other": 0.1}
+    v = _cycling_verdict(p_friction, probs, has_mv=True)
     assert v.status == status and not v.by_cause
     assert v.levels == pytest.approx((0.3, 0.7), abs=1e-12)
     assert v.probability == pytest.approx(p_friction, abs=1e-9)
