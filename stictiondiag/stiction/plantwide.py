@@ -10,7 +10,8 @@ evidence, and gives every loop its role:
   (:func:`~stictiondiag.signals.plantwide.cycle_lag`, relative to one reference
   member, then again relative to the earliest, so a chain longer than half a
   period is timed from its head);
-* **P(stiction)** of each loop's own analysis (second key, between members whose
+* **P(valve)**, the probability of each loop's own verdict (that the valve causes
+  its cycle, or P(stiction) where mv is recorded; second key, between members whose
   leads are within :data:`LEAD_MARGIN` samples of each other), when given;
 * **nonlinearity** (third key): the harmonic content of the cycle
   (:func:`~stictiondiag.signals.plantwide.harmonic_ratio`), largest nearest the
@@ -84,7 +85,8 @@ class SourceEvidence:
     harmonic_ratio : float
         Harmonic over fundamental power of its cycle [-] (NaN when not measured).
     probability : float or None
-        P(stiction) of its own analysis [-], None when not given.
+        The probability its own verdict decided on [-] (P(the valve causes the
+        cycle), or P(stiction) with mv), None when not given.
     share : float
         Its share of the group's power [-].
     """
@@ -222,7 +224,8 @@ def rank_sources(
     dt : float
         Sample time [s].
     probabilities : mapping, optional
-        P(stiction) [-] of each loop's own analysis (None where not known).
+        The probability of each loop's own verdict [-] (P(valve) or, with mv,
+        P(stiction); None where not known).
 
     Cost: two cross-correlations and one periodogram per member, O(members x n log n).
     """
