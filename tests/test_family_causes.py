@@ -114,3 +114,29 @@ def test_he_and_band_stick_models_are_drawn_and_their_twin_is_linear():
     loop = cause_loop(seed, generator="valve")
     twin = cause_loop(seed, generator="valve", change="linear_valve")
     assert loop.sticky and not twin.sticky and not np.allclose(loop.op, twin.op)
+
+
+def test_a_forced_tuning_style_changes_the_controller_only():
+    # cause_loop(tuning=...) forces the style that INTEGRAL_DOMINANT_SHARE otherwise
+    # draws; the seed's other draws stay. Integral-dominant: 0.15-0.6 of the SIMC
+    # integral time against 0.6-1.2 for SIMC, so the forced loop's integral time is
+    # 0.25-1 times the SIMC loop's (the same uniform draw maps into each range).
+    from stictiondiag.apps.family_causes import _process, _tuning
+    from stictiondiag.core.errors import StictionError
+
+    seed = 11000001  # drawn "simc"
+    simc = cause_loop(seed)
+    forced = cause_loop(seed, tuning="integral_dominant")
+    assert simc.truth["tuning"] == "simc" and forced.truth["tuning"] == "integral_dominant"
+    same = {k: v for k, v in simc.truth.items() if k not in ("tuning", "gain_margin")}
+    assert {k: forced.truth[k] for k in same} == same
+    assert not np.array_equal(simc.pv, forced.pv)
+    rng = np.random.default_rng(0)
+    process, Kc, Ti, _, _ = _process(rng, "self")
+    u = np.full(8, 0.5)
+    a = _tuning(process, Kc, Ti, "valve", None, u, "simc")[0]
+    b = _tuning(process, Kc, Ti, "valve", None, u, "integral_dominant")[0]
+    assert b.integral_time / a.integral_time == pytest.approx(0.375 / 0.9, rel=1e-12)
+    assert b.gain < a.gain  # a fifth to a half of SIMC's gain, against 0.7-1.8 times
+    with pytest.raises(StictionError, match="tuning style"):
+        cause_loop(seed, tuning="aggressive")

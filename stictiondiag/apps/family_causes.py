@@ -122,8 +122,12 @@ CHANGES: tuple[tuple[str, str], ...] = (
 #: phase at the cycle, ``atan(1 / (w Ti))``: the simulated valve cycles under SIMC
 #: settings alone gave a median minor/major axis ratio of 0.22 against 0.42 on the
 #: real records with a cycle (labels not read), and an integral-dominant setting moves
-#: a valve's cycle there (docs/calibration.md, "Why the loop oscillates").
+#: a valve's cycle there (``python scripts/tuning_shapes.py``, docs/history.md,
+#: "Plants tune integral-dominant").
 INTEGRAL_DOMINANT_SHARE = 0.4
+
+#: The tuning styles of :func:`_tuning`.
+TUNING_STYLES: tuple[str, ...] = ("simc", "integral_dominant")
 
 #: Record length in units of the loop's time scale [-] and in samples [-].
 DURATION_SCALES = (60.0, 400.0)
@@ -214,18 +218,19 @@ def _measurement_nonlinearity(gen: str, change: str | None, size: float) -> tupl
 
 
 def _tuning(
-    process, Kc: float, Ti: float, gen: str, change: str | None, u_gen: np.ndarray
+    process, Kc: float, Ti: float, gen: str, change: str | None, u_gen: np.ndarray, style: str
 ) -> tuple[PI, PI, float, float]:
     """The loop's PI controller and, for the ``conservative`` twin, its replacement.
 
-    SIMC normal or aggressive, or in :data:`INTEGRAL_DOMINANT_SHARE` of the loops
-    (whatever the generator) the plant's integral-dominant setting: a fifth to a half
-    of SIMC's gain with a sixth to three fifths of its integral time.  Tight (a gain
+    ``style`` (:data:`TUNING_STYLES`) ``simc``: SIMC normal or aggressive; or
+    ``integral_dominant``, the setting plants often run (drawn in
+    :data:`INTEGRAL_DOMINANT_SHARE` of the loops, whatever the generator): a fifth to
+    a half of SIMC's gain with a sixth to three fifths of its integral time.  Tight (a gain
     margin of 1.1-1.8) for the ``tuning`` generator; no other generator closer than
     a gain margin of 2.  Returns the loop's own controller, the one simulated (the
     twin's where ``change`` asks for it), the loop's gain and the ultimate gain.
     """
-    if u_gen[6] < INTEGRAL_DOMINANT_SHARE:
+    if style == "integral_dominant":
         Ti = float(Ti * (0.15 + 0.45 * u_gen[1]))
         Kc = float(Kc * (0.2 + 0.3 * u_gen[0]))
     else:
@@ -275,14 +280,21 @@ def _loads(
     return base, ext, sp
 
 
-def cause_loop(seed: int, *, change: str | None = None, generator: str | None = None) -> FamilyLoop:
+def cause_loop(
+    seed: int,
+    *,
+    change: str | None = None,
+    generator: str | None = None,
+    tuning: str | None = None,
+) -> FamilyLoop:
     """One loop of the cause family, a deterministic function of ``seed``.
 
     ``change`` is one of the counterfactual changes of :data:`CHANGES` (None: the
     loop itself); every draw, the noise sequence included, is the same for the loop
     and its twins.  ``generator`` forces the generator (default drawn by
-    :data:`GENERATORS`).  ``truth`` holds the draws; the label is
-    :func:`cause_label`'s.
+    :data:`GENERATORS`), ``tuning`` the tuning style (:data:`TUNING_STYLES`; default
+    drawn, :func:`_tuning`); every other draw stays the seed's.  ``truth`` holds the
+    draws; the label is :func:`cause_label`'s.
     """
     rng = np.random.default_rng(seed)
     gen = _pick(rng, GENERATORS)
@@ -299,7 +311,10 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
     process, Kc, Ti, t_loop, scale = _process(rng, kind)
     u_gen = rng.random(8)  # uniform draws each generator maps to its own ranges
 
-    base_controller, controller, Kc, ku = _tuning(process, Kc, Ti, gen, change, u_gen)
+    style = tuning or ("integral_dominant" if u_gen[6] < INTEGRAL_DOMINANT_SHARE else "simc")
+    if style not in TUNING_STYLES:
+        raise StictionError(f"tuning style {style!r}: expected one of {', '.join(TUNING_STYLES)}")
+    base_controller, controller, Kc, ku = _tuning(process, Kc, Ti, gen, change, u_gen, style)
     sticky, S, J = _valve_friction(rng, gen, u_gen)
     valve = stick if sticky else "linear"
     n_rec = int(np.clip(span * t_loop / decim, *N_RANGE))
@@ -355,6 +370,7 @@ def cause_loop(seed: int, *, change: str | None = None, generator: str | None = 
         "record": record,
         "deadzone": dz,
         "gain_margin": float(ku / Kc) if math.isfinite(ku) else None,
+        "tuning": style,
         "noise_ratio": noise_ratio,
         "decimation": decim,
         "n": int(pv.size),
@@ -400,11 +416,14 @@ def has_cycle(loop: FamilyLoop) -> bool | None:
     return find_cycle(osc_pv, osc_op, short_record=bool(short)).present
 
 
-def cause_label(seed: int, generator: str | None = None) -> tuple[FamilyLoop, str | None]:
+def cause_label(
+    seed: int, generator: str | None = None, tuning: str | None = None
+) -> tuple[FamilyLoop, str | None]:
     """The loop of ``seed`` and its cause (module doc): ``none`` (no cycle), one of
     ``valve``, ``external``, ``tuning``, ``other``, or ``unexplained``; None when
-    the analysis refuses the record."""
-    loop = cause_loop(seed, generator=generator)
+    the analysis refuses the record.  ``generator`` and ``tuning`` as in
+    :func:`cause_loop`, for the loop and its twins."""
+    loop = cause_loop(seed, generator=generator, tuning=tuning)
     cycle = has_cycle(loop)
     if cycle is None:
         return loop, None
@@ -413,7 +432,7 @@ def cause_label(seed: int, generator: str | None = None) -> tuple[FamilyLoop, st
     for change, cause in CHANGES:
         if not _applies(change, loop):
             continue
-        twin = cause_loop(seed, change=change, generator=generator)
+        twin = cause_loop(seed, change=change, generator=generator, tuning=tuning)
         if has_cycle(twin) is False:
             return loop, cause
     return loop, "unexplained"
