@@ -185,3 +185,6 @@ def test_the_cause_column_says_undecided_not_the_gap_effect_for_an_inconclusive_
     assert "<td>undecided</td>" in cells["osc"] and "<td>none</td>" not in cells["osc"]
     assert "<td>no cycle</td>" in cells["flat"]
     assert "<td>valve</td>" in cells["sticky"]
+    # The probability column is P(valve), and the page says what it is.
+    assert "<th>P(valve)</th>" in page
+    assert "P(valve): the probability that the valve causes the loop&#x27;s cycle" in page

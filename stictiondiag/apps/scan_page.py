@@ -19,6 +19,7 @@ from html import escape
 import pandas as pd
 
 from stictiondiag.apps.pages import (
+    P_VALVE_WORDS,
     RANKING_RULE,
     VERDICT_ORDER,
     duration_text,
@@ -187,7 +188,7 @@ def scan_html(table: pd.DataFrame, file_names: dict | None = None) -> str:
     )
     body = (
         f"<h1>Stiction scan: the fleet</h1><p>{len(rows)} loops: {escape(summary)}.</p>"
-        f'<p id="ranking-rule">Loops are {escape(RANKING_RULE)}.</p>'
+        f'<p id="ranking-rule">Loops are {escape(RANKING_RULE)}. {escape(P_VALVE_WORDS)}.</p>'
         '<p><label>verdict <select id="f-verdict"><option value="">all</option>'
         f"{v_options}</select></label> "
         '<label>unit <select id="f-unit"><option value="">all</option>'
