@@ -396,6 +396,18 @@ def _call(
     return VerdictStatus.INCONCLUSIVE, None, P, None, head
 
 
+def _decided_probability(
+    P: float, stage2: CauseReading | None, cycle: Cycle, direct: str | None, has_mv: bool
+) -> float:
+    """The probability the verdict decided on (:attr:`Verdict.probability`): stage 2's
+    P(the valve causes the cycle) where it decides (a cycle, no mv), P(stiction) for a
+    loop with mv or with stick-slip seen directly, and 0 for a loop without a cycle
+    and without it: the valve causes none (P(friction) stays in the evidence)."""
+    if cycle.present and stage2 is not None and not has_mv:
+        return stage2.valve
+    return P if cycle.present or direct else 0.0
+
+
 def _improvement_text(
     f: float, f_iv: tuple[float, float], support: float, min_improvement: float, n_blocks: int
 ) -> str:
@@ -510,9 +522,8 @@ def stiction_verdict(
     Returns
     -------
     Verdict
-        Without a cycle ``stiction`` on direct stick-slip, else ``no_stiction``; with
-        one, ``stiction`` when ``P > STICTION_LEVEL``, ``no_stiction`` when ``P <
-        NO_STICTION_LEVEL``, else ``inconclusive`` (module docstring).
+        Decided in two stages (module docstring): without a cycle, ``stiction`` on
+        direct stick-slip, else ``no_stiction``; with one, by stage 2 (no mv) or P.
     """
     has_mv = fit.method == "mv_segments" if has_mv is None else bool(has_mv)
     model = model or load_model()
@@ -533,11 +544,9 @@ def stiction_verdict(
     # Stage 2, the cause of the cycle, where stage 1 found one; without a cycle only
     # stick-slip seen directly calls stiction.
     stage2 = read_causes(features, cause_model) if cycle.present else None
-    direct = (
-        None
-        if cycle.present
-        else direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
-    )
+    direct = None
+    if not cycle.present:
+        direct = direct_stick_slip(features, has_mv, P, min_improvement=min_improvement)
     status, detected, confidence, cause, head = _decide(
         P, cycle, direct, stage2, contrib, fit, has_mv
     )
@@ -568,15 +577,7 @@ def stiction_verdict(
         float(confidence),
         _reasons(head, status, evidence, fit, op_scale, oscillation, oscillation_op),
         evidence,
-        # Stage 2's P(the valve causes the cycle) where it decides; no cycle and no
-        # stick-slip: the valve causes none (P(friction) is in the evidence).
-        probability=(
-            stage2.valve
-            if cycle.present and stage2 is not None and not has_mv
-            else P
-            if cycle.present or direct
-            else 0.0
-        ),
+        probability=_decided_probability(P, stage2, cycle, direct, has_mv),
         cause=cause,
         cycle=cycle,
         cause_probabilities=stage2,
