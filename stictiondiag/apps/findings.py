@@ -207,12 +207,6 @@ def param_text(fit: StictionFit, sym: str, *, unit: str = " %") -> str:
     return f"{text} ({note})" if note else text
 
 
-def decision_levels(verdict: Verdict) -> tuple[float, float]:
-    """The levels the verdict decided with (:attr:`Verdict.levels`): below the first
-    no stiction, above the second stiction [-]."""
-    return verdict.levels
-
-
 def probability_text(verdict: Verdict) -> str:
     """``P(the valve causes the cycle) = 0.72 (decision levels 0.4 and 0.6); cause:
     the valve (P 0.72), runner-up: the controller's tuning (P 0.15)`` where stage 2
@@ -224,7 +218,7 @@ def probability_text(verdict: Verdict) -> str:
         return "no limit cycle" + (
             f"; P(the valve has friction) = {pf:.2f}" if pf is not None else ""
         )
-    lo, hi = decision_levels(verdict)
+    lo, hi = verdict.levels
     p = plain_float(verdict.probability)
     p_text = "n/a" if p is None else f"{p:.2f}"
     if probs is None or not verdict.by_cause:
@@ -411,7 +405,7 @@ def findings_of(a: Analysis, *, loop: str | None = None) -> Findings:
         loop=str(a.loop if loop is None else loop),
         verdict=status,
         probability=plain_float(verdict.probability),
-        levels=decision_levels(verdict),
+        levels=verdict.levels,
         S=estimate(fit, "S"),
         J=estimate(fit, "J"),
         S_text=param_text(fit, "S", unit=unit),
