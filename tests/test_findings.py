@@ -7,6 +7,7 @@ from typed_results import make_analysis, make_gap
 
 from stictiondiag.apps.findings import findings_of, param_text
 from stictiondiag.replay.compensation import Compensation
+from stictiondiag.stiction.cause import CAUSE_WORDS
 from stictiondiag.stiction.fit_result import Determinacy
 
 COMPENSATION = Compensation(
@@ -126,3 +127,6 @@ def test_a_cycle_without_mv_is_read_by_its_cause(status, p_valve, cause, runner,
     )
     assert meaning in f.meaning
     assert action in f.action
+    # The headline names the verdict's own cause, never one it did not name.
+    named = "undecided between the valve" if cause is None else f"cause: {CAUSE_WORDS[cause]}"
+    assert named in f.headline and f"{CAUSE_WORDS[runner]} (P {rest[runner]:.2f})" in f.headline

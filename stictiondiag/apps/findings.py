@@ -210,8 +210,9 @@ def param_text(fit: StictionFit, sym: str, *, unit: str = " %") -> str:
 def probability_text(verdict: Verdict) -> str:
     """``P(the valve causes the cycle) = 0.72 (decision levels 0.4 and 0.6); cause:
     the valve (P 0.72), runner-up: the controller's tuning (P 0.15)`` where stage 2
-    decided (a cycle, no mv), ``P(stiction) = 0.55 (decision levels 0.3 and 0.7)``
-    otherwise, or ``no limit cycle`` for a loop without one."""
+    decided (a cycle, no mv; an undecided loop: ``undecided between the valve (P 0.5)
+    and ...``), ``P(stiction) = 0.55 (decision levels 0.3 and 0.7)`` otherwise, or
+    ``no limit cycle`` for a loop without one."""
     probs = verdict.cause_probabilities
     if verdict.cause == Cause.NONE:
         pf = plain_float(verdict.evidence.p_friction)
@@ -223,11 +224,16 @@ def probability_text(verdict: Verdict) -> str:
     p_text = "n/a" if p is None else f"{p:.2f}"
     if probs is None or not verdict.by_cause:
         return f"P(stiction) = {p_text} (decision levels {lo:g} and {hi:g})"
-    top, second = probs.ranked()[:2]
+    # The verdict's own cause and runner-up, so the line cannot name a cause the
+    # verdict did not (an undecided loop names none; its runner-up is the other cause).
+    head = f"P(the valve causes the cycle) = {p_text} (decision levels {lo:g} and {hi:g}); "
+    runner = verdict.runner_up
+    other = f"{CAUSE_WORDS[runner]} (P {probs.p(runner):.2f})" if runner is not None else "-"
+    if verdict.cause is None:
+        return head + f"undecided between the valve (P {probs.valve:.2f}) and {other}"
     return (
-        f"P(the valve causes the cycle) = {p_text} (decision levels {lo:g} and {hi:g}); "
-        f"cause: {CAUSE_WORDS[top]} (P {probs.p(top):.2f}), "
-        f"runner-up: {CAUSE_WORDS[second]} (P {probs.p(second):.2f})"
+        head + f"cause: {CAUSE_WORDS[verdict.cause]} (P {probs.p(verdict.cause):.2f}), "
+        f"runner-up: {other}"
     )
 
 
