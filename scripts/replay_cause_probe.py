@@ -267,9 +267,11 @@ def model_lines(train: list[dict], test: list[dict]) -> list[str]:
     ``df_amplitude_ratio`` (the shipped set) fitted on the training loops without and
     with the features that pass, both measured on the held-out loops: accuracy of the
     most likely cause and area under the ROC curve of P(valve).  The held-out stick
-    models are left out of both, as in ``scripts/train_cause.py``."""
+    models (``HELD_OUT`` of ``scripts/train_cause.py``) are left out of both, as that
+    script did when this probe was run."""
     sys.path.insert(0, str(ROOT / "scripts"))
-    from train_cause import COMPACT, DF_SEPARATION, HELD_OUT, fit_softmax, roc_auc
+    from cause_fit import COMPACT, DF_SEPARATION, fit_softmax, roc_auc
+    from train_cause import HELD_OUT
 
     train = [r for r in train if r["valve"] not in HELD_OUT and "evidence" in r]
     test = [r for r in test if r["valve"] not in HELD_OUT and "evidence" in r]

@@ -14,8 +14,9 @@ counterfactual label of :mod:`stictiondiag.apps.family_causes`):
   above :data:`~stictiondiag.stiction.verdict.VALVE_LEVEL`, ``no_stiction`` at or
   below one minus it.
 
-On the held-out seeds' loops with a cycle and a cause (the stick models the cause
-model never saw, and the rest), it prints for each rule the loops it calls each way,
+On the held-out seeds' loops with a cycle and a cause, and on the loops of each
+stick model of ``HELD_OUT`` as scored by the refit of the cause model that left that
+stick model out of its training (``scripts/cause_fit.py``, ``leave_one_out``), it prints for each rule the loops it calls each way,
 the accuracy of its calls, the share it leaves undecided and the area under the ROC
 curve of its probability.  The rule (``docs/calibration.md``, "Which probability
 decides a loop with a cycle"): the cause model decides when, on both sets, its
@@ -36,6 +37,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from cause_fit import leave_one_out  # noqa: E402
+from train_cause import HELD_OUT  # noqa: E402
 
 from stictiondiag.stiction.cause_model import apply_model, load_cause_model  # noqa: E402
 from stictiondiag.stiction.verdict import (  # noqa: E402
@@ -44,8 +49,6 @@ from stictiondiag.stiction.verdict import (  # noqa: E402
     VALVE_LEVEL,
 )
 
-#: The stick models the cause model is not trained on (``scripts/train_cause.py``).
-HELD_OUT = ("physical", "he", "band")
 #: The causes of a cycle (the classes of the cause model).
 CAUSES = ("valve", "tuning", "external", "other")
 
@@ -80,22 +83,16 @@ def score(p: np.ndarray, valve: np.ndarray, hi: float, lo: float, strict: bool) 
     }
 
 
-def table(rows: list[dict], model: dict) -> list[str]:
-    """Markdown lines: each rule on the held-out loops of the trained stick models and
-    on those of the held-out stick models."""
+def table(sets: list[tuple[str, list[dict], np.ndarray]]) -> list[str]:
+    """Markdown lines: each rule on each set of (name, loops, the cause model's P(valve)
+    of each loop)."""
     out = [
         "| loops | rule | n | called stiction | called no stiction | accuracy of calls"
         " | undecided | wrong stiction calls | area under ROC |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for name, keep in (
-        ("held-out seeds", lambda r: r["valve"] not in HELD_OUT),
-        ("held-out stick models", lambda r: r["valve"] in HELD_OUT),
-    ):
-        sel = [r for r in rows if keep(r)]
+    for name, sel, p_cause in sets:
         valve = np.array([r["label"] == "valve" for r in sel])
-        X = np.array([[float(r["features"][k]) for k in model["features"]] for r in sel])
-        p_cause = apply_model(model, X)[:, 0]
         p_fric = np.array([float(r["p_friction"]) for r in sel])
         for rule, p, hi, lo, strict in (
             ("friction P", p_fric, STICTION_LEVEL, NO_STICTION_LEVEL, True),
@@ -120,11 +117,23 @@ def main(argv=None) -> int:
     ap.add_argument("--model", type=str, default=None)
     a = ap.parse_args(argv)
     model = load_cause_model(a.model)
-    rows = [r for s in a.test_seed for r in _rows(a.cache, s, a.n_test)]
-    # The held-out stick models' loops of the training seeds are never trained on.
-    rows += [r for s in a.seed for r in _rows(a.cache, s, a.n_train) if r["valve"] in HELD_OUT]
-    rows = [r for r in rows if r["cycle"] and r["label"] in CAUSES and r["direct"] is None]
-    print("\n".join(table(rows, model)))
+    names = tuple(model["features"])
+
+    def cycles(rows):
+        return [r for r in rows if r["cycle"] and r["label"] in CAUSES]
+
+    train = cycles(r for s in a.seed for r in _rows(a.cache, s, a.n_train))
+    test = cycles(r for s in a.test_seed for r in _rows(a.cache, s, a.n_test))
+    test = [r for r in test if r["direct"] is None]
+    X = np.array([[float(r["features"][k]) for k in names] for r in test])
+    sets = [("held-out seeds", test, apply_model(model, X)[:, 0])]
+    # Each held-out stick model's loops (training and held-out seeds) by the refit that
+    # left that stick model out.
+    tested = [r for r in train if r["direct"] is None] + test
+    logo = leave_one_out(train, tested, names, float(model["C"]), HELD_OUT)
+    held = [r for _, rows, _ in logo for r in rows]
+    sets.append(("held-out stick models", held, np.concatenate([P[:, 0] for _, _, P in logo])))
+    print("\n".join(table(sets)))
     return 0
 
 

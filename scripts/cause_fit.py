@@ -1,0 +1,253 @@
+"""Fitting and scoring the cause model of stage 2 (used by ``scripts/train_cause.py``).
+
+Softmax regression with an L2 penalty on standardised features (:func:`fit_softmax`);
+the feature set and the penalty by cross-validation on the training loops
+(:func:`describing_gate`, :func:`choose_features`); the scores the training script
+reports on held-out loops: the area under the ROC curve (:func:`roc_auc`), the
+reliability of each cause's probability in bands (:func:`reliability`,
+:func:`expected_outside`), and the shift check's Kolmogorov-Smirnov distance
+(:func:`ks_distance`).  A loop is a row of the training script's cache: a dict with
+``features`` (name -> value), ``label`` (a cause) and ``valve`` (the stick model).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from stictiondiag.stiction.cause import CAUSES  # noqa: E402
+from stictiondiag.stiction.consistency import FEATURES as DF_FEATURES  # noqa: E402
+from stictiondiag.stiction.consistency import REPLAY_FEATURES  # noqa: E402
+
+#: Inverse strength of the L2 penalty on the standardised coefficients [-].
+C = 1.0
+#: Width of the reliability bands [-], allowed gap [-], fewest loops for a band to
+#: count [-].
+BAND = 0.2
+TOLERANCE = 0.1
+MIN_BAND = 10
+
+#: The compact feature set: the oscillation's shape and regularity, which separate a
+#: valve's cycle from others' on the friction family's oscillating loops
+#: (issue 26: op and pv odd harmonics, He's index, Rossi & Scali's score, slope
+#: kurtosis, regularity), the classic tests' continuous statistics of phase and
+#: nonlinearity, and the fit's improvement and its steadiness.
+COMPACT: tuple[str, ...] = (
+    "regularity",
+    "he_si",
+    "rossi_scali_delta_e",
+    "pv_odd_harmonics",
+    "op_odd_harmonics",
+    "pv_slope_kurtosis",
+    "op_slope_kurtosis",
+    "horch_phase",
+    "choudhury_nli",
+    "ellipse_axis_ratio",
+    "kano_rho",
+    "improvement",
+    "support",
+    "s_low_share",
+    "halves_improvement",
+)
+
+
+#: The features of Section 6's check: the describing function's, then the replay's.
+SECTION6: tuple[str, ...] = DF_FEATURES + REPLAY_FEATURES
+
+#: Folds of the cross-validation that chooses the feature set [-], and the margin
+#: in standard errors of the paired per-loop difference by which the larger set
+#: must win [-] (otherwise the compact one ships).
+FOLDS = 5
+GATE_SE = 2.0
+
+
+#: A Section 6 feature (describing function or closed-loop reproduction) joins the
+#: compact set when its area under the ROC curve for "the valve causes the cycle" on
+#: the training loops lies at least this far from 0.5 [-] (a rule on the training
+#: seeds: the held-out seeds only measure).
+DF_SEPARATION = 0.1
+
+
+def ks_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Two-sample Kolmogorov-Smirnov distance (largest gap between the two empirical
+    distribution functions) [-]."""
+    grid = np.union1d(a, b)
+    fa = np.searchsorted(np.sort(a), grid, side="right") / a.size
+    fb = np.searchsorted(np.sort(b), grid, side="right") / b.size
+    return float(np.max(np.abs(fa - fb)))
+
+
+def fit_softmax(X: np.ndarray, y: np.ndarray, c: float = C) -> dict:
+    """L2-regularised softmax regression on standardised X (intercepts not penalised)."""
+    from stictiondiag.stiction.cause_model import softmax
+
+    mean = X.mean(axis=0)
+    scale = X.std(axis=0)
+    scale[scale == 0] = 1.0
+    Z = (X - mean) / scale
+    n, d = Z.shape
+    k = len(CAUSES)
+    Y = np.zeros((n, k))
+    Y[np.arange(n), y] = 1.0
+
+    def nll(w):
+        W = w[: d * k].reshape(d, k)
+        b = w[d * k :]
+        P = softmax(Z @ W + b)
+        loss = -np.sum(Y * np.log(np.clip(P, 1e-300, None))) + np.sum(W * W) / (2 * c)
+        G = P - Y
+        grad = np.concatenate([(Z.T @ G + W / c).ravel(), G.sum(axis=0)])
+        return loss, grad
+
+    res = minimize(nll, np.zeros(d * k + k), jac=True, method="L-BFGS-B")
+    W = res.x[: d * k].reshape(d, k)
+    return {
+        "mean": mean.tolist(),
+        "scale": scale.tolist(),
+        "coef": W.tolist(),
+        "intercept": res.x[d * k :].tolist(),
+    }
+
+
+def xy(rows: list[dict], names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The loops' features ``names`` (one row per loop) and cause indices."""
+    X = np.array([[float(r["features"][k]) for k in names] for r in rows])
+    y = np.array([CAUSES.index(r["label"]) for r in rows], dtype=int)
+    return X, y
+
+
+def reliability(P: np.ndarray, y: np.ndarray) -> list[tuple[str, float, float, float, int, bool]]:
+    """Per cause and band: (cause, band low, mean predicted, observed, n, within)."""
+    out = []
+    for j, cause in enumerate(CAUSES):
+        p = P[:, j]
+        hit = (y == j).astype(float)
+        for lo in np.arange(0.0, 1.0, BAND):
+            m = (p >= lo) & ((p < lo + BAND) if lo + BAND < 1.0 else (p <= 1.0))
+            if not m.any():
+                continue
+            mp, ob = float(p[m].mean()), float(hit[m].mean())
+            out.append((cause, float(lo), mp, ob, int(m.sum()), abs(mp - ob) <= TOLERANCE))
+    return out
+
+
+def expected_outside(bands: list[tuple[str, float, float, float, int, bool]]) -> float:
+    """Bands a perfectly calibrated model would leave outside :data:`TOLERANCE` on
+    average [-]: for each band of ``n`` loops with mean prediction ``p``, the chance
+    that a Binomial(n, p) count strays from ``n p`` by more than ``TOLERANCE n``."""
+    from scipy.stats import binom
+
+    total = 0.0
+    for _, _, p, _, n, _ in bands:
+        k_lo = math.ceil(n * (p - TOLERANCE)) - 1
+        k_hi = math.floor(n * (p + TOLERANCE))
+        total += float(binom.cdf(k_lo, n, p) + binom.sf(k_hi, n, p))
+    return total
+
+
+def roc_auc(y: np.ndarray, s: np.ndarray) -> float:
+    """Area under the ROC curve of score s for the binary labels y (ties half)."""
+    pos, neg = s[y == 1], s[y == 0]
+    if pos.size == 0 or neg.size == 0:
+        return math.nan
+    gt = (pos[:, None] > neg[None, :]).sum() + 0.5 * (pos[:, None] == neg[None, :]).sum()
+    return float(gt / (pos.size * neg.size))
+
+
+def describing_gate(
+    train: list[dict], names: tuple[str, ...], describing: bool
+) -> tuple[tuple[str, ...], dict | None]:
+    """The compact set, with each Section 6 feature of ``names`` (:data:`SECTION6`)
+    whose area under the ROC curve on the training loops is :data:`DF_SEPARATION` or
+    more from 0.5; also the cross-validated log loss with and without them (reported, not a
+    gate).  Returns the set and the numbers (None without ``describing``)."""
+    compact = tuple(k for k in COMPACT if k in names)
+    if not describing:
+        return compact, None
+    y = np.array([r["label"] == "valve" for r in train], dtype=int)
+    auc = {
+        k: roc_auc(y, np.array([float(r["features"][k]) for r in train]))
+        for k in SECTION6
+        if k in names
+    }
+    joined = tuple(k for k, v in auc.items() if abs(v - 0.5) >= DF_SEPARATION)
+    lc, ld = cv_losses(train, compact), cv_losses(train, compact + joined)
+    d = ld - lc
+    se = float(d.std(ddof=1) / math.sqrt(d.size))
+    info = {
+        "auc": auc,
+        "joined": joined,
+        "compact": float(lc.mean()),
+        "with_df": float(ld.mean()),
+        "se": se,
+    }
+    return compact + joined, info
+
+
+#: Penalties tried in the cross-validation; the one with the lowest log loss ships.
+C_GRID = (0.03, 0.1, 0.3, 1.0)
+
+
+def cv_losses(rows: list[dict], names: tuple[str, ...], c: float = C) -> np.ndarray:
+    """Per-loop log loss of the softmax model in :data:`FOLDS`-fold cross-validation
+    (folds by seed order) [-]."""
+    from stictiondiag.stiction.cause_model import apply_model
+
+    X, y = xy(rows, names)
+    fold = np.arange(len(rows)) % FOLDS
+    out = np.zeros(len(rows))
+    for f in range(FOLDS):
+        tr, te = fold != f, fold == f
+        m = fit_softmax(X[tr], y[tr], c)
+        P = apply_model(m, X[te])
+        out[te] = -np.log(np.clip(P[np.arange(te.sum()), y[te]], 1e-12, None))
+    return out
+
+
+def choose_features(
+    train: list[dict], full: tuple[str, ...], compact_set: tuple[str, ...] = COMPACT
+) -> tuple[tuple[str, ...], dict]:
+    """The compact set (``compact_set``, within ``full``) unless the full set has the
+    lower cross-validated log loss by more than :data:`GATE_SE` standard errors."""
+    compact = tuple(k for k in compact_set if k in full)
+    lf, lc = cv_losses(train, full), cv_losses(train, compact)
+    d = lf - lc
+    se = float(d.std(ddof=1) / math.sqrt(d.size))
+    pick_full = float(d.mean()) < -GATE_SE * se
+    names = full if pick_full else compact
+    by_c = {c: float(cv_losses(train, names, c).mean()) for c in C_GRID}
+    best_c = min(by_c, key=lambda c: by_c[c])
+    info = {
+        "full": float(lf.mean()),
+        "compact": float(lc.mean()),
+        "se": se,
+        "by_c": by_c,
+        "c": best_c,
+    }
+    return names, info
+
+
+def leave_one_out(
+    train: list[dict], tested: list[dict], names: tuple[str, ...], c: float, models
+) -> list[tuple[str, list[dict], np.ndarray]]:
+    """The held-out-generator check: for each stick model of ``models``, the model
+    refitted on the training loops of every other valve (same features ``names`` and
+    penalty ``c``) and applied to that stick model's loops among ``tested``.  Returns
+    (stick model, its loops, their probabilities, one column per cause) per model."""
+    from stictiondiag.stiction.cause_model import apply_model
+
+    out = []
+    for m in models:
+        X, y = xy([r for r in train if r["valve"] != m], names)
+        fitted = {"classes": list(CAUSES), "features": list(names), **fit_softmax(X, y, c)}
+        rows = [r for r in tested if r["valve"] == m]
+        P = apply_model(fitted, xy(rows, names)[0]) if rows else np.zeros((0, len(CAUSES)))
+        out.append((m, rows, P))
+    return out
