@@ -319,26 +319,38 @@ VALVE_LEVEL = 0.6
 
 
 def _stage2_call(
-    stage2: CauseReading,
+    stage2: CauseReading, short_record: bool = False
 ) -> tuple[VerdictStatus, bool | None, float, Cause | None, str]:
     """Stage 2's decision (:data:`VALVE_LEVEL`): status, detected, confidence, the
     cause named and the headline reason, naming the most likely cause and the
-    runner-up and what to do."""
+    runner-up and what to do.
+
+    A ``short_record`` (fewer periods than the oscillation test needs) does not clear
+    the valve: the shape statistics that tell the causes apart need three cycles
+    (:data:`~stictiondiag.stiction.probability_evidence.SHAPE_MIN_CYCLES`) and take
+    their neutral values without them, and the cause model's family holds almost no
+    such records, so a low P(valve) there is missing evidence, not evidence against
+    the valve; the loop is ``inconclusive``."""
     p_valve = stage2.valve
+    cleared = p_valve <= 1.0 - VALVE_LEVEL
     if p_valve >= VALVE_LEVEL:
         status, detected, confidence, cause = VerdictStatus.STICTION, True, p_valve, Cause.VALVE
-    elif p_valve <= 1.0 - VALVE_LEVEL:
+    elif cleared and not short_record:
         cause = stage2.runner_up(Cause.VALVE)[0]
         status, detected, confidence = VerdictStatus.NO_STICTION, False, 1.0 - p_valve
     else:
         status, detected, confidence, cause = VerdictStatus.INCONCLUSIVE, None, p_valve, None
     named = cause or stage2.ranked()[0]
     second, p2 = stage2.runner_up(named)
-    todo = (
-        ACTIONS[named.value]
-        if cause is not None
-        else "too close to call: the valve is about as likely to cause the cycle as not"
-    )
+    if cause is not None:
+        todo = ACTIONS[named.value]
+    elif cleared:
+        todo = (
+            "the record holds fewer than three cycles, too few to clear the valve:"
+            " export a longer record"
+        )
+    else:
+        todo = "too close to call: the valve is about as likely to cause the cycle as not"
     # Below the level the valve may still lead three others that share the rest.
     which = "most likely cause" if named is stage2.ranked()[0] else "most likely other cause"
     head = (
@@ -380,7 +392,7 @@ def _call(
         head = f"{NO_CYCLE_REASON} (P that the valve has friction = {P:.2f})"
         return VerdictStatus.NO_STICTION, False, 1.0 - min(P, 0.5), Cause.NONE, head
     if stage2 is not None and not has_mv:
-        return _stage2_call(stage2)
+        return _stage2_call(stage2, bool(cycle.short_record))
     if P > STICTION_LEVEL:
         head = f"P(stiction) = {P:.2f} (above {STICTION_LEVEL:g}): {for_text}"
         return VerdictStatus.STICTION, True, P, Cause.VALVE, head
