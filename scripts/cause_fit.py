@@ -60,6 +60,12 @@ COMPACT: tuple[str, ...] = (
 
 #: The features of Section 6's check: the describing function's, then the replay's.
 SECTION6: tuple[str, ...] = DF_FEATURES + REPLAY_FEATURES
+#: The cycle's amplitude lock on pv and op
+#: (:func:`stictiondiag.stiction.probability_evidence.amplitude_lock`), which joined
+#: the candidates after the compact set was drawn up: it enters by the same gate.
+LOCK_FEATURES: tuple[str, ...] = ("pv_amplitude_lock", "op_amplitude_lock")
+#: The features that join the compact set by the gate of :func:`describing_gate`.
+GATED: tuple[str, ...] = SECTION6 + LOCK_FEATURES
 
 #: Folds of the cross-validation that chooses the feature set [-], and the margin
 #: in standard errors of the paired per-loop difference by which the larger set
@@ -68,8 +74,8 @@ FOLDS = 5
 GATE_SE = 2.0
 
 
-#: A Section 6 feature (describing function or closed-loop reproduction) joins the
-#: compact set when its area under the ROC curve for "the valve causes the cycle" on
+#: A gated feature (:data:`GATED`: describing function, closed-loop reproduction,
+#: amplitude lock) joins the compact set when its area under the ROC curve for "the valve causes the cycle" on
 #: the training loops lies at least this far from 0.5 [-] (a rule on the training
 #: seeds: the held-out seeds only measure).
 DF_SEPARATION = 0.1
@@ -164,8 +170,8 @@ def roc_auc(y: np.ndarray, s: np.ndarray) -> float:
 def describing_gate(
     train: list[dict], names: tuple[str, ...], describing: bool
 ) -> tuple[tuple[str, ...], dict | None]:
-    """The compact set, with each Section 6 feature of ``names`` (:data:`SECTION6`)
-    whose area under the ROC curve on the training loops is :data:`DF_SEPARATION` or
+    """The compact set, with each gated feature of ``names`` (:data:`GATED`: Section
+    6's and the amplitude lock) whose area under the ROC curve on the training loops is :data:`DF_SEPARATION` or
     more from 0.5; also the cross-validated log loss with and without them (reported, not a
     gate).  Returns the set and the numbers (None without ``describing``)."""
     compact = tuple(k for k in COMPACT if k in names)
@@ -174,7 +180,7 @@ def describing_gate(
     y = np.array([r["label"] == "valve" for r in train], dtype=int)
     auc = {
         k: roc_auc(y, np.array([float(r["features"][k]) for r in train]))
-        for k in SECTION6
+        for k in GATED
         if k in names
     }
     joined = tuple(k for k, v in auc.items() if abs(v - 0.5) >= DF_SEPARATION)

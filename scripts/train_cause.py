@@ -62,8 +62,8 @@ from cause_fit import (  # noqa: E402
     DF_SEPARATION,
     FOLDS,
     GATE_SE,
+    GATED,
     MIN_BAND,
-    SECTION6,
     TOLERANCE,
     choose_features,
     describing_gate,
@@ -265,7 +265,7 @@ def df_separation(
         f"| feature | {' | '.join(head)} | held-out stick models | shift |",
         "|---" * (len(head) + 3) + "|",
     ]
-    for k in (k for k in SECTION6 if sim and k in sim[0]["features"]):
+    for k in (k for k in GATED if sim and k in sim[0]["features"]):
         cells = [auc(pos, neg, k), *(auc(pos, n, k) for _, n in groups), auc(held_pos, neg, k)]
         shift = ks_distance(col(sim, k), col(real, k)) if real else math.nan
         lines.append(f"| `{k}` | " + " | ".join(f"{c:.2f}" for c in cells) + f" | {shift:.2f} |")
@@ -282,8 +282,10 @@ def df_separation(
 
 #: Heading and words of the Section 6 table.
 DF_INTRO = [
-    "**Describing-function consistency and closed-loop reproduction** (Section 6,"
-    " `stictiondiag/stiction/consistency.py`, `stictiondiag/replay/reproduction.py`):"
+    "**Describing-function consistency, closed-loop reproduction and the amplitude lock**"
+    " (Section 6, `stictiondiag/stiction/consistency.py`,"
+    " `stictiondiag/replay/reproduction.py`; the lock in"
+    " `stictiondiag/stiction/probability_evidence.py`):"
     ' area under the ROC curve of each feature for "the valve causes the cycle" on the'
     " held-out seeds' loops with a cycle and a cause, against all other causes and against"
     " the non-valve loops of each generator (how many in brackets); the held-out stick"
@@ -461,7 +463,8 @@ def _gate_text(g: dict | None) -> str:
     aucs = ", ".join(f"`{k}` {v:.2f}" for k, v in g["auc"].items())
     joined = ", ".join(f"`{k}`" for k in g["joined"]) or "none"
     return (
-        f" Section 6 features (describing function, closed-loop reproduction) join the"
+        f" Section 6 features (describing function, closed-loop reproduction) and the"
+        f" cycle's amplitude lock join the"
         f" compact set when their area under the"
         f" ROC curve for the valve on the training loops is at least {DF_SEPARATION:g}"
         f" from 0.5 ({aucs}): joined {joined}. Cross-validated log loss of the compact set"

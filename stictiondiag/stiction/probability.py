@@ -363,6 +363,14 @@ _FEATURE_WORDS = {
     "op_odd_harmonics": ("op's cycle has strong odd harmonics", "op's cycle is nearly sinusoidal"),
     "pv_slope_kurtosis": ("pv moves in jumps", "pv moves smoothly"),
     "op_slope_kurtosis": ("op moves in jumps", "op moves smoothly"),
+    "pv_amplitude_lock": (
+        "pv's cycle keeps its swing while its period wanders, as a stick band makes it",
+        "pv's cycle keeps its clock while its swing wanders, as a driven or ringing loop does",
+    ),
+    "op_amplitude_lock": (
+        "op's cycle keeps its swing while its period wanders, as a stick band makes it",
+        "op's cycle keeps its clock while its swing wanders, as a driven or ringing loop does",
+    ),
     "horch": "Horch's test",
     "choudhury": "the bicoherence test (with its pv-op ellipse)",
     "he": "He et al.'s shape test",
