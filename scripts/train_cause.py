@@ -95,12 +95,9 @@ MAX_SHIFT = 0.5
 HELD_OUT: tuple[str, ...] = ("physical", "he", "band")
 #: How long computing the features took from an empty cache, as measured.
 MEASURED_RUN = (
-    "measured on 27 Nov 2026, after the integral-dominant tuning joined the family (the"
-    " 1500 training loops, the 500 of seeds 12 and 13 and the 60 dead-zone loops with"
-    " their twins from an empty cache in 8.3 min of wall time with `--workers 2`; the"
-    " loops of seeds 14 and 15 in 2.0 min, of seeds 17 to 20 in 3.9 min; the 77 real"
-    " records, which the family does not change, from the cache of the run before), on a"
-    " shared two-core machine"
+    "measured on 27 Nov 2026, after the cycle's amplitude lock joined the evidence (every"
+    " loop, the 77 real records included, from an empty cache in 13.7 min of wall time"
+    " with `--workers 2`), on a shared two-core machine"
 )
 
 #: Heading of the section this script writes in docs/calibration.md.

@@ -130,3 +130,24 @@ def test_a_cycle_without_mv_is_read_by_its_cause(status, p_valve, cause, runner,
     # The headline names the verdict's own cause, never one it did not name.
     named = "undecided between the valve" if cause is None else f"cause: {CAUSE_WORDS[cause]}"
     assert named in f.headline and f"{CAUSE_WORDS[runner]} (P {rest[runner]:.2f})" in f.headline
+
+
+def test_a_short_record_says_it_cannot_clear_the_valve():
+    # Stage 2 left undecided a loop whose P(valve) is below the lower level because
+    # its record holds fewer than three cycles: the findings say so and ask for a
+    # longer record, not "too close to call".
+    causes = {"valve": 0.3, "tuning": 0.7, "external": 0.0, "other": 0.0}
+    a = make_analysis(
+        status="inconclusive", p=0.3, has_mv=False, method="hammerstein", causes=causes,
+        runner_up="tuning", short_record=True,
+    )  # fmt: skip
+    f = findings_of(a)
+    assert "too few cycles to clear the valve (P 0.30)" in f.headline
+    assert "fewer than three cycles" in f.meaning and "too close" not in f.meaning
+    assert f.action.startswith("export a record of at least three cycles")
+    # The same reading from a full record is the ordinary undecided one.
+    a = make_analysis(
+        status="inconclusive", p=0.3, has_mv=False, method="hammerstein", causes=causes,
+        runner_up="tuning",
+    )  # fmt: skip
+    assert "undecided between the valve" in findings_of(a).headline

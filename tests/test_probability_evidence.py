@@ -25,6 +25,7 @@ from stictiondiag.stiction.probability import (
 from stictiondiag.stiction.probability_evidence import (
     CONTINUOUS,
     NEUTRAL,
+    amplitude_lock,
     continuous_features,
     odd_harmonics,
     shape_statistics,
@@ -61,6 +62,33 @@ def test_harmonics_of_pure_waveforms():
     assert slope_kurtosis(sine, 1.0, period) == pytest.approx(math.log(1.5), abs=0.02)
     assert slope_kurtosis(tri, 1.0, period) == pytest.approx(0.0, abs=0.15)
     assert slope_kurtosis(square, 1.0, period) > math.log(4.0)
+
+
+def _cycles(lengths: np.ndarray, amplitudes: np.ndarray, square: bool) -> np.ndarray:
+    # One cycle of each length [samples] and amplitude, joined at upward zero crossings.
+    parts = []
+    for n, a in zip(lengths.astype(int), amplitudes, strict=True):
+        s = np.sin(2 * np.pi * np.arange(n) / n)
+        parts.append(a * (np.sign(s) if square else s))
+    return np.concatenate(parts)
+
+
+def test_amplitude_lock_tells_a_locked_swing_from_a_locked_clock():
+    # A valve's cycle: the same swing each time (a stick band), lengths that wander
+    # (100 +- 20 samples, CV 0.12): the swing varies far less than the length, lock > 1
+    # (a ratio of CVs above e).  A driven cycle: the same length each time, swings that
+    # wander (CV 0.17): lock < -1.  The margin of 1 leaves room for the band-limiting,
+    # which rounds the square wave's swing a little differently in cycles of different
+    # length: noise-free, the valve's comes out at 1.9 and the driven one at the bound
+    # -3.
+    rng = np.random.default_rng(3)
+    n = 60
+    valve = _cycles(rng.uniform(80, 120, n), np.ones(n), square=True)
+    driven = _cycles(np.full(n, 100.0), rng.uniform(0.7, 1.3, n), square=False)
+    assert amplitude_lock(valve, 1.0, 100.0) > 1.0
+    assert amplitude_lock(driven, 1.0, 100.0) < -1.0
+    # Fewer than five periods: no lock (two CVs need four whole cycles at least).
+    assert amplitude_lock(valve[:450], 1.0, 100.0) is None
 
 
 def test_shape_needs_a_period_and_cycles():

@@ -207,6 +207,21 @@ def param_text(fit: StictionFit, sym: str, *, unit: str = " %") -> str:
     return f"{text} ({note})" if note else text
 
 
+def short_of_cycles(verdict: Verdict) -> bool:
+    """An undecided stage-2 loop whose record is too short to clear the valve: P(valve)
+    at or below the lower level, left undecided for want of three cycles
+    (:func:`stictiondiag.stiction.verdict.stiction_verdict`)."""
+    probs, cycle = verdict.cause_probabilities, verdict.cycle
+    return bool(
+        verdict.by_cause
+        and verdict.cause is None
+        and probs is not None
+        and cycle is not None
+        and cycle.short_record
+        and probs.valve <= verdict.levels[0]
+    )
+
+
 def probability_text(verdict: Verdict) -> str:
     """``P(the valve causes the cycle) = 0.72 (decision levels 0.4 and 0.6); cause:
     the valve (P 0.72), runner-up: the controller's tuning (P 0.15)`` where stage 2
@@ -229,6 +244,10 @@ def probability_text(verdict: Verdict) -> str:
     head = f"P(the valve causes the cycle) = {p_text} (decision levels {lo:g} and {hi:g}); "
     runner = verdict.runner_up
     other = f"{CAUSE_WORDS[runner]} (P {probs.p(runner):.2f})" if runner is not None else "-"
+    if short_of_cycles(verdict):
+        return head + (
+            f"too few cycles to clear the valve (P {probs.valve:.2f}); most likely: {other}"
+        )
     if verdict.cause is None:
         return head + f"undecided between the valve (P {probs.valve:.2f}) and {other}"
     return (
@@ -262,6 +281,11 @@ def _meaning(status: str, a: Analysis, oscillating: bool) -> str:
     if status == "inconclusive":
         v = a.verdict
         probs = v.cause_probabilities
+        if short_of_cycles(v):
+            return (
+                "the record holds fewer than three cycles of the loop's oscillation: too"
+                " few to tell whether the valve causes it"
+            )
         if v.by_cause and probs is not None and v.runner_up is not None:
             return (
                 f"the loop cycles, and the valve (P {probs.valve:.2f}) and "
@@ -293,7 +317,9 @@ def _meaning(status: str, a: Analysis, oscillating: bool) -> str:
 OWN_UNITS = " in op's own units (scale unknown, not % of span)"
 
 
-def _action(status: str, cause: str | None, oscillating: bool, unknown_scale: bool) -> str:
+def _action(
+    status: str, cause: str | None, oscillating: bool, unknown_scale: bool, short: bool = False
+) -> str:
     if status == "stiction" and unknown_scale:
         # A size in unknown units cannot schedule work: S of 0.002 may be 0.2 % of span
         # or nothing at all.
@@ -306,6 +332,11 @@ def _action(status: str, cause: str | None, oscillating: bool, unknown_scale: bo
         return ACTIONS[cause]
     if status == "stiction":
         return "schedule a valve inspection (packing, actuator, positioner)"
+    if status == "inconclusive" and short:
+        return (
+            "export a record of at least three cycles of the oscillation and analyse it"
+            " again, or test the valve directly in manual"
+        )
     if status == "inconclusive":
         return (
             "test the valve directly: in manual, step op by about the S found (or 1 % of "
@@ -419,7 +450,7 @@ def findings_of(a: Analysis, *, loop: str | None = None) -> Findings:
         poorly_determined=tuple(poorly),
         headline=f"{word}, {probability_text(verdict)}",
         meaning=meaning,
-        action=_action(status, verdict.cause, oscillating, unknown),
+        action=_action(status, verdict.cause, oscillating, unknown, short_of_cycles(verdict)),
         compensation=_compensation(status, a.compensation),
         gap=_gap(a),
         limits=tuple(_limits(a, poorly)),
