@@ -81,7 +81,7 @@ from stictiondiag.signals.oscillation import (
     acf_period_samples,
     detect_oscillation,
 )
-from stictiondiag.stiction.cause import Cycle, find_cycle
+from stictiondiag.stiction.cause import Cycle, find_cycle, setpoint_share
 from stictiondiag.stiction.fit_result import StictionFit
 from stictiondiag.stiction.hammerstein import fit_hammerstein
 from stictiondiag.stiction.segments import Segments, estimate_from_mv, segment_valve
@@ -245,8 +245,13 @@ class LoopEstimate:
     def cycle(self) -> Cycle:
         """Stage 1 of the verdict: the limit cycle to explain, if any
         (:func:`~stictiondiag.stiction.cause.find_cycle`)."""
+        osc = self.oscillation if self.oscillation.present else self.oscillation_op
+        tags = self.tags
         return find_cycle(
-            self.oscillation, self.oscillation_op, short_record=bool(self.short_record)
+            self.oscillation,
+            self.oscillation_op,
+            short_record=bool(self.short_record),
+            setpoint_share=setpoint_share(tags.sp, tags.pv, tags.ts, osc.period_s),
         )
 
     @cached_property

@@ -12,8 +12,11 @@ from stictiondiag.stiction.cause import (
     CAUSE_WORDS,
     CAUSES,
     NO_CYCLE_REASON,
+    SETPOINT_CARRIES,
+    cycle_text,
     direct_stick_slip,
     find_cycle,
+    setpoint_share,
 )
 from stictiondiag.stiction.fit_result import BlockCosts, StictionFit
 from stictiondiag.stiction.probability import FEATURES
@@ -203,3 +206,22 @@ def test_a_cycle_with_mv_is_decided_by_P(p_friction, status):
 def test_direct_stick_slip_rules(features, has_mv, p, called):
     got = direct_stick_slip(features, has_mv, p, min_improvement=0.1)
     assert (got is not None) is called
+
+
+def test_setpoint_share_measures_how_much_of_the_cycle_the_set_point_carries():
+    # Band-limited around the cycle, a set point that is pv's own cycle carries all of
+    # it (1), one at half its amplitude half (the band-pass is linear, so the ratio is
+    # exact up to round-off; 1e-6); a set point that holds still carries none (None:
+    # nothing moves), and a step change outside the band little.
+    t = np.arange(3000.0)
+    pv = np.sin(2 * np.pi * t / 100.0)
+    assert setpoint_share(pv, pv, 1.0, 100.0) == pytest.approx(1.0, abs=1e-6)
+    assert setpoint_share(0.5 * pv, pv, 1.0, 100.0) == pytest.approx(0.5, abs=1e-6)
+    assert setpoint_share(np.zeros_like(pv), pv, 1.0, 100.0) is None
+    assert setpoint_share(None, pv, 1.0, 100.0) is None
+    assert setpoint_share(pv, pv, 1.0, None) is None
+    step = np.where(t < 1500, 0.0, 1.0)
+    assert setpoint_share(step, pv, 1.0, 100.0) < SETPOINT_CARRIES
+    cycle = find_cycle(_Osc(True, 100.0, 3.0, 30.0), _Osc(False), short_record=False,
+                       setpoint_share=0.9)  # fmt: skip
+    assert cycle.setpoint_carries and "the set point carries it (0.90" in cycle_text(cycle)

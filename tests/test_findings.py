@@ -151,3 +151,20 @@ def test_a_short_record_says_it_cannot_clear_the_valve():
         runner_up="tuning",
     )  # fmt: skip
     assert "undecided between the valve" in findings_of(a).headline
+
+
+@pytest.mark.parametrize(("share", "upstream"), [(0.9, False), (0.2, True)])
+def test_an_external_cycle_through_the_set_point_points_at_its_writer(share, upstream):
+    # An external cycle that the set point carries (0.9 of pv's spread at the cycle,
+    # at or above SETPOINT_CARRIES 0.5) comes from the loop that writes the set point
+    # (a cascade master): the action says so. A still set point (0.2) keeps the
+    # general "look upstream".
+    causes = {"valve": 0.1, "tuning": 0.1, "external": 0.8, "other": 0.0}
+    a = make_analysis(
+        status="no_stiction", p=0.1, has_mv=False, method="hammerstein", causes=causes,
+        cause="external", runner_up="valve", setpoint_share=share,
+    )  # fmt: skip
+    f = findings_of(a)
+    assert f.action.startswith("look upstream") is upstream
+    assert ("the loop that writes this set point" in f.action) is not upstream
+    assert ("through its set point, which carries 0.90" in f.meaning) is not upstream

@@ -107,12 +107,13 @@ def make_analysis(
     cause=None,
     runner_up=None,
     short_record=False,
+    setpoint_share=None,
 ) -> Analysis:
     """An :class:`Analysis` whose parts hold the values given (intervals default to
     +-5 % of the estimate; ``determinacy`` is the words for S and J, None for none).
     ``causes``: stage 2's ``{cause: P}``, with the verdict's ``cause`` and
     ``runner_up`` (the verdict then has a cycle, from a record of fewer than three
-    cycles with ``short_record``)."""
+    cycles with ``short_record``, its set point carrying ``setpoint_share`` of it)."""
     zeros = np.zeros(n)
     tags = Tags(
         time=np.arange(n) * ts,
@@ -150,7 +151,11 @@ def make_analysis(
         evidence=make_evidence(p, has_mv=has_mv, oscillating=oscillating, **(evidence or {})),
         probability=p,
         cause=None if cause is None else Cause(cause),
-        cycle=(Cycle(True, "pv", 1000.0, 1.0, 10.0, short_record) if causes is not None else None),
+        cycle=(
+            Cycle(True, "pv", 1000.0, 1.0, 10.0, short_record, setpoint_share)
+            if causes is not None
+            else None
+        ),
         cause_probabilities=None if causes is None else CauseReading.of(causes),
         runner_up=None if runner_up is None else Cause(runner_up),
     )

@@ -299,9 +299,16 @@ def _meaning(status: str, a: Analysis, oscillating: bool) -> str:
     if status == "no_stiction":
         cause = a.verdict.cause
         if cause in ("tuning", "external", "other"):
-            return (
+            text = (
                 f"the loop cycles, and the cause is most likely {CAUSE_WORDS[cause]}, not the valve"
             )
+            cycle = a.verdict.cycle
+            if cause == "external" and cycle is not None and cycle.setpoint_carries:
+                text += (
+                    f"; it reaches this loop through its set point, which carries"
+                    f" {cycle.setpoint_share:.2f} of pv's spread at the cycle"
+                )
+            return text
         if cause == "none":
             return "the loop has no limit cycle: the valve is not driving an oscillation"
         if oscillating:
@@ -318,7 +325,12 @@ OWN_UNITS = " in op's own units (scale unknown, not % of span)"
 
 
 def _action(
-    status: str, cause: str | None, oscillating: bool, unknown_scale: bool, short: bool = False
+    status: str,
+    cause: str | None,
+    oscillating: bool,
+    unknown_scale: bool,
+    short: bool = False,
+    setpoint: bool = False,
 ) -> str:
     if status == "stiction" and unknown_scale:
         # A size in unknown units cannot schedule work: S of 0.002 may be 0.2 % of span
@@ -327,6 +339,11 @@ def _action(
             "size the stiction before any valve work: give op's values at 0 and 100 % of "
             "span (--op-range LO HI, or op_range in the loops manifest), or test the "
             "valve directly in manual"
+        )
+    if status != "inconclusive" and cause == "external" and setpoint:
+        return (
+            "look at the loop that writes this set point (a cascade master, or whatever"
+            " moves it): the set point carries the cycle"
         )
     if status != "inconclusive" and cause in ACTIONS:
         return ACTIONS[cause]
@@ -450,7 +467,14 @@ def findings_of(a: Analysis, *, loop: str | None = None) -> Findings:
         poorly_determined=tuple(poorly),
         headline=f"{word}, {probability_text(verdict)}",
         meaning=meaning,
-        action=_action(status, verdict.cause, oscillating, unknown, short_of_cycles(verdict)),
+        action=_action(
+            status,
+            verdict.cause,
+            oscillating,
+            unknown,
+            short_of_cycles(verdict),
+            verdict.cycle is not None and verdict.cycle.setpoint_carries,
+        ),
         compensation=_compensation(status, a.compensation),
         gap=_gap(a),
         limits=tuple(_limits(a, poorly)),

@@ -32,7 +32,10 @@ import math
 from dataclasses import dataclass
 from enum import StrEnum
 
+import numpy as np
+
 from stictiondiag.core.serialize import to_plain
+from stictiondiag.stiction.probability_evidence import band_limited
 
 
 class Cause(StrEnum):
@@ -92,6 +95,12 @@ class Cycle:
         Periods the record holds [-].
     short_record : bool
         The record holds fewer periods than the oscillation test needs.
+    setpoint_share : float or None
+        How much of the cycle the set point carries: the spread of the set point over
+        that of pv, both band-limited around the cycle [-] (:func:`setpoint_share`);
+        near 1 when pv follows a cycling set point (a cascade slave whose master
+        cycles), near 0 when the set point holds still; None without a moving set
+        point or a period.
     """
 
     present: bool
@@ -100,6 +109,13 @@ class Cycle:
     regularity: float | None
     n_cycles: float | None
     short_record: bool = False
+    setpoint_share: float | None = None
+
+    @property
+    def setpoint_carries(self) -> bool:
+        """The set point carries the cycle (:data:`SETPOINT_CARRIES` or more of pv's
+        spread at the cycle)."""
+        return self.setpoint_share is not None and self.setpoint_share >= SETPOINT_CARRIES
 
     def to_dict(self) -> dict:
         """JSON-able dict (period in s)."""
@@ -111,6 +127,7 @@ class Cycle:
                 "regularity": self.regularity,
                 "n_cycles": self.n_cycles,
                 "short_record": self.short_record,
+                "setpoint_share": self.setpoint_share,
             }
         )
 
@@ -157,9 +174,34 @@ class CauseReading:
         return {c: self.p(c) for c in CAUSES}
 
 
-def find_cycle(oscillation, oscillation_op, *, short_record: bool) -> Cycle:
+#: Share of pv's spread at the cycle from which the set point is said to carry the
+#: cycle [-]: half, a set point that moves at least half as much as pv does.
+SETPOINT_CARRIES = 0.5
+
+
+def setpoint_share(sp, pv, dt: float, period_s: float | None) -> float | None:
+    """The spread of ``sp`` over that of ``pv`` [-], both band-limited around the
+    cycle of ``period_s`` [s] (a third of its frequency to six harmonics,
+    :func:`~stictiondiag.stiction.probability_evidence.band_limited`); None without a
+    moving set point, a period or a moving pv."""
+    if sp is None or period_s is None or not math.isfinite(period_s) or period_s <= 0:
+        return None
+    sp, pv = np.asarray(sp, dtype=float), np.asarray(pv, dtype=float)
+    if sp.size < 32 or float(np.ptp(sp)) == 0.0 or not np.all(np.isfinite(sp)):
+        return None
+    s_pv = float(np.std(band_limited(pv, dt, period_s)))
+    if not s_pv > 0:
+        return None
+    return float(np.std(band_limited(sp, dt, period_s)) / s_pv)
+
+
+def find_cycle(
+    oscillation, oscillation_op, *, short_record: bool, setpoint_share: float | None = None
+) -> Cycle:
     """Stage 1 from the oscillation test of pv (or the control error) and of op, and
-    the short-record check of :func:`stictiondiag.analysis.check_record_length`."""
+    the short-record check of :func:`stictiondiag.analysis.check_record_length`;
+    ``setpoint_share`` (:func:`setpoint_share`, at the cycle's period) is kept with a
+    cycle."""
     for name, osc in (("pv", oscillation), ("op", oscillation_op)):
         if osc is not None and getattr(osc, "present", False):
             return Cycle(
@@ -169,6 +211,7 @@ def find_cycle(oscillation, oscillation_op, *, short_record: bool) -> Cycle:
                 getattr(osc, "regularity", None),
                 getattr(osc, "n_cycles", None),
                 short_record,
+                setpoint_share,
             )
     if short_record:
         return Cycle(True, None, None, None, None, True)
@@ -231,7 +274,12 @@ def cycle_text(cycle: Cycle) -> str:
         else ""
     )
     n = f", {cycle.n_cycles:.1f} cycles in the record" if cycle.n_cycles else ""
-    return f"limit cycle in {cycle.signal} ({per}{reg}{n})"
+    sp = (
+        f"; the set point carries it ({cycle.setpoint_share:.2f} of pv's spread at the cycle)"
+        if cycle.setpoint_carries
+        else ""
+    )
+    return f"limit cycle in {cycle.signal} ({per}{reg}{n}){sp}"
 
 
 def friction_text(p_friction: float) -> str:

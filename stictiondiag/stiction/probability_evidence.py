@@ -121,7 +121,7 @@ def _finite(v) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _band_limited(x: np.ndarray, dt: float, period_s: float) -> np.ndarray:
+def band_limited(x: np.ndarray, dt: float, period_s: float) -> np.ndarray:
     """x band-passed to [f0 / 3, SHAPE_HARMONICS f0] (zero-phase Butterworth)."""
     from scipy import signal as sps  # imported here: scipy.signal is slow to import
 
@@ -178,7 +178,7 @@ def slope_kurtosis(x: np.ndarray, dt: float, period_s: float) -> float | None:
     period = period_s / dt
     if not period > 4 or x.size < SHAPE_MIN_CYCLES * period:
         return None
-    d = np.diff(_band_limited(np.asarray(x, dtype=float), dt, period_s))
+    d = np.diff(band_limited(np.asarray(x, dtype=float), dt, period_s))
     d = d - float(np.mean(d))
     v = float(np.mean(d * d))
     if not v > 0:
@@ -194,7 +194,7 @@ def amplitude_lock(x: np.ndarray, dt: float, period_s: float) -> float | None:
     period = period_s / dt
     if not period > 4 or x.size < (LOCK_MIN_CYCLES + 1) * period:
         return None
-    y = _band_limited(np.asarray(x, dtype=float), dt, period_s)
+    y = band_limited(np.asarray(x, dtype=float), dt, period_s)
     neg = np.signbit(y)
     up = np.nonzero(neg[:-1] & ~neg[1:])[0]
     if up.size < LOCK_MIN_CYCLES + 1:
