@@ -39,9 +39,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from cause_fit import leave_one_out  # noqa: E402
+from cause_fit import leave_one_out, roc_auc  # noqa: E402
 from train_cause import HELD_OUT  # noqa: E402
 
+from stictiondiag.stiction.cause import CAUSES  # noqa: E402
 from stictiondiag.stiction.cause_model import apply_model, load_cause_model  # noqa: E402
 from stictiondiag.stiction.verdict import (  # noqa: E402
     NO_STICTION_LEVEL,
@@ -49,21 +50,10 @@ from stictiondiag.stiction.verdict import (  # noqa: E402
     VALVE_LEVEL,
 )
 
-#: The causes of a cycle (the classes of the cause model).
-CAUSES = ("valve", "tuning", "external", "other")
-
 
 def _rows(cache: Path, seed: int, n: int) -> list[dict]:
     path = cache / f"causes_{seed}_{n}.jsonl"
     return [json.loads(line) for line in path.read_text().splitlines() if line]
-
-
-def _auc(y: np.ndarray, s: np.ndarray) -> float:
-    pos, neg = s[y], s[~y]
-    if pos.size == 0 or neg.size == 0:
-        return float("nan")
-    gt = (pos[:, None] > neg[None, :]).sum() + 0.5 * (pos[:, None] == neg[None, :]).sum()
-    return float(gt / (pos.size * neg.size))
 
 
 def score(p: np.ndarray, valve: np.ndarray, hi: float, lo: float, strict: bool) -> dict:
@@ -79,7 +69,7 @@ def score(p: np.ndarray, valve: np.ndarray, hi: float, lo: float, strict: bool) 
         "undecided": float(1.0 - called.mean()),
         "accuracy": float(right.sum() / max(1, called.sum())),
         "wrong stiction": int((yes & ~valve).sum()),
-        "auc": _auc(valve, p),
+        "auc": roc_auc(valve.astype(int), p),
     }
 
 
