@@ -308,7 +308,9 @@ class LoopSetup:
     ``n`` is the record's length [samples of 1 s, warm-up included]; ``valve`` the
     stiction model and ``S``, ``J`` [% of span] (``physical`` the Karnopp valve
     where ``valve`` is ``"physical"``); ``op_bias`` [% of span]; ``seed`` the noise
-    sequence's, the same for a loop and its twins.
+    sequence's, the same for a loop and its twins; ``friction_scale`` and
+    ``friction_asymmetry`` a friction that varies over time and with the direction
+    of travel (:func:`stictiondiag.models.loops.simulate_loop`; None and 0: constant).
     """
 
     process: FOPTD | Integrating
@@ -320,6 +322,8 @@ class LoopSetup:
     op_bias: float
     characteristic: str
     seed: int
+    friction_scale: np.ndarray | None = None
+    friction_asymmetry: float = 0.0
 
     def simulate(self, controller: PI, *, sp, load, noise_std: float, linear: bool = False):
         """The closed loop under ``controller`` (:func:`simulate_loop`); with
@@ -332,6 +336,8 @@ class LoopSetup:
             valve="linear" if linear else self.valve,
             S=0.0 if linear else self.S,
             J=0.0 if linear else self.J,
+            friction_scale=None if linear else self.friction_scale,
+            friction_asymmetry=0.0 if linear else self.friction_asymmetry,
             physical=None if linear else self.physical,
             sp=sp,
             load=load,

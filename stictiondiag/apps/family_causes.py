@@ -15,7 +15,9 @@ from one of several **generators**, each a plausible source of a plant oscillati
     Choudhury's data-driven model, Kano et al.'s, Karnopp's physical valve (Section 4
     of Choudhury, Thornhill & Shah 2005), He et al.'s two-parameter model or a valve
     that holds until its demand moves more than a band
-    (:mod:`stictiondiag.models.stick_models`).
+    (:mod:`stictiondiag.models.stick_models`).  Its friction varies as real
+    friction does (:data:`FRICTION_VARIATION`): over time, and with the direction
+    of travel.
 ``tuning``
     A linear valve and a PI controller tuned tight, at a gain margin of 1.1 to 1.8
     (:func:`ultimate_gain`): a lightly damped loop rung by its noise and loads.
@@ -129,6 +131,22 @@ INTEGRAL_DOMINANT_SHARE = 0.4
 #: The tuning styles of :func:`_tuning`.
 TUNING_STYLES: tuple[str, ...] = ("simc", "integral_dominant")
 
+#: How real friction varies, in every sticky valve of the family but the physical
+#: one (:func:`_friction_variation`): S and J scaled by ``exp(sigma w(t))``, ``w`` a
+#: unit-spread slow random signal with a correlation time of ``time`` loop time
+#: scales and ``sigma`` uniform on [0, ``spread``] (packing wear, temperature and
+#: process pressure move the friction from one stick to the next), and by ``1 +- a``
+#: with the direction of travel, ``a`` uniform on [-``asymmetry``, ``asymmetry``]
+#: (a spring-return actuator pushes harder one way; the process pressure on the
+#: plug helps one direction).  An external triangle, an upstream sticky valve's
+#: cycle, falls over ``0.5 +- triangle`` of its period, as such a valve's would.
+FRICTION_VARIATION: dict[str, float | tuple[float, float]] = {
+    "spread": 0.3,
+    "time": (1.0, 5.0),
+    "asymmetry": 0.35,
+    "triangle": 0.2,
+}
+
 #: Record length in units of the loop's time scale [-] and in samples [-].
 DURATION_SCALES = (60.0, 400.0)
 N_RANGE = (600, 5000)
@@ -149,12 +167,16 @@ def ultimate_gain(process, integral_time: float) -> float:
     return float(1.0 / abs(L[k[0]]))
 
 
-def _wave(rng, shape: str, n: int, period: float) -> np.ndarray:
-    """Unit-amplitude periodic wave of ``shape`` with ``period`` [samples]."""
+def _wave(rng, shape: str, n: int, period: float, fall: float = 0.5) -> np.ndarray:
+    """Unit-amplitude periodic wave of ``shape`` with ``period`` [samples]; a
+    triangle falls over the fraction ``fall`` of each period and rises over the
+    rest."""
     t = np.arange(n) / period + rng.uniform(0.0, 1.0)
     frac = t % 1.0
     if shape == "triangle":
-        return 4.0 * np.abs(frac - 0.5) - 1.0
+        return np.where(
+            frac < fall, 1.0 - 2.0 * frac / fall, 2.0 * (frac - fall) / (1.0 - fall) - 1.0
+        )
     if shape == "square":
         duty = rng.uniform(0.35, 0.65)
         w = np.where(frac < duty, 1.0, -1.0)
@@ -263,17 +285,40 @@ def _valve_friction(rng, gen: str, u_gen: np.ndarray) -> tuple[bool, float, floa
     return sticky, S, J
 
 
+def _friction_variation(seed: int, n: int, t_loop: float) -> tuple[np.ndarray, float, float]:
+    """How a loop's friction varies (:data:`FRICTION_VARIATION`): the factor on S and J
+    per sample [-], the asymmetry between the directions of travel [-] and the fall
+    fraction of an external triangle [-].  Drawn from a generator of its own (seeded
+    by the loop's seed), so every other draw of the loop stays as it was."""
+    rng = np.random.default_rng([seed, 7])
+    sigma = float(rng.uniform(0.0, FRICTION_VARIATION["spread"]))
+    corr = t_loop * float(rng.uniform(*FRICTION_VARIATION["time"]))
+    scale = np.exp(sigma * _filtered_walk(rng, n, corr))
+    a = FRICTION_VARIATION["asymmetry"]
+    asym = float(rng.uniform(-a, a))
+    fall = 0.5 + float(rng.uniform(-1.0, 1.0)) * FRICTION_VARIATION["triangle"]
+    return scale, asym, fall
+
+
 def _loads(
-    rng, kind: str, shape: str, n: int, t_loop: float, scale: float, u_gen: np.ndarray
+    rng,
+    kind: str,
+    shape: str,
+    n: int,
+    t_loop: float,
+    scale: float,
+    u_gen: np.ndarray,
+    fall: float = 0.5,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The non-periodic load every loop gets, the periodic external disturbance (used
-    by the ``external`` generator only) and the set point [pv units]; all drawn for
-    every loop, so that a twin draws the same numbers as its loop."""
+    by the ``external`` generator only; a triangle falls over ``fall`` of its
+    period) and the set point [pv units]; all drawn for every loop, so that a twin
+    draws the same numbers as its loop."""
     base = 0.05 * scale * _filtered_walk(rng, n, max(2.0, t_loop / 4))
     slow = scale * _loguniform(rng, 0.3, 3.0) * _filtered_walk(rng, n, rng.uniform(20, 60) * t_loop)
     base = base + (slow if u_gen[5] < 0.4 else 0.0)
     period = t_loop * _loguniform(rng, 2.0, 25.0)
-    ext = scale * _loguniform(rng, 0.5, 4.0) * _wave(rng, shape, n, period)
+    ext = scale * _loguniform(rng, 0.5, 4.0) * _wave(rng, shape, n, period, fall)
     sp = np.zeros(n)
     if kind == "slave":
         sp += scale * _loguniform(rng, 0.5, 3.0) * _filtered_walk(rng, n, 30.0 * t_loop)
@@ -322,7 +367,8 @@ def cause_loop(
         n_rec = min(n_rec, 2000)
     n = WARMUP + n_rec * decim
 
-    base, ext, sp = _loads(rng, kind, shape, n, t_loop, scale, u_gen)
+    f_scale, f_asym, fall = _friction_variation(seed, n, t_loop)
+    base, ext, sp = _loads(rng, kind, shape, n, t_loop, scale, u_gen, fall)
     external_on = gen == "external" and change != "no_external"
     load = base + (ext if external_on and kind != "slave" else 0.0)
     if external_on and kind == "slave":
@@ -336,7 +382,9 @@ def cause_loop(
     q_ratio = float(rng.uniform(1.0, 4.0))
     linear = change == "linear_valve"
     physical = physical_valve(S, J) if valve == "physical" else None
-    setup = LoopSetup(process, n, valve, S, J, physical, op_bias, characteristic, sim_seed)
+    setup = LoopSetup(
+        process, n, valve, S, J, physical, op_bias, characteristic, sim_seed, f_scale, f_asym
+    )
 
     def run(ctrl, lin: bool, load_, sp_, noise_std: float, q: float = 0.0, dz: float = 0.0):
         if gen in ("quantiser", "deadzone"):
@@ -365,8 +413,11 @@ def cause_loop(
         "valve": valve,
         "S": S,
         "J": J,
+        "friction_spread": float(np.std(np.log(f_scale))) if sticky else 0.0,
+        "friction_asymmetry": f_asym if sticky else 0.0,
         "kind": kind,
         "shape": shape if gen == "external" else None,
+        "triangle_fall": fall if gen == "external" and shape == "triangle" else None,
         "record": record,
         "deadzone": dz,
         "gain_margin": float(ku / Kc) if math.isfinite(ku) else None,

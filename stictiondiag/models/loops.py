@@ -58,6 +58,14 @@ import numpy as np
 
 from stictiondiag.core.errors import UsageError
 from stictiondiag.core.jit import jit
+from stictiondiag.models.loop_inputs import (
+    _band_setting,
+    _friction_setting,
+    _friction_variation,
+    _integral_band,
+    _number,
+    _series,
+)
 from stictiondiag.models.physical import (
     PhysicalValve,
     karnopp_step,
@@ -126,6 +134,8 @@ def _loop_kernel(
     valve_kind,
     S,
     J,
+    s_scale,
+    asym,
     p,
     stem,
     char_kind,
@@ -184,17 +194,24 @@ def _loop_kernel(
                 op = op_bias + Kc * (e + trial * inv_Ti)
             integral = trial
             op = min(max(op, 0.0), 100.0)
+            # Friction that varies over time and with the direction of travel
+            # (``friction_scale``, ``friction_asymmetry``; 1 and 0 by default).
+            m = s_scale[k]
+            if asym != 0.0:
+                m *= (1.0 + asym) if op > st[0] else (1.0 - asym)
+            Sk = S * m
+            Jk = J * m
             if valve_kind == 3:
                 x_stem, v_stem = karnopp_step(op * stem, x_stem, v_stem, p)
                 mv = x_stem / stem
             elif valve_kind == 1:
-                mv = choudhury_step(op, st, S, J)
+                mv = choudhury_step(op, st, Sk, Jk)
             elif valve_kind == 2:
-                mv = kano_step(op, st, S, J)
+                mv = kano_step(op, st, Sk, Jk)
             elif valve_kind == 4:
-                mv = he_step(op, st, S, J)
+                mv = he_step(op, st, Sk, Jk)
             elif valve_kind == 5:
-                mv = band_step(op, st, S)
+                mv = band_step(op, st, Sk)
             else:
                 mv = op
             if j == 0:
@@ -237,71 +254,6 @@ def _process_coefficients(process, h: float) -> tuple[float, float, float, int]:
         late = math.exp(-(1.0 - f) * h / tau)
         return a, K * (1.0 - late), K * (late - a), d
     return 1.0, K * (1.0 - f) * h, K * f * h, d
-
-
-def _number(name: str, value, *, minimum: float | None = None, positive: bool = False) -> float:
-    if isinstance(value, bool):
-        raise UsageError(f"{name} must be a number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise UsageError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise UsageError(f"{name} must be finite, got {v}")
-    if positive and v <= 0:
-        raise UsageError(f"{name} must be > 0, got {v}")
-    if minimum is not None and v < minimum:
-        raise UsageError(f"{name} must be >= {minimum:g}, got {v}")
-    return v
-
-
-def _series(name: str, value, n: int, default: float) -> np.ndarray:
-    if value is None:
-        return np.full(n, default)
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        v = float(arr)
-        if not math.isfinite(v):
-            raise UsageError(f"{name} must be finite, got {v}")
-        return np.full(n, v)
-    if arr.ndim != 1 or arr.size != n:
-        raise UsageError(
-            f"{name} must be a number or an array of one value per sample ({n}), "
-            f"got shape {arr.shape}"
-        )
-    if not np.isfinite(arr).all():
-        raise UsageError(f"{name} contains NaN or infinite values")
-    return np.ascontiguousarray(arr)
-
-
-def _integral_band(value, n: int) -> np.ndarray:
-    """One band per sample [pv units]; -1 where the PI integrates normally."""
-    if value is None:
-        return np.full(n, -1.0)
-    arr = np.asarray(value, dtype=float) if not isinstance(value, str) else None
-    if arr is None or (arr.ndim == 0 and isinstance(value, bool)):
-        raise UsageError(f"integral_band must be a number, got {value!r}")
-    if arr.ndim == 0:
-        return np.full(n, _number("integral_band", float(arr), minimum=0.0))
-    if arr.ndim != 1 or arr.size != n:
-        raise UsageError(
-            f"integral_band must be a number or an array of one value per sample ({n}), "
-            f"got shape {arr.shape}"
-        )
-    if np.any(arr < 0) or np.any(np.isinf(arr)):
-        raise UsageError("integral_band must be >= 0 and finite (NaN = normal PI)")
-    return np.where(np.isnan(arr), -1.0, arr)
-
-
-def _band_setting(band: np.ndarray):
-    """JSON-able description of the band: None, one number, or a summary."""
-    on = band[band >= 0.0]
-    if on.size == 0:
-        return None
-    if on.size == band.size and np.all(on == on[0]):
-        return float(on[0])
-    first = int(np.flatnonzero(band >= 0.0)[0])
-    return {"values": sorted({float(v) for v in np.unique(on)})[:10], "first_sample": first}
 
 
 def _check_loop(process, controller) -> None:
@@ -401,6 +353,8 @@ class _LoopRun:
     n_sub: int  # integration steps per sample
     S: float  # [% of op span]
     J: float  # [% of mv span]
+    friction_scale: np.ndarray  # S and J's factor per sample [-]
+    friction_asymmetry: float  # [-]
     physical: PhysicalValve | None  # the physical valve's parameters; None for the others
     valve_parameters: tuple[float, ...]  # the physical valve's kernel parameters
     stem: float  # stem travel per % of span [m]
@@ -431,6 +385,8 @@ def _set_up(
     valve,
     S,
     J,
+    friction_scale,
+    friction_asymmetry,
     physical,
     sp,
     load,
@@ -476,6 +432,7 @@ def _set_up(
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
         raise UsageError(f"seed must be an integer or None, got {seed!r}")
     band = _integral_band(integral_band, n)
+    f_scale, f_asym = _friction_variation(friction_scale, friction_asymmetry, n)
     physical, n_sub, h, p, stem = _valve_integration(valve, physical, dt, n)
     sp_arr = _series("sp", sp, n, 0.0)
     load_arr = _series("load", load, n, 0.0)
@@ -503,6 +460,8 @@ def _set_up(
         n_sub=n_sub,
         S=S,
         J=J,
+        friction_scale=f_scale,
+        friction_asymmetry=f_asym,
         physical=physical if valve == "physical" else None,
         valve_parameters=p,
         stem=stem,
@@ -552,6 +511,8 @@ def _simulated(process: FOPTD | Integrating, controller: PI, run: _LoopRun) -> S
         _VALVE_CODE[run.valve],
         run.S,
         run.J,
+        run.friction_scale,
+        run.friction_asymmetry,
         run.valve_parameters,
         run.stem,
         _CHARACTERISTIC_CODE[run.characteristic],
@@ -590,6 +551,7 @@ def _settings(process: FOPTD | Integrating, controller: PI, run: _LoopRun) -> di
         "valve": run.valve,
         "S": run.S if sj else None,
         "J": run.J if sj else None,
+        "friction_variation": _friction_setting(run) if sj else None,
         "physical": None if physical is None else physical.to_dict(),
         "data_driven_equivalent": (None if physical is None else physical.data_driven_equivalent()),
         "duration_s": run.n * run.dt,
@@ -618,6 +580,8 @@ def simulate_loop(
     valve: str = "choudhury",
     S: float = 0.0,
     J: float = 0.0,
+    friction_scale: float | np.ndarray | None = None,
+    friction_asymmetry: float = 0.0,
     physical: PhysicalValve | None = None,
     sp: float | np.ndarray = 0.0,
     load: float | np.ndarray | None = None,
@@ -659,6 +623,16 @@ def simulate_loop(
     S, J : float
         Deadband plus stickband [% of op span] and slip jump [% of mv span], >= 0,
         for the data-driven valves.
+    friction_scale : float or ndarray, optional
+        Factor on ``S`` and ``J`` [-], a number or one value per sample, > 0: a
+        friction that varies over time (packing wear, temperature, process
+        pressure).  Default 1.
+    friction_asymmetry : float
+        ``a`` in (-1, 1): ``S`` and ``J`` are scaled by ``1 + a`` while op is above
+        the valve's position (opening) and ``1 - a`` while below (closing), a
+        friction that differs with the direction of travel (a spring-return
+        actuator, the process force on the plug).  Default 0.  Neither applies to
+        the physical valve.
     physical : PhysicalValve, optional
         Parameters of the physical valve; default the nominal valve of Table 1.
     sp : float or ndarray
@@ -712,6 +686,8 @@ def simulate_loop(
         valve=valve,
         S=S,
         J=J,
+        friction_scale=friction_scale,
+        friction_asymmetry=friction_asymmetry,
         physical=physical,
         sp=sp,
         load=load,
