@@ -140,3 +140,25 @@ def test_a_forced_tuning_style_changes_the_controller_only():
     assert b.gain < a.gain  # a fifth to a half of SIMC's gain, against 0.7-1.8 times
     with pytest.raises(StictionError, match="tuning style"):
         cause_loop(seed, tuning="aggressive")
+
+
+def test_varying_friction_changes_the_sticky_valve_only():
+    # varying_friction draws its variation from a generator of its own: a loop without
+    # friction and without a triangle (a tuning loop) is the same to the bit, and a
+    # sticky valve's loop keeps every other draw (process, record, S, J) while its
+    # friction now varies, within FRICTION_VARIATION's bounds (sigma <= 0.3 on a
+    # unit-spread signal, |a| <= 0.35).
+    tight = next(s for s in range(40) if cause_loop(s).truth["generator"] == "tuning")
+    a, b = cause_loop(tight), cause_loop(tight, varying_friction=True)
+    assert np.array_equal(a.pv, b.pv) and np.array_equal(a.op, b.op)
+    seed = next(
+        s for s in range(40) if cause_loop(s, generator="valve").truth["valve"] == "choudhury"
+    )
+    const = cause_loop(seed, generator="valve")
+    vary = cause_loop(seed, generator="valve", varying_friction=True)
+    keep = ("S", "J", "kind", "record", "n", "tuning", "valve")
+    assert {k: const.truth[k] for k in keep} == {k: vary.truth[k] for k in keep}
+    assert const.truth["friction_spread"] == 0.0 and const.truth["friction_asymmetry"] == 0.0
+    assert 0.0 < vary.truth["friction_spread"] <= 0.3 + 1e-9
+    assert 0.0 < abs(vary.truth["friction_asymmetry"]) <= 0.35
+    assert not np.array_equal(const.op, vary.op)

@@ -15,9 +15,12 @@ from one of several **generators**, each a plausible source of a plant oscillati
     Choudhury's data-driven model, Kano et al.'s, Karnopp's physical valve (Section 4
     of Choudhury, Thornhill & Shah 2005), He et al.'s two-parameter model or a valve
     that holds until its demand moves more than a band
-    (:mod:`stictiondiag.models.stick_models`).  Its friction varies as real
-    friction does (:data:`FRICTION_VARIATION`): over time, and with the direction
-    of travel.
+    (:mod:`stictiondiag.models.stick_models`).  With ``varying_friction`` (only on
+    request: the shipped cause model was fitted on constant friction) its friction
+    varies as real friction does (:data:`FRICTION_VARIATION`), over time and with
+    the direction of travel, and an external triangle leans as such a valve's
+    cycle would; ``scripts/train_cause.py --varying-friction`` measures the model
+    on such loops.
 ``tuning``
     A linear valve and a PI controller tuned tight, at a gain margin of 1.1 to 1.8
     (:func:`ultimate_gain`): a lightly damped loop rung by its noise and loads.
@@ -64,6 +67,7 @@ generator: a sticky valve whose loop cycles only with the external load is an
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -131,21 +135,30 @@ INTEGRAL_DOMINANT_SHARE = 0.4
 #: The tuning styles of :func:`_tuning`.
 TUNING_STYLES: tuple[str, ...] = ("simc", "integral_dominant")
 
-#: How real friction varies, in every sticky valve of the family but the physical
-#: one (:func:`_friction_variation`): S and J scaled by ``exp(sigma w(t))``, ``w`` a
-#: unit-spread slow random signal with a correlation time of ``time`` loop time
-#: scales and ``sigma`` uniform on [0, ``spread``] (packing wear, temperature and
-#: process pressure move the friction from one stick to the next), and by ``1 +- a``
-#: with the direction of travel, ``a`` uniform on [-``asymmetry``, ``asymmetry``]
-#: (a spring-return actuator pushes harder one way; the process pressure on the
-#: plug helps one direction).  An external triangle, an upstream sticky valve's
-#: cycle, falls over ``0.5 +- triangle`` of its period, as such a valve's would.
-FRICTION_VARIATION: dict[str, float | tuple[float, float]] = {
-    "spread": 0.3,
-    "time": (1.0, 5.0),
-    "asymmetry": 0.35,
-    "triangle": 0.2,
-}
+
+@dataclass(frozen=True)
+class FrictionVariation:
+    """How real friction varies, for a sticky valve of the family other than the
+    physical one (:func:`_friction_variation`, with ``varying_friction``).
+
+    S and J are scaled by ``exp(sigma w(t))``, ``w`` a unit-spread slow random signal
+    whose correlation time is ``time`` [loop time scales] and ``sigma`` uniform on
+    [0, ``spread``] [-] (packing wear, temperature and process pressure move the
+    friction from one stick to the next), and by ``1 +- a`` with the direction of
+    travel, ``a`` uniform on [-``asymmetry``, ``asymmetry``] [-] (a spring-return
+    actuator pushes harder one way; the process pressure on the plug helps one
+    direction).  An external triangle, an upstream sticky valve's cycle, falls over
+    ``0.5 +- triangle`` [-] of its period, as such a valve's would.
+    """
+
+    spread: float = 0.3
+    time: tuple[float, float] = (1.0, 5.0)
+    asymmetry: float = 0.35
+    triangle: float = 0.2
+
+
+#: The variation of :func:`_friction_variation`.
+FRICTION_VARIATION = FrictionVariation()
 
 #: Record length in units of the loop's time scale [-] and in samples [-].
 DURATION_SCALES = (60.0, 400.0)
@@ -290,13 +303,13 @@ def _friction_variation(seed: int, n: int, t_loop: float) -> tuple[np.ndarray, f
     per sample [-], the asymmetry between the directions of travel [-] and the fall
     fraction of an external triangle [-].  Drawn from a generator of its own (seeded
     by the loop's seed), so every other draw of the loop stays as it was."""
+    v = FRICTION_VARIATION
     rng = np.random.default_rng([seed, 7])
-    sigma = float(rng.uniform(0.0, FRICTION_VARIATION["spread"]))
-    corr = t_loop * float(rng.uniform(*FRICTION_VARIATION["time"]))
+    sigma = float(rng.uniform(0.0, v.spread))
+    corr = t_loop * float(rng.uniform(*v.time))
     scale = np.exp(sigma * _filtered_walk(rng, n, corr))
-    a = FRICTION_VARIATION["asymmetry"]
-    asym = float(rng.uniform(-a, a))
-    fall = 0.5 + float(rng.uniform(-1.0, 1.0)) * FRICTION_VARIATION["triangle"]
+    asym = float(rng.uniform(-v.asymmetry, v.asymmetry))
+    fall = 0.5 + float(rng.uniform(-1.0, 1.0)) * v.triangle
     return scale, asym, fall
 
 
@@ -331,6 +344,7 @@ def cause_loop(
     change: str | None = None,
     generator: str | None = None,
     tuning: str | None = None,
+    varying_friction: bool = False,
 ) -> FamilyLoop:
     """One loop of the cause family, a deterministic function of ``seed``.
 
@@ -338,8 +352,10 @@ def cause_loop(
     loop itself); every draw, the noise sequence included, is the same for the loop
     and its twins.  ``generator`` forces the generator (default drawn by
     :data:`GENERATORS`), ``tuning`` the tuning style (:data:`TUNING_STYLES`; default
-    drawn, :func:`_tuning`); every other draw stays the seed's.  ``truth`` holds the
-    draws; the label is :func:`cause_label`'s.
+    drawn, :func:`_tuning`); every other draw stays the seed's.  ``varying_friction``
+    gives a sticky valve a friction that varies and leans an external triangle
+    (:func:`_friction_variation`; drawn apart, so every other draw stays the
+    seed's).  ``truth`` holds the draws; the label is :func:`cause_label`'s.
     """
     rng = np.random.default_rng(seed)
     gen = _pick(rng, GENERATORS)
@@ -367,7 +383,9 @@ def cause_loop(
         n_rec = min(n_rec, 2000)
     n = WARMUP + n_rec * decim
 
-    f_scale, f_asym, fall = _friction_variation(seed, n, t_loop)
+    f_scale, f_asym, fall = (
+        _friction_variation(seed, n, t_loop) if varying_friction else (None, 0.0, 0.5)
+    )
     base, ext, sp = _loads(rng, kind, shape, n, t_loop, scale, u_gen, fall)
     external_on = gen == "external" and change != "no_external"
     load = base + (ext if external_on and kind != "slave" else 0.0)
@@ -413,7 +431,9 @@ def cause_loop(
         "valve": valve,
         "S": S,
         "J": J,
-        "friction_spread": float(np.std(np.log(f_scale))) if sticky else 0.0,
+        "friction_spread": float(np.std(np.log(f_scale)))
+        if sticky and f_scale is not None
+        else 0.0,
         "friction_asymmetry": f_asym if sticky else 0.0,
         "kind": kind,
         "shape": shape if gen == "external" else None,
@@ -468,13 +488,16 @@ def has_cycle(loop: FamilyLoop) -> bool | None:
 
 
 def cause_label(
-    seed: int, generator: str | None = None, tuning: str | None = None
+    seed: int,
+    generator: str | None = None,
+    tuning: str | None = None,
+    varying_friction: bool = False,
 ) -> tuple[FamilyLoop, str | None]:
     """The loop of ``seed`` and its cause (module doc): ``none`` (no cycle), one of
     ``valve``, ``external``, ``tuning``, ``other``, or ``unexplained``; None when
-    the analysis refuses the record.  ``generator`` and ``tuning`` as in
-    :func:`cause_loop`, for the loop and its twins."""
-    loop = cause_loop(seed, generator=generator, tuning=tuning)
+    the analysis refuses the record.  ``generator``, ``tuning`` and
+    ``varying_friction`` as in :func:`cause_loop`, for the loop and its twins."""
+    loop = cause_loop(seed, generator=generator, tuning=tuning, varying_friction=varying_friction)
     cycle = has_cycle(loop)
     if cycle is None:
         return loop, None
@@ -483,7 +506,13 @@ def cause_label(
     for change, cause in CHANGES:
         if not _applies(change, loop):
             continue
-        twin = cause_loop(seed, change=change, generator=generator, tuning=tuning)
+        twin = cause_loop(
+            seed,
+            change=change,
+            generator=generator,
+            tuning=tuning,
+            varying_friction=varying_friction,
+        )
         if has_cycle(twin) is False:
             return loop, cause
     return loop, "unexplained"
