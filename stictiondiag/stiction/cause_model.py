@@ -1,9 +1,8 @@
 """Stage 2 of the verdict: one probability per cause of a loop's cycle.
 
-A multinomial logistic regression (softmax over :data:`~stictiondiag.stiction.cause.CAUSES`,
-L2-regularised, standardised features) of the evidence the analysis computes for
-every loop (:func:`stictiondiag.stiction.verdict.verdict_features`), fitted by
-``scripts/train_cause.py`` on simulated loops only: the family of
+A classifier over :data:`~stictiondiag.stiction.cause.CAUSES` of the evidence the
+analysis computes for every loop (:func:`stictiondiag.stiction.verdict.verdict_features`),
+fitted by ``scripts/train_cause.py`` on simulated loops only: the family of
 :mod:`stictiondiag.apps.family_causes`, each oscillating loop labelled by the
 counterfactual twin that stops its cycle.  It ships as :data:`MODEL_FILE`; its
 features, their choice (separation on simulation, then the shift check against
@@ -11,9 +10,20 @@ unlabelled real records) and its calibration on held-out simulated loops are in
 ``docs/calibration.md`` ("Why the loop oscillates").  Real-plant labels are never
 used.
 
-A softmax was preferred to boosted trees or a random forest: with a few hundred
-labelled loops and about ten features it is as accurate on held-out simulated loops
-and its probabilities need no separate calibration; it needs numpy and scipy only.
+Two kinds of model are read (the file's ``kind``):
+
+``softmax``
+    A multinomial logistic regression (L2-regularised, standardised features):
+    ``P = softmax(z W + b)``.
+``boosted``
+    Gradient-boosted regression trees (one tree per cause and boosting round, fitted
+    by scikit-learn's histogram gradient boosting on the log loss, exported as flat
+    node arrays): ``P = softmax(baseline + sum of the trees' leaves)``.  Evaluated
+    here by a compiled traversal (:func:`_tree_scores`), so using the model needs
+    neither scikit-learn nor a pickle.
+
+The model that ships is chosen by a rule stated before it was measured
+(``docs/history.md``).
 """
 
 from __future__ import annotations
@@ -26,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from stictiondiag.core.errors import StictionError
+from stictiondiag.core.jit import jit
 from stictiondiag.stiction.cause import CAUSES, CauseReading
 
 #: The fitted model, written by ``scripts/train_cause.py``.
@@ -65,9 +76,48 @@ def design(features: dict, names) -> np.ndarray:
     return row
 
 
+@jit
+def _tree_scores(X, feature, threshold, left, right, value, leaf, missing_left, root, cls, k):
+    """Sum of the leaves each row of ``X`` reaches, per class: one tree per entry of
+    ``root`` (its first node) and ``cls`` (its class); a node sends a row left when
+    its feature is at or below ``threshold`` (a NaN by ``missing_left``)."""
+    n = X.shape[0]
+    out = np.zeros((n, k))
+    for i in range(n):
+        for t in range(root.shape[0]):
+            j = root[t]
+            while not leaf[j]:
+                x = X[i, feature[j]]
+                go_left = missing_left[j] if np.isnan(x) else x <= threshold[j]
+                j = left[j] if go_left else right[j]
+            out[i, cls[t]] += value[j]
+    return out
+
+
+def boosted_scores(model: dict, X: np.ndarray) -> np.ndarray:
+    """The boosted model's scores (before the softmax), one column per cause, for the
+    rows of X."""
+    t = model["trees"]
+    return np.asarray(model["baseline"]) + _tree_scores(
+        np.ascontiguousarray(X, dtype=float),
+        np.asarray(t["feature"], dtype=np.int64),
+        np.asarray(t["threshold"], dtype=float),
+        np.asarray(t["left"], dtype=np.int64),
+        np.asarray(t["right"], dtype=np.int64),
+        np.asarray(t["value"], dtype=float),
+        np.asarray(t["leaf"], dtype=np.bool_),
+        np.asarray(t["missing_left"], dtype=np.bool_),
+        np.asarray(t["root"], dtype=np.int64),
+        np.asarray(t["cls"], dtype=np.int64),
+        len(model["classes"]),
+    )
+
+
 def apply_model(model: dict, X: np.ndarray) -> np.ndarray:
     """P of each cause (columns in :data:`CAUSES` order) for the rows of X."""
     X = np.atleast_2d(np.asarray(X, dtype=float))
+    if model.get("kind") == "boosted":
+        return softmax(boosted_scores(model, X))
     Z = (X - np.asarray(model["mean"])) / np.asarray(model["scale"])
     W = np.asarray(model["coef"])  # (n_features, n_classes)
     return softmax(Z @ W + np.asarray(model["intercept"]))
