@@ -241,22 +241,31 @@ def choose_features(
 
 
 def leave_one_out(
-    train: list[dict], tested: list[dict], names: tuple[str, ...], c: float, models
+    train: list[dict], tested: list[dict], names: tuple[str, ...], fit, models
 ) -> list[tuple[str, list[dict], np.ndarray]]:
     """The held-out-generator check: for each stick model of ``models``, the model
-    refitted on the training loops of every other valve (same features ``names`` and
-    penalty ``c``) and applied to that stick model's loops among ``tested``.  Returns
-    (stick model, its loops, their probabilities, one column per cause) per model."""
+    refitted by ``fit`` (``(X, y) -> model``, :func:`refitter`) on the training loops
+    of every other valve (same features ``names``) and applied to that stick model's
+    loops among ``tested``.  Returns (stick model, its loops, their probabilities, one
+    column per cause) per model."""
     from stictiondiag.stiction.cause_model import apply_model
 
     out = []
     for m in models:
         X, y = xy([r for r in train if r["valve"] != m], names)
-        fitted = {"classes": list(CAUSES), "features": list(names), **fit_softmax(X, y, c)}
+        fitted = {"classes": list(CAUSES), "features": list(names), **fit(X, y)}
         rows = [r for r in tested if r["valve"] == m]
         P = apply_model(fitted, xy(rows, names)[0]) if rows else np.zeros((0, len(CAUSES)))
         out.append((m, rows, P))
     return out
+
+
+def refitter(model: dict):
+    """``(X, y) -> model`` fitting a model of ``model``'s kind and settings again
+    (boosted trees: its rounds and leaves; softmax: its penalty)."""
+    if model.get("kind") == "boosted":
+        return lambda X, y: fit_boosted(X, y, int(model["rounds"]), int(model["leaves"]))
+    return lambda X, y: fit_softmax(X, y, float(model["C"]))
 
 
 #: Boosted trees (:func:`fit_boosted`): the learning rate, L2 penalty on the leaves

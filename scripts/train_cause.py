@@ -60,6 +60,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from cause_fit import (  # noqa: E402
     BAND,
+    BOOST_L2,
+    BOOST_MIN_LEAF,
+    BOOST_RATE,
     C_GRID,
     DF_SEPARATION,
     FOLDS,
@@ -68,11 +71,14 @@ from cause_fit import (  # noqa: E402
     MIN_BAND,
     TOLERANCE,
     choose_features,
+    cv_boosted,
     describing_gate,
     expected_outside,
+    fit_boosted,
     fit_softmax,
     ks_distance,
     leave_one_out,
+    refitter,
     reliability,
     roc_auc,
     xy,
@@ -378,6 +384,12 @@ def main(argv=None) -> int:
         help="also measure the model on this many integrating loops with a controller dead zone",
     )
     ap.add_argument(
+        "--kind",
+        choices=("softmax", "boosted"),
+        default="softmax",
+        help="the model: softmax regression or boosted trees (docs/history.md)",
+    )
+    ap.add_argument(
         "--varying-friction",
         action="store_true",
         help="also measure the model on the held-out seeds with a friction that varies",
@@ -426,12 +438,18 @@ def main(argv=None) -> int:
     kept, cv = choose_features(train, kept, compact)
     cv["df_gate"] = df_gate
     X, y = xy(train, kept)
-    fitted = fit_softmax(X, y, cv["c"])
+    if a.kind == "boosted":
+        cv["boost"] = cv_boosted(train, kept)
+        fitted = fit_boosted(X, y, *cv["boost"]["best"])
+        settings = {k: fitted.pop(k) for k in ("kind", "classes", "rounds", "leaves")}
+    else:
+        fitted = fit_softmax(X, y, cv["c"])
+        settings = {"kind": "softmax regression of the causes of a loop's cycle", "C": cv["c"]}
     model = {
-        "kind": "softmax regression of the causes of a loop's cycle",
+        "kind": settings.pop("kind"),
         "classes": list(CAUSES),
         "features": list(kept),
-        "C": cv["c"],
+        **{k: v for k, v in settings.items() if k != "classes"},
         "trained_on_stick_models": "all; each of these left out of one refit",
         "left_out_in_refits": list(HELD_OUT),
         "n_train": len(train),
@@ -445,7 +463,7 @@ def main(argv=None) -> int:
     a.out.write_text(json.dumps(model, indent=1) + "\n")
     Xt, yt = xy(test, kept)
     Pt = apply_model(model, Xt)
-    logo = leave_one_out(train, train + test, kept, cv["c"], HELD_OUT)
+    logo = leave_one_out(train, train + test, kept, refitter(model), HELD_OUT)
     held = [r for _, rows, _ in logo for r in rows]
     yh = np.array([CAUSES.index(r["label"]) for r in held], dtype=int)
     Ph = np.vstack([P for _, _, P in logo]) if held else np.zeros((0, len(CAUSES)))
@@ -527,6 +545,22 @@ def _gate_text(g: dict | None) -> str:
     )
 
 
+def _kind_text(model: dict, cv: dict) -> str:
+    """How the model that ships was fitted, in words."""
+    if model["kind"] != "boosted":
+        return f" softmax regression, L2 with C = {model['C']:g}."
+    losses = ", ".join(
+        f"{r} rounds of {lv} leaves {v:.3f}" for (r, lv), v in cv["boost"]["losses"].items()
+    )
+    return (
+        " gradient-boosted trees (scikit-learn's histogram gradient boosting on the log"
+        f" loss, learning rate {BOOST_RATE:g}, L2 {BOOST_L2:g} on the leaves, at least"
+        f" {BOOST_MIN_LEAF} loops a leaf; exported as node arrays, `cause_model.py`):"
+        f" {model['rounds']} rounds of trees of {model['leaves']} leaves, the setting"
+        f" with the lowest {FOLDS}-fold cross-validated log loss ({losses})."
+    )
+
+
 def _intro(a, t_feat: float) -> list[str]:
     """The section's heading, how it was written, and what stage 2 decides."""
     return [
@@ -539,6 +573,8 @@ def _intro(a, t_feat: float) -> list[str]:
         + (" --no-describing" if a.no_describing else "")
         + (" --no-replay" if a.no_replay else "")
         + (f" --deadzone {a.deadzone}" if a.deadzone else "")
+        + (f" --kind {a.kind}" if a.kind != "softmax" else "")
+        + (" --varying-friction" if a.varying_friction else "")
         + f"`; features of all loops {MEASURED_RUN}; this run {t_feat / 60:.1f} min).",
         "",
         "Stage 2 of the verdict (`stictiondiag/stiction/cause.py`, `cause_model.py`): for a"
@@ -598,10 +634,10 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
     lines += [
         "",
         f"Trained on {len(train)} loops with a cycle and a cause (every stick model),"
-        " softmax regression, L2 with"
-        f" C = {model['C']:g}, features:"
-        f" {', '.join('`' + k + '`' for k in model['features'])}. Chosen by"
-        f" {FOLDS}-fold cross-validation on the training loops: log loss {cv['full']:.3f}"
+        + _kind_text(model, cv)
+        + f" Features: {', '.join('`' + k + '`' for k in model['features'])}, chosen by"
+        f" {FOLDS}-fold cross-validation of the softmax regression on the training loops:"
+        f" log loss {cv['full']:.3f}"
         f" with every feature that passed the shift check, {cv['compact']:.3f} with the"
         f" compact set (standard error of the paired difference {cv['se']:.3f}); the"
         f" larger set ships only if it wins by more than {GATE_SE:g} standard errors."
@@ -616,7 +652,7 @@ def render(a, model, train, test, held, all_rows, Pt, yt, Ph, yh, shift, t_feat,
         "",
         f"**Held-out generators** (stick models {', '.join(f'`{m}`' for m in HELD_OUT)},"
         f" {len(held)} loops with a cycle and a cause, each by a refit of the same features"
-        " and penalty without that stick model's loops, so never trained on): accuracy"
+        " and settings without that stick model's loops, so never trained on): accuracy"
         f" {acc_h:.2f}, area under the ROC curve of P(valve) {auc_h:.2f}; each stick model"
         " and the dead-zone loops after the reliability table.",
         "",

@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from cause_fit import leave_one_out, roc_auc  # noqa: E402
+from cause_fit import leave_one_out, refitter, roc_auc  # noqa: E402
 from train_cause import HELD_OUT  # noqa: E402
 
 from stictiondiag.stiction.cause import CAUSES  # noqa: E402
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
     # Each held-out stick model's loops (training and held-out seeds) by the refit that
     # left that stick model out.
     tested = [r for r in train if r["direct"] is None] + test
-    logo = leave_one_out(train, tested, names, float(model["C"]), HELD_OUT)
+    logo = leave_one_out(train, tested, names, refitter(model), HELD_OUT)
     held = [r for _, rows, _ in logo for r in rows]
     sets.append(("held-out stick models", held, np.concatenate([P[:, 0] for _, _, P in logo])))
     print("\n".join(table(sets)))
