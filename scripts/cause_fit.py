@@ -260,9 +260,21 @@ def leave_one_out(
     return out
 
 
+def fit_mean(X: np.ndarray, y: np.ndarray, c: float, rounds: int, leaves: int) -> dict:
+    """The mean of a softmax regression (penalty ``c``) and boosted trees (``rounds``
+    of ``leaves``-leaf trees) fitted on the same loops."""
+    softmax = {"kind": "softmax regression", "C": c, **fit_softmax(X, y, c)}
+    return {"kind": "mean", "members": [softmax, fit_boosted(X, y, rounds, leaves)]}
+
+
 def refitter(model: dict):
     """``(X, y) -> model`` fitting a model of ``model``'s kind and settings again
-    (boosted trees: its rounds and leaves; softmax: its penalty)."""
+    (boosted trees: its rounds and leaves; softmax: its penalty; a mean: both)."""
+    if model.get("kind") == "mean":
+        soft, boost = model["members"]
+        return lambda X, y: fit_mean(
+            X, y, float(soft["C"]), int(boost["rounds"]), int(boost["leaves"])
+        )
     if model.get("kind") == "boosted":
         return lambda X, y: fit_boosted(X, y, int(model["rounds"]), int(model["leaves"]))
     return lambda X, y: fit_softmax(X, y, float(model["C"]))

@@ -78,6 +78,7 @@ from cause_fit import (  # noqa: E402
     describing_gate,
     expected_outside,
     fit_boosted,
+    fit_mean,
     fit_softmax,
     ks_distance,
     leave_one_out,
@@ -388,9 +389,9 @@ def main(argv=None) -> int:
     )
     ap.add_argument(
         "--kind",
-        choices=("softmax", "boosted"),
-        default="boosted",
-        help="the model: boosted trees (shipped) or softmax regression (docs/history.md)",
+        choices=("softmax", "boosted", "mean"),
+        default="softmax",
+        help="the model: softmax regression (shipped), boosted trees, or the mean of both (docs/history.md)",
     )
     ap.add_argument(
         "--varying-friction",
@@ -441,7 +442,11 @@ def main(argv=None) -> int:
     kept, cv = choose_features(train, kept, compact)
     cv["df_gate"] = df_gate
     X, y = xy(train, kept)
-    if a.kind == "boosted":
+    if a.kind == "mean":
+        cv["boost"] = cv_boosted(train, kept)
+        fitted = fit_mean(X, y, cv["c"], *cv["boost"]["best"])
+        settings = {"kind": fitted.pop("kind")}
+    elif a.kind == "boosted":
         cv["boost"] = cv_boosted(train, kept)
         fitted = fit_boosted(X, y, *cv["boost"]["best"])
         settings = {k: fitted.pop(k) for k in ("kind", "classes", "rounds", "leaves")}
@@ -463,8 +468,8 @@ def main(argv=None) -> int:
     }
     from stictiondiag.stiction.cause_model import apply_model
 
-    # Boosted trees are thousands of nodes: one line, not one line a number.
-    a.out.write_text(json.dumps(model, indent=None if a.kind == "boosted" else 1) + "\n")
+    # Trees are thousands of nodes: one line, not one line a number.
+    a.out.write_text(json.dumps(model, indent=None if a.kind != "softmax" else 1) + "\n")
     Xt, yt = xy(test, kept)
     Pt = apply_model(model, Xt)
     logo = leave_one_out(train, train + test, kept, refitter(model), HELD_OUT)
@@ -551,6 +556,13 @@ def _gate_text(g: dict | None) -> str:
 
 def _kind_text(model: dict, cv: dict) -> str:
     """How the model that ships was fitted, in words."""
+    if model["kind"] == "mean":
+        soft, boost = model["members"]
+        return (
+            " the mean of two models' probabilities over the same features: a softmax"
+            f" regression, L2 with C = {soft['C']:g}, and"
+            + _kind_text({**boost, "kind": "boosted"}, cv)
+        )
     if model["kind"] != "boosted":
         return f" softmax regression, L2 with C = {model['C']:g}."
     losses = ", ".join(
@@ -577,7 +589,7 @@ def _intro(a, t_feat: float) -> list[str]:
         + (" --no-describing" if a.no_describing else "")
         + (" --no-replay" if a.no_replay else "")
         + (f" --deadzone {a.deadzone}" if a.deadzone else "")
-        + (f" --kind {a.kind}" if a.kind != "boosted" else "")
+        + (f" --kind {a.kind}" if a.kind != "softmax" else "")
         + (" --varying-friction" if a.varying_friction else "")
         + f"`; features of all loops {MEASURED_RUN}; this run {t_feat / 60:.1f} min).",
         "",
