@@ -3,7 +3,7 @@
     python scripts/train_cause.py [--n-train 400] [--n-test 200] [--seed 11 [16 ...]] \
         [--test-seed 12 [13 ...]] [--cache /tmp/stiction_causes] [--workers 1] \
         [--real ../shared/data/isdb] [--doc docs/calibration.md] [--no-describing] \
-        [--no-replay] [--deadzone 0] [--varying-friction] [--kind boosted]
+        [--no-replay] [--deadzone 0] [--varying-friction] [--halves] [--kind softmax]
 
 1. Draws ``--n-train`` and ``--n-test`` loops of :mod:`stictiondiag.apps.family_causes`
    (seeds ``seed * 1_000_000 + i``), labels each by its counterfactual twins
@@ -38,7 +38,9 @@
    observed frequency where it holds at least :data:`MIN_BAND` loops), the held-out
    generator's accuracy; with ``--varying-friction``, accuracy, area and reliability
    on the held-out seeds' loops again with a friction that varies, which the model
-   never saw; and stage 1 (how many loops without a cycle the direct
+   never saw; with ``--halves``, how often the two halves of a long record get the
+   same call (:mod:`cause_halves`, on the held-out seeds and the real records); and
+   stage 1 (how many loops without a cycle the direct
    stick-slip rule calls stiction, sticky and healthy).  Prints the section of
    ``docs/calibration.md`` and, with ``--doc``, replaces it there.
 """
@@ -193,18 +195,15 @@ def _real_one(args: tuple[str, float, str, bool]) -> dict | None:
     return {"features": v.evidence.features, "cycle": bool(v.cycle and v.cycle.present)}
 
 
-def real_rows(folder: Path, cache: Path, workers: int) -> list[dict]:
-    """Features of the real records of ``folder`` (its manifest's sample time, loop type
-    and integrating flag; labels never read), cached."""
+def real_jobs(folder: Path) -> list[tuple[str, float, str, bool]]:
+    """Each real record of ``folder``: path, sample time, loop type and integrating
+    flag from its ``manifest.csv`` (no label column is read)."""
     import pandas as pd
 
     from stictiondiag.apps.validation import LOOP_TYPE_MAP
 
-    path = cache / "real_features.jsonl"
-    if path.is_file():
-        return [json.loads(line) for line in path.read_text().splitlines() if line]
     m = pd.read_csv(folder / "manifest.csv", usecols=["file", "loop_type", "integrating", "ts_s"])
-    jobs = [
+    return [
         (
             str(folder / f),
             float(ts),
@@ -215,6 +214,15 @@ def real_rows(folder: Path, cache: Path, workers: int) -> list[dict]:
             m["file"], m["loop_type"], m["integrating"], m["ts_s"], strict=True
         )
     ]
+
+
+def real_rows(folder: Path, cache: Path, workers: int) -> list[dict]:
+    """Features of the real records of ``folder`` (its manifest's sample time, loop type
+    and integrating flag; labels never read), cached."""
+    path = cache / "real_features.jsonl"
+    if path.is_file():
+        return [json.loads(line) for line in path.read_text().splitlines() if line]
+    jobs = real_jobs(folder)
     if workers > 1:
         with ProcessPoolExecutor(workers) as pool:
             rows = list(pool.map(_real_one, jobs))
@@ -394,6 +402,11 @@ def main(argv=None) -> int:
         help="the model: softmax regression (shipped), boosted trees, or the mean of both (docs/history.md)",
     )
     ap.add_argument(
+        "--halves",
+        action="store_true",
+        help="also measure how often the two halves of a long record get the same call",
+    )
+    ap.add_argument(
         "--varying-friction",
         action="store_true",
         help="also measure the model on the held-out seeds with a friction that varies",
@@ -482,6 +495,8 @@ def main(argv=None) -> int:
     text += "\n" + "\n".join(held_out_lines(model, kept, logo, a)) + "\n"
     if a.varying_friction:
         text += "\n" + "\n".join(varying_lines(model, kept, a, Pt, yt)) + "\n"
+    if a.halves:
+        text += "\n" + halves_text(model, a) + "\n"
     text += "\n" + "\n".join(DF_INTRO + df_separation(test, held, sim, real)) + "\n"
     print(text)
     if a.doc is not None:
@@ -538,6 +553,32 @@ def varying_lines(model: dict, names: tuple[str, ...], a, Pt: np.ndarray, yt: np
     return lines
 
 
+def halves_text(model: dict, a) -> str:
+    """The split-half stability of ``model``'s stage-2 call (``--halves``,
+    :mod:`cause_halves`) on the held-out seeds' records and the real ones."""
+    from cause_halves import agreement, family_halves, real_halves
+
+    from stictiondiag.apps.validation import SPLIT_MIN_CYCLES
+
+    sim = [
+        r
+        for s in a.test_seed
+        for r in family_halves(s, family_rows(s, a.n_test, a.cache, a.workers), a.cache, a.workers)
+    ]
+    n_s, k_s = agreement(model, sim)
+    text = (
+        "**Split-half stability** (`--halves`, no label read; `scripts/cause_halves.py`):"
+        f" of the records with at least {SPLIT_MIN_CYCLES:g} cycles whose two halves both"
+        " have a cycle, each half analysed on its own, the cause model's call on the two"
+        f" halves (P(valve) at or above 0.6, at or below 0.4, or between) agrees on {k_s}"
+        f" of {n_s} held-out simulated records ({k_s / max(n_s, 1):.2f})"
+    )
+    if a.real is not None:
+        n_r, k_r = agreement(model, real_halves(real_jobs(a.real), a.cache, a.workers))
+        text += f" and on {k_r} of {n_r} real records ({k_r / max(n_r, 1):.2f})"
+    return text + "."
+
+
 def _gate_text(g: dict | None) -> str:
     if g is None:
         return ""
@@ -591,6 +632,7 @@ def _intro(a, t_feat: float) -> list[str]:
         + (f" --deadzone {a.deadzone}" if a.deadzone else "")
         + (f" --kind {a.kind}" if a.kind != "softmax" else "")
         + (" --varying-friction" if a.varying_friction else "")
+        + (" --halves" if a.halves else "")
         + f"`; features of all loops {MEASURED_RUN}; this run {t_feat / 60:.1f} min).",
         "",
         "Stage 2 of the verdict (`stictiondiag/stiction/cause.py`, `cause_model.py`): for a"

@@ -94,3 +94,31 @@ def test_shipped_model_reads_the_verdicts_evidence():
     assert reading is not None
     for c in CAUSES:
         assert reading.p(c) == pytest.approx(p[c], abs=1e-12)
+
+
+def test_split_half_agreement_counts_stage_2_calls():
+    # P(valve) = e^(3x) / (e^(3x) + 3): x = 0 gives 0.25 (no stiction, at most 0.4),
+    # x = 1 gives 0.87 (stiction), x = 0.3 gives 0.45 (undecided).  A record with a
+    # half without a cycle is not counted.
+    from cause_halves import agreement
+
+    model = {
+        "classes": list(CAUSES),
+        "features": ["improvement"],
+        "mean": [0.0],
+        "scale": [1.0],
+        "coef": [[3.0, 0.0, 0.0, 0.0]],
+        "intercept": [0.0, 0.0, 0.0, 0.0],
+    }
+
+    def rec(x1, x2, cycle2=True):
+        return {
+            "halves": [
+                {"features": {"improvement": x1}, "cycle": True},
+                {"features": {"improvement": x2}, "cycle": cycle2},
+            ]
+        }
+
+    records = [rec(1, 1), rec(1, 0), rec(0, 0), rec(0.3, 0.3), rec(0.3, 1), rec(1, 1, False)]
+    assert agreement(model, records) == (5, 3)
+    assert agreement(model, []) == (0, 0)

@@ -151,19 +151,15 @@ def _half_summary(tags) -> dict:
     }
 
 
-def split_half(tags, period_s: float | None) -> dict | None:
-    """Analyse the two halves of a record holding at least :data:`SPLIT_MIN_CYCLES`
-    cycles of ``period_s``; None for a shorter record or one without a cycle.
-
-    Returns the two halves' summaries, whether their verdicts agree, and whether each
-    half's S lies inside the other half's S interval.
-    """
+def record_halves(tags, period_s: float | None) -> tuple | None:
+    """The two halves of a record holding at least :data:`SPLIT_MIN_CYCLES` cycles of
+    ``period_s``, each as tags of its own; None for a shorter record or one without a
+    cycle."""
     if not period_s or not period_s > 0 or tags.duration < SPLIT_MIN_CYCLES * period_s:
         return None
     h = tags.n // 2
-    halves = []
-    for sl in (slice(0, h), slice(h, 2 * h)):
-        part = Tags.from_arrays(
+    return tuple(
+        Tags.from_arrays(
             tags.pv[sl],
             tags.op[sl],
             mv=None if tags.mv is None else tags.mv[sl],
@@ -173,7 +169,21 @@ def split_half(tags, period_s: float | None) -> dict | None:
             integrating=bool(tags.integrating),
             source=f"{tags.source}[{sl.start}:{sl.stop}]",
         )
-        halves.append(_half_summary(part))
+        for sl in (slice(0, h), slice(h, 2 * h))
+    )
+
+
+def split_half(tags, period_s: float | None) -> dict | None:
+    """Analyse the two halves of a record (:func:`record_halves`); None for a record
+    too short to split or one without a cycle.
+
+    Returns the two halves' summaries, whether their verdicts agree, and whether each
+    half's S lies inside the other half's S interval.
+    """
+    parts = record_halves(tags, period_s)
+    if parts is None:
+        return None
+    halves = [_half_summary(part) for part in parts]
     a, b = halves
 
     def inside(x, iv):
