@@ -3,7 +3,8 @@
     python scripts/train_cause.py [--n-train 400] [--n-test 200] [--seed 11 [16 ...]] \
         [--test-seed 12 [13 ...]] [--cache /tmp/stiction_causes] [--workers 1] \
         [--real ../shared/data/isdb] [--doc docs/calibration.md] [--no-describing] \
-        [--no-replay] [--deadzone 0] [--varying-friction] [--halves] [--kind softmax]
+        [--no-replay] [--deadzone 0] [--varying-friction] [--halves] [--mix-varying] \
+        [--kind softmax]
 
 1. Draws ``--n-train`` and ``--n-test`` loops of :mod:`stictiondiag.apps.family_causes`
    (seeds ``seed * 1_000_000 + i``), labels each by its counterfactual twins
@@ -402,6 +403,11 @@ def main(argv=None) -> int:
         help="the model: softmax regression (shipped), boosted trees, or the mean of both (docs/history.md)",
     )
     ap.add_argument(
+        "--mix-varying",
+        action="store_true",
+        help="train on every training loop twice, with a constant and a varying friction",
+    )
+    ap.add_argument(
         "--halves",
         action="store_true",
         help="also measure how often the two halves of a long record get the same call",
@@ -426,7 +432,12 @@ def main(argv=None) -> int:
     )
     a = ap.parse_args(argv)
     t0 = time.time()
-    train_all = [r for s in a.seed for r in family_rows(s, a.n_train, a.cache, a.workers)]
+    train_all = [
+        r
+        for s in a.seed
+        for varying in ((False, True) if a.mix_varying else (False,))
+        for r in family_rows(s, a.n_train, a.cache, a.workers, varying=varying)
+    ]
     test_all = [r for s in a.test_seed for r in family_rows(s, a.n_test, a.cache, a.workers)]
     t_feat = time.time() - t0
 
@@ -476,7 +487,8 @@ def main(argv=None) -> int:
         "n_train": len(train),
         "trained_on": "stictiondiag.apps.family_causes seeds "
         + ", ".join(f"{s}*1e6 + i" for s in a.seed)
-        + f", i < {a.n_train}",
+        + f", i < {a.n_train}"
+        + (", each with a constant and a varying friction" if a.mix_varying else ""),
         **fitted,
     }
     from stictiondiag.stiction.cause_model import apply_model
@@ -633,6 +645,7 @@ def _intro(a, t_feat: float) -> list[str]:
         + (f" --kind {a.kind}" if a.kind != "softmax" else "")
         + (" --varying-friction" if a.varying_friction else "")
         + (" --halves" if a.halves else "")
+        + (" --mix-varying" if a.mix_varying else "")
         + f"`; features of all loops {MEASURED_RUN}; this run {t_feat / 60:.1f} min).",
         "",
         "Stage 2 of the verdict (`stictiondiag/stiction/cause.py`, `cause_model.py`): for a"
