@@ -79,7 +79,7 @@ def _band_setting(band: np.ndarray):
     return {"values": sorted({float(v) for v in np.unique(on)})[:10], "first_sample": first}
 
 
-def _friction_variation(scale, asymmetry, n: int) -> tuple[np.ndarray, float]:
+def _checked_friction(scale, asymmetry, n: int) -> tuple[np.ndarray, float]:
     """``friction_scale`` as one positive factor per sample, and ``friction_asymmetry``
     checked to lie in (-1, 1)."""
     arr = _series("friction_scale", scale, n, 1.0)

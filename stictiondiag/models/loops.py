@@ -60,8 +60,8 @@ from stictiondiag.core.errors import UsageError
 from stictiondiag.core.jit import jit
 from stictiondiag.models.loop_inputs import (
     _band_setting,
+    _checked_friction,
     _friction_setting,
-    _friction_variation,
     _integral_band,
     _number,
     _series,
@@ -432,7 +432,7 @@ def _set_up(
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
         raise UsageError(f"seed must be an integer or None, got {seed!r}")
     band = _integral_band(integral_band, n)
-    f_scale, f_asym = _friction_variation(friction_scale, friction_asymmetry, n)
+    f_scale, f_asym = _checked_friction(friction_scale, friction_asymmetry, n)
     physical, n_sub, h, p, stem = _valve_integration(valve, physical, dt, n)
     sp_arr = _series("sp", sp, n, 0.0)
     load_arr = _series("load", load, n, 0.0)
