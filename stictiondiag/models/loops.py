@@ -179,6 +179,7 @@ def _loop_kernel(
         spk = sp[k]
         band_k = band[k]
         disturbance = pv_bias + load[k] + noise[k]
+        s_k = s_scale[k]
         for j in range(n_sub):
             pv = y + disturbance
             pv_f = f_pole * pv_f + (1.0 - f_pole) * pv
@@ -194,26 +195,27 @@ def _loop_kernel(
                 op = op_bias + Kc * (e + trial * inv_Ti)
             integral = trial
             op = min(max(op, 0.0), 100.0)
-            # Friction that varies over time and with the direction of travel
-            # (``friction_scale``, ``friction_asymmetry``; 1 and 0 by default).
-            m = s_scale[k]
-            if asym != 0.0:
-                m *= (1.0 + asym) if op > st[0] else (1.0 - asym)
-            Sk = S * m
-            Jk = J * m
             if valve_kind == 3:
                 x_stem, v_stem = karnopp_step(op * stem, x_stem, v_stem, p)
                 mv = x_stem / stem
-            elif valve_kind == 1:
-                mv = choudhury_step(op, st, Sk, Jk)
-            elif valve_kind == 2:
-                mv = kano_step(op, st, Sk, Jk)
-            elif valve_kind == 4:
-                mv = he_step(op, st, Sk, Jk)
-            elif valve_kind == 5:
-                mv = band_step(op, st, Sk)
-            else:
+            elif valve_kind == 0:
                 mv = op
+            else:
+                # Friction that varies over time and with the direction of travel
+                # (``friction_scale``, ``friction_asymmetry``; 1 and 0 by default).
+                m = s_k
+                if asym != 0.0:
+                    m *= (1.0 + asym) if op > st[0] else (1.0 - asym)
+                Sk = S * m
+                Jk = J * m
+                if valve_kind == 1:
+                    mv = choudhury_step(op, st, Sk, Jk)
+                elif valve_kind == 2:
+                    mv = kano_step(op, st, Sk, Jk)
+                elif valve_kind == 4:
+                    mv = he_step(op, st, Sk, Jk)
+                else:
+                    mv = band_step(op, st, Sk)
             if j == 0:
                 out_pv[k] = pv
                 out_op[k] = op
