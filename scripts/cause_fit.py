@@ -7,7 +7,8 @@ reports on held-out loops: the area under the ROC curve (:func:`roc_auc`), the
 reliability of each cause's probability in bands (:func:`reliability`,
 :func:`expected_outside`), and the shift check's Kolmogorov-Smirnov distance
 (:func:`ks_distance`).  A loop is a row of the training script's cache: a dict with
-``features`` (name -> value), ``label`` (a cause) and ``valve`` (the stick model).
+``features`` (name -> value), ``label`` (a cause) and ``valve`` (the stick model);
+:func:`cached_map` computes and caches such rows.
 """
 
 from __future__ import annotations
@@ -79,6 +80,33 @@ GATE_SE = 2.0
 #: the training loops lies at least this far from 0.5 [-] (a rule on the training
 #: seeds: the held-out seeds only measure).
 DF_SEPARATION = 0.1
+
+
+def cached_map(path: Path, fn, jobs: list, workers: int) -> list[dict]:
+    """``fn`` of each job (None results dropped), read from the JSON lines at ``path``
+    when they are there, else computed (in ``workers`` processes, or one by one with
+    progress on stderr) and written whole."""
+    import json
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    if path.is_file():
+        return [json.loads(line) for line in path.read_text().splitlines() if line]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if workers > 1:
+        with ProcessPoolExecutor(workers) as pool:
+            rows = list(pool.map(fn, jobs, chunksize=4))
+    else:
+        rows = []
+        for i, job in enumerate(jobs):
+            rows.append(fn(job))
+            if (i + 1) % 25 == 0:
+                print(f"  {i + 1}/{len(jobs)}", file=sys.stderr, flush=True)
+    rows = [r for r in rows if r is not None]
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    os.replace(tmp, path)
+    return rows
 
 
 def ks_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -201,18 +229,19 @@ def describing_gate(
 C_GRID = (0.03, 0.1, 0.3, 1.0)
 
 
-def cv_losses(rows: list[dict], names: tuple[str, ...], c: float = C) -> np.ndarray:
-    """Per-loop log loss of the softmax model in :data:`FOLDS`-fold cross-validation
-    (folds by seed order) [-]."""
+def cv_losses(rows: list[dict], names: tuple[str, ...], c: float = C, fit=None) -> np.ndarray:
+    """Per-loop log loss in :data:`FOLDS`-fold cross-validation (folds by seed order)
+    [-] of the model ``fit`` makes (``(X, y) -> model``, :func:`refitter`); default the
+    softmax regression with penalty ``c``."""
     from stictiondiag.stiction.cause_model import apply_model
 
+    fit = fit or (lambda X, y: fit_softmax(X, y, c))
     X, y = xy(rows, names)
     fold = np.arange(len(rows)) % FOLDS
     out = np.zeros(len(rows))
     for f in range(FOLDS):
         tr, te = fold != f, fold == f
-        m = fit_softmax(X[tr], y[tr], c)
-        P = apply_model(m, X[te])
+        P = apply_model({"classes": list(CAUSES), **fit(X[tr], y[tr])}, X[te])
         out[te] = -np.log(np.clip(P[np.arange(te.sum()), y[te]], 1e-12, None))
     return out
 
@@ -340,19 +369,11 @@ def fit_boosted(X: np.ndarray, y: np.ndarray, rounds: int, leaves: int) -> dict:
 
 def cv_boosted(rows: list[dict], names: tuple[str, ...]) -> dict:
     """The boosted setting of :data:`BOOST_GRID` with the lowest :data:`FOLDS`-fold
-    cross-validated log loss on the training loops (folds by seed order)."""
-    from stictiondiag.stiction.cause_model import boosted_scores, softmax
-
-    X, y = xy(rows, names)
-    fold = np.arange(len(rows)) % FOLDS
-    losses = {}
-    for rounds, leaves in BOOST_GRID:
-        S = np.zeros((len(rows), len(CAUSES)))
-        for f in range(FOLDS):
-            tr, te = fold != f, fold == f
-            S[te] = boosted_scores(fit_boosted(X[tr], y[tr], rounds, leaves), X[te])
-        P = softmax(S)
-        losses[(rounds, leaves)] = float(
-            -np.mean(np.log(np.clip(P[np.arange(y.size), y], 1e-12, None)))
+    cross-validated log loss on the training loops (:func:`cv_losses`)."""
+    losses = {
+        (r, lv): float(
+            cv_losses(rows, names, fit=lambda X, y, r=r, lv=lv: fit_boosted(X, y, r, lv)).mean()
         )
+        for r, lv in BOOST_GRID
+    }
     return {"best": min(losses, key=lambda s: losses[s]), "losses": losses}

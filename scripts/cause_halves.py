@@ -17,12 +17,10 @@ label is read (``docs/history.md``, "Boosted trees for the cause model").
 
 from __future__ import annotations
 
-import json
-import os
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from cause_fit import cached_map
 
 #: The analysis of a half: as the training loops' (no replay, gap or compensation).
 _CONFIG = {"gap": False, "replay": False, "compensation": False}
@@ -73,32 +71,17 @@ def _real_one(args: tuple[str, float, str, bool]) -> dict | None:
     return None if halves is None else {"record": Path(path).name, "halves": halves}
 
 
-def _cached(path: Path, fn, jobs: list, workers: int) -> list[dict]:
-    if path.is_file():
-        return [json.loads(line) for line in path.read_text().splitlines() if line]
-    if workers > 1:
-        with ProcessPoolExecutor(workers) as pool:
-            rows = list(pool.map(fn, jobs, chunksize=4))
-    else:
-        rows = [fn(j) for j in jobs]
-    rows = [r for r in rows if r is not None]
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text("".join(json.dumps(r) + "\n" for r in rows))
-    os.replace(tmp, path)
-    return rows
-
-
 def family_halves(seed: int, rows: list[dict], cache: Path, workers: int) -> list[dict]:
     """The halves of the loops among ``rows`` (one seed's cache rows) that have a
     cycle, cached by seed."""
     jobs = [(int(r["seed"]), False) for r in rows if r["cycle"]]
-    return _cached(cache / f"halves_{seed}_{len(rows)}.jsonl", _family_one, jobs, workers)
+    return cached_map(cache / f"halves_{seed}_{len(rows)}.jsonl", _family_one, jobs, workers)
 
 
 def real_halves(jobs: list[tuple[str, float, str, bool]], cache: Path, workers: int):
     """The halves of the real records of ``jobs`` (path, sample time, loop type,
     integrating flag; no label), cached."""
-    return _cached(cache / "real_halves.jsonl", _real_one, jobs, workers)
+    return cached_map(cache / "real_halves.jsonl", _real_one, jobs, workers)
 
 
 def agreement(model: dict, records: list[dict]) -> tuple[int, int]:

@@ -51,10 +51,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 from pathlib import Path
 
@@ -76,6 +74,7 @@ from cause_fit import (  # noqa: E402
     GATED,
     MIN_BAND,
     TOLERANCE,
+    cached_map,
     choose_features,
     cv_boosted,
     describing_gate,
@@ -158,27 +157,10 @@ def family_rows(
     """Labelled, analysed loops ``seed * 1_000_000 + i``, i < n (cached); ``generator``
     forces the generator, ``varying`` gives the sticky valves a friction that varies
     (:func:`~stictiondiag.apps.family_causes.cause_loop`)."""
-    cache.mkdir(parents=True, exist_ok=True)
     suffix = ("_" + generator if generator else "") + ("_varying" if varying else "")
-    path = cache / f"causes_{seed}_{n}{suffix}.jsonl"
-    if path.is_file():
-        return [json.loads(line) for line in path.read_text().splitlines() if line]
     seeds = [seed * 1_000_000 + i for i in range(n)]
     one = partial(_one, generator=generator, varying=varying)
-    if workers > 1:
-        with ProcessPoolExecutor(workers) as pool:
-            rows = list(pool.map(one, seeds, chunksize=4))
-    else:
-        rows = []
-        for i, s in enumerate(seeds):
-            rows.append(one(s))
-            if (i + 1) % 25 == 0:
-                print(f"  {i + 1}/{n}", file=sys.stderr, flush=True)
-    rows = [r for r in rows if r is not None]
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text("".join(json.dumps(r) + "\n" for r in rows))
-    os.replace(tmp, path)
-    return rows
+    return cached_map(cache / f"causes_{seed}_{n}{suffix}.jsonl", one, seeds, workers)
 
 
 def _real_one(args: tuple[str, float, str, bool]) -> dict | None:
@@ -220,18 +202,7 @@ def real_jobs(folder: Path) -> list[tuple[str, float, str, bool]]:
 def real_rows(folder: Path, cache: Path, workers: int) -> list[dict]:
     """Features of the real records of ``folder`` (its manifest's sample time, loop type
     and integrating flag; labels never read), cached."""
-    path = cache / "real_features.jsonl"
-    if path.is_file():
-        return [json.loads(line) for line in path.read_text().splitlines() if line]
-    jobs = real_jobs(folder)
-    if workers > 1:
-        with ProcessPoolExecutor(workers) as pool:
-            rows = list(pool.map(_real_one, jobs))
-    else:
-        rows = [_real_one(j) for j in jobs]
-    rows = [r for r in rows if r is not None]
-    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
-    return rows
+    return cached_map(cache / "real_features.jsonl", _real_one, real_jobs(folder), workers)
 
 
 def _confusion(P: np.ndarray, y: np.ndarray) -> list[str]:
@@ -466,22 +437,24 @@ def main(argv=None) -> int:
     kept, cv = choose_features(train, kept, compact)
     cv["df_gate"] = df_gate
     X, y = xy(train, kept)
-    if a.kind == "mean":
-        cv["boost"] = cv_boosted(train, kept)
-        fitted = fit_mean(X, y, cv["c"], *cv["boost"]["best"])
-        settings = {"kind": fitted.pop("kind")}
-    elif a.kind == "boosted":
-        cv["boost"] = cv_boosted(train, kept)
-        fitted = fit_boosted(X, y, *cv["boost"]["best"])
-        settings = {k: fitted.pop(k) for k in ("kind", "classes", "rounds", "leaves")}
+    if a.kind == "softmax":
+        fitted = {
+            "kind": "softmax regression of the causes of a loop's cycle",
+            "C": cv["c"],
+            **fit_softmax(X, y, cv["c"]),
+        }
     else:
-        fitted = fit_softmax(X, y, cv["c"])
-        settings = {"kind": "softmax regression of the causes of a loop's cycle", "C": cv["c"]}
+        cv["boost"] = cv_boosted(train, kept)
+        best = cv["boost"]["best"]
+        fitted = fit_mean(X, y, cv["c"], *best) if a.kind == "mean" else fit_boosted(X, y, *best)
+    fitted.pop("classes", None)
+    kind = fitted.pop("kind")
+    settings = {k: fitted.pop(k) for k in ("C", "rounds", "leaves") if k in fitted}
     model = {
-        "kind": settings.pop("kind"),
+        "kind": kind,
         "classes": list(CAUSES),
         "features": list(kept),
-        **{k: v for k, v in settings.items() if k != "classes"},
+        **settings,
         "trained_on_stick_models": "all; each of these left out of one refit",
         "left_out_in_refits": list(HELD_OUT),
         "n_train": len(train),
@@ -613,8 +586,7 @@ def _kind_text(model: dict, cv: dict) -> str:
         soft, boost = model["members"]
         return (
             " the mean of two models' probabilities over the same features: a softmax"
-            f" regression, L2 with C = {soft['C']:g}, and"
-            + _kind_text({**boost, "kind": "boosted"}, cv)
+            f" regression, L2 with C = {soft['C']:g}, and" + _kind_text(boost, cv)
         )
     if model["kind"] != "boosted":
         return f" softmax regression, L2 with C = {model['C']:g}."
