@@ -68,6 +68,17 @@ LOCK_FEATURES: tuple[str, ...] = ("pv_amplitude_lock", "op_amplitude_lock")
 #: The features that join the compact set by the gate of :func:`describing_gate`.
 GATED: tuple[str, ...] = SECTION6 + LOCK_FEATURES
 
+#: The reference of each cause for the typicality check
+#: (:func:`stictiondiag.stiction.cause_model.atypicality`): the share by which the
+#: covariance of its training loops is shrunk towards the identity of the
+#: standardised features [-], and the
+#: quantile of their own squared Mahalanobis distances that bounds "typical" [-].
+#: The quantile is taken over out-of-fold distances (:data:`FOLDS` folds), so that a
+#: new loop of the cause exceeds it about as often as it says.  Stated before they
+#: were measured on held-out seeds (``docs/history.md``).
+TYPICAL_SHRINK = 0.3
+TYPICAL_QUANTILE = 0.99
+
 #: Folds of the cross-validation that chooses the feature set [-], and the margin
 #: in standard errors of the paired per-loop difference by which the larger set
 #: must win [-] (otherwise the compact one ships).
@@ -147,6 +158,55 @@ def fit_softmax(X: np.ndarray, y: np.ndarray, c: float = C) -> dict:
         "scale": scale.tolist(),
         "coef": W.tolist(),
         "intercept": res.x[d * k :].tolist(),
+    }
+
+
+def _reference(Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and inverse covariance of the rows of Z (standardised features), the
+    covariance shrunk by :data:`TYPICAL_SHRINK` towards the identity: no feature's
+    variance within a cause falls below that share of its spread over all causes,
+    even where a cause's few loops do not vary in it."""
+    S = np.cov(Z, rowvar=False)
+    S = (1 - TYPICAL_SHRINK) * S + TYPICAL_SHRINK * np.eye(S.shape[0])
+    return Z.mean(axis=0), np.linalg.inv(S)
+
+
+def _distances(Z: np.ndarray, centre: np.ndarray, precision: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distances of the rows of Z."""
+    D = Z - centre
+    return np.einsum("ij,jk,ik->i", D, precision, D)
+
+
+def fit_typicality(X: np.ndarray, y: np.ndarray) -> dict:
+    """Each cause's reference for the typicality check, from the training loops X (one
+    row per loop) and their cause indices y: the standardisation, and per cause the
+    centre and the inverse of the covariance (:func:`_reference`), and the :data:`TYPICAL_QUANTILE` quantile of the loops' squared
+    Mahalanobis distances, each out of fold (every :data:`FOLDS`-th loop held out of
+    the reference it is measured against)."""
+    mean = X.mean(axis=0)
+    scale = X.std(axis=0)
+    scale[scale == 0] = 1.0
+    Z = (X - mean) / scale
+    causes = {}
+    for i, c in enumerate(CAUSES):
+        Zc = Z[y == i]
+        fold = np.arange(Zc.shape[0]) % FOLDS
+        d = np.concatenate(
+            [_distances(Zc[fold == k], *_reference(Zc[fold != k])) for k in range(FOLDS)]
+        )
+        centre, precision = _reference(Zc)
+        causes[c] = {
+            "n": int(Zc.shape[0]),
+            "centre": centre.tolist(),
+            "precision": precision.tolist(),
+            "threshold": float(np.quantile(d, TYPICAL_QUANTILE)),
+        }
+    return {
+        "shrink": TYPICAL_SHRINK,
+        "quantile": TYPICAL_QUANTILE,
+        "mean": mean.tolist(),
+        "scale": scale.tolist(),
+        "causes": causes,
     }
 
 

@@ -26,10 +26,12 @@
    the describing-function features out, ``--no-replay`` the reproduction features,
    the models before them), then
    fits the model on the training loops with a cycle and a cause, every stick model
-   included: gradient-boosted trees (``--kind boosted``, the default and the model
-   that ships; rounds by cross-validation, :func:`cause_fit.cv_boosted`; scikit-learn
-   is needed here only) or a softmax regression (``--kind softmax``, L2, penalty by the
-   same cross-validation as the features); writes
+   included: a softmax regression (``--kind softmax``, the default and the model
+   that ships; L2, penalty by the same cross-validation as the features),
+   gradient-boosted trees (``--kind boosted``; rounds by cross-validation,
+   :func:`cause_fit.cv_boosted`; scikit-learn is needed here only) or the mean of
+   both (``--kind mean``), and each cause's reference for the typicality check
+   (:func:`cause_fit.fit_typicality`); writes
    ``stictiondiag/stiction/cause_model.json``.  The held-out-generator check refits
    the same model once per stick model of :data:`HELD_OUT` (the Karnopp physical
    valve, He et al.'s model, the band-hold valve) without that model's loops, and
@@ -74,6 +76,8 @@ from cause_fit import (  # noqa: E402
     GATED,
     MIN_BAND,
     TOLERANCE,
+    TYPICAL_QUANTILE,
+    TYPICAL_SHRINK,
     cached_map,
     choose_features,
     cv_boosted,
@@ -82,6 +86,7 @@ from cause_fit import (  # noqa: E402
     fit_boosted,
     fit_mean,
     fit_softmax,
+    fit_typicality,
     ks_distance,
     leave_one_out,
     refitter,
@@ -463,6 +468,7 @@ def main(argv=None) -> int:
         + f", i < {a.n_train}"
         + (", each with a constant and a varying friction" if a.mix_varying else ""),
         **fitted,
+        "typicality": fit_typicality(X, y),
     }
     from stictiondiag.stiction.cause_model import apply_model
 
@@ -480,6 +486,7 @@ def main(argv=None) -> int:
     text += "\n" + "\n".join(held_out_lines(model, kept, logo, a)) + "\n"
     if a.varying_friction:
         text += "\n" + "\n".join(varying_lines(model, kept, a, Pt, yt)) + "\n"
+    text += "\n" + "\n".join(typicality_lines(model, a, test, real)) + "\n"
     if a.halves:
         text += "\n" + halves_text(model, a) + "\n"
     text += "\n" + "\n".join(DF_INTRO + df_separation(test, held, sim, real)) + "\n"
@@ -534,6 +541,65 @@ def varying_lines(model: dict, names: tuple[str, ...], a, Pt: np.ndarray, yt: np
             f"| {name} | {yy.size} | {np.mean(PP.argmax(axis=1) == yy):.2f} |"
             f" {roc_auc((yy == v).astype(int), PP[:, v]):.2f} |"
             f" {out} of {len(bands)} ({expected_outside(bands):.1f} by chance) |"
+        )
+    return lines
+
+
+def typicality_lines(model: dict, a, test: list[dict], real: list[dict]) -> list[str]:
+    """How often the held-out loops (with a constant friction, and with a varying one
+    under ``--varying-friction``) and the real records lie outside 99 % of the
+    training loops of their most likely cause
+    (:func:`stictiondiag.stiction.cause_model.atypicality`), and the accuracy of the
+    most likely cause on either side (simulated loops only: no real label is read)."""
+    from stictiondiag.stiction.cause_model import read_causes
+
+    def split(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+        far, right = [], []
+        for r in rows:
+            reading = read_causes(r["features"], model)
+            assert reading is not None
+            far.append(reading.atypical)
+            right.append(reading.ranked()[0].value == r.get("label"))
+        return np.array(far, dtype=bool), np.array(right, dtype=bool)
+
+    groups = [("held-out seeds, constant friction", test)]
+    if a.varying_friction:
+        groups.append(
+            (
+                "held-out seeds, varying friction",
+                [
+                    r
+                    for s in a.test_seed
+                    for r in family_rows(s, a.n_test, a.cache, a.workers, varying=True)
+                    if r["label"] in CAUSES and r["cycle"]
+                ],
+            )
+        )
+    lines = [
+        "**Is the record like the loops its cause was learnt from?** (the typicality"
+        " check, `stictiondiag.stiction.cause_model.atypicality`): a loop is atypical"
+        " when its squared Mahalanobis distance to the training loops of its most"
+        " likely cause (standardised features, covariance shrunk by"
+        f" {TYPICAL_SHRINK:g} towards the identity) exceeds the"
+        f" {100 * TYPICAL_QUANTILE:g}th percentile of theirs, each measured out of"
+        " fold; the verdict then says"
+        " that its call is an extrapolation, and does not change.",
+        "",
+        "| loops with a cycle | loops | atypical | accuracy, atypical | accuracy, others |",
+        "|---|---|---|---|---|",
+    ]
+    for name, rows in groups:
+        far, right = split(rows)
+        acc_far = f"{np.mean(right[far]):.2f}" if far.any() else "-"
+        lines.append(
+            f"| {name} | {far.size} | {int(far.sum())} ({np.mean(far):.1%}) | {acc_far}"
+            f" | {np.mean(right[~far]):.2f} |"
+        )
+    if real:
+        far, _ = split(real)
+        lines.append(
+            f"| real records (labels not read) | {far.size} |"
+            f" {int(far.sum())} ({np.mean(far):.1%}) | - | - |"
         )
     return lines
 

@@ -202,6 +202,7 @@ class Analysis:
             runner_up=None if verdict.runner_up is None else verdict.runner_up.value,
             cause_model=probs.ranked()[0].value if probs is not None else None,
             p_valve_cause=probs.valve if probs is not None else None,
+            cause_atypicality=probs.atypicality if probs is not None else None,
             S=to_plain(fit.S),
             J=to_plain(fit.J),
             S_lo=s_int[0],

@@ -65,6 +65,10 @@ class LoopRow:
         The cause model's most likely cause.
     p_valve_cause : float or None
         The cause model's P(the valve causes the cycle) [-].
+    cause_atypicality : float or None
+        How far the evidence lies from the simulated loops of the cause model's most
+        likely cause, over the 99th percentile of theirs [-]; above 1 its call is an
+        extrapolation (:attr:`~stictiondiag.stiction.cause.CauseReading.atypicality`).
     S, J : float or None
         Deadband plus stickband and slip jump [% of op span, or op units when
         ``op_scale`` is ``unknown``].
@@ -117,6 +121,7 @@ class LoopRow:
     runner_up: str | None = None
     cause_model: str | None = None
     p_valve_cause: float | None = None
+    cause_atypicality: float | None = None
     S: float | None = None
     J: float | None = None
     S_lo: float | None = None

@@ -248,11 +248,14 @@ def probability_text(verdict: Verdict) -> str:
         return head + (
             f"too few cycles to clear the valve (P {probs.valve:.2f}); most likely: {other}"
         )
+    # A call that extrapolates says so (the verdict's reasons say how far).
+    far = "; the record is unlike the simulated loops of that cause: an extrapolation"
+    far = far if probs.atypical else ""
     if verdict.cause is None:
-        return head + f"undecided between the valve (P {probs.valve:.2f}) and {other}"
+        return head + f"undecided between the valve (P {probs.valve:.2f}) and {other}" + far
     return (
         head + f"cause: {CAUSE_WORDS[verdict.cause]} (P {probs.p(verdict.cause):.2f}), "
-        f"runner-up: {other}"
+        f"runner-up: {other}" + far
     )
 
 

@@ -294,6 +294,40 @@ def _cause_sections(t: pd.DataFrame) -> list[str]:
     return lines
 
 
+def _typicality_lines(t: pd.DataFrame) -> list[str]:
+    """How many loops decided by the cause model lie outside 99 % of the simulated
+    loops of their most likely cause (``cause_atypicality`` above 1), and the
+    accuracy of the verdict on either side, per label group (reported, never fitted)."""
+    if "cause_atypicality" not in t:
+        return []
+    decided = t[t["p_valve_cause"].notna() & ~t["has_mv"].astype(bool)]
+    far = decided["cause_atypicality"].astype(float) > 1.0
+    lines = [
+        "",
+        "## Records unlike the simulated loops of their cause",
+        "",
+        "A loop whose evidence lies outside 99 % of the simulated loops of its most likely",
+        "cause (`stictiondiag.stiction.cause_model.atypicality`) gets a verdict that says",
+        "its call is an extrapolation; the call itself is unchanged. Of the"
+        f" {len(decided)} loops with a cycle that the cause model read,"
+        f" {int(far.sum())} are atypical"
+        + (": " + ", ".join(decided.loc[far, "loop"]) if far.any() else "")
+        + ".",
+        "",
+        "| group | atypical: loops, right | others: loops, right |",
+        "|---|---|---|",
+    ]
+    for group in ("stated", "likely"):
+        g = decided["label_group"] == group
+        right = (decided["label"] == "stiction") == (decided["verdict"] == "stiction")
+        a, b = g & far, g & ~far
+        lines.append(
+            f"| {group} | {int(a.sum())}, {int((a & right).sum())} |"
+            f" {int(b.sum())}, {int((b & right).sum())} |"
+        )
+    return lines
+
+
 def _split_half_lines(sp: dict) -> list[str]:
     """The split-half repeatability section (no labels needed)."""
     return [
@@ -367,6 +401,7 @@ def render_markdown(result: ValidationResult, *, command: str) -> str:
         *_score_lines(result.scores),
         *_confusion_section(t),
         *_cause_sections(t),
+        *_typicality_lines(t),
         *_split_half_lines(result.split),
     ]
     if result.causes:

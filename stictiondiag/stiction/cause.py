@@ -143,17 +143,30 @@ class CauseReading:
         P that the valve (stiction or dead band), the controller's tuning, an
         external oscillating disturbance, or quantisation or another non-valve
         nonlinearity causes the cycle [-].
+    atypicality : float or None
+        How far the evidence lies from the simulated loops the most likely cause was
+        learnt from: its squared Mahalanobis distance to them over the 99th
+        percentile of theirs [-] (:func:`stictiondiag.stiction.cause_model.atypicality`).
+        Above 1 the record is unlike 99 % of them and the probabilities are an
+        extrapolation; None when the model carries no reference.
     """
 
     valve: float
     tuning: float
     external: float
     other: float
+    atypicality: float | None = None
 
     @classmethod
-    def of(cls, probs: dict[str, float]) -> CauseReading:
+    def of(cls, probs: dict[str, float], atypicality: float | None = None) -> CauseReading:
         """The reading of the cause model's ``{cause: P}`` (keys :data:`CAUSES`)."""
-        return cls(**{c: float(probs[c]) for c in CAUSES})
+        return cls(**{c: float(probs[c]) for c in CAUSES}, atypicality=atypicality)
+
+    @property
+    def atypical(self) -> bool:
+        """The evidence lies outside 99 % of the simulated loops of the most likely
+        cause (:attr:`atypicality` above 1): the call is an extrapolation."""
+        return self.atypicality is not None and self.atypicality > 1.0
 
     def p(self, cause: Cause | str) -> float:
         """P of one cause of stage 2 [-]."""
@@ -280,6 +293,20 @@ def cycle_text(cycle: Cycle) -> str:
         else ""
     )
     return f"limit cycle in {cycle.signal} ({per}{reg}{n}){sp}"
+
+
+def atypical_text(reading: CauseReading) -> str | None:
+    """The caveat of a call that extrapolates (:attr:`CauseReading.atypical`), None
+    for a typical one."""
+    if not reading.atypical:
+        return None
+    first = reading.ranked()[0].value
+    return (
+        f"the evidence lies outside 99 % of the simulated loops whose cycle"
+        f" {CAUSE_WORDS[first]} causes ({reading.atypicality:.1f} times their 99th"
+        " percentile of squared distance): the cause model extrapolates here, so its"
+        " call is a lead to check, not a finding"
+    )
 
 
 def friction_text(p_friction: float) -> str:

@@ -27,6 +27,18 @@ Two kinds of model are read (the file's ``kind``):
     keeps adding it up where the training loops are few and a tree's leaf would say
     anything (``docs/history.md``, "Boosted trees for the cause model").
 
+**Is the record like the loops the cause was learnt from?**  A classifier gives a
+probability to any point, however far it lies from its training loops.  The file
+also carries, under ``typicality``, each cause's reference: the centre and the
+inverse covariance (shrunk by the block's ``shrink`` towards the identity) of the
+standardised features of the training loops of that cause, and the 99th percentile
+of their squared Mahalanobis distances, each measured out of fold (to a reference
+fitted without it).  :func:`atypicality` is a
+record's squared distance to its most likely cause over that percentile: above 1 the
+record is unlike 99 % of the simulated loops the call was learnt from, and the
+verdict says that the call is an extrapolation (it does not change the call;
+``docs/history.md``, "Is the record like the loops the cause was learnt from?").
+
 The model that ships is the softmax regression: boosted trees and the mean of the two
 ranked held-out simulated loops better, but the trees left the paper's concentration
 loop undecided and both made the verdicts on the two halves of real records agree less
@@ -140,9 +152,26 @@ def cause_probabilities(features: dict, model: dict | None = None) -> dict[str, 
     return {c: float(v) for c, v in zip(CAUSES, p, strict=True)}
 
 
+def atypicality(features: dict, cause: str, model: dict | None = None) -> float | None:
+    """The squared Mahalanobis distance of ``features`` to the training loops of
+    ``cause``, over the 99th percentile of theirs [-] (module doc); None when the
+    model carries no reference."""
+    model = model or load_cause_model()
+    ref = model.get("typicality")
+    if not ref:
+        return None
+    z = (design(features, model["features"]) - np.asarray(ref["mean"])) / np.asarray(ref["scale"])
+    c = ref["causes"][cause]
+    d = z - np.asarray(c["centre"])
+    return float(d @ np.asarray(c["precision"]) @ d) / float(c["threshold"])
+
+
 def read_causes(features: dict, model: dict | None = None) -> CauseReading | None:
     """Stage 2's reading of a loop with a cycle; None when no cause model is installed."""
     try:
-        return CauseReading.of(cause_probabilities(features, model))
+        model = model or load_cause_model()
+        probs = cause_probabilities(features, model)
+        first = CauseReading.of(probs).ranked()[0].value
+        return CauseReading.of(probs, atypicality(features, first, model))
     except StictionError:
         return None

@@ -44,6 +44,7 @@ from stictiondiag.stiction.cause import (
     Cause,
     CauseReading,
     Cycle,
+    atypical_text,
     cycle_text,
     direct_stick_slip,
     friction_text,
@@ -463,8 +464,10 @@ def _reasons(
     """The verdict in words: the decision, its caveats, the two stages, the
     improvement, S and J, and the oscillations found."""
     stage2 = ev.cause_probabilities
+    caveat = atypical_text(stage2) if stage2 is not None and not ev.has_mv else None
     return (
         head,
+        *((caveat,) if caveat else ()),
         *_unbounded_s_notes(status, fit),
         *((friction_text(ev.p_friction),) if stage2 is not None and not ev.has_mv else ()),
         cycle_text(ev.cycle),

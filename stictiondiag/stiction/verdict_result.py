@@ -164,7 +164,9 @@ class Verdict:
         Stage 1: the limit cycle found, if any.
     cause_probabilities : CauseReading or None
         Stage 2: P of each cause of the cycle [-] (None without a cycle or without
-        the cause model).
+        the cause model), and how typical the evidence is of the most likely cause
+        (its ``atypicality``, in the JSON as ``cause_atypicality``; above 1 the
+        reasons say that the call is an extrapolation).
     runner_up : Cause or None
         The most likely cause after ``cause``; for an undecided loop the most likely
         cause other than the valve (the alternative the verdict could not rule out).
@@ -217,6 +219,7 @@ class Verdict:
                 "probability": self.probability,
                 "cause": self.cause,
                 "cause_probabilities": None if probs is None else probs.to_dict(),
+                "cause_atypicality": None if probs is None else probs.atypicality,
                 "runner_up": self.runner_up,
                 "cycle": None if self.cycle is None else self.cycle.to_dict(),
                 "reasons": list(self.reasons),
