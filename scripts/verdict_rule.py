@@ -17,8 +17,9 @@ counterfactual label of :mod:`stictiondiag.apps.family_causes`):
 On the held-out seeds' loops with a cycle and a cause, and on the loops of each
 stick model of ``HELD_OUT`` as scored by the refit of the cause model that left that
 stick model out of its training (``scripts/cause_fit.py``, ``leave_one_out``), it prints for each rule the loops it calls each way,
-the accuracy of its calls, the share it leaves undecided and the area under the ROC
-curve of its probability.  The rule (``docs/calibration.md``, "Which probability
+the accuracy of its calls, its accuracy scored as ``stiction validate`` scores the
+ISDB (an undecided loop counts as not called stiction), the share it leaves
+undecided and the area under the ROC curve of its probability.  The rule (``docs/calibration.md``, "Which probability
 decides a loop with a cycle"): the cause model decides when, on both sets, its
 probability ranks better (area under the ROC curve), it makes no more wrong stiction
 calls and it leaves fewer loops undecided.  The accuracy of the calls is printed but
@@ -68,6 +69,8 @@ def score(p: np.ndarray, valve: np.ndarray, hi: float, lo: float, strict: bool) 
         "no_stiction": int(no.sum()),
         "undecided": float(1.0 - called.mean()),
         "accuracy": float(right.sum() / max(1, called.sum())),
+        # As the ISDB validation scores a verdict: only a stiction call is a call.
+        "as_validated": float(np.mean(yes == valve)),
         "wrong stiction": int((yes & ~valve).sum()),
         "auc": roc_auc(valve.astype(int), p),
     }
@@ -78,8 +81,9 @@ def table(sets: list[tuple[str, list[dict], np.ndarray]]) -> list[str]:
     of each loop)."""
     out = [
         "| loops | rule | n | called stiction | called no stiction | accuracy of calls"
-        " | undecided | wrong stiction calls | area under ROC |",
-        "|---|---|---|---|---|---|---|---|---|",
+        " | accuracy, undecided as not stiction | undecided | wrong stiction calls"
+        " | area under ROC |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, sel, p_cause in sets:
         valve = np.array([r["label"] == "valve" for r in sel])
@@ -91,7 +95,8 @@ def table(sets: list[tuple[str, list[dict], np.ndarray]]) -> list[str]:
             s = score(p, valve, hi, lo, strict)
             out.append(
                 f"| {name} | {rule} | {len(sel)} | {s['stiction']} | {s['no_stiction']}"
-                f" | {s['accuracy']:.2f} | {s['undecided']:.2f} | {s['wrong stiction']}"
+                f" | {s['accuracy']:.2f} | {s['as_validated']:.2f} | {s['undecided']:.2f}"
+                f" | {s['wrong stiction']}"
                 f" | {s['auc']:.2f} |"
             )
     return out
