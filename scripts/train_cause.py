@@ -55,7 +55,6 @@ import json
 import math
 import sys
 import time
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -78,7 +77,6 @@ from cause_fit import (  # noqa: E402
     TOLERANCE,
     TYPICAL_QUANTILE,
     TYPICAL_SHRINK,
-    cached_map,
     choose_features,
     cv_boosted,
     describing_gate,
@@ -94,6 +92,7 @@ from cause_fit import (  # noqa: E402
     roc_auc,
     xy,
 )
+from cause_rows import family_rows, real_jobs, real_rows  # noqa: E402
 
 from stictiondiag.stiction.cause import CAUSES  # noqa: E402
 
@@ -121,93 +120,6 @@ MEASURED_RUN = (
 
 #: Heading of the section this script writes in docs/calibration.md.
 HEADING = "## Why the loop oscillates: the cause model"
-
-
-def _one(seed: int, generator: str | None = None, varying: bool = False) -> dict | None:
-    from stictiondiag.analysis import AnalysisConfig, analyze
-    from stictiondiag.apps.family_causes import cause_label
-    from stictiondiag.core.errors import StictionError
-
-    try:
-        loop, label = cause_label(seed, generator, varying_friction=varying)
-        if label is None:
-            return None
-        a = analyze(loop.tags(), config=AnalysisConfig(gap=False, replay=False, compensation=False))
-    except StictionError:
-        return None
-    v = a.verdict
-    t = loop.truth
-    return {
-        "seed": seed,
-        "label": label,
-        "generator": t["generator"],
-        "valve": t["valve"],
-        "kind": t["kind"],
-        "shape": t["shape"],
-        "features": v.evidence.features,
-        "cycle": bool(v.cycle.present) if v.cycle is not None else None,
-        "direct": v.evidence.direct_stick_slip,
-        "p_friction": v.evidence.p_friction,
-    }
-
-
-def family_rows(
-    seed: int,
-    n: int,
-    cache: Path,
-    workers: int,
-    generator: str | None = None,
-    varying: bool = False,
-) -> list[dict]:
-    """Labelled, analysed loops ``seed * 1_000_000 + i``, i < n (cached); ``generator``
-    forces the generator, ``varying`` gives the sticky valves a friction that varies
-    (:func:`~stictiondiag.apps.family_causes.cause_loop`)."""
-    suffix = ("_" + generator if generator else "") + ("_varying" if varying else "")
-    seeds = [seed * 1_000_000 + i for i in range(n)]
-    one = partial(_one, generator=generator, varying=varying)
-    return cached_map(cache / f"causes_{seed}_{n}{suffix}.jsonl", one, seeds, workers)
-
-
-def _real_one(args: tuple[str, float, str, bool]) -> dict | None:
-    from stictiondiag.analysis import AnalysisConfig, analyze
-    from stictiondiag.core.errors import StictionError
-    from stictiondiag.io.tags import read_tags
-
-    path, ts, loop_type, integrating = args
-    try:
-        tags = read_tags(path, ts=ts, loop_type=loop_type, integrating=integrating)
-        a = analyze(tags, config=AnalysisConfig(gap=False, replay=False, compensation=False))
-    except StictionError:
-        return None
-    v = a.verdict
-    return {"features": v.evidence.features, "cycle": bool(v.cycle and v.cycle.present)}
-
-
-def real_jobs(folder: Path) -> list[tuple[str, float, str, bool]]:
-    """Each real record of ``folder``: path, sample time, loop type and integrating
-    flag from its ``manifest.csv`` (no label column is read)."""
-    import pandas as pd
-
-    from stictiondiag.apps.validation import LOOP_TYPE_MAP
-
-    m = pd.read_csv(folder / "manifest.csv", usecols=["file", "loop_type", "integrating", "ts_s"])
-    return [
-        (
-            str(folder / f),
-            float(ts),
-            LOOP_TYPE_MAP.get(str(lt).lower(), "other"),
-            bool(integ),
-        )
-        for f, lt, integ, ts in zip(
-            m["file"], m["loop_type"], m["integrating"], m["ts_s"], strict=True
-        )
-    ]
-
-
-def real_rows(folder: Path, cache: Path, workers: int) -> list[dict]:
-    """Features of the real records of ``folder`` (its manifest's sample time, loop type
-    and integrating flag; labels never read), cached."""
-    return cached_map(cache / "real_features.jsonl", _real_one, real_jobs(folder), workers)
 
 
 def _confusion(P: np.ndarray, y: np.ndarray) -> list[str]:
@@ -484,9 +396,19 @@ def main(argv=None) -> int:
         a, model, train, test, held, train_all + test_all, Pt, yt, Ph, yh, shift, t_feat, cv
     )
     text += "\n" + "\n".join(held_out_lines(model, kept, logo, a)) + "\n"
-    if a.varying_friction:
-        text += "\n" + "\n".join(varying_lines(model, kept, a, Pt, yt)) + "\n"
-    text += "\n" + "\n".join(typicality_lines(model, a, test, real)) + "\n"
+    # The held-out seeds again with a friction that varies (never trained on).
+    varying = (
+        labelled(
+            r
+            for s in a.test_seed
+            for r in family_rows(s, a.n_test, a.cache, a.workers, varying=True)
+        )
+        if a.varying_friction
+        else []
+    )
+    if varying:
+        text += "\n" + "\n".join(varying_lines(model, kept, varying, Pt, yt)) + "\n"
+    text += "\n" + "\n".join(typicality_lines(model, test, varying, real)) + "\n"
     if a.halves:
         text += "\n" + halves_text(model, a) + "\n"
     text += "\n" + "\n".join(DF_INTRO + df_separation(test, held, sim, real)) + "\n"
@@ -504,21 +426,17 @@ def main(argv=None) -> int:
     return 0
 
 
-def varying_lines(model: dict, names: tuple[str, ...], a, Pt: np.ndarray, yt: np.ndarray):
-    """``model`` on the held-out seeds' loops again, with a friction that varies over
-    time and with the direction of travel (``--varying-friction``:
-    :data:`~stictiondiag.apps.family_causes.FRICTION_VARIATION`), an effect it was
-    never trained on, beside its scores on the same seeds with constant friction
-    (``Pt``, ``yt``)."""
+def varying_lines(
+    model: dict, names: tuple[str, ...], rows: list[dict], Pt: np.ndarray, yt: np.ndarray
+) -> list[str]:
+    """``model`` on the held-out seeds' loops again (``rows``, with a cycle and a
+    cause), with a friction that varies over time and with the direction of travel
+    (``--varying-friction``: :data:`~stictiondiag.apps.family_causes.FRICTION_VARIATION`),
+    an effect it was never trained on, beside its scores on the same seeds with
+    constant friction (``Pt``, ``yt``)."""
     from stictiondiag.apps.family_causes import FRICTION_VARIATION as V
     from stictiondiag.stiction.cause_model import apply_model
 
-    rows = [
-        r
-        for s in a.test_seed
-        for r in family_rows(s, a.n_test, a.cache, a.workers, varying=True)
-        if r["label"] in CAUSES and r["cycle"]
-    ]
     X, y = xy(rows, names)
     P = apply_model(model, X)
     v = CAUSES.index("valve")
@@ -545,10 +463,12 @@ def varying_lines(model: dict, names: tuple[str, ...], a, Pt: np.ndarray, yt: np
     return lines
 
 
-def typicality_lines(model: dict, a, test: list[dict], real: list[dict]) -> list[str]:
-    """How often the held-out loops (with a constant friction, and with a varying one
-    under ``--varying-friction``) and the real records lie outside 99 % of the
-    training loops of their most likely cause
+def typicality_lines(
+    model: dict, test: list[dict], varying: list[dict], real: list[dict]
+) -> list[str]:
+    """How often the held-out loops (``test``, with a constant friction, and
+    ``varying``, the same seeds with a varying one, if measured) and the real records
+    lie outside 99 % of the training loops of their most likely cause
     (:func:`stictiondiag.stiction.cause_model.atypicality`), and the accuracy of the
     most likely cause on either side (simulated loops only: no real label is read)."""
     from stictiondiag.stiction.cause_model import read_causes
@@ -563,18 +483,8 @@ def typicality_lines(model: dict, a, test: list[dict], real: list[dict]) -> list
         return np.array(far, dtype=bool), np.array(right, dtype=bool)
 
     groups = [("held-out seeds, constant friction", test)]
-    if a.varying_friction:
-        groups.append(
-            (
-                "held-out seeds, varying friction",
-                [
-                    r
-                    for s in a.test_seed
-                    for r in family_rows(s, a.n_test, a.cache, a.workers, varying=True)
-                    if r["label"] in CAUSES and r["cycle"]
-                ],
-            )
-        )
+    if varying:
+        groups.append(("held-out seeds, varying friction", varying))
     lines = [
         "**Is the record like the loops its cause was learnt from?** (the typicality"
         " check, `stictiondiag.stiction.cause_model.atypicality`): a loop is atypical"
