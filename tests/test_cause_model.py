@@ -219,3 +219,11 @@ def test_the_verdict_says_when_its_call_extrapolates():
     text = atypical_text(far)
     assert text is not None and "extrapolates" in text
     assert far.p("valve") == pytest.approx(cause_probabilities(pushed, model)["valve"])
+    # The findings' probability line says so too, only for the atypical reading.
+    from dataclasses import replace
+
+    from stictiondiag.apps.findings import probability_text
+
+    assert v.by_cause and "extrapolation" not in probability_text(v)
+    flagged = replace(v, cause_probabilities=replace(reading, atypicality=2.0))
+    assert "extrapolation" in probability_text(flagged)

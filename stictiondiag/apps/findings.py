@@ -249,8 +249,11 @@ def probability_text(verdict: Verdict) -> str:
             f"too few cycles to clear the valve (P {probs.valve:.2f}); most likely: {other}"
         )
     # A call that extrapolates says so (the verdict's reasons say how far).
-    far = "; the record is unlike the simulated loops of that cause: an extrapolation"
-    far = far if probs.atypical else ""
+    far = (
+        "; the record is unlike the simulated loops of its most likely cause: an extrapolation"
+        if probs.atypical
+        else ""
+    )
     if verdict.cause is None:
         return head + f"undecided between the valve (P {probs.valve:.2f}) and {other}" + far
     return (

@@ -295,9 +295,10 @@ def _cause_sections(t: pd.DataFrame) -> list[str]:
 
 
 def _typicality_lines(t: pd.DataFrame) -> list[str]:
-    """How many loops decided by the cause model lie outside 99 % of the simulated
-    loops of their most likely cause (``cause_atypicality`` above 1), and the
-    accuracy of the verdict on either side, per label group (reported, never fitted)."""
+    """How many loops read by the cause model (a cycle, no mv) lie outside 99 % of the
+    simulated loops of their most likely cause (``cause_atypicality`` above 1), and
+    the accuracy of the verdict on either side, per label group (reported, never
+    fitted)."""
     if "cause_atypicality" not in t:
         return []
     decided = t[t["p_valve_cause"].notna() & ~t["has_mv"].astype(bool)]
