@@ -99,21 +99,13 @@ def cached_map(path: Path, fn, jobs: list, workers: int) -> list[dict]:
     progress on stderr) and written whole."""
     import json
     import os
-    from concurrent.futures import ProcessPoolExecutor
+
+    from jobs import map_jobs
 
     if path.is_file():
         return [json.loads(line) for line in path.read_text().splitlines() if line]
     path.parent.mkdir(parents=True, exist_ok=True)
-    if workers > 1:
-        with ProcessPoolExecutor(workers) as pool:
-            rows = list(pool.map(fn, jobs, chunksize=4))
-    else:
-        rows = []
-        for i, job in enumerate(jobs):
-            rows.append(fn(job))
-            if (i + 1) % 25 == 0:
-                print(f"  {i + 1}/{len(jobs)}", file=sys.stderr, flush=True)
-    rows = [r for r in rows if r is not None]
+    rows = [r for r in map_jobs(fn, jobs, workers) if r is not None]
     tmp = path.with_suffix(".tmp")
     tmp.write_text("".join(json.dumps(r) + "\n" for r in rows))
     os.replace(tmp, path)

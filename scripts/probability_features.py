@@ -12,11 +12,10 @@ from __future__ import annotations
 
 import json
 import os
-import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from jobs import map_jobs
 
 from stictiondiag.apps.family import family_loop, loop_features
 
@@ -71,15 +70,7 @@ def family_features(seed: int, n: int, cache: Path, workers: int) -> list[dict]:
                     done[r["seed"]] = r
     seeds = [seed * 1_000_000 + i for i in range(n) if seed * 1_000_000 + i not in done]
     COMPUTED.append(len(seeds))
-    if workers > 1:
-        with ProcessPoolExecutor(workers) as pool:
-            rows = list(pool.map(_one, seeds, chunksize=4))
-    else:
-        rows = []
-        for i, s in enumerate(seeds):
-            rows.append(_one(s))
-            if (i + 1) % 50 == 0:
-                print(f"  {i + 1}/{len(seeds)}", file=sys.stderr, flush=True)
+    rows = map_jobs(_one, seeds, workers, every=50)
     done.update(zip(seeds, rows, strict=True))
     rows = [done[k] for k in sorted(done) if done[k] is not None]
     tmp = path.with_suffix(".tmp")
